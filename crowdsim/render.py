@@ -1,0 +1,421 @@
+"""Top-down renderer: trajectories -> frames of small people (SPEC §4).
+
+The renderer consumes state; it never simulates (STYLE habit 6). Two steps:
+
+1. :func:`prepare_agents` turns :class:`~crowdsim.trajectories.Trajectories` and a
+   :class:`~crowdsim.camera.Camera` into an :class:`AgentTracks` struct of arrays: head
+   centres in pixels ``(T, N, 2)``, headings ``(T, N)`` (with sway), one appearance per agent.
+2. :class:`SceneRenderer` draws frame ``t``: a pre-built textured ground (cropped to follow the
+   camera jitter), shadows and people stamped from a :class:`~crowdsim.appearance_model.SpriteBank`
+   by compiled loops (no per-pixel Python), then illumination drift and sensor noise in one
+   fused pass to ``uint8``. JPEG compression happens when the frame is written.
+
+All randomness derives from the ``seed`` given to the functions, split with
+:class:`numpy.random.SeedSequence` per purpose, so a frame depends only on
+``(trajectories, camera, appearance, seed, t)``.
+
+Ground truth: the head centre of agent ``n`` in frame ``t`` is ``AgentTracks.pixels[t, n]``,
+drawn to within ``1 / (2 * subpixel)`` pixels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numba import njit
+
+from crowdsim.appearance_model import (
+    PROMINENT_COLOURS,
+    AppearanceParams,
+    SpriteBank,
+    build_sprite_bank,
+    cluster_weights,
+)
+from crowdsim.camera import Camera
+from crowdsim.trajectories import Trajectories
+
+BODY_WIDTH_M: float = 0.5
+"""Shoulder width in metres that one template spans; default scale = template_px / this."""
+HEADING_MIN_SPEED: float = 0.15
+"""Below this speed (m/s) an agent keeps its previous heading."""
+HEADING_WINDOW: int = 2
+"""Half window (rows) of the central difference used for headings."""
+SWAY_STRIDE_M: float = 1.4
+"""Distance walked per full shoulder-sway period (two steps), metres."""
+NOISE_POOL_MARGIN: int = 61
+"""Extra rows/columns of the sensor-noise pool; each frame reads it at a random offset."""
+NOISE_POOL_SCALE: float = 16.0
+"""Standard normal noise is stored as int8 times this factor."""
+
+
+@dataclass
+class AgentTracks:
+    """What the renderer needs per agent and frame.
+
+    Attributes
+    ----------
+    ids : (N,) int64
+        Trajectory ids.
+    pixels : (T, N, 2) float64
+        Head centres in pixels (camera jitter included), NaN where absent.
+    heading : (T, N) float64
+        Image-plane facing angle in radians (``atan2(dv, du)``), sway included.
+    appearance : (N,) int64
+        Index of each agent's look (see :func:`assign_appearance`).
+    prominent : (N,) bool
+        Agents drawn with a distinct colour.
+    """
+
+    ids: np.ndarray
+    pixels: np.ndarray
+    heading: np.ndarray
+    appearance: np.ndarray
+    prominent: np.ndarray
+
+    @property
+    def n_frames(self) -> int:
+        return self.pixels.shape[0]
+
+
+def default_px_per_m(template_px: int) -> float:
+    """Scale at which one template spans :data:`BODY_WIDTH_M`."""
+    return template_px / BODY_WIDTH_M
+
+
+def _seeds(seed: int, n: int) -> list[np.random.SeedSequence]:
+    return np.random.SeedSequence([int(seed), 0xC0DE]).spawn(n)
+
+
+def assign_appearance(prominent: np.ndarray | None, n: int, params: AppearanceParams,
+                      rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``(appearance (n,), prominent (n,))`` for ``n`` agents.
+
+    If ``prominent`` is given and has any True entry it is used; otherwise a fraction
+    ``params.prominent_fraction`` is drawn. Prominent agents get one of the distinct
+    colours, the rest a variant of a cluster drawn with :func:`cluster_weights`.
+    """
+    if prominent is None or not np.any(prominent):
+        prominent = rng.random(n) < params.prominent_fraction
+    prominent = np.asarray(prominent, dtype=bool)
+    n_var = params.n_clusters * params.variants_per_cluster
+    cluster = rng.choice(params.n_clusters, size=n, p=cluster_weights(params))
+    variant = rng.integers(0, params.variants_per_cluster, n)
+    app = cluster * params.variants_per_cluster + variant
+    app[prominent] = n_var + rng.integers(0, len(PROMINENT_COLOURS), int(prominent.sum()))
+    return app.astype(np.int64), prominent
+
+
+def _headings(pixels: np.ndarray, speed_ok: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``(T, N)`` facing angles from pixel-space central differences, forward/back filled."""
+    t_len, n = pixels.shape[:2]
+    k = HEADING_WINDOW
+    lo = np.clip(np.arange(t_len) - k, 0, t_len - 1)
+    hi = np.clip(np.arange(t_len) + k, 0, t_len - 1)
+    d = pixels[hi] - pixels[lo]
+    ang = np.arctan2(d[..., 1], d[..., 0])
+    valid = speed_ok & np.isfinite(ang)
+    out = np.full((t_len, n), np.nan)
+    last = rng.uniform(-math.pi, math.pi, n)  # agents that never move face a random way
+    first = np.where(valid.any(axis=0), ang[np.argmax(valid, axis=0), np.arange(n)], last)
+    last = first
+    for t in range(t_len):
+        last = np.where(valid[t], ang[t], last)
+        out[t] = last
+    return out
+
+
+def prepare_agents(traj: Trajectories, camera: Camera, params: AppearanceParams,
+                   seed: int) -> AgentTracks:
+    """Project trajectories and derive headings, sway and appearances (all seeded)."""
+    s_app, s_head, s_sway = _seeds(seed, 3)
+    pixels = camera.project_trajectories(traj.positions)
+    n = traj.n_agents
+    app, prominent = assign_appearance(traj.attributes.get("prominent"), n, params,
+                                       np.random.default_rng(s_app))
+    pos = traj.positions
+    k = HEADING_WINDOW
+    t_len = traj.n_steps
+    lo = np.clip(np.arange(t_len) - k, 0, t_len - 1)
+    hi = np.clip(np.arange(t_len) + k, 0, t_len - 1)
+    span = np.maximum(hi - lo, 1)[:, None] * traj.dt
+    with np.errstate(invalid="ignore"):
+        speed = np.linalg.norm(pos[hi] - pos[lo], axis=-1) / span
+        speed_ok = speed > HEADING_MIN_SPEED
+    heading = _headings(pixels, speed_ok, np.random.default_rng(s_head))
+    if params.sway_deg > 0 and t_len > 1:
+        step = np.zeros((t_len, n))
+        with np.errstate(invalid="ignore"):
+            step[1:] = np.nan_to_num(np.linalg.norm(pos[1:] - pos[:-1], axis=-1))
+        walked = np.cumsum(step, axis=0)
+        phase0 = np.random.default_rng(s_sway).uniform(0, 2 * math.pi, n)
+        heading = heading + math.radians(params.sway_deg) * np.sin(
+            2 * math.pi * walked / SWAY_STRIDE_M + phase0)
+    return AgentTracks(ids=traj.ids.copy(), pixels=pixels, heading=heading, appearance=app,
+                       prominent=prominent)
+
+
+# ---------------------------------------------------------------------------- kernels
+@njit(cache=True, nogil=True)
+def _stamp_shadows(canvas, shadow, bins, x0, y0, strength):  # pragma: no cover - numba
+    h, w = canvas.shape[0], canvas.shape[1]
+    z = shadow.shape[1]
+    for k in range(bins.shape[0]):
+        b = bins[k]
+        oy = y0[k]
+        ox = x0[k]
+        for i in range(z):
+            y = oy + i
+            if y < 0 or y >= h:
+                continue
+            for j in range(z):
+                x = ox + j
+                if x < 0 or x >= w:
+                    continue
+                a = shadow[b, i, j]
+                if a > 0.004:
+                    f = 1.0 - strength * a
+                    canvas[y, x, 0] *= f
+                    canvas[y, x, 1] *= f
+                    canvas[y, x, 2] *= f
+
+
+@njit(cache=True, nogil=True)
+def _stamp_sprites(canvas, color, alpha, idx, x0, y0):  # pragma: no cover - numba
+    h, w = canvas.shape[0], canvas.shape[1]
+    z = alpha.shape[1]
+    for k in range(idx.shape[0]):
+        s = idx[k]
+        oy = y0[k]
+        ox = x0[k]
+        for i in range(z):
+            y = oy + i
+            if y < 0 or y >= h:
+                continue
+            for j in range(z):
+                x = ox + j
+                if x < 0 or x >= w:
+                    continue
+                a = alpha[s, i, j]
+                if a > 0.002:
+                    inv = 1.0 - a
+                    canvas[y, x, 0] = canvas[y, x, 0] * inv + color[s, i, j, 0]
+                    canvas[y, x, 1] = canvas[y, x, 1] * inv + color[s, i, j, 1]
+                    canvas[y, x, 2] = canvas[y, x, 2] * inv + color[s, i, j, 2]
+
+
+@njit(cache=True, nogil=True)
+def _finish(canvas, noise, ny, nx, noise_scale, g0, gx, gy, out):  # pragma: no cover - numba
+    h, w = canvas.shape[0], canvas.shape[1]
+    inv_w = 1.0 / w
+    inv_h = 1.0 / h
+    for y in range(h):
+        gyy = g0 + gy * (y * inv_h - 0.5)
+        for x in range(w):
+            g = gyy + gx * (x * inv_w - 0.5)
+            for c in range(3):
+                v = canvas[y, x, c] * g + noise[ny + y, nx + x, c] * noise_scale + 0.5
+                if v < 0.0:
+                    v = 0.0
+                elif v > 255.0:
+                    v = 255.0
+                out[y, x, c] = np.uint8(v)
+
+
+def make_ground(height: int, width: int, params: AppearanceParams, px_per_m: float,
+                rng: np.random.Generator) -> np.ndarray:
+    """``(height, width, 3)`` float32 textured ground: multi-scale noise, optional paving."""
+    base = np.empty((height, width, 3), np.float32)
+    base[:] = np.array(params.ground_bgr, np.float32)
+    if params.ground_texture > 0:
+        tex = np.zeros((height, width), np.float32)
+        total = 0.0
+        for sigma, weight in ((0.7, 0.5), (3.0, 0.35), (20.0, 0.3)):
+            layer = rng.standard_normal((height, width)).astype(np.float32)
+            layer = cv2.GaussianBlur(layer, (0, 0), sigma)
+            layer /= max(float(layer.std()), 1e-6)
+            tex += weight * layer
+            total += weight * weight
+        tex *= params.ground_texture / math.sqrt(total)
+        tint = rng.uniform(0.85, 1.15, 3).astype(np.float32)
+        base += tex[..., None] * tint
+    if params.paving_m > 0:
+        step = params.paving_m * px_per_m
+        if step >= 4:
+            yy, xx = np.mgrid[0:height, 0:width]
+            joint = ((np.mod(xx, step) < 1.0) | (np.mod(yy, step) < 1.0)).astype(np.float32)
+            base -= joint[..., None] * (0.25 * np.array(params.ground_bgr, np.float32))
+    return np.clip(base, 0, 255)
+
+
+class SceneRenderer:
+    """Draws frames for one camera, appearance and seed.
+
+    Parameters
+    ----------
+    camera : Camera
+        Frame size and jitter; the ground is rendered with a margin so it moves with the jitter.
+    params : AppearanceParams
+        Look of people and scene.
+    seed : int
+        Seed of the ground, sprite colours, illumination and noise.
+    fps : float
+        Frames per second (only sets the illumination drift speed).
+    """
+
+    def __init__(self, camera: Camera, params: AppearanceParams, seed: int, fps: float) -> None:
+        if not (fps > 0):
+            raise ValueError(f"fps must be > 0, got {fps!r}")
+        self.camera = camera
+        self.params = params
+        self.fps = float(fps)
+        self.seed = int(seed)
+        s_bank, s_ground, s_noise, s_light = np.random.SeedSequence([int(seed), 0x5CE4E]).spawn(4)
+        self.bank: SpriteBank = build_sprite_bank(params, np.random.default_rng(s_bank))
+        self.margin = int(math.ceil(4 * camera.jitter_px)) + 1 if camera.jitter_px > 0 else 0
+        h, w = camera.height, camera.width
+        m = self.margin
+        self.ground = make_ground(h + 2 * m, w + 2 * m, params, camera.px_per_m,
+                                  np.random.default_rng(s_ground))
+        rng = np.random.default_rng(s_noise)
+        self.noise = np.clip(rng.standard_normal((h + NOISE_POOL_MARGIN, w + NOISE_POOL_MARGIN, 3),
+                                                 dtype=np.float32) * NOISE_POOL_SCALE,
+                             -127, 127).astype(np.int8)
+        light = np.random.default_rng(s_light)
+        self._phases = light.uniform(0, 2 * math.pi, 3)
+        self._canvas = np.empty((h, w, 3), np.float32)
+        self._jitter = np.zeros((0, 2))
+        self._blur = None
+        if params.motion_blur_px >= 1:
+            n = int(round(params.motion_blur_px))
+            kern = np.zeros((n | 1, n | 1), np.float32)
+            kern[(n | 1) // 2, :] = 1.0
+            rot = cv2.getRotationMatrix2D(((n | 1) / 2 - 0.5, (n | 1) / 2 - 0.5),
+                                          float(light.uniform(-30, 30)), 1.0)
+            kern = cv2.warpAffine(kern, rot, kern.shape[::-1])
+            self._blur = kern / kern.sum()
+
+    # ------------------------------------------------------------------ per frame
+    def _frame_jitter(self, t: int) -> np.ndarray:
+        if self.camera.jitter_px == 0:
+            return np.zeros(2)
+        if t >= len(self._jitter):
+            self._jitter = self.camera.jitter(max(t + 1, 2 * len(self._jitter)))
+        return self._jitter[t]
+
+    def illumination(self, t: int) -> tuple[float, float, float]:
+        """``(gain, x gradient, y gradient)`` of frame ``t``."""
+        a = self.params.illumination_drift
+        w = 2 * math.pi * t / (self.params.illumination_period_s * self.fps)
+        p = self._phases
+        return (1.0 + a * math.sin(w + p[0]), a * math.sin(0.61 * w + p[1]),
+                a * math.sin(0.37 * w + p[2]))
+
+    def render(self, t: int, pixels: np.ndarray, heading: np.ndarray,
+               appearance: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Frame ``t`` as ``(H, W, 3)`` uint8 BGR.
+
+        Parameters
+        ----------
+        t : int
+            0-based frame index (drives jitter of the ground, illumination and noise).
+        pixels : (n, 2) float
+            Head centres in pixels (NaN rows are skipped).
+        heading : (n,) float
+            Facing angles, radians.
+        appearance : (n,) int
+            Appearance index per agent.
+        out : (H, W, 3) uint8, optional
+            Buffer to draw into.
+        """
+        cam = self.camera
+        h, w = cam.height, cam.width
+        m = self.margin
+        if m:
+            j = np.clip(np.rint(self._frame_jitter(t)), -m, m).astype(int)
+            ground = self.ground[m - j[1]:m - j[1] + h, m - j[0]:m - j[0] + w]
+        else:
+            ground = self.ground
+        canvas = self._canvas
+        np.copyto(canvas, ground)
+        pixels = np.asarray(pixels, np.float64)
+        ok = np.isfinite(pixels[:, 0]) & np.isfinite(pixels[:, 1])
+        bank = self.bank
+        z = bank.size
+        if ok.any():
+            pts = pixels[ok]
+            # Cull agents whose sprite (plus shadow) cannot touch the frame.
+            reach = z + bank.shadow_pad + 2
+            inside = ((pts[:, 0] > -reach) & (pts[:, 0] < w + reach)
+                      & (pts[:, 1] > -reach) & (pts[:, 1] < h + reach))
+            pts = pts[inside]
+            hd = np.asarray(heading, np.float64)[ok][inside]
+            ap = np.asarray(appearance, np.int64)[ok][inside]
+            p = bank.subpixel
+            f = pts - (z - 1) / 2.0
+            base = np.floor(f)
+            phase = np.rint((f - base) * p).astype(np.int64)
+            carry = phase == p
+            base += carry
+            phase[carry] = 0
+            x0 = base[:, 0].astype(np.int64)
+            y0 = base[:, 1].astype(np.int64)
+            nb = bank.n_bins
+            bins = np.mod(np.rint(hd * (nb / (2 * math.pi))), nb).astype(np.int64)
+            if self.params.shadow > 0:
+                sp = bank.shadow_pad
+                _stamp_shadows(canvas, bank.shadow, bins, x0 - sp, y0 - sp,
+                               np.float32(self.params.shadow))
+            idx = bank.index(ap, bins, phase[:, 1], phase[:, 0])
+            _stamp_sprites(canvas, bank.color, bank.alpha, idx, x0, y0)
+        if out is None:
+            out = np.empty((h, w, 3), np.uint8)
+        g0, gx, gy = self.illumination(t)
+        rng = np.random.default_rng([self.seed, 0x7015E, int(t)])
+        ny, nx = rng.integers(0, NOISE_POOL_MARGIN + 1, 2)
+        _finish(canvas, self.noise, int(ny), int(nx),
+                np.float32(self.params.noise_sigma / NOISE_POOL_SCALE),
+                np.float32(g0), np.float32(gx), np.float32(gy), out)
+        if self._blur is not None:
+            cv2.filter2D(out, -1, self._blur, dst=out, borderType=cv2.BORDER_REFLECT)
+        return out
+
+    def render_tracks(self, tracks: AgentTracks, t: int,
+                      out: np.ndarray | None = None) -> np.ndarray:
+        """Frame ``t`` of prepared :class:`AgentTracks`."""
+        return self.render(t, tracks.pixels[t], tracks.heading[t], tracks.appearance, out=out)
+
+
+def encode_jpeg(frame: np.ndarray, quality: int) -> bytes:
+    """JPEG bytes of a BGR frame (deterministic for a given OpenCV build)."""
+    ok, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:  # pragma: no cover - OpenCV failure
+        raise RuntimeError("JPEG encoding failed")
+    return buf.tobytes()
+
+
+def gt_rows(tracks: AgentTracks, camera: Camera, template_px: int,
+            mot_ids: np.ndarray) -> np.ndarray:
+    """MOT ground-truth rows ``(K, 9)``: one head box per visible agent and frame.
+
+    A row is written when the head centre lies inside the frame. Columns: frame (1-based),
+    id, bb_left, bb_top, bb_width, bb_height, conf (1), class (1 = pedestrian), visibility
+    (fraction of the box inside the frame). Rows are sorted by frame, then id.
+    """
+    pix = tracks.pixels
+    vis = camera.visible(pix)
+    t_idx, n_idx = np.nonzero(vis)
+    order = np.lexsort((mot_ids[n_idx], t_idx))
+    t_idx, n_idx = t_idx[order], n_idx[order]
+    centre = pix[t_idx, n_idx]
+    s = float(template_px)
+    left = centre[:, 0] - s / 2.0
+    top = centre[:, 1] - s / 2.0
+    ix = np.clip(np.minimum(left + s, camera.width) - np.maximum(left, 0.0), 0, s)
+    iy = np.clip(np.minimum(top + s, camera.height) - np.maximum(top, 0.0), 0, s)
+    visibility = ix * iy / (s * s)
+    k = len(t_idx)
+    return np.column_stack([t_idx + 1, mot_ids[n_idx], left, top, np.full(k, s), np.full(k, s),
+                            np.ones(k), np.ones(k), visibility]).astype(np.float64)
