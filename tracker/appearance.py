@@ -1,0 +1,297 @@
+"""Appearance models: score every candidate centre of every target at once.
+
+Two interchangeable models share the :class:`AppearanceModel` contract:
+
+* :class:`KCFAppearance` -- one multi-channel (BGR) correlation filter per target, trained in
+  the Fourier domain by ridge regression (paper 1, Eq. 4-5, after Henriques et al.'s KCF with a
+  linear kernel). All targets are handled as one stacked ``(n, C, W, W)`` array and one batched
+  real FFT; there is no per-target loop.
+* :class:`NCCAppearance` -- a colour template per target scored with ``cv2.matchTemplate``
+  (normalised cross-correlation), the appearance model of the papers' NCC baselines.
+
+Geometry. With template size ``s`` px and candidate radius ``r`` px the search window has side
+``W = s + 2 r`` and is centred on the integer search centre ``c``. A score map has shape
+``(n, 2r+1, 2r+1)``; ``scores[i, r + dy, r + dx]`` scores the candidate centre
+``c_i + (dx, dy)``. Higher is better; scores are about 1 at a perfect match.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import cv2
+import numpy as np
+import scipy.fft
+from numpy.lib.stride_tricks import sliding_window_view
+
+
+def _check_frame(frame: np.ndarray) -> np.ndarray:
+    frame = np.asarray(frame)
+    if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+        raise ValueError(
+            f"frame must be an (H, W, 3) uint8 BGR image, got {frame.shape} {frame.dtype}")
+    return frame
+
+
+def extract_patches(frame: np.ndarray, top_left: np.ndarray, size: int) -> np.ndarray:
+    """Gather square patches, replicating the border for parts outside the image.
+
+    Parameters
+    ----------
+    frame : (H, W, C) array
+    top_left : (n, 2) int
+        ``(x, y)`` pixel of each patch's top-left corner; may lie outside the image.
+    size : int
+        Patch side in pixels.
+
+    Returns
+    -------
+    (n, C, size, size) array of ``frame.dtype`` (a fresh copy).
+
+    >>> f = np.arange(16, dtype=np.uint8).reshape(4, 4, 1)
+    >>> extract_patches(f, np.array([[-1, 0]]), 2)[0, 0]
+    array([[0, 0],
+           [4, 4]], dtype=uint8)
+    """
+    top_left = np.asarray(top_left, dtype=np.int64).reshape(-1, 2)
+    h, w = frame.shape[:2]
+    pad = size
+    padded = cv2.copyMakeBorder(frame, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+    if padded.ndim == 2:
+        padded = padded[:, :, None]
+    view = sliding_window_view(padded, (size, size), axis=(0, 1))  # (H', W', C, size, size)
+    x = np.clip(top_left[:, 0] + pad, 0, w + 2 * pad - size)
+    y = np.clip(top_left[:, 1] + pad, 0, h + 2 * pad - size)
+    return view[y, x]
+
+
+def hann2d(size: int) -> np.ndarray:
+    """``(size, size)`` float32 cosine (Hann) window, as KCF multiplies its patches by."""
+    win = np.hanning(size + 2)[1:-1]
+    return np.outer(win, win).astype(np.float32)
+
+
+def gaussian_label(size: int, sigma: float) -> np.ndarray:
+    """``(size, size)`` Gaussian regression target ``y`` of Eq. 4, peak 1 at ``size // 2``."""
+    d = np.arange(size) - size // 2
+    g = np.exp(-0.5 * (d / sigma) ** 2)
+    return np.outer(g, g).astype(np.float32)
+
+
+class AppearanceModel(ABC):
+    """Per-target appearance models kept as stacked arrays (one row per target).
+
+    Targets are appended with :meth:`add`, dropped with :meth:`keep`, scored with
+    :meth:`scores` and refreshed with :meth:`update`. ``n`` is the number of targets.
+    """
+
+    def __init__(self, template_size: int, radius: int, update_threshold: float = 0.6):
+        if template_size < 2:
+            raise ValueError(f"template_size must be >= 2 px, got {template_size!r}")
+        if radius < 1:
+            raise ValueError(f"radius must be >= 1 px, got {radius!r}")
+        self.template_size = int(template_size)
+        self.radius = int(radius)
+        self.window = self.template_size + 2 * self.radius
+        self.update_threshold = float(update_threshold)
+
+    @property
+    @abstractmethod
+    def n(self) -> int:
+        """Number of targets currently modelled."""
+
+    @abstractmethod
+    def add(self, frame: np.ndarray, centers: np.ndarray) -> None:
+        """Train models for new targets centred at ``centers`` ``(m, 2)`` int px; appended."""
+
+    @abstractmethod
+    def keep(self, index: np.ndarray) -> None:
+        """Keep only the targets ``index`` ``(n',)`` (in that order)."""
+
+    @abstractmethod
+    def scores(self, frame: np.ndarray, centers: np.ndarray) -> np.ndarray:
+        """``(n, 2r+1, 2r+1)`` float32 scores of the candidates around ``centers`` ``(n, 2)``."""
+
+    @abstractmethod
+    def update(self, frame: np.ndarray, centers: np.ndarray, confidence: np.ndarray) -> None:
+        """Refresh the models at the selected ``centers`` where ``confidence >= threshold``."""
+
+
+class KCFAppearance(AppearanceModel):
+    """Multi-channel linear correlation filter per target, batched in the Fourier domain.
+
+    Eq. 4 with a linear kernel has the closed form (Henriques et al., KCF)
+    ``alpha_hat = y_hat / (k_hat^{xx} + lambda)``, ``k_hat^{xz} = sum_c conj(x_hat_c) z_hat_c / N``
+    and the response over every cyclic shift of the search window is
+    ``f(z) = IFFT(alpha_hat * k_hat^{xz})`` (Eq. 5 gives ``c_a = -f``). Features are the B, G, R
+    channels scaled to [0, 1], mean-removed per patch and channel, times a Hann window.
+
+    Stored per target: ``xf (n, C, W, W//2+1)`` complex64 model patch spectrum and
+    ``alphaf (n, W, W//2+1)`` complex64 dual coefficients.
+    """
+
+    def __init__(self, template_size: int, radius: int, update_threshold: float = 0.6,
+                 lam: float = 1e-4, learning_rate: float = 0.05, label_sigma: float = 0.1,
+                 workers: int = 1):
+        super().__init__(template_size, radius, update_threshold)
+        if not lam > 0:
+            raise ValueError(f"lam must be > 0, got {lam!r}")
+        if not 0 < learning_rate <= 1:
+            raise ValueError(f"learning_rate must be in (0, 1], got {learning_rate!r}")
+        self.lam = float(lam)
+        self.learning_rate = float(learning_rate)
+        self.workers = int(workers)
+        w = self.window
+        self._hann = hann2d(w)
+        sigma = max(0.5, label_sigma * self.template_size)
+        self._yf = scipy.fft.rfft2(gaussian_label(w, sigma)).astype(np.complex64)
+        wf = w // 2 + 1
+        self.xf = np.zeros((0, 3, w, wf), np.complex64)
+        self.alphaf = np.zeros((0, w, wf), np.complex64)
+
+    @property
+    def n(self) -> int:
+        return self.xf.shape[0]
+
+    def _features(self, frame: np.ndarray, centers: np.ndarray) -> np.ndarray:
+        """``(n, C, W, W//2+1)`` spectra of the windows centred at ``centers``."""
+        centers = np.asarray(centers, dtype=np.int64).reshape(-1, 2)
+        patches = extract_patches(frame, centers - self.window // 2, self.window)
+        x = patches.astype(np.float32) * np.float32(1.0 / 255.0)
+        x -= x.mean(axis=(2, 3), keepdims=True)
+        x *= self._hann
+        return scipy.fft.rfft2(x, axes=(-2, -1), workers=self.workers)
+
+    def _train(self, xf: np.ndarray) -> np.ndarray:
+        w = self.window
+        kf = (xf.real ** 2 + xf.imag ** 2).sum(axis=1) / np.float32(w * w * xf.shape[1])
+        return (self._yf / (kf + np.float32(self.lam))).astype(np.complex64)
+
+    def add(self, frame: np.ndarray, centers: np.ndarray) -> None:
+        frame = _check_frame(frame)
+        centers = np.asarray(centers).reshape(-1, 2)
+        if len(centers) == 0:
+            return
+        xf = self._features(frame, centers)
+        self.xf = np.concatenate([self.xf, xf.astype(np.complex64)])
+        self.alphaf = np.concatenate([self.alphaf, self._train(xf)])
+
+    def keep(self, index: np.ndarray) -> None:
+        index = np.asarray(index, dtype=np.int64)
+        self.xf = self.xf[index]
+        self.alphaf = self.alphaf[index]
+
+    def scores(self, frame: np.ndarray, centers: np.ndarray) -> np.ndarray:
+        frame = _check_frame(frame)
+        centers = np.asarray(centers).reshape(-1, 2)
+        k = 2 * self.radius + 1
+        if len(centers) != self.n:
+            raise ValueError(f"got {len(centers)} centres for {self.n} targets")
+        if self.n == 0:
+            return np.zeros((0, k, k), np.float32)
+        zf = self._features(frame, centers)
+        w = self.window
+        kzf = (np.conj(self.xf) * zf).sum(axis=1) / np.float32(w * w * zf.shape[1])
+        resp = scipy.fft.irfft2(self.alphaf * kzf, s=(w, w), axes=(-2, -1),
+                                workers=self.workers)
+        c, r = w // 2, self.radius
+        return np.ascontiguousarray(resp[:, c - r:c + r + 1, c - r:c + r + 1], dtype=np.float32)
+
+    def update(self, frame: np.ndarray, centers: np.ndarray, confidence: np.ndarray) -> None:
+        frame = _check_frame(frame)
+        confidence = np.asarray(confidence, dtype=np.float64).reshape(-1)
+        if len(confidence) != self.n:
+            raise ValueError(f"got {len(confidence)} confidences for {self.n} targets")
+        sel = np.flatnonzero(confidence >= self.update_threshold)
+        if len(sel) == 0:
+            return
+        xf = self._features(frame, np.asarray(centers).reshape(-1, 2)[sel])
+        lr = np.float32(self.learning_rate)
+        self.xf[sel] = (1 - lr) * self.xf[sel] + lr * xf
+        self.alphaf[sel] = (1 - lr) * self.alphaf[sel] + lr * self._train(xf)
+
+
+class NCCAppearance(AppearanceModel):
+    """Colour template per target, scored by ``cv2.matchTemplate`` (``TM_CCOEFF_NORMED``).
+
+    Templates ``(n, s, s, 3)`` uint8 are refreshed every ``update_every`` frames when the
+    confidence (the NCC score of the selected candidate) reaches the threshold (paper 1,
+    Sec. 7.1). OpenCV scores one template at a time, so :meth:`scores` loops over targets; each
+    call is a few microseconds on these small windows.
+    """
+
+    def __init__(self, template_size: int, radius: int, update_threshold: float = 0.6,
+                 update_every: int = 10):
+        super().__init__(template_size, radius, update_threshold)
+        if update_every < 1:
+            raise ValueError(f"update_every must be >= 1, got {update_every!r}")
+        self.update_every = int(update_every)
+        s = self.template_size
+        self.templates = np.zeros((0, s, s, 3), np.uint8)
+        self.age = np.zeros(0, np.int64)
+
+    @property
+    def n(self) -> int:
+        return self.templates.shape[0]
+
+    def _templates(self, frame: np.ndarray, centers: np.ndarray) -> np.ndarray:
+        s = self.template_size
+        p = extract_patches(frame, np.asarray(centers, np.int64).reshape(-1, 2) - s // 2, s)
+        return np.ascontiguousarray(p.transpose(0, 2, 3, 1))
+
+    def add(self, frame: np.ndarray, centers: np.ndarray) -> None:
+        frame = _check_frame(frame)
+        centers = np.asarray(centers).reshape(-1, 2)
+        if len(centers) == 0:
+            return
+        self.templates = np.concatenate([self.templates, self._templates(frame, centers)])
+        self.age = np.concatenate([self.age, np.zeros(len(centers), np.int64)])
+
+    def keep(self, index: np.ndarray) -> None:
+        index = np.asarray(index, dtype=np.int64)
+        self.templates = self.templates[index]
+        self.age = self.age[index]
+
+    def scores(self, frame: np.ndarray, centers: np.ndarray) -> np.ndarray:
+        frame = _check_frame(frame)
+        centers = np.asarray(centers, dtype=np.int64).reshape(-1, 2)
+        k = 2 * self.radius + 1
+        if len(centers) != self.n:
+            raise ValueError(f"got {len(centers)} centres for {self.n} targets")
+        out = np.zeros((self.n, k, k), np.float32)
+        if self.n == 0:
+            return out
+        s, r = self.template_size, self.radius
+        windows = extract_patches(frame, centers - r - s // 2, self.window).transpose(0, 2, 3, 1)
+        for i in range(self.n):
+            out[i] = cv2.matchTemplate(np.ascontiguousarray(windows[i]), self.templates[i],
+                                       cv2.TM_CCOEFF_NORMED)
+        # flat windows/templates give NaN or inf in OpenCV: no information, score 0
+        np.nan_to_num(out, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+        np.clip(out, -1.0, 1.0, out=out)
+        return out
+
+    def update(self, frame: np.ndarray, centers: np.ndarray, confidence: np.ndarray) -> None:
+        frame = _check_frame(frame)
+        confidence = np.asarray(confidence, dtype=np.float64).reshape(-1)
+        if len(confidence) != self.n:
+            raise ValueError(f"got {len(confidence)} confidences for {self.n} targets")
+        self.age += 1
+        sel = np.flatnonzero((self.age >= self.update_every)
+                             & (confidence >= self.update_threshold))
+        if len(sel) == 0:
+            return
+        self.templates[sel] = self._templates(frame, np.asarray(centers).reshape(-1, 2)[sel])
+        self.age[sel] = 0
+
+
+def make_appearance(kind: str, template_size: int, radius: int, *, update_threshold: float,
+                    lam: float = 1e-4, learning_rate: float = 0.05, label_sigma: float = 0.1,
+                    update_every: int = 10) -> AppearanceModel:
+    """Build the appearance model named ``kind`` (``"kcf"`` or ``"ncc"``)."""
+    if kind == "kcf":
+        return KCFAppearance(template_size, radius, update_threshold, lam=lam,
+                             learning_rate=learning_rate, label_sigma=label_sigma)
+    if kind == "ncc":
+        return NCCAppearance(template_size, radius, update_threshold, update_every=update_every)
+    raise ValueError(f"unknown appearance model {kind!r}; expected 'kcf' or 'ncc'")

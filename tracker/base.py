@@ -1,0 +1,281 @@
+"""The contract every point tracker implements (SPEC §2, "Tracker I/O").
+
+A tracker follows head points of known identity through a sequence of frames:
+
+* :meth:`Tracker.init` -- first frame, initial targets ``(id, x, y)`` and the template size;
+* :meth:`Tracker.step` -- one more frame, optionally with *births* (targets that enter the
+  scene in this frame, given with their position in it); returns the active targets;
+* :meth:`Tracker.track` -- the whole sequence, returning a :class:`TrackResult` with
+  ``(T, N, 2)`` pixel tracks.
+
+Targets whose predicted position leaves the image are terminated. One contract test suite
+(``tests/tracker/test_tracker_contract.py``) runs over every implementation.
+"""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+Births = tuple[np.ndarray, np.ndarray]
+"""``(ids (m,) int, points (m, 2) float px)`` of targets entering in a frame."""
+
+
+@dataclass
+class TrackResult:
+    """Tracks of a whole sequence.
+
+    Attributes
+    ----------
+    ids : (N,) int64
+        Every target id ever tracked, in order of first appearance.
+    positions : (T, N, 2) float64
+        Pixel position of target ``ids[n]`` in frame ``t`` (0-based), NaN where not tracked.
+    timings : dict[str, float]
+        Total seconds per stage (tracker-specific keys, plus ``"total"``).
+    """
+
+    ids: np.ndarray
+    positions: np.ndarray
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return self.positions.shape[0]
+
+    @property
+    def fps(self) -> float:
+        """Frames per second of the tracking loop (frame decoding excluded)."""
+        total = self.timings.get("total", 0.0)
+        return self.n_frames / total if total > 0 else float("inf")
+
+
+def as_points(ids, points, what: str = "targets") -> tuple[np.ndarray, np.ndarray]:
+    """Validate ``ids (n,)`` and ``points (n, 2)``: unique integers, finite pixels."""
+    ids = np.asarray(ids)
+    points = np.asarray(points, dtype=np.float64)
+    if ids.size == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 2))
+    if ids.ndim != 1 or not np.issubdtype(ids.dtype, np.integer):
+        if ids.ndim == 1 and np.issubdtype(ids.dtype, np.floating) and \
+                np.all(ids == np.round(ids)):
+            ids = ids.astype(np.int64)
+        else:
+            raise ValueError(f"{what}: ids must be a 1-D integer array, got {ids.dtype} "
+                             f"{ids.shape}")
+    if points.shape != (len(ids), 2):
+        raise ValueError(f"{what}: points must have shape ({len(ids)}, 2), got {points.shape}")
+    if not np.isfinite(points).all():
+        raise ValueError(f"{what}: points must be finite pixels")
+    uniq, counts = np.unique(ids, return_counts=True)
+    if (counts > 1).any():
+        raise ValueError(f"{what}: duplicate ids {uniq[counts > 1][:5].tolist()}")
+    return ids.astype(np.int64), points
+
+
+class Tracker(ABC):
+    """Point tracker of many targets (struct of arrays: one row per active target).
+
+    Subclasses implement :meth:`_init`, :meth:`_step`, :meth:`_add` and :meth:`_remove`; the
+    base class checks inputs, handles births and terminations and keeps ``ids``/``points``.
+
+    Attributes
+    ----------
+    ids : (n,) int64
+        Active target ids.
+    points : (n, 2) float64
+        Their current positions, pixels.
+    timings : dict[str, float]
+        Seconds spent per stage since :meth:`init`.
+    """
+
+    name: str = "tracker"
+
+    def __init__(self) -> None:
+        self.ids = np.zeros(0, np.int64)
+        self.points = np.zeros((0, 2))
+        self.template_size = 0
+        self.frame_shape: tuple[int, ...] | None = None
+        self.frame_index = 0
+        self.timings: dict[str, float] = {}
+        self._seen: set[int] = set()
+
+    # ------------------------------------------------------------------ public API
+    def init(self, frame: np.ndarray, ids, points, template_size: int) -> None:
+        """Start tracking ``ids`` at ``points`` ``(n, 2)`` px in ``frame`` (H, W, 3) uint8."""
+        frame = self._check_frame(frame, first=True)
+        if not (isinstance(template_size, (int, np.integer)) and template_size >= 2):
+            raise ValueError(f"template_size must be an integer >= 2 px, got {template_size!r}")
+        ids, points = as_points(ids, points, "initial targets")
+        self.template_size = int(template_size)
+        self.frame_index = 0
+        self.timings = {}
+        self._seen = set()
+        self.ids = np.zeros(0, np.int64)
+        self.points = np.zeros((0, 2))
+        self._init(frame)
+        self._add_targets(frame, ids, points)
+
+    def step(self, frame: np.ndarray, births: Births | None = None) -> tuple[np.ndarray,
+                                                                            np.ndarray]:
+        """Track the active targets into ``frame``, then add ``births``.
+
+        Returns
+        -------
+        ids : (n,) int64 and points : (n, 2) float64 of the targets active after the frame.
+        """
+        if self.frame_shape is None:
+            raise ValueError("call init() before step()")
+        frame = self._check_frame(frame)
+        if births is not None:
+            b_ids, b_pts = as_points(*births, what="births")
+        self.frame_index += 1
+        t0 = time.perf_counter()
+        if len(self.ids):
+            self.points = self._step(frame)
+            self._terminate_leaving()
+        if births is not None and len(b_ids):
+            self._add_targets(frame, b_ids, b_pts)
+        self._tick("total", t0)
+        return self.ids.copy(), self.points.copy()
+
+    def track(self, frames: Iterable[np.ndarray], ids, points, template_size: int,
+              births: Mapping[int, Births] | None = None, n_frames: int | None = None,
+              progress: bool = False) -> TrackResult:
+        """Track a whole sequence.
+
+        Parameters
+        ----------
+        frames : iterable of (H, W, 3) uint8
+            Frame 0 is the initialisation frame.
+        ids, points : (n,) int, (n, 2) float
+            Targets at frame 0.
+        template_size : int
+            Template (head) size, px.
+        births : mapping frame index (0-based) -> (ids, points), optional
+            Targets entering at that frame, at their position in that frame.
+        n_frames : int, optional
+            Number of frames (for the progress bar and to preallocate).
+        progress : bool
+            Show a tqdm progress bar with frames/s.
+        """
+        births = dict(births or {})
+        rows: list[tuple[np.ndarray, np.ndarray]] = []
+        it = iter(frames)
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=n_frames, unit="frame", desc=self.name, leave=False)
+        try:
+            first = next(it)
+        except StopIteration:
+            raise ValueError("the sequence has no frames") from None
+        b0 = births.pop(0, None)
+        if b0 is not None:
+            b_ids, b_pts = as_points(*b0, what="births at frame 0")
+            ids, points = as_points(ids, points, "initial targets")
+            ids = np.concatenate([ids, b_ids])
+            points = np.concatenate([points, b_pts])
+        self.init(first, ids, points, template_size)
+        rows.append((self.ids.copy(), self.points.copy()))
+        if bar is not None:
+            bar.update(1)
+        for t, frame in enumerate(it, start=1):
+            rows.append(self.step(frame, births.get(t)))
+            if bar is not None:
+                bar.update(1)
+                total = self.timings.get("total", 0.0)
+                if total > 0:
+                    bar.set_postfix(fps=f"{t / total:.1f}", targets=len(self.ids))
+        if bar is not None:
+            bar.close()
+        result = self._assemble(rows)
+        result.timings = dict(self.timings)
+        return result
+
+    # ------------------------------------------------------------------ subclass hooks
+    @abstractmethod
+    def _init(self, frame: np.ndarray) -> None:
+        """Reset the tracker's state for a new sequence (no targets yet)."""
+
+    @abstractmethod
+    def _add(self, frame: np.ndarray, points: np.ndarray) -> None:
+        """Append models for new targets at ``points`` ``(m, 2)`` (``ids`` not yet extended)."""
+
+    @abstractmethod
+    def _remove(self, keep: np.ndarray) -> None:
+        """Keep only the targets with indices ``keep`` (``ids``/``points`` handled by base)."""
+
+    @abstractmethod
+    def _step(self, frame: np.ndarray) -> np.ndarray:
+        """Return the new ``(n, 2)`` positions of the active targets in ``frame``."""
+
+    def _predicted(self) -> np.ndarray:
+        """``(n, 2)`` next-frame prediction used to decide that a target leaves the image."""
+        return self.points
+
+    # ------------------------------------------------------------------ helpers
+    def _tick(self, stage: str, t0: float) -> float:
+        now = time.perf_counter()
+        self.timings[stage] = self.timings.get(stage, 0.0) + (now - t0)
+        return now
+
+    def _check_frame(self, frame: np.ndarray, first: bool = False) -> np.ndarray:
+        frame = np.asarray(frame)
+        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+            raise ValueError(f"frames must be (H, W, 3) uint8 BGR images, got {frame.shape} "
+                             f"{frame.dtype}")
+        if first:
+            self.frame_shape = frame.shape
+        elif frame.shape != self.frame_shape:
+            raise ValueError(f"frame {self.frame_index + 1} has size {frame.shape[1]}x"
+                             f"{frame.shape[0]}, expected {self.frame_shape[1]}x"
+                             f"{self.frame_shape[0]} (mismatched frame sizes)")
+        return frame
+
+    def _add_targets(self, frame: np.ndarray, ids: np.ndarray, points: np.ndarray) -> None:
+        if len(ids) == 0:
+            return
+        again = [int(i) for i in ids if int(i) in self._seen]
+        if again:
+            raise ValueError(f"target ids {again[:5]} were already used in this sequence "
+                             "(ids are never reused)")
+        h, w = self.frame_shape[:2]
+        inside = (points[:, 0] >= 0) & (points[:, 0] <= w - 1) & (points[:, 1] >= 0) & \
+            (points[:, 1] <= h - 1)
+        if not inside.all():
+            bad = np.flatnonzero(~inside)[0]
+            raise ValueError(f"target id {int(ids[bad])} starts outside the {w}x{h} image at "
+                             f"({points[bad, 0]:.1f}, {points[bad, 1]:.1f})")
+        self._seen.update(int(i) for i in ids)
+        self._add(frame, points)
+        self.ids = np.concatenate([self.ids, ids])
+        self.points = np.concatenate([self.points, points])
+
+    def _terminate_leaving(self) -> None:
+        h, w = self.frame_shape[:2]
+        p = self._predicted()
+        inside = (p[:, 0] >= 0) & (p[:, 0] <= w - 1) & (p[:, 1] >= 0) & (p[:, 1] <= h - 1)
+        if inside.all():
+            return
+        keep = np.flatnonzero(inside)
+        self._remove(keep)
+        self.ids = self.ids[keep]
+        self.points = self.points[keep]
+
+    @staticmethod
+    def _assemble(rows: list[tuple[np.ndarray, np.ndarray]]) -> TrackResult:
+        all_ids = np.concatenate([r[0] for r in rows]) if rows else np.zeros(0, np.int64)
+        uniq, first = np.unique(all_ids, return_index=True)
+        ids = uniq[np.argsort(first)]
+        col_of_sorted = np.argsort(np.argsort(first))  # column of uniq[j]
+        pos = np.full((len(rows), len(ids), 2), np.nan)
+        for t, (r_ids, r_pts) in enumerate(rows):
+            if len(r_ids):
+                pos[t, col_of_sorted[np.searchsorted(uniq, r_ids)]] = r_pts
+        return TrackResult(ids=ids.astype(np.int64), positions=pos)

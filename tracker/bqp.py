@@ -1,0 +1,224 @@
+"""The BQP dense-crowd tracker (paper 1: Dehghan & Shah, BQP solved by Frank-Wolfe with SWAP).
+
+Per frame, for the ``n`` active targets with ``k`` candidates each (Eq. 1):
+
+``min_x  c_a.x + zeta c_m.x + eta c_nm.x + w_sp x^T C_sp x + w_g x^T C_g x``
+
+over one-hot ``x`` per target (Eq. 2-3), relaxed to a product of simplices and solved by
+:func:`tracker.frank_wolfe.solve` (Sec. 5), then rounded per target (Eq. 14).
+
+Stages of a frame (their seconds are accumulated in ``timings``):
+
+``appearance``
+    Correlation-filter (or NCC) responses over every target's search window at once
+    (:mod:`tracker.appearance`), and the model update of confident targets.
+``terms``
+    Motion (Eq. 6) and neighbourhood-motion (Eq. 7-8) maps, candidate selection (dense or
+    speed-up sampling, :mod:`tracker.candidates`), the sparse quadratic terms (Eq. 9-10,
+    :mod:`tracker.terms`) and, every ``group_refresh`` frames, the coherent-motion groups and
+    their spanning trees.
+``solve``
+    Building the :class:`tracker.qp.BlockQP` and running Frank-Wolfe.
+
+Search windows are centred on the constant-velocity prediction ``p + p_dot``; targets whose
+prediction leaves the image are terminated; births come from the caller (ground truth on
+synthetic data, a points CSV on real video).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+from tracker.appearance import make_appearance
+from tracker.base import Tracker
+from tracker.candidates import Candidates, dense_candidates, grid_positions, speedup_candidates
+from tracker.params import BQPParams, search_radius
+from tracker.terms import (
+    coherent_groups,
+    group_trees,
+    grouping_matrix,
+    motion_cost,
+    neighbourhood_cost,
+    neighbours_in_groups,
+    proximity_matrix,
+)
+
+
+class BQPTracker(Tracker):
+    """Joint tracker of all targets, one binary quadratic program per frame.
+
+    Parameters
+    ----------
+    params : BQPParams, optional
+        All weights and thresholds (default: the paper's values).
+    record_qps : bool
+        Keep every frame's :class:`tracker.qp.BlockQP` in ``recorded_qps`` (for the solver
+        benchmark: "relaxed QPs taken from real tracking frames").
+
+    Attributes
+    ----------
+    velocities : (n, 2) float64
+        Smoothed velocities ``p_dot`` (px/frame) of the state ``s = [p, p_dot]`` (Eq. 6).
+    history : (H, n, 2) float64
+        Last ``params.history`` positions, oldest first, NaN before a target existed.
+    groups : (n,) int64
+        Coherent-motion group of each target, ``-1`` for none (refreshed every ``tau``).
+    tree_edges : (E, 2) int64, tree_lengths : (E,) float64
+        Spanning-tree edges of the groups and their lengths ``e_ij`` (Eq. 10), px.
+    solver_iterations : int
+        Frank-Wolfe iterations summed over frames.
+    """
+
+    name = "bqp"
+
+    def __init__(self, params: BQPParams | None = None, record_qps: bool = False):
+        super().__init__()
+        self.params = params if params is not None else BQPParams()
+        self.record_qps = record_qps
+        self.recorded_qps: list = []
+        self.n_candidates = 0
+
+    # ------------------------------------------------------------------ lengths in px
+    def _px(self, value: float) -> float:
+        return float(value) * self.template_size
+
+    # ------------------------------------------------------------------ hooks
+    def _init(self, frame: np.ndarray) -> None:
+        p = self.params
+        self.radius = search_radius(self.template_size, p.search_factor)
+        self.appearance = make_appearance(
+            p.appearance, self.template_size, self.radius, update_threshold=p.update_threshold,
+            lam=p.kcf_lambda, learning_rate=p.kcf_learning_rate, label_sigma=p.kcf_label_sigma,
+            update_every=p.ncc_update_every)
+        self.velocities = np.zeros((0, 2))
+        self.history = np.zeros((p.history, 0, 2))
+        self.groups = np.zeros(0, np.int64)
+        self.tree_edges = np.zeros((0, 2), np.int64)
+        self.tree_lengths = np.zeros(0)
+        self.rng = np.random.default_rng(p.seed)
+        self.since_refresh = 0
+        self.solver_iterations = 0
+        self.recorded_qps = []
+
+    def _add(self, frame: np.ndarray, points: np.ndarray) -> None:
+        t0 = time.perf_counter()
+        self.appearance.add(frame, np.rint(points).astype(np.int64))
+        m = len(points)
+        self.velocities = np.concatenate([self.velocities, np.zeros((m, 2))])
+        col = np.full((self.params.history, m, 2), np.nan)
+        col[-1] = points
+        self.history = np.concatenate([self.history, col], axis=1)
+        self.groups = np.concatenate([self.groups, np.full(m, -1, np.int64)])
+        self._tick("appearance", t0)
+
+    def _remove(self, keep: np.ndarray) -> None:
+        n_old = len(self.velocities)
+        remap = np.full(n_old, -1, np.int64)
+        remap[keep] = np.arange(len(keep))
+        self.appearance.keep(keep)
+        self.velocities = self.velocities[keep]
+        self.history = self.history[:, keep]
+        self.groups = self.groups[keep]
+        if len(self.tree_edges):
+            e = remap[self.tree_edges]
+            ok = (e >= 0).all(1)
+            self.tree_edges, self.tree_lengths = e[ok], self.tree_lengths[ok]
+
+    def _predicted(self) -> np.ndarray:
+        return self.points + self.velocities
+
+    # ------------------------------------------------------------------ one frame
+    def candidates(self, frame: np.ndarray) -> tuple[Candidates, np.ndarray]:
+        """Score the search grids and select candidates; returns them and the search centres."""
+        p = self.params
+        h, w = self.frame_shape[:2]
+        t0 = time.perf_counter()
+        pred = self.points + self.velocities
+        centers = np.rint(pred)
+        centers[:, 0] = np.clip(centers[:, 0], 0, w - 1)
+        centers[:, 1] = np.clip(centers[:, 1], 0, h - 1)
+        centers = centers.astype(np.int64)
+        app = self.appearance.scores(frame, centers)
+        t0 = self._tick("appearance", t0)
+
+        grid = grid_positions(centers, self.radius)
+        sigma_m = self._px(p.motion_sigma)
+        cost = -app.astype(np.float64)
+        if p.zeta > 0:
+            cost += p.zeta * motion_cost(grid, pred, sigma_m)
+        if p.eta > 0:
+            nbr, wts = neighbours_in_groups(self.points, self.groups, p.n_neighbours,
+                                            self._px(p.group_radius), self._px(p.neighbour_scale))
+            cost += p.eta * neighbourhood_cost(grid, self.points, self.velocities, nbr, wts,
+                                               sigma_m)
+        outside = (grid[..., 0] < 0) | (grid[..., 0] > w - 1) | (grid[..., 1] < 0) | \
+            (grid[..., 1] > h - 1)
+        cost += p.border_penalty * outside
+        if p.speedup:
+            cands = speedup_candidates(centers, self.radius, cost, app, self.rng, p.n_extrema,
+                                       p.n_samples, p.sample_window)
+        else:
+            cands = dense_candidates(centers, self.radius, cost, app, p.candidate_stride)
+        self._tick("terms", t0)
+        return cands, centers
+
+    def quadratic(self, cands: Candidates) -> sp.csc_matrix:
+        """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over the candidates, ``(l, l)`` CSC."""
+        p = self.params
+        size = cands.n * cands.k
+        q = sp.csc_matrix((size, size))
+        if p.w_sp > 0:
+            q = q + p.w_sp * proximity_matrix(cands.positions, self._px(p.proximity_sigma),
+                                              p.proximity_cutoff)
+        if p.w_g > 0 and len(self.tree_edges):
+            q = q + p.w_g * grouping_matrix(cands.positions, self.tree_edges, self.tree_lengths,
+                                            self._px(p.group_sigma), p.group_cutoff)
+        return q.tocsc()
+
+    def _step(self, frame: np.ndarray) -> np.ndarray:
+        from tracker.frank_wolfe import FWParams, solve
+        from tracker.qp import BlockQP
+
+        p = self.params
+        n = len(self.points)
+        cands, _ = self.candidates(frame)
+        t0 = time.perf_counter()
+        q = self.quadratic(cands)
+        t0 = self._tick("terms", t0)
+        qp = BlockQP(cands.cost.ravel(), q, cands.block_ptr)
+        if self.record_qps:
+            self.recorded_qps.append(qp)
+        res = solve(qp, params=FWParams(variant=p.fw_variant, eps=p.fw_eps,
+                                        max_iter=p.fw_max_iter * n))
+        self.solver_iterations += res.iterations
+        self.n_candidates += cands.n * cands.k
+        rows = np.arange(n)
+        new = cands.positions[rows, res.choice]
+        conf = cands.appearance[rows, res.choice]
+        t0 = self._tick("solve", t0)
+
+        self.appearance.update(frame, np.rint(new).astype(np.int64), conf)
+        t0 = self._tick("appearance", t0)
+
+        a = p.velocity_smoothing
+        self.velocities = a * self.velocities + (1.0 - a) * (new - self.points)
+        self.history = np.roll(self.history, -1, axis=0)
+        self.history[-1] = new
+        self.since_refresh += 1
+        if self.since_refresh >= p.group_refresh:
+            self.refresh_groups(new)
+        self._tick("terms", t0)
+        return new
+
+    def refresh_groups(self, positions: np.ndarray | None = None) -> None:
+        """Recompute coherent-motion groups and their spanning trees (every ``tau`` frames)."""
+        p = self.params
+        pos = self.points if positions is None else positions
+        self.since_refresh = 0
+        self.groups = coherent_groups(self.history, self._px(p.group_radius),
+                                      p.coherence_threshold, p.min_group_speed)
+        self.tree_edges, self.tree_lengths = group_trees(pos, self.groups,
+                                                         self._px(p.group_radius))

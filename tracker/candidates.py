@@ -1,0 +1,169 @@
+"""Candidate locations of every target for one frame (paper 1, Sec. 3 and Sec. 6).
+
+Candidates are kept as a struct of arrays with the same number ``k`` of candidates per target,
+so that a frame's candidates are an ``(n, k, 2)`` block and every term can be evaluated with
+array operations. Targets' search regions are square grids of side ``2r + 1`` around the
+integer search centres; every per-candidate quantity starts as a map ``(n, 2r+1, 2r+1)`` over
+that grid (``map[i, r + dy, r + dx]`` belongs to the centre ``c_i + (dx, dy)``) and candidates
+are gathered from the maps.
+
+* :func:`dense_candidates` -- every ``stride``-th grid cell (Sec. 3, "sampled densely").
+* :func:`speedup_candidates` -- the ``m`` best local extrema of the linear-term map, plus
+  ``n_samples`` random cells in a ``window x window`` neighbourhood of each (Sec. 6).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import minimum_filter
+
+
+@dataclass
+class Candidates:
+    """Candidates of ``n`` targets, ``k`` each (``l = n k`` variables of the BQP).
+
+    Attributes
+    ----------
+    positions : (n, k, 2) float64
+        Candidate centres ``(x, y)``, pixels.
+    cost : (n, k) float64
+        Linear cost ``c_a + zeta c_m + eta c_nm`` (+ border penalty) of each candidate.
+    appearance : (n, k) float32
+        Appearance score (``-c_a``) of each candidate, the update confidence.
+    cell : (n, k) int64
+        Flat index of the candidate in its target's ``(2r+1)^2`` map.
+    """
+
+    positions: np.ndarray
+    cost: np.ndarray
+    appearance: np.ndarray
+    cell: np.ndarray
+
+    @property
+    def n(self) -> int:
+        """Number of targets."""
+        return self.positions.shape[0]
+
+    @property
+    def k(self) -> int:
+        """Candidates per target."""
+        return self.positions.shape[1]
+
+    @property
+    def block_ptr(self) -> np.ndarray:
+        """``(n+1,)`` int64 start of each target's block in the flat variable vector."""
+        return np.arange(self.n + 1, dtype=np.int64) * self.k
+
+    @property
+    def flat_positions(self) -> np.ndarray:
+        """``(n k, 2)`` candidate centres in variable order."""
+        return self.positions.reshape(-1, 2)
+
+    @classmethod
+    def empty(cls, k: int = 1) -> Candidates:
+        return cls(np.zeros((0, k, 2)), np.zeros((0, k)), np.zeros((0, k), np.float32),
+                   np.zeros((0, k), np.int64))
+
+
+def grid_offsets(radius: int) -> np.ndarray:
+    """``((2r+1)^2, 2)`` int64 ``(dx, dy)`` offsets of the map cells, row-major.
+
+    >>> grid_offsets(1)[:4].tolist()
+    [[-1, -1], [0, -1], [1, -1], [-1, 0]]
+    """
+    d = np.arange(-radius, radius + 1)
+    dy, dx = np.meshgrid(d, d, indexing="ij")
+    return np.stack([dx.ravel(), dy.ravel()], axis=1).astype(np.int64)
+
+
+def grid_positions(centers: np.ndarray, radius: int) -> np.ndarray:
+    """``(n, 2r+1, 2r+1, 2)`` float64 pixel centres of every map cell."""
+    centers = np.asarray(centers, dtype=np.float64).reshape(-1, 2)
+    k = 2 * radius + 1
+    off = grid_offsets(radius).reshape(k, k, 2).astype(np.float64)
+    return centers[:, None, None, :] + off[None]
+
+
+def _gather(centers: np.ndarray, radius: int, cost_map: np.ndarray, app_map: np.ndarray,
+            cell: np.ndarray) -> Candidates:
+    n = cost_map.shape[0]
+    side = 2 * radius + 1
+    flat_cost = cost_map.reshape(n, -1)
+    flat_app = app_map.reshape(n, -1)
+    off = grid_offsets(radius)
+    pos = np.asarray(centers, np.float64).reshape(-1, 2)[:, None, :] + off[cell]
+    rows = np.arange(n)[:, None]
+    assert cell.max(initial=0) < side * side
+    return Candidates(pos, flat_cost[rows, cell].astype(np.float64),
+                      flat_app[rows, cell].astype(np.float32), cell.astype(np.int64))
+
+
+def dense_candidates(centers: np.ndarray, radius: int, cost_map: np.ndarray,
+                     app_map: np.ndarray, stride: int = 1) -> Candidates:
+    """Every ``stride``-th cell of the search grid (always including the centre).
+
+    Parameters
+    ----------
+    centers : (n, 2) int
+        Search centres.
+    radius : int
+        Grid radius ``r``; maps are ``(n, 2r+1, 2r+1)``.
+    cost_map, app_map : (n, 2r+1, 2r+1)
+        Linear cost and appearance score of every cell.
+    stride : int
+        Pixel stride of the grid.
+    """
+    if stride < 1:
+        raise ValueError(f"stride must be >= 1, got {stride!r}")
+    n = cost_map.shape[0]
+    side = 2 * radius + 1
+    d = np.concatenate([-np.arange(0, radius + 1, stride)[:0:-1], np.arange(0, radius + 1,
+                                                                            stride)])
+    iy, ix = np.meshgrid(d + radius, d + radius, indexing="ij")
+    cell = np.broadcast_to((iy * side + ix).ravel(), (n, iy.size))
+    if n == 0:
+        return Candidates.empty(iy.size)
+    return _gather(centers, radius, cost_map, app_map, np.ascontiguousarray(cell))
+
+
+def speedup_candidates(centers: np.ndarray, radius: int, cost_map: np.ndarray,
+                       app_map: np.ndarray, rng: np.random.Generator, n_extrema: int = 3,
+                       n_samples: int = 10, window: int = 6) -> Candidates:
+    """Speed-up sampling of Sec. 6: ``m`` extrema plus ``n_samples`` neighbours of each.
+
+    The extrema are the ``m`` lowest local minima of the linear cost map (3x3 neighbourhood);
+    if a map has fewer local minima the lowest remaining cells fill in. Around each extremum
+    ``n_samples`` distinct cells are drawn uniformly from the ``window x window`` block whose
+    offsets run from ``-(window // 2)`` to ``window - window // 2 - 1`` (the extremum
+    excluded), clipped to the grid. Every target gets ``k = m (1 + n_samples)`` candidates
+    (clipping may repeat a cell, which is harmless to the QP).
+    """
+    n = cost_map.shape[0]
+    side = 2 * radius + 1
+    m = min(n_extrema, side * side)
+    n_off = window * window - 1
+    ns = min(n_samples, n_off)
+    k = m * (1 + ns)
+    if n == 0:
+        return Candidates.empty(k)
+    flat = cost_map.reshape(n, -1).astype(np.float64)
+    is_min = cost_map == minimum_filter(cost_map, size=(1, 3, 3), mode="nearest")
+    big = (np.abs(flat).max() + 1.0) * 4.0
+    key = flat + np.where(is_min.reshape(n, -1), 0.0, big)
+    ext = np.argpartition(key, m - 1, axis=1)[:, :m] if m < key.shape[1] else \
+        np.tile(np.arange(key.shape[1]), (n, 1))
+    ext = np.take_along_axis(ext, np.argsort(np.take_along_axis(key, ext, 1), 1), 1)
+    ey, ex = np.divmod(ext, side)  # (n, m)
+    lo = window // 2
+    d = np.arange(-lo, window - lo)
+    oy, ox = np.meshgrid(d, d, indexing="ij")
+    keep = ~((oy == 0) & (ox == 0)).ravel()
+    offs = np.stack([ox.ravel()[keep], oy.ravel()[keep]], 1)  # (n_off, 2)
+    pick = np.argsort(rng.random((n, m, n_off)), axis=2)[:, :, :ns]  # (n, m, ns)
+    sx = np.clip(ex[:, :, None] + offs[pick, 0], 0, side - 1)
+    sy = np.clip(ey[:, :, None] + offs[pick, 1], 0, side - 1)
+    samples = (sy * side + sx).reshape(n, m * ns)
+    cell = np.concatenate([ext, samples], axis=1)
+    return _gather(centers, radius, cost_map, app_map, cell)

@@ -1,0 +1,195 @@
+"""Parameters of the BQP tracker (paper 1, ``papers/bqp-frank-wolfe-tracker.txt``).
+
+One frozen dataclass holds every weight, threshold and size the tracker uses, named after the
+paper's symbols. Lengths are given in units of the template (target) size ``s`` so that one
+parameter set works for sequences with 8 px and 16 px heads; the tracker converts them to
+pixels once the template size is known.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+APPEARANCE_MODELS: tuple[str, ...] = ("kcf", "ncc")
+FW_VARIANTS: tuple[str, ...] = ("plain", "away", "swap")
+
+
+@dataclass(frozen=True)
+class BQPParams:
+    """Every tunable constant of the BQP tracker.
+
+    Objective (Eq. 1): ``c_a.x + zeta c_m.x + eta c_nm.x + w_sp x^T C_sp x + w_g x^T C_g x``.
+
+    Attributes
+    ----------
+    zeta : float
+        Weight of the target-motion term ``c_m`` (Eq. 1, Eq. 6). Paper: 0.3.
+    eta : float
+        Weight of the neighbourhood-motion term ``c_nm`` (Eq. 1, Eq. 7-8). Paper: 0.2.
+    w_sp : float
+        Weight of the spatial-proximity quadratic term ``C_sp`` (Eq. 1, Eq. 9). Paper: 1.
+    w_g : float
+        Weight of the grouping quadratic term ``C_g`` (Eq. 1, Eq. 10). Paper: 1.
+    update_threshold : float
+        The appearance model of a target is updated only when the appearance confidence of its
+        selected candidate is at least this value (Sec. 7.1). Paper: 0.6.
+    appearance : str
+        ``"kcf"``: multi-channel colour correlation filter, Eq. 4-5; ``"ncc"``: NCC template.
+    search_factor : float
+        Side of the search region in template sizes (Sec. 7: twice the target size). Candidate
+        centres lie within ``r = round((search_factor - 1) s / 2)`` px of the search centre.
+    kcf_lambda : float
+        Ridge regulariser ``lambda`` of Eq. 4.
+    kcf_learning_rate : float
+        Interpolation factor of the KCF model update (as in [15]).
+    kcf_label_sigma : float
+        Standard deviation of the Gaussian regression target ``y`` of Eq. 4, template sizes.
+    ncc_update_every : int
+        NCC templates are refreshed every this many frames (Sec. 7.1: 10).
+    motion_sigma : float
+        ``Sigma = motion_sigma^2 I`` of the Gaussian of Eq. 6 and Eq. 7, template sizes.
+    velocity_smoothing : float
+        Exponential smoothing of the velocity ``p_dot`` in the state ``s = [p, p_dot]`` of
+        Eq. 6 (0 = last displacement only).
+    n_neighbours : int
+        Maximum size of the neighbour set ``N_i`` of Eq. 7 (paper: 5).
+    neighbour_scale : float
+        Length unit of the distance in the weights of Eq. 8, template sizes (the paper leaves
+        the unit implicit; in pixels the weights would collapse onto the nearest neighbour).
+    history : int
+        Frames of track history used to find coherent-motion groups (paper: t-10 .. t-1).
+    group_refresh : int
+        Groups and their spanning trees are refreshed every ``tau`` frames (paper: 10).
+    coherence_threshold : float
+        Minimum mean cosine similarity of two targets' velocities over ``history`` frames for
+        them to move coherently.
+    group_radius : float
+        Maximum distance between coherent neighbours, template sizes.
+    min_group_speed : float
+        Targets slower than this (px/frame, mean over the history) join no coherent group:
+        the direction of a standing person's jitter carries no motion information.
+    proximity_sigma : float
+        ``sigma`` of Eq. 9, template sizes (paper: half the target size).
+    proximity_cutoff : float
+        Entries of ``S`` (Eq. 9) beyond ``proximity_cutoff * sigma`` are dropped (sparse ``S``).
+    group_sigma : float
+        ``sigma`` of Eq. 10, template sizes.
+    group_cutoff : float
+        Entries of ``Gamma`` (Eq. 10) with ``| |p_i - p_j| - e_ij | > group_cutoff * sigma`` are
+        dropped.
+    candidate_stride : int
+        Pixel stride of the dense candidate grid (1 = every pixel of the search region).
+    speedup : bool
+        Speed-up sampling (Sec. 6) instead of dense candidates.
+    n_extrema : int
+        ``m``: extrema of the linear-term map kept per target (Sec. 6: 3).
+    n_samples : int
+        Extra candidates sampled around each extremum (Sec. 6: 10).
+    sample_window : int
+        Side of the square neighbourhood the extra samples are drawn from, px (Sec. 6: 6).
+    fw_variant : str
+        Frank-Wolfe variant: ``"plain"``, ``"away"`` or ``"swap"`` (Sec. 5).
+    fw_eps : float
+        Duality-gap stop of Frank-Wolfe (paper: 0.01).
+    fw_max_iter : int
+        Iteration cap of the solver per target (the solver's iterations are block steps).
+    border_penalty : float
+        Cost added to candidates whose centre lies outside the image.
+    seed : int
+        Seed of the random generator of the speed-up sampling.
+    """
+
+    zeta: float = 0.3
+    eta: float = 0.2
+    w_sp: float = 1.0
+    w_g: float = 1.0
+    update_threshold: float = 0.6
+    appearance: str = "kcf"
+    search_factor: float = 2.0
+    kcf_lambda: float = 1e-4
+    kcf_learning_rate: float = 0.05
+    kcf_label_sigma: float = 0.1
+    ncc_update_every: int = 10
+    motion_sigma: float = 0.5
+    velocity_smoothing: float = 0.5
+    n_neighbours: int = 5
+    neighbour_scale: float = 1.0
+    history: int = 10
+    group_refresh: int = 10
+    coherence_threshold: float = 0.8
+    group_radius: float = 2.5
+    min_group_speed: float = 0.3
+    proximity_sigma: float = 0.5
+    proximity_cutoff: float = 2.0
+    group_sigma: float = 0.25
+    group_cutoff: float = 2.5
+    candidate_stride: int = 1
+    speedup: bool = False
+    n_extrema: int = 3
+    n_samples: int = 10
+    sample_window: int = 6
+    fw_variant: str = "swap"
+    fw_eps: float = 0.01
+    fw_max_iter: int = 50
+    border_penalty: float = 10.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        nonneg = ("zeta", "eta", "w_sp", "w_g", "velocity_smoothing", "min_group_speed",
+                  "border_penalty")
+        positive = ("kcf_lambda", "kcf_label_sigma", "motion_sigma", "neighbour_scale",
+                    "group_radius", "proximity_sigma", "proximity_cutoff", "group_sigma",
+                    "group_cutoff", "fw_eps")
+        for name in nonneg:
+            v = getattr(self, name)
+            if not (v >= 0 and v < float("inf")):
+                raise ValueError(f"BQPParams.{name} must be a finite number >= 0, got {v!r}")
+        for name in positive:
+            v = getattr(self, name)
+            if not (v > 0 and v < float("inf")):
+                raise ValueError(f"BQPParams.{name} must be a finite number > 0, got {v!r}")
+        if not 0.0 <= self.update_threshold <= 1.0:
+            raise ValueError(
+                f"BQPParams.update_threshold must be in [0, 1], got {self.update_threshold!r}")
+        if not 0.0 < self.kcf_learning_rate <= 1.0:
+            raise ValueError(
+                f"BQPParams.kcf_learning_rate must be in (0, 1], got {self.kcf_learning_rate!r}")
+        if not self.velocity_smoothing < 1.0:
+            raise ValueError(
+                f"BQPParams.velocity_smoothing must be < 1, got {self.velocity_smoothing!r}")
+        if not -1.0 <= self.coherence_threshold <= 1.0:
+            raise ValueError("BQPParams.coherence_threshold must be in [-1, 1], "
+                             f"got {self.coherence_threshold!r}")
+        if not self.search_factor > 1.0:
+            raise ValueError(f"BQPParams.search_factor must be > 1, got {self.search_factor!r}")
+        if self.appearance not in APPEARANCE_MODELS:
+            raise ValueError(f"BQPParams.appearance must be one of {APPEARANCE_MODELS}, "
+                             f"got {self.appearance!r}")
+        if self.fw_variant not in FW_VARIANTS:
+            raise ValueError(f"BQPParams.fw_variant must be one of {FW_VARIANTS}, "
+                             f"got {self.fw_variant!r}")
+        for name in ("ncc_update_every", "n_neighbours", "history", "group_refresh",
+                     "candidate_stride", "n_extrema", "n_samples", "sample_window", "fw_max_iter"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"BQPParams.{name} must be an integer >= 1, got {v!r}")
+        if self.history < 2:
+            raise ValueError(f"BQPParams.history must be >= 2, got {self.history!r}")
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        """Names of all parameters, in declaration order."""
+        return tuple(f.name for f in fields(cls))
+
+
+def search_radius(template_size: int, search_factor: float) -> int:
+    """Candidate radius ``r`` (px) for a search region of ``search_factor`` template sizes.
+
+    >>> search_radius(14, 2.0)
+    7
+    >>> search_radius(8, 2.0)
+    4
+    """
+    if template_size < 2:
+        raise ValueError(f"template_size must be >= 2 px, got {template_size!r}")
+    return max(1, int(round((search_factor - 1.0) * template_size / 2.0)))
