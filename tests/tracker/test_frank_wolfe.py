@@ -1,0 +1,285 @@
+"""Frank-Wolfe solver of the relaxed BQP: properties, exact tiny cases, bad inputs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from tracker.frank_wolfe import VARIANTS, FWParams, FWResult, default_start, solve
+from tracker.qp import BlockQP, load_many, save_many
+
+clarabel = pytest.importorskip("clarabel")
+from tracker.qp_baselines import solve_clarabel, solve_osqp  # noqa: E402
+
+FAST = settings(max_examples=40, deadline=None,
+                suppress_health_check=[HealthCheck.too_slow])
+
+
+def random_qp(seed: int, n: int, kmax: int, density: float = 0.3, rank: int = 4,
+              diag: float = 0.05) -> BlockQP:
+    """Random PSD instance: Q = M M^T (sparse, low rank) + diag I, blocks of 1..kmax."""
+    rng = np.random.default_rng(seed)
+    sizes = rng.integers(1, kmax + 1, size=n)
+    bp = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    l = int(bp[-1])
+    M = sp.random(l, rank, density=density, random_state=rng) if l else sp.csc_matrix((0, rank))
+    Q = (M @ M.T + diag * sp.identity(l)).tocsc()
+    c = rng.normal(size=l)
+    return BlockQP(c, Q, bp)
+
+
+def check_result(qp: BlockQP, res: FWResult, eps: float) -> None:
+    n = qp.n_blocks
+    assert res.choice.shape == (n,) and res.choice.dtype == np.int64
+    assert np.all(res.choice >= 0) and np.all(res.choice < qp.block_sizes)
+    v = qp.vertex(res.choice)
+    np.testing.assert_allclose(qp.block_sums(v), 1.0)
+    assert np.all(res.x >= 0)
+    np.testing.assert_allclose(qp.block_sums(res.x), 1.0, atol=1e-9)
+    assert np.isclose(res.objective, qp.objective(res.x), rtol=1e-9, atol=1e-9)
+    assert np.isclose(res.rounded_objective, qp.objective(v), rtol=1e-9, atol=1e-9)
+    if res.converged:
+        assert res.gap <= eps
+    # The reported gap is the exact FW duality gap at x.
+    g = qp.gradient(res.x)
+    exact = sum(float(g[lo:hi] @ res.x[lo:hi] - g[lo:hi].min())
+                for lo, hi in zip(qp.block_ptr[:-1], qp.block_ptr[1:], strict=True))
+    assert res.gap == pytest.approx(exact, abs=1e-9)
+    for b in range(n):  # rounding = argmax per block
+        lo, hi = qp.block_ptr[b], qp.block_ptr[b + 1]
+        assert res.x[lo + res.choice[b]] == res.x[lo:hi].max()
+
+
+# ---------------------------------------------------------------------------- properties
+@FAST
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(0, 12), kmax=st.integers(1, 7),
+       variant=st.sampled_from(VARIANTS), eps=st.sampled_from([1e-2, 1e-4, 1e-7]))
+def test_feasible_monotone_and_gap(seed, n, kmax, variant, eps):
+    qp = random_qp(seed, n, kmax)
+    x0 = default_start(qp)
+    res = solve(qp, params=FWParams(variant=variant, eps=eps, max_iter=20_000,
+                                    record_history=True))
+    check_result(qp, res, eps)
+    # Plain FW converges sublinearly when the optimum lies on a face: no guarantee there.
+    assert res.converged or (variant == "plain" and res.iterations == 20_000)
+    assert res.objective <= qp.objective(x0) + 1e-12
+    # Every step decreases f (exact line search on a convex quadratic).
+    assert np.all(np.diff(res.history) <= 1e-12)
+    assert res.history[0] == pytest.approx(qp.objective(x0))
+    assert res.history[-1] == pytest.approx(res.objective, abs=1e-9)
+
+
+@FAST
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 10), kmax=st.integers(1, 6))
+def test_matches_clarabel(seed, n, kmax):
+    qp = random_qp(seed, n, kmax)
+    ref = solve_clarabel(qp)
+    res = solve(qp, params=FWParams(eps=1e-7, max_iter=50_000))
+    assert res.converged
+    # f(x) - f* <= gap, and Clarabel is accurate to ~1e-8.
+    assert res.objective == pytest.approx(ref.objective, abs=1e-6, rel=1e-6)
+    assert res.objective >= ref.objective - 1e-6
+
+
+@FAST
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 8), kmax=st.integers(1, 5))
+def test_warm_start_from_random_interior_point(seed, n, kmax):
+    qp = random_qp(seed, n, kmax)
+    rng = np.random.default_rng(seed)
+    x0 = rng.random(qp.n_vars) + 0.01
+    x0 /= np.repeat(qp.block_sums(x0), qp.block_sizes)
+    for variant in VARIANTS:
+        res = solve(qp, x0, FWParams(variant=variant, eps=1e-6, max_iter=50_000))
+        check_result(qp, res, 1e-6)
+        assert res.converged or variant == "plain"
+        assert res.objective <= qp.objective(x0) + 1e-12
+
+
+def test_matches_osqp_medium():
+    qp = random_qp(7, 60, 8, density=0.1, rank=20)
+    ref = solve_osqp(qp, tol=1e-8)
+    res = solve(qp, params=FWParams(eps=1e-7, max_iter=200_000))
+    assert res.converged
+    assert res.objective == pytest.approx(ref.objective, rel=1e-5)
+
+
+# ---------------------------------------------------------------------- exact tiny cases
+def test_linear_problem_picks_cheapest_candidates():
+    c = np.array([3.0, 1.0, 2.0, 5.0, -1.0])
+    qp = BlockQP(c, sp.csc_matrix((5, 5)), np.array([0, 3, 5]))
+    res = solve(qp, x0=np.array([1 / 3, 1 / 3, 1 / 3, 0.5, 0.5]))
+    np.testing.assert_array_equal(res.choice, [1, 1])
+    assert res.objective == pytest.approx(0.0)
+    assert res.gap == 0.0 and res.converged
+
+
+def test_hand_built_two_targets_known_optimum():
+    # Two targets, two candidates each. Linear costs prefer candidate 0 for both, but the
+    # two candidate-0 locations coincide: a proximity penalty 2*w*x0*y0 (w = 2) makes the
+    # joint choice (0, 0) cost -1 - 1 + 2*2 = 2, worse than (0, 1): -1 - 0.5 = -1.5.
+    c = np.array([-1.0, 0.0, -1.0, -0.5])
+    w = 2.0
+    Q = sp.csc_matrix(np.array([[0, 0, w, 0], [0, 0, 0, 0], [w, 0, 0, 0], [0, 0, 0, 0.0]]))
+    # Not PSD on its own; add a PSD-making diagonal identical on every candidate: on the
+    # simplex sum x^2 differs between vertices only by constants (1 per block at vertices).
+    Q = Q + sp.identity(4) * w
+    qp = BlockQP(c, sp.csc_matrix(Q), np.array([0, 2, 4]))
+    assert np.all(np.linalg.eigvalsh(qp.Q.toarray()) >= -1e-12)
+    res = solve(qp, params=FWParams(eps=1e-10, max_iter=10_000))
+    # Relaxed optimum by hand: x = (a, 1-a), y = (b, 1-b); f is a 2-variable quadratic.
+    grid = np.linspace(0, 1, 2001)
+    A, B = np.meshgrid(grid, grid, indexing="ij")
+    f = (-A - B - 0.5 * (1 - B) + 2 * w * A * B
+         + w * (A**2 + (1 - A) ** 2 + B**2 + (1 - B) ** 2))
+    assert res.objective == pytest.approx(f.min(), abs=1e-6)
+    ref = solve_clarabel(qp)
+    assert res.objective == pytest.approx(ref.objective, abs=1e-7)
+    # The vertices (0,0) and (0,1): rounded objective is f at the choice.
+    assert res.rounded_objective == pytest.approx(qp.objective(qp.vertex(res.choice)))
+
+
+def test_swap_step_exact_solution():
+    # One block of three, Q = I: min c.x + |x|^2 on the simplex is a projection,
+    # x* = max(-c/2 - tau, 0) with tau set by sum = 1.
+    c = np.array([0.0, -0.2, 1.0])
+    qp = BlockQP(c, sp.identity(3, format="csc"), np.array([0, 3]))
+    res = solve(qp, params=FWParams(eps=1e-12, max_iter=1000))
+    np.testing.assert_allclose(res.x, [0.45, 0.55, 0.0], atol=1e-9)
+    assert res.objective == pytest.approx(-0.2 * 0.55 + 0.45**2 + 0.55**2)
+    np.testing.assert_array_equal(res.choice, [1])
+
+
+def test_zero_blocks():
+    qp = BlockQP(np.zeros(0), sp.csc_matrix((0, 0)), np.array([0]))
+    for variant in VARIANTS:
+        res = solve(qp, params=FWParams(variant=variant, record_history=True))
+        assert res.converged and res.iterations == 0 and res.gap == 0.0
+        assert res.choice.shape == (0,) and res.x.shape == (0,)
+        assert res.objective == 0.0 and res.rounded_objective == 0.0
+
+
+def test_blocks_of_size_one():
+    qp = random_qp(3, 5, 1)
+    for variant in VARIANTS:
+        res = solve(qp, params=FWParams(variant=variant))
+        np.testing.assert_array_equal(res.choice, np.zeros(5, dtype=np.int64))
+        np.testing.assert_array_equal(res.x, np.ones(5))
+        assert res.iterations == 0 and res.converged
+
+
+def test_max_iter_stops_unconverged():
+    qp = random_qp(11, 30, 6)
+    res = solve(qp, params=FWParams(variant="plain", eps=0.0, max_iter=3))
+    assert res.iterations == 3 and not res.converged
+    check_result(qp, res, 0.0)
+    res0 = solve(qp, params=FWParams(max_iter=0))
+    np.testing.assert_array_equal(res0.x, default_start(qp))
+
+
+def test_default_start_is_cheapest_linear_vertex():
+    qp = BlockQP(np.array([2.0, 1.0, 1.0, 0.0]), sp.csc_matrix((4, 4)), np.array([0, 3, 4]))
+    np.testing.assert_array_equal(default_start(qp), [0, 1, 0, 1])
+
+
+def test_save_load_roundtrip(tmp_path):
+    qps = [random_qp(s, 4, 5) for s in range(3)]
+    save_many(tmp_path / "many.npz", qps)
+    qps[0].save(tmp_path / "one.npz")
+    back = load_many(tmp_path / "many.npz")
+    assert len(back) == 3
+    for a, b in zip(qps, back, strict=True):
+        np.testing.assert_array_equal(a.c, b.c)
+        np.testing.assert_array_equal(a.block_ptr, b.block_ptr)
+        assert (a.Q != b.Q).nnz == 0
+    one = BlockQP.load(tmp_path / "one.npz")
+    np.testing.assert_array_equal(one.c, qps[0].c)
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="bad.npz"):
+        load_many(tmp_path / "bad.npz")
+    np.savez(tmp_path / "partial.npz", c=np.zeros(2))
+    with pytest.raises(ValueError, match="Q_data"):
+        load_many(tmp_path / "partial.npz")
+
+
+# ----------------------------------------------------------------------------- iterations
+def test_iteration_order_on_tracking_like_instances():
+    """Fig. 13: SWAP needs fewer iterations than away steps, which need fewer than plain FW."""
+    from tracker.bench_solver import FrameSpec, synthetic_frame_qp
+
+    its = {v: [] for v in VARIANTS}
+    for seed in range(3):
+        qp = synthetic_frame_qp(FrameSpec(n_targets=40), np.random.default_rng(seed))
+        for v in VARIANTS:
+            res = solve(qp, params=FWParams(variant=v, eps=1e-4, max_iter=200_000))
+            assert res.converged
+            its[v].append(res.iterations)
+    mean = {v: float(np.mean(its[v])) for v in VARIANTS}
+    assert mean["swap"] <= mean["away"] <= mean["plain"], mean
+
+
+# ---------------------------------------------------------------------------- bad inputs
+@pytest.mark.parametrize("variant", ["Swap", "pairwise", ""])
+def test_unknown_variant(variant):
+    with pytest.raises(ValueError, match="variant"):
+        FWParams(variant=variant)
+
+
+@pytest.mark.parametrize("kw", [{"eps": -1.0}, {"eps": float("nan")}, {"max_iter": -1},
+                                {"max_iter": 2.5}])
+def test_bad_params(kw):
+    with pytest.raises(ValueError, match=next(iter(kw))):
+        FWParams(**kw)
+
+
+def test_non_symmetric_q():
+    Q = sp.csc_matrix(np.array([[1.0, 0.5], [0.0, 1.0]]))
+    with pytest.raises(ValueError, match="Q must be symmetric"):
+        BlockQP(np.zeros(2), Q, np.array([0, 2]))
+
+
+@pytest.mark.parametrize("bp, msg", [
+    ([0, 1], r"block_ptr\[-1\]"),
+    ([1, 3], r"block_ptr\[0\]"),
+    ([0, 2, 2, 3], "non-empty"),
+    ([0, 3, 1, 3], "non-empty"),
+    ([[0, 3]], "block_ptr must be 1-D"),
+    ([0.5, 3], "block_ptr must be integers"),
+])
+def test_bad_block_ptr(bp, msg):
+    with pytest.raises(ValueError, match=msg):
+        BlockQP(np.zeros(3), sp.identity(3, format="csc"), np.array(bp))
+
+
+def test_bad_q_and_c():
+    with pytest.raises(ValueError, match="Q must have shape"):
+        BlockQP(np.zeros(3), sp.identity(2, format="csc"), np.array([0, 3]))
+    with pytest.raises(ValueError, match="Q must be a scipy.sparse"):
+        BlockQP(np.zeros(2), np.eye(2), np.array([0, 2]))
+    with pytest.raises(ValueError, match=r"c must be finite; c\[1\]"):
+        BlockQP(np.array([0.0, np.nan]), sp.identity(2, format="csc"), np.array([0, 2]))
+    with pytest.raises(ValueError, match="c must be 1-D"):
+        BlockQP(np.zeros((2, 1)), sp.identity(2, format="csc"), np.array([0, 2]))
+
+
+@pytest.mark.parametrize("x0, msg", [
+    ([0.5, 0.4, 0.5, 0.5], "x0 must sum to 1"),
+    ([1.5, -0.5, 1.0, 0.0], "x0 must be >= 0"),
+    ([1.0, 0.0, 1.0], r"x0 must have shape"),
+    ([np.nan, 1.0, 1.0, 0.0], "x0 must be finite"),
+])
+def test_infeasible_x0(x0, msg):
+    qp = BlockQP(np.zeros(4), sp.identity(4, format="csc"), np.array([0, 2, 4]))
+    with pytest.raises(ValueError, match=msg):
+        solve(qp, np.array(x0))
+
+
+def test_q_is_canonicalised_and_never_densified():
+    # Duplicate entries are summed; indices are int64 for the numba kernels.
+    Q = sp.csc_matrix((np.array([1.0, 1.0, 2.0]), np.array([0, 0, 1]), np.array([0, 2, 3])),
+                      shape=(2, 2))
+    qp = BlockQP(np.zeros(2), Q, np.array([0, 2]))
+    assert sp.issparse(qp.Q) and qp.Q.nnz == 2 and qp.Q[0, 0] == 2.0
+    assert qp.Q.indices.dtype == np.int64 and qp.Q.indptr.dtype == np.int64

@@ -1,0 +1,509 @@
+"""Frank-Wolfe solvers for the relaxed BQP (paper Sec. 5, Alg. 1 and 2).
+
+One implementation serves three variants, selected by :attr:`FWParams.variant`:
+
+``"plain"``
+    Frank-Wolfe (Alg. 1): move towards the toward vertex ``s`` (argmin of the gradient).
+``"away"``
+    Away-step Frank-Wolfe (Lacoste-Julien & Jaggi 2015, the paper's ref. [42]): take the FW
+    step or the away step ``x - y`` (``y`` = argmax of the gradient over the active set),
+    whichever has the steeper descent ``-g.d``.
+``"swap"``
+    FW with SWAP steps (Alg. 2, the paper's method): line-search both the FW step and the
+    SWAP (pairwise) step ``s - y`` and take the one with the larger decrease of ``f``
+    (``delta_fw`` vs ``delta_swap``); the SWAP step is clipped at ``alpha_y`` (SWAP-drop).
+
+Domain and bookkeeping
+----------------------
+The domain is a product of simplices (one per target, see :class:`tracker.qp.BlockQP`). A
+block's values ``x_b`` are its own barycentric coordinates over the block's vertices, so
+the active set ``S`` of Alg. 2 is simply the support of ``x_b`` and ``alpha_y = x_y``; a drop
+step sets ``x_y = 0`` exactly. Per block we keep the toward index ``s_b`` (argmin ``g`` in the
+block), the away index ``y_b`` (argmax ``g`` over the support), ``g . x_b`` and the block gap
+``g . x_b - g_{s_b} >= 0``. The duality gap of the whole problem is the sum of block gaps,
+and the solver stops when it is ``<= eps`` (Alg. 2's ``duality gap(z) > eps`` loop test).
+
+Which block moves (our choice, stated because Alg. 2 is written for the whole domain)
+---------------------------------------------------------------------------------------
+Alg. 2 is written with one toward vertex ``s in D`` for the whole product domain. On a
+product of simplices the linear minimisation decouples per block, so a full FW step is the
+sum of per-block FW steps sharing one ``lambda``; the SWAP step likewise would need one
+``lambda`` clipped by the *smallest* ``alpha_y`` over all blocks, which with a thousand
+targets makes almost every SWAP a tiny drop step. We therefore apply Alg. 2 block by block
+(block-coordinate Frank-Wolfe, Lacoste-Julien et al. 2013), choosing the block with the
+largest block gap (gap-greedy selection, Osokin et al. 2016). Each iteration then changes
+at most the support of one block (SWAP: exactly two coordinates), so keeping ``g = c + 2Qx``
+current is a rank-1/rank-2 (SWAP) or support-sized column update of the CSC matrix: the
+cost of an iteration is O(nnz of the touched columns) plus re-scanning the blocks those
+columns reach, plus O(log n) for the max-gap tree. ``iterations`` counts block steps, for
+all three variants alike, so Fig. 13-style comparisons are like for like.
+
+Line search (Eq. 13) is exact: ``f(x + lam d) = f(x) + lam g.d + lam^2 d^T Q d``, so
+``lam = -g.d / (2 d^T Q d)`` clipped to ``[0, lam_max]``; ``lam_max`` is 1 for FW steps,
+``alpha_y / (1 - alpha_y)`` for away steps and ``alpha_y`` for SWAP steps. ``d^T Q d`` needs
+only the block's diagonal entries of ``Q`` and ``Q x_b`` restricted to the block.
+
+Rounding (Eq. 14) is the argmax of ``x`` within each block.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from tracker.qp import BlockQP
+
+VARIANTS: tuple[str, ...] = ("plain", "away", "swap")
+_VARIANT_CODE = {name: i for i, name in enumerate(VARIANTS)}
+_PLAIN, _AWAY, _SWAP = 0, 1, 2
+STEP_KINDS: tuple[str, ...] = ("fw", "away", "swap", "drop")
+"""Kinds counted in :attr:`FWResult.steps` (``drop``: away/SWAP steps that emptied ``alpha_y``)."""
+
+
+@dataclass(frozen=True)
+class FWParams:
+    """Parameters of the Frank-Wolfe solver (paper Sec. 5, Alg. 2).
+
+    Attributes
+    ----------
+    variant : {"plain", "away", "swap"}
+        Plain FW (Alg. 1), away-step FW (ref. [42]) or FW with SWAP steps (Alg. 2).
+    eps : float
+        Duality-gap stopping threshold ``epsilon`` of Alg. 2 (absolute, objective units;
+        the gap bounds ``f(x) - f*``). The paper uses 0.01 when tracking.
+    max_iter : int
+        Maximum number of iterations (block steps, see the module docstring).
+    record_history : bool
+        Keep the objective and the duality gap after every iteration (for plots); costs
+        two ``(max_iter + 1,)`` float arrays.
+    """
+
+    variant: str = "swap"
+    eps: float = 0.01
+    max_iter: int = 10_000
+    record_history: bool = False
+
+    def __post_init__(self) -> None:
+        if self.variant not in _VARIANT_CODE:
+            raise ValueError(
+                f"FWParams.variant must be one of {', '.join(VARIANTS)}; got {self.variant!r}")
+        if not (isinstance(self.eps, (int, float)) and math.isfinite(self.eps)
+                and self.eps >= 0):
+            raise ValueError(f"FWParams.eps must be a finite number >= 0; got {self.eps!r}")
+        if isinstance(self.max_iter, bool) or not isinstance(self.max_iter, (int, np.integer)) \
+                or self.max_iter < 0:
+            raise ValueError(f"FWParams.max_iter must be an integer >= 0; got {self.max_iter!r}")
+
+
+@dataclass
+class FWResult:
+    """Output of :func:`solve`.
+
+    Attributes
+    ----------
+    x : (l,) float64
+        Relaxed solution, in the product of simplices.
+    choice : (n,) int64
+        Rounded assignment (Eq. 14): per block the local index of the largest ``x``.
+    objective : float
+        ``f(x)`` of the relaxed solution.
+    rounded_objective : float
+        ``f`` at the one-hot vertex of ``choice``.
+    gap : float
+        Duality gap ``sum_b (g.x_b - min_b g)`` at ``x`` (upper bound on ``f(x) - f*``).
+    iterations : int
+        Block steps taken.
+    converged : bool
+        ``gap <= eps`` was reached (else ``max_iter`` stopped the solver).
+    history : (iterations + 1,) float64 or None
+        ``f`` after each iteration (index 0: the start), if ``record_history``.
+    gap_history : (iterations + 1,) float64 or None
+        Duality gap after each iteration (tracked incrementally), if ``record_history``.
+    steps : dict[str, int]
+        Count of FW, away, SWAP and drop steps.
+    """
+
+    x: np.ndarray
+    choice: np.ndarray
+    objective: float
+    rounded_objective: float
+    gap: float
+    iterations: int
+    converged: bool
+    history: np.ndarray | None = None
+    gap_history: np.ndarray | None = None
+    steps: dict[str, int] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- numba kernels
+@njit(cache=True)
+def _block_argext(v, block_ptr, want_max):
+    """Per block, local index of the min (or max) of ``v`` (first on ties)."""
+    n = block_ptr.shape[0] - 1
+    out = np.empty(n, dtype=np.int64)
+    for b in range(n):
+        lo = block_ptr[b]
+        best = v[lo]
+        arg = 0
+        for j in range(lo + 1, block_ptr[b + 1]):
+            if (v[j] > best) if want_max else (v[j] < best):
+                best = v[j]
+                arg = j - lo
+        out[b] = arg
+    return out
+
+
+@njit(cache=True)
+def _tree_update(tree, size, i, v):
+    node = size + i
+    tree[node] = v
+    node //= 2
+    while node >= 1:
+        a = tree[2 * node]
+        b = tree[2 * node + 1]
+        tree[node] = a if a >= b else b
+        node //= 2
+
+
+@njit(cache=True)
+def _tree_argmax(tree, size):
+    node = 1
+    while node < size:
+        node = 2 * node if tree[2 * node] >= tree[2 * node + 1] else 2 * node + 1
+    return node - size
+
+
+@njit(cache=True)
+def _refresh_block(b, x, g, block_ptr, s_idx, y_idx, gx, gaps, tree, size):
+    """Recompute toward/away indices, ``g.x_b`` and the block gap; return the gap change."""
+    lo = block_ptr[b]
+    hi = block_ptr[b + 1]
+    gmin = np.inf
+    gmax = -np.inf
+    smin = lo
+    ymax = lo
+    gxs = 0.0
+    for j in range(lo, hi):
+        gj = g[j]
+        if gj < gmin:
+            gmin = gj
+            smin = j
+        xj = x[j]
+        if xj > 0.0:
+            gxs += gj * xj
+            if gj > gmax:
+                gmax = gj
+                ymax = j
+    gap = gxs - gmin
+    if gap < 0.0:
+        gap = 0.0
+    change = gap - gaps[b]
+    gaps[b] = gap
+    s_idx[b] = smin
+    y_idx[b] = ymax
+    gx[b] = gxs
+    _tree_update(tree, size, b, gap)
+    return change
+
+
+@njit(cache=True)
+def _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps, tree, size):
+    """Exact ``g = c + 2Qx`` and all block statistics from scratch; return the total gap."""
+    l = c.shape[0]
+    for i in range(l):
+        g[i] = c[i]
+    for j in range(l):
+        xj = x[j]
+        if xj != 0.0:
+            for p in range(indptr[j], indptr[j + 1]):
+                g[indices[p]] += 2.0 * data[p] * xj
+    total = 0.0
+    for b in range(block_ptr.shape[0] - 1):
+        gaps[b] = 0.0
+        total += _refresh_block(b, x, g, block_ptr, s_idx, y_idx, gx, gaps, tree, size)
+    return total
+
+
+@njit(cache=True)
+def _col_entries(indptr, indices, data, j, r1, r2):
+    """``(Q[r1, j], Q[r2, j])`` by scanning column ``j``."""
+    a = 0.0
+    b = 0.0
+    for p in range(indptr[j], indptr[j + 1]):
+        r = indices[p]
+        if r == r1:
+            a = data[p]
+        if r == r2:
+            b = data[p]
+    return a, b
+
+
+@njit(cache=True)
+def _line_search(gd, dqd, lam_max):
+    """Exact line search of Eq. 13 on ``f(x + lam d)``; returns ``(lam, f change)``."""
+    if gd >= 0.0 or lam_max <= 0.0:
+        return 0.0, 0.0
+    if dqd > 0.0:
+        lam = -gd / (2.0 * dqd)
+        if lam > lam_max:
+            lam = lam_max
+    else:
+        lam = lam_max
+    return lam, lam * gd + lam * lam * dqd
+
+
+@njit(cache=True)
+def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max_iter,
+             f0, hist_f, hist_gap):
+    l = c.shape[0]
+    n = block_ptr.shape[0] - 1
+    kmax = 0
+    for b in range(n):
+        kb = block_ptr[b + 1] - block_ptr[b]
+        if kb > kmax:
+            kmax = kb
+    size = 1
+    while size < n:
+        size *= 2
+    tree = np.full(2 * size, -1.0)
+    g = np.empty(l)
+    s_idx = np.empty(n, dtype=np.int64)
+    y_idx = np.empty(n, dtype=np.int64)
+    gx = np.empty(n)
+    gaps = np.zeros(n)
+    stamp = np.full(n, -1, dtype=np.int64)
+    dirty = np.empty(n, dtype=np.int64)
+    w = np.empty(kmax)
+    xn = np.empty(kmax)
+    counts = np.zeros(4, dtype=np.int64)  # fw, away, swap, drop
+    record = hist_f.shape[0] > 0
+
+    total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps,
+                     tree, size)
+    fresh = True
+    f = f0
+    if record:
+        hist_f[0] = f
+        hist_gap[0] = total
+    it = 0
+    converged = False
+    while True:
+        if total <= eps:
+            # The incrementally kept gradient drifts; confirm on exact values before stopping.
+            if not fresh:
+                total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx,
+                                 gaps, tree, size)
+                fresh = True
+            if total <= eps:
+                converged = True
+                break
+        if it >= max_iter:
+            break
+        b = _tree_argmax(tree, size)
+        if gaps[b] <= 0.0:
+            if fresh:
+                converged = total <= eps
+                break
+            total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx,
+                             gaps, tree, size)
+            fresh = True
+            continue
+        lo = block_ptr[b]
+        hi = block_ptr[b + 1]
+        k = hi - lo
+        s = s_idx[b]
+        y = y_idx[b]
+        gs = g[s]
+        gy = g[y]
+        gxb = gx[b]
+
+        # w = (Q x_b) restricted to the block's rows: O(nnz of the support's columns).
+        for i in range(k):
+            w[i] = 0.0
+        for j in range(lo, hi):
+            xj = x[j]
+            if xj != 0.0:
+                for p in range(indptr[j], indptr[j + 1]):
+                    r = indices[p]
+                    if r >= lo and r < hi:
+                        w[r - lo] += data[p] * xj
+        xqx = 0.0
+        for i in range(k):
+            xqx += x[lo + i] * w[i]
+        q_ss, q_sy = _col_entries(indptr, indices, data, s, s, y)
+        q_yy, _unused = _col_entries(indptr, indices, data, y, y, y)
+
+        # FW (toward) step, d = e_s - x_b: g.d = -block gap (Eq. 13).
+        gd_fw = gs - gxb
+        lam, delta = _line_search(gd_fw, q_ss - 2.0 * w[s - lo] + xqx, 1.0)
+        mode = 0
+        alpha_y = x[y]
+        lam_cap = 1.0
+        if variant == 1 and alpha_y < 1.0:
+            # Away step d = x_b - e_y, taken when it is the steeper descent direction.
+            gd_aw = gxb - gy
+            if -gd_aw > -gd_fw:
+                lam_cap = alpha_y / (1.0 - alpha_y)
+                lam, delta = _line_search(gd_aw, xqx - 2.0 * w[y - lo] + q_yy, lam_cap)
+                mode = 1
+        elif variant == 2 and s != y:
+            # SWAP step d = e_s - e_y (Alg. 2): keep whichever of FW/SWAP decreases f more.
+            lam_sw, delta_sw = _line_search(gs - gy, q_ss + q_yy - 2.0 * q_sy, alpha_y)
+            if delta_sw < delta:
+                lam = lam_sw
+                delta = delta_sw
+                lam_cap = alpha_y
+                mode = 2
+        if lam <= 0.0:
+            # No decrease possible in this block (only reachable through round-off):
+            # refresh exact statistics once, then give up rather than spin.
+            if fresh:
+                break
+            total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx,
+                             gaps, tree, size)
+            fresh = True
+            continue
+
+        # New block values; drop steps set alpha_y to exactly 0 (active-set removal).
+        if mode == 0:
+            if lam >= 1.0:
+                for i in range(k):
+                    xn[i] = 0.0
+                xn[s - lo] = 1.0
+            else:
+                for i in range(k):
+                    xn[i] = (1.0 - lam) * x[lo + i]
+                xn[s - lo] += lam
+            counts[0] += 1
+        elif mode == 1:
+            for i in range(k):
+                xn[i] = (1.0 + lam) * x[lo + i]
+            if lam >= lam_cap:
+                xn[y - lo] = 0.0
+                counts[3] += 1
+            else:
+                xn[y - lo] -= lam
+            counts[1] += 1
+        else:
+            for i in range(k):
+                xn[i] = x[lo + i]
+            if lam >= lam_cap:
+                xn[s - lo] += alpha_y
+                xn[y - lo] = 0.0
+                counts[3] += 1
+            else:
+                xn[s - lo] += lam
+                xn[y - lo] -= lam
+            counts[2] += 1
+
+        # g += 2 Q dx over the changed columns; mark every block those columns reach.
+        it += 1
+        nd = 1
+        dirty[0] = b
+        stamp[b] = it
+        for i in range(k):
+            j = lo + i
+            dxj = xn[i] - x[j]
+            if dxj != 0.0:
+                x[j] = xn[i]
+                for p in range(indptr[j], indptr[j + 1]):
+                    r = indices[p]
+                    g[r] += 2.0 * data[p] * dxj
+                    bb = block_of[r]
+                    if stamp[bb] != it:
+                        stamp[bb] = it
+                        dirty[nd] = bb
+                        nd += 1
+        for t in range(nd):
+            total += _refresh_block(dirty[t], x, g, block_ptr, s_idx, y_idx, gx, gaps, tree,
+                                    size)
+        if total < 0.0:
+            total = 0.0
+        fresh = False
+        f += delta
+        if record:
+            hist_f[it] = f
+            hist_gap[it] = total
+
+    if not fresh:
+        total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps,
+                         tree, size)
+        converged = total <= eps
+    return it, converged, total, counts
+
+
+# --------------------------------------------------------------------------------- public
+def default_start(qp: BlockQP) -> np.ndarray:
+    """Per block the vertex with the smallest linear cost ``c`` (ties: first)."""
+    if qp.n_blocks == 0:
+        return np.zeros(0)
+    return qp.vertex(_block_argext(qp.c, qp.block_ptr, False))
+
+
+def round_choice(qp: BlockQP, x: np.ndarray) -> np.ndarray:
+    """Rounding of Eq. 14: (n,) int64 local argmax of ``x`` per block."""
+    if qp.n_blocks == 0:
+        return np.zeros(0, dtype=np.int64)
+    return _block_argext(np.ascontiguousarray(x, dtype=np.float64), qp.block_ptr, True)
+
+
+def solve(qp: BlockQP, x0: np.ndarray | None = None,
+          params: FWParams | None = None) -> FWResult:
+    """Minimise ``qp`` over its product of simplices with Frank-Wolfe (plain/away/SWAP).
+
+    Parameters
+    ----------
+    qp : BlockQP
+        The relaxed problem (``Q`` PSD is the caller's guarantee).
+    x0 : (l,) float, optional
+        Feasible start (``>= 0``, sums to 1 per block up to 1e-8 per entry). Default: per
+        block the vertex with the smallest linear cost.
+    params : FWParams, optional
+        Variant, ``eps``, ``max_iter``; default ``FWParams()`` (SWAP, eps 0.01).
+
+    Returns
+    -------
+    FWResult
+
+    Raises
+    ------
+    ValueError
+        If ``x0`` has the wrong shape or is infeasible (the message names ``x0``).
+    """
+    if params is None:
+        params = FWParams()
+    if not isinstance(qp, BlockQP):
+        raise ValueError(f"qp must be a BlockQP, got {type(qp).__name__}")
+    x = default_start(qp) if x0 is None else qp.check_feasible(x0, name="x0")
+    n = qp.n_blocks
+    if n == 0:
+        hist = np.zeros(1) if params.record_history else None
+        return FWResult(x=x, choice=np.zeros(0, dtype=np.int64), objective=0.0,
+                        rounded_objective=0.0, gap=0.0, iterations=0, converged=True,
+                        history=hist, gap_history=None if hist is None else hist.copy(),
+                        steps=dict.fromkeys(STEP_KINDS, 0))
+    f0 = qp.objective(x)
+    m = params.max_iter + 1 if params.record_history else 0
+    hist_f = np.zeros(m)
+    hist_gap = np.zeros(m)
+    Q = qp.Q
+    it, converged, gap, counts = _fw_loop(
+        Q.indptr, Q.indices, Q.data, qp.c, qp.block_ptr, qp.block_of, x,
+        _VARIANT_CODE[params.variant], float(params.eps), int(params.max_iter), f0,
+        hist_f, hist_gap)
+    choice = round_choice(qp, x)
+    return FWResult(
+        x=x,
+        choice=choice,
+        objective=qp.objective(x),
+        rounded_objective=qp.objective(qp.vertex(choice)),
+        gap=float(gap),
+        iterations=int(it),
+        converged=bool(converged),
+        history=hist_f[: it + 1].copy() if params.record_history else None,
+        gap_history=hist_gap[: it + 1].copy() if params.record_history else None,
+        steps=dict(zip(STEP_KINDS, (int(v) for v in counts), strict=True)),
+    )
