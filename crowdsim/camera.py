@@ -126,7 +126,8 @@ class Camera:
                         [0.0, math.cos(th), math.sin(th)],
                         [0.0, math.sin(th), -math.cos(th)]])
         cam_pos = np.array([cx, cy, 0.0]) - d * rot[2]
-        ground = np.array([[1.0, 0.0, -cam_pos[0]], [0.0, 1.0, -cam_pos[1]], [0.0, 0.0, -cam_pos[2]]])
+        ground = np.array([[1.0, 0.0, -cam_pos[0]], [0.0, 1.0, -cam_pos[1]],
+                           [0.0, 0.0, -cam_pos[2]]])
         f = s * d  # focal length (px) giving scale s at the look-at point
         k = np.array([[f, 0.0, u0], [0.0, f, v0], [0.0, 0.0, 1.0]])
         h = k @ rot @ ground

@@ -1,0 +1,342 @@
+"""MOTChallenge sequences on disk: one writer and one reader (SPEC §2).
+
+Layout of a sequence folder ``SEQ``::
+
+    SEQ/seqinfo.ini          [Sequence] name, imDir, frameRate, seqLength, imWidth, imHeight,
+                             imExt, and for crowdsim sequences templateSize and boxType = head
+    SEQ/img1/000001.jpg ...  frames (and/or SEQ/video.mp4)
+    SEQ/gt/gt.txt            frame,id,bb_left,bb_top,bb_width,bb_height,conf,class,visibility
+    SEQ/gt/agents.csv        id,group,prominent,anomaly,appearance (crowdsim sequences only)
+    SEQ/meta.json            spec, seed, package versions (crowdsim sequences only)
+
+Reader API (also reads real MOT17 / MOT20 folders)
+---------------------------------------------------
+``read_sequence(path) -> MotSequence`` with
+
+* ``name: str``, ``frame_rate: float``, ``width: int``, ``height: int``, ``length: int``;
+* ``template_size: int`` pixels: ``templateSize`` from seqinfo.ini when present; otherwise the
+  median width of the pedestrian gt boxes (real MOT data), or :data:`DEFAULT_TEMPLATE_SIZE`
+  when there is no gt;
+* ``gt: (K, 9) float64`` rows of ``gt/gt.txt`` (1-based frames), shape ``(0, 9)`` without gt;
+* ``box_type: str``: ``"head"`` (crowdsim: the box is the head template centred on the head)
+  or ``"body"`` (MOTChallenge full-body boxes);
+* ``frames() -> Iterator[(H, W, 3) uint8 BGR]`` in order, from ``img1/`` or ``video.mp4``;
+* ``frame(i)`` for a 1-based frame index ``i``;
+* ``gt_points() -> (ids (N,) int64, points (T, N, 2) float64)``: head centres in pixels, NaN
+  where absent, ``T = length``. Only rows with ``conf > 0`` and ``class == 1`` count. Head
+  boxes give their centre; body boxes give ``(left + w / 2, top + HEAD_IN_BODY * h)``.
+* ``agents() -> dict[str, (N,) ndarray]`` from ``gt/agents.csv`` (empty dict without it).
+
+``write_mot(path, rows)`` and ``read_mot_file(path) -> (K, 9+) float64`` write and read MOT
+text files; malformed lines raise :class:`ValueError` as ``file:line: message``.
+"""
+
+from __future__ import annotations
+
+import configparser
+import csv
+import os
+import tempfile
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+MOT_COLUMNS: tuple[str, ...] = ("frame", "id", "bb_left", "bb_top", "bb_width", "bb_height",
+                                "conf", "class", "visibility")
+DEFAULT_TEMPLATE_SIZE: int = 12
+"""Template size (px) when neither seqinfo.ini nor gt says otherwise."""
+HEAD_IN_BODY: float = 0.08
+"""Head centre height below the top of a full-body box, as a fraction of the box height."""
+AGENT_COLUMNS: tuple[str, ...] = ("id", "group", "prominent", "anomaly", "appearance")
+
+
+# ---------------------------------------------------------------------------- MOT text files
+def write_mot(path: str | os.PathLike[str], rows: np.ndarray) -> Path:
+    """Write ``(K, >= 9)`` rows as MOT text (atomically). Frame, id and class are integers."""
+    path = Path(path)
+    rows = np.asarray(rows, dtype=np.float64)
+    if rows.ndim != 2 or (rows.size and rows.shape[1] < 9):
+        raise ValueError(f"{path}: MOT rows must have shape (K, >= 9), got {rows.shape}")
+    if rows.size and not np.isfinite(rows).all():
+        raise ValueError(f"{path}: MOT rows contain NaN or infinite values")
+    lines = []
+    for r in rows:
+        head = f"{int(r[0])},{int(r[1])},{r[2]:.3f},{r[3]:.3f},{r[4]:.3f},{r[5]:.3f}"
+        tail = f"{r[6]:g},{int(r[7])},{r[8]:.4f}"
+        extra = "".join(f",{v:g}" for v in r[9:])
+        lines.append(f"{head},{tail}{extra}\n")
+    _atomic_write_text(path, "".join(lines))
+    return path
+
+
+def read_mot_file(path: str | os.PathLike[str], min_columns: int = 6) -> np.ndarray:
+    """Read a MOT text file (comma or whitespace separated) as ``(K, max(9, C))`` float64.
+
+    Lines with fewer than 9 columns are padded with ``1`` (conf, class, visibility). Errors
+    name the file and the line: too few columns, a non-numeric value, a frame that is not a
+    positive integer, a negative box size, or a non-finite value.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such MOT file")
+    rows: list[list[float]] = []
+    width = None
+    with open(path) as fh:
+        for lineno, line in enumerate(fh, 1):
+            text = line.strip()
+            if not text or text.startswith("#"):
+                continue
+            parts = [p for p in text.replace(",", " ").split()]
+            if len(parts) < min_columns:
+                raise ValueError(f"{path}:{lineno}: expected at least {min_columns} columns "
+                                 f"(frame,id,bb_left,bb_top,bb_width,bb_height,...), "
+                                 f"got {len(parts)}: {text!r}")
+            try:
+                values = [float(p) for p in parts]
+            except ValueError:
+                bad = next(p for p in parts if not _is_float(p))
+                raise ValueError(f"{path}:{lineno}: non-numeric value {bad!r} "
+                                 f"in {text!r}") from None
+            if not all(np.isfinite(values)):
+                raise ValueError(f"{path}:{lineno}: non-finite value in {text!r}")
+            frame = values[0]
+            if frame < 1 or frame != int(frame):
+                raise ValueError(f"{path}:{lineno}: frame must be a positive integer "
+                                 f"(MOT frames are 1-based), got {parts[0]!r}")
+            if values[4] < 0 or values[5] < 0:
+                raise ValueError(f"{path}:{lineno}: box width/height must be >= 0, "
+                                 f"got {parts[4]!r}, {parts[5]!r}")
+            if width is None:
+                width = len(values)
+            elif len(values) != width:
+                raise ValueError(f"{path}:{lineno}: expected {width} columns like the first "
+                                 f"row, got {len(values)}")
+            rows.append(values)
+    if not rows:
+        return np.zeros((0, 9))
+    arr = np.array(rows, dtype=np.float64)
+    if arr.shape[1] < 9:
+        arr = np.hstack([arr, np.ones((len(arr), 9 - arr.shape[1]))])
+    return arr
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+# ---------------------------------------------------------------------------- writer helpers
+def write_seqinfo(seq_dir: str | os.PathLike[str], *, name: str, frame_rate: float, length: int,
+                  width: int, height: int, template_size: int | None = None,
+                  box_type: str = "head", im_dir: str = "img1", im_ext: str = ".jpg") -> Path:
+    """Write ``seq_dir/seqinfo.ini`` in the MOTChallenge format (plus crowdsim keys)."""
+    lines = ["[Sequence]", f"name={name}", f"imDir={im_dir}", f"frameRate={frame_rate:g}",
+             f"seqLength={int(length)}", f"imWidth={int(width)}", f"imHeight={int(height)}",
+             f"imExt={im_ext}"]
+    if template_size is not None:
+        lines.append(f"templateSize={int(template_size)}")
+    lines.append(f"boxType={box_type}")
+    path = Path(seq_dir) / "seqinfo.ini"
+    _atomic_write_text(path, "\n".join(lines) + "\n")
+    return path
+
+
+def write_agents_csv(path: str | os.PathLike[str], table: dict[str, np.ndarray]) -> Path:
+    """Write ``gt/agents.csv`` with the columns :data:`AGENT_COLUMNS` (all integers)."""
+    cols = [np.asarray(table[c]).astype(np.int64) for c in AGENT_COLUMNS]
+    lines = [",".join(AGENT_COLUMNS)]
+    lines.extend(",".join(str(int(v)) for v in row) for row in zip(*cols, strict=True))
+    _atomic_write_text(Path(path), "\n".join(lines) + "\n")
+    return Path(path)
+
+
+# ---------------------------------------------------------------------------- reader
+@dataclass
+class MotSequence:
+    """A MOTChallenge sequence folder; see the module docstring for the attributes."""
+
+    path: Path
+    name: str
+    frame_rate: float
+    width: int
+    height: int
+    length: int
+    template_size: int
+    gt: np.ndarray
+    box_type: str = "body"
+    im_dir: str = "img1"
+    im_ext: str = ".jpg"
+    info: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def video_path(self) -> Path:
+        return self.path / "video.mp4"
+
+    def _image_path(self, i: int) -> Path:
+        return self.path / self.im_dir / f"{i:06d}{self.im_ext}"
+
+    def _has_images(self) -> bool:
+        return self._image_path(1).is_file()
+
+    def frames(self) -> Iterator[np.ndarray]:
+        """Yield every frame as ``(H, W, 3)`` uint8 BGR, frame 1 first."""
+        import cv2
+
+        if self._has_images():
+            for i in range(1, self.length + 1):
+                yield self.frame(i)
+            return
+        if not self.video_path.is_file():
+            raise ValueError(f"{self.path}: no frames ({self.im_dir}/000001{self.im_ext} "
+                             "or video.mp4)")
+        cap = cv2.VideoCapture(str(self.video_path))
+        try:
+            for i in range(1, self.length + 1):
+                ok, img = cap.read()
+                if not ok:
+                    raise ValueError(f"{self.video_path}: could not read frame {i}")
+                yield img
+        finally:
+            cap.release()
+
+    def frame(self, i: int) -> np.ndarray:
+        """Frame ``i`` (1-based) as ``(H, W, 3)`` uint8 BGR."""
+        import cv2
+
+        if not (1 <= i <= self.length):
+            raise ValueError(f"frame must be in [1, {self.length}], got {i}")
+        p = self._image_path(i)
+        if p.is_file():
+            img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+            if img is None:
+                raise ValueError(f"{p}: not a readable image")
+            return img
+        if self.video_path.is_file():
+            cap = cv2.VideoCapture(str(self.video_path))
+            try:
+                cap.set(cv2.CAP_PROP_POS_FRAMES, i - 1)
+                ok, img = cap.read()
+            finally:
+                cap.release()
+            if not ok:
+                raise ValueError(f"{self.video_path}: could not read frame {i}")
+            return img
+        raise ValueError(f"{p}: no such frame (and no video.mp4)")
+
+    def gt_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(ids (N,), points (T, N, 2))``: head centres in pixels, NaN where absent."""
+        rows = self.gt
+        if len(rows):
+            rows = rows[(rows[:, 6] > 0) & (rows[:, 7] == 1)]
+        ids = np.unique(rows[:, 1]).astype(np.int64) if len(rows) else np.zeros(0, np.int64)
+        points = np.full((self.length, len(ids), 2), np.nan)
+        if len(rows):
+            col = np.searchsorted(ids, rows[:, 1].astype(np.int64))
+            t = rows[:, 0].astype(np.int64) - 1
+            keep = (t >= 0) & (t < self.length)
+            x = rows[:, 2] + rows[:, 4] / 2.0
+            if self.box_type == "head":
+                y = rows[:, 3] + rows[:, 5] / 2.0
+            else:
+                y = rows[:, 3] + HEAD_IN_BODY * rows[:, 5]
+            points[t[keep], col[keep], 0] = x[keep]
+            points[t[keep], col[keep], 1] = y[keep]
+        return ids, points
+
+    def agents(self) -> dict[str, np.ndarray]:
+        """Columns of ``gt/agents.csv`` as int64 arrays (empty dict when absent)."""
+        path = self.path / "gt" / "agents.csv"
+        if not path.is_file():
+            return {}
+        with open(path, newline="") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            if header is None:
+                return {}
+            header = [h.strip() for h in header]
+            data = []
+            for lineno, row in enumerate(reader, 2):
+                if not row:
+                    continue
+                if len(row) != len(header):
+                    raise ValueError(f"{path}:{lineno}: expected {len(header)} columns, "
+                                     f"got {len(row)}")
+                try:
+                    data.append([int(v) for v in row])
+                except ValueError:
+                    raise ValueError(f"{path}:{lineno}: non-integer value in {row!r}") from None
+        arr = np.array(data, dtype=np.int64).reshape(-1, len(header))
+        return {h: arr[:, k] for k, h in enumerate(header)}
+
+
+def read_sequence(path: str | os.PathLike[str]) -> MotSequence:
+    """Open a MOTChallenge sequence folder (crowdsim's or a real MOT17/MOT20 one)."""
+    path = Path(path)
+    if not path.is_dir():
+        raise ValueError(f"{path}: no such sequence folder")
+    ini = path / "seqinfo.ini"
+    if not ini.is_file():
+        raise ValueError(f"{path}: missing seqinfo.ini (not a MOTChallenge sequence)")
+    parser = configparser.ConfigParser(interpolation=None)
+    parser.optionxform = str  # keep the camelCase keys
+    try:
+        parser.read(ini)
+    except configparser.Error as exc:
+        raise ValueError(f"{ini}: malformed ({exc.__class__.__name__})") from None
+    if "Sequence" not in parser:
+        raise ValueError(f"{ini}: missing [Sequence] section")
+    sec = dict(parser["Sequence"])
+
+    def get(key: str, conv, default=None):
+        if key not in sec:
+            if default is None:
+                raise ValueError(f"{ini}: missing key {key!r}")
+            return default
+        try:
+            return conv(sec[key].strip())
+        except ValueError:
+            raise ValueError(f"{ini}: key {key!r} has a bad value {sec[key]!r}") from None
+
+    gt_path = path / "gt" / "gt.txt"
+    gt = read_mot_file(gt_path)[:, :9] if gt_path.is_file() else np.zeros((0, 9))
+    length = get("seqLength", int, -1)
+    if length < 0:
+        raise ValueError(f"{ini}: missing key 'seqLength'")
+    frame_rate = get("frameRate", float)
+    width = get("imWidth", int)
+    height = get("imHeight", int)
+    for key, value in (("frameRate", frame_rate), ("imWidth", width), ("imHeight", height)):
+        if value <= 0:
+            raise ValueError(f"{ini}: key {key!r} must be > 0, got {value}")
+    box_type = sec.get("boxType", "body").strip()
+    if box_type not in ("head", "body"):
+        raise ValueError(f"{ini}: key 'boxType' must be head or body, got {box_type!r}")
+    if "templateSize" in sec:
+        template = get("templateSize", int)
+    elif len(gt):
+        ped = gt[(gt[:, 6] > 0) & (gt[:, 7] == 1)]
+        widths = ped[:, 4] if len(ped) else gt[:, 4]
+        template = int(np.clip(round(float(np.median(widths))), 4, 64))
+    else:
+        template = DEFAULT_TEMPLATE_SIZE
+    return MotSequence(path=path, name=sec.get("name", path.name).strip(), frame_rate=frame_rate,
+                       width=width, height=height, length=length, template_size=template, gt=gt,
+                       box_type=box_type, im_dir=sec.get("imDir", "img1").strip(),
+                       im_ext=sec.get("imExt", ".jpg").strip(), info=sec)

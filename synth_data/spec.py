@@ -1,0 +1,321 @@
+"""Sequence spec files (TOML or YAML): scenario, camera, appearance, seed (SPEC §4).
+
+A spec describes one sequence. Example (TOML)::
+
+    name = "seq3"            # folder name: letters, digits, '-', '_'
+    seed = 3                 # seeds simulation and rendering
+    frames = 144             # frames written (one simulation step per frame)
+    fps = 25.0               # frame rate; simulation dt = 1 / fps
+    warmup_steps = 50        # simulated steps dropped before frame 1
+    description = "marathon, dense"
+
+    [scenario]               # crowdsim.scenarios.make_scenario(name, **rest)
+    name = "marathon"
+    n_agents = 175
+    density = 2.0
+
+    [camera]                 # crowdsim.camera.Camera; omitted size/scale fit the crowd
+    tilt_deg = 0.0
+    jitter_px = 0.0
+    # px_per_m = 28.0        default: appearance.template_px / 0.5 m
+    # width = 1280           default: the trajectories' extent, at most max_width
+    # height = 720
+    # center = [0.0, 0.0]    default: centre of the extent
+    max_width = 1920
+    max_height = 1080
+
+    [appearance]             # crowdsim.appearance_model.AppearanceParams (calibration knobs)
+    template_px = 14
+    noise_sigma = 3.0
+
+    [output]
+    images = true            # img1/*.jpg
+    video = false            # video.mp4
+
+    [calibration]            # free-form record (numbers and strings), not used to render
+    paper_ncc_15px = 58.0
+
+Validation happens on load; every error names the file, the field and the value, e.g.
+``seq3.toml: camera.tilt_deg must be in [0, 60), got 75``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import sys
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from crowdsim.appearance_model import AppearanceParams
+
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+TOP_FIELDS: dict[str, tuple[type | tuple[type, ...], bool]] = {
+    "name": (str, True),
+    "seed": (int, True),
+    "frames": (int, True),
+    "fps": ((int, float), False),
+    "warmup_steps": (int, False),
+    "description": (str, False),
+}
+"""Top-level key -> (type, required)."""
+SECTIONS: tuple[str, ...] = ("scenario", "camera", "appearance", "output", "calibration")
+CAMERA_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "px_per_m": (int, float), "width": int, "height": int, "center": list,
+    "tilt_deg": (int, float), "distance_m": (int, float), "jitter_px": (int, float),
+    "max_width": int, "max_height": int, "margin_m": (int, float),
+}
+OUTPUT_FIELDS: dict[str, type] = {"images": bool, "video": bool}
+MAX_FRAMES: int = 1_000_000
+
+
+@dataclass(frozen=True)
+class SequenceSpec:
+    """A validated sequence spec.
+
+    Attributes
+    ----------
+    name : str
+        Sequence (folder) name.
+    seed : int
+        Seed of the simulation and of the rendering.
+    frames : int
+        Frames to write.
+    fps : float
+        Frames per second; the simulation steps ``1 / fps`` seconds per frame.
+    warmup_steps : int
+        Simulation steps run and dropped before the first frame.
+    scenario : dict
+        ``{"name": ..., **parameters}`` for :func:`crowdsim.scenarios.make_scenario`.
+    camera : dict
+        Camera fields (see :data:`CAMERA_FIELDS`).
+    appearance : AppearanceParams
+    output : dict
+        ``{"images": bool, "video": bool}``.
+    calibration : dict
+        Free-form calibration record (not part of :meth:`digest`).
+    description : str
+    source : str
+        File the spec came from ("" for built-in tables).
+    """
+
+    name: str
+    seed: int
+    frames: int
+    fps: float = 25.0
+    warmup_steps: int = 0
+    scenario: dict[str, Any] = field(default_factory=dict)
+    camera: dict[str, Any] = field(default_factory=dict)
+    appearance: AppearanceParams = field(default_factory=AppearanceParams)
+    output: dict[str, bool] = field(default_factory=lambda: {"images": True, "video": False})
+    calibration: dict[str, Any] = field(default_factory=dict)
+    description: str = ""
+    source: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serialisable form (what ``meta.json`` stores under ``spec``)."""
+        return {"name": self.name, "seed": self.seed, "frames": self.frames, "fps": self.fps,
+                "warmup_steps": self.warmup_steps, "description": self.description,
+                "scenario": dict(self.scenario), "camera": dict(self.camera),
+                "appearance": self.appearance.to_dict(), "output": dict(self.output),
+                "calibration": dict(self.calibration)}
+
+    def digest(self) -> str:
+        """SHA-256 of everything that changes the output (not description/calibration)."""
+        d = self.to_dict()
+        d.pop("description")
+        d.pop("calibration")
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
+
+    def truncated(self, frames: int | None) -> SequenceSpec:
+        """This spec with at most ``frames`` frames (unchanged for None)."""
+        if frames is None:
+            return self
+        if frames < 1:
+            raise ValueError(f"--frames must be >= 1, got {frames}")
+        return replace(self, frames=min(self.frames, int(frames)))
+
+
+def _type_name(t: type | tuple[type, ...]) -> str:
+    if isinstance(t, tuple):
+        return "a number" if float in t else " or ".join(x.__name__ for x in t)
+    return {str: "a string", int: "an integer", bool: "true or false", list: "a list",
+            float: "a number", dict: "a table"}.get(t, t.__name__)
+
+
+def _check_type(where: str, key: str, value: Any, expected: type | tuple[type, ...]) -> None:
+    types = expected if isinstance(expected, tuple) else (expected,)
+    ok = isinstance(value, types) and not (isinstance(value, bool) and bool not in types)
+    if not ok:
+        raise ValueError(f"{where}: {key} must be {_type_name(expected)}, got {value!r}")
+
+
+def _suggest(key: str, known: list[str]) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(key, known, n=1)
+    return f" (did you mean {close[0]!r}?)" if close else f"; known: {', '.join(known)}"
+
+
+def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
+    """Validate a parsed spec mapping; errors read ``source: field ... got value``."""
+    where = source
+    if not isinstance(data, dict):
+        raise ValueError(f"{where}: a spec must be a table/mapping, got {type(data).__name__}")
+    for key in data:
+        if key not in TOP_FIELDS and key not in SECTIONS:
+            raise ValueError(f"{where}: unknown field {key!r}"
+                             f"{_suggest(str(key), list(TOP_FIELDS) + list(SECTIONS))}")
+    for key, (typ, required) in TOP_FIELDS.items():
+        if key not in data:
+            if required:
+                raise ValueError(f"{where}: missing required field {key!r}")
+            continue
+        _check_type(where, key, data[key], typ)
+    name = data["name"]
+    if not NAME_RE.match(name):
+        raise ValueError(f"{where}: name must be letters, digits, '.', '-' or '_' "
+                         f"(a folder name), got {name!r}")
+    if data["seed"] < 0:
+        raise ValueError(f"{where}: seed must be >= 0, got {data['seed']!r}")
+    if not (1 <= data["frames"] <= MAX_FRAMES):
+        raise ValueError(f"{where}: frames must be in [1, {MAX_FRAMES}], got {data['frames']!r}")
+    fps = float(data.get("fps", 25.0))
+    if not (0 < fps <= 1000):
+        raise ValueError(f"{where}: fps must be in (0, 1000], got {data.get('fps')!r}")
+    warmup = data.get("warmup_steps", 0)
+    if warmup < 0:
+        raise ValueError(f"{where}: warmup_steps must be >= 0, got {warmup!r}")
+    sections = {}
+    for sec in SECTIONS:
+        value = data.get(sec, {})
+        if not isinstance(value, dict):
+            raise ValueError(f"{where}: {sec} must be a table, got {value!r}")
+        sections[sec] = dict(value)
+
+    scenario = sections["scenario"]
+    if "name" not in scenario:
+        raise ValueError(f"{where}: missing required field 'scenario.name'")
+    _check_type(where, "scenario.name", scenario["name"], str)
+    _validate_scenario(where, scenario)
+
+    camera = sections["camera"]
+    for key, value in camera.items():
+        if key not in CAMERA_FIELDS:
+            raise ValueError(f"{where}: unknown field 'camera.{key}'"
+                             f"{_suggest(key, list(CAMERA_FIELDS))}")
+        _check_type(where, f"camera.{key}", value, CAMERA_FIELDS[key])
+    if "center" in camera:
+        c = camera["center"]
+        if len(c) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                  for v in c):
+            raise ValueError(f"{where}: camera.center must be two numbers, got {c!r}")
+    for key in ("max_width", "max_height"):
+        if key in camera and not (8 <= camera[key] <= 16384):
+            raise ValueError(f"{where}: camera.{key} must be in [8, 16384], got {camera[key]!r}")
+    if "margin_m" in camera and not (0 <= camera["margin_m"] <= 1000):
+        raise ValueError(f"{where}: camera.margin_m must be in [0, 1000], "
+                         f"got {camera['margin_m']!r}")
+    from crowdsim.camera import Camera
+
+    try:  # range checks of the camera itself, with placeholders for the fitted fields
+        Camera(px_per_m=float(camera.get("px_per_m", 10.0)), width=camera.get("width", 64),
+               height=camera.get("height", 64),
+               center=tuple(camera.get("center", (0.0, 0.0))),
+               tilt_deg=float(camera.get("tilt_deg", 0.0)),
+               distance_m=float(camera.get("distance_m", 60.0)),
+               jitter_px=float(camera.get("jitter_px", 0.0)))
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+
+    app = sections["appearance"]
+    known = list(AppearanceParams.__dataclass_fields__)
+    for key, value in app.items():
+        if key not in known:
+            raise ValueError(f"{where}: unknown field 'appearance.{key}'{_suggest(key, known)}")
+        default = AppearanceParams.__dataclass_fields__[key].default
+        expected: type | tuple[type, ...]
+        if isinstance(default, bool):
+            expected = bool
+        elif isinstance(default, int):
+            expected = int
+        elif isinstance(default, float):
+            expected = (int, float)
+        elif isinstance(default, str):
+            expected = str
+        else:
+            expected = list
+        _check_type(where, f"appearance.{key}", value, expected)
+    try:
+        appearance = AppearanceParams.from_dict(app)
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+
+    output = {"images": True, "video": False}
+    for key, value in sections["output"].items():
+        if key not in OUTPUT_FIELDS:
+            raise ValueError(f"{where}: unknown field 'output.{key}'"
+                             f"{_suggest(key, list(OUTPUT_FIELDS))}")
+        _check_type(where, f"output.{key}", value, OUTPUT_FIELDS[key])
+        output[key] = value
+    if not (output["images"] or output["video"]):
+        raise ValueError(f"{where}: output.images and output.video cannot both be false")
+
+    for key, value in sections["calibration"].items():
+        if not isinstance(value, (int, float, str, bool, list)):
+            raise ValueError(f"{where}: calibration.{key} must be a number, string or list, "
+                             f"got {value!r}")
+    return SequenceSpec(name=name, seed=int(data["seed"]), frames=int(data["frames"]), fps=fps,
+                        warmup_steps=int(warmup), scenario=scenario, camera=camera,
+                        appearance=appearance, output=output,
+                        calibration=sections["calibration"],
+                        description=data.get("description", ""), source=source)
+
+
+def _validate_scenario(where: str, scenario: dict[str, Any]) -> None:
+    from crowdsim.scenarios import make_scenario
+
+    params = {k: v for k, v in scenario.items() if k != "name"}
+    try:
+        make_scenario(scenario["name"], **params)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{where}: scenario: {exc}") from None
+
+
+def parse_spec_text(text: str, fmt: str, source: str) -> Any:
+    """Parse TOML (``fmt="toml"``) or YAML text; syntax errors name the source."""
+    if fmt == "toml":
+        if sys.version_info >= (3, 11):
+            import tomllib
+        else:  # pragma: no cover
+            import tomli as tomllib
+        try:
+            return tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"{source}: invalid TOML: {exc}") from None
+    import yaml
+
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{source}: invalid YAML: {str(exc).splitlines()[0]}") from None
+
+
+def load_spec(path: str | os.PathLike[str]) -> SequenceSpec:
+    """Read and validate a ``.toml``, ``.yaml`` or ``.yml`` spec file."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".toml", ".yaml", ".yml"):
+        raise ValueError(f"{path}: spec files must end in .toml, .yaml or .yml")
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such spec file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read spec file ({exc})") from None
+    data = parse_spec_text(text, "toml" if suffix == ".toml" else "yaml", str(path))
+    return spec_from_dict(data, source=str(path))
