@@ -20,6 +20,8 @@ from crowdsim import __version__
 
 COMMAND_MODULES: tuple[str, ...] = (
     "crowdsim.commands.simulate",
+    "crowdsim.commands.track",
+    "crowdsim.commands.evaluate",
     "crowdsim.commands.render",
     "crowdsim.commands.generate",
     "crowdsim.commands.bench",

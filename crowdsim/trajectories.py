@@ -79,7 +79,8 @@ class Trajectories:
             else:
                 value = np.asarray(value, dtype=dtype)
                 if value.shape != (n,):
-                    raise ValueError(f"attribute {name!r} must have shape ({n},), got {value.shape}")
+                    raise ValueError(f"attribute {name!r} must have shape ({n},), "
+                                     f"got {value.shape}")
                 self.attributes[name] = value
 
     # ------------------------------------------------------------------ shape helpers
@@ -249,7 +250,7 @@ class TrajectoryRecorder:
                meta: dict[str, Any]) -> Trajectories:
         """Build the dense ``(T, n_total, 2)`` trajectories."""
         out = np.full((len(self._ids), n_total, 2), np.nan)
-        for t, (ids, pos) in enumerate(zip(self._ids, self._pos)):
+        for t, (ids, pos) in enumerate(zip(self._ids, self._pos, strict=False)):
             out[t, ids] = pos
         return Trajectories(positions=out, ids=np.arange(n_total, dtype=np.int64), dt=dt,
                             attributes={k: v[:n_total] for k, v in attributes.items()}, meta=meta)

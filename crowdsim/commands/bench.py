@@ -1,7 +1,9 @@
-"""``crowdsim bench NAME``: benchmarks that print a table and one JSON object.
+"""``crowdsim bench NAME [ARGS]``: benchmarks that print a table and one JSON object.
 
-Each benchmark is a module exposing ``add_arguments(parser)`` and ``run(args) -> int``; the
-``benchmarks/`` folder holds thin scripts calling the same modules.
+Each benchmark is a module exposing ``add_arguments(parser)`` and ``run(args) -> int``. It is
+imported only when run, so a benchmark's heavy or optional dependencies (JuPedSim,
+PySocialForce, Clarabel, ...) never slow down or break other commands. The ``benchmarks/``
+folder holds thin scripts calling the same modules.
 """
 
 from __future__ import annotations
@@ -11,18 +13,33 @@ import importlib
 
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "sim": ("crowdsim.bench.sim", "simulator speed vs JuPedSim and PySocialForce (corridor)"),
-    "fd": ("crowdsim.bench.fd", "fundamental diagram and counterflow lanes vs Weidmann"),
+    "fd": ("crowdsim.bench.fd", "fundamental diagram vs Weidmann and counterflow lanes"),
 }
 """Benchmark name -> (module, one-line help)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    parser = sub.add_parser("bench", help="run a benchmark (prints a table and JSON)",
-                            description=__doc__.splitlines()[0])
-    bench_sub = parser.add_subparsers(dest="benchmark", metavar="NAME")
-    bench_sub.required = True
-    for name, (module, help_text) in BENCHMARKS.items():
-        p = bench_sub.add_parser(name, help=help_text, description=help_text)
-        mod = importlib.import_module(module)
-        mod.add_arguments(p)
-        p.set_defaults(func=mod.run)
+    listing = "\n".join(f"  {name:<8} {help_text}" for name, (_, help_text) in BENCHMARKS.items())
+    parser = sub.add_parser(
+        "bench", help="run a benchmark (prints a table and JSON)",
+        description=f"{__doc__.splitlines()[0]}\n\nbenchmarks:\n{listing}\n\n"
+        "`crowdsim bench NAME --help` lists a benchmark's options.",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("benchmark", metavar="NAME", choices=sorted(BENCHMARKS),
+                        help="benchmark to run: " + ", ".join(BENCHMARKS))
+    parser.add_argument("bench_args", nargs=argparse.REMAINDER, metavar="ARGS",
+                        help="options of the benchmark")
+    parser.set_defaults(func=run)
+
+
+def bench_parser(name: str) -> tuple[argparse.ArgumentParser, object]:
+    module, help_text = BENCHMARKS[name]
+    mod = importlib.import_module(module)
+    parser = argparse.ArgumentParser(prog=f"crowdsim bench {name}", description=help_text)
+    mod.add_arguments(parser)
+    return parser, mod
+
+
+def run(args: argparse.Namespace) -> int:
+    parser, mod = bench_parser(args.benchmark)
+    return int(mod.run(parser.parse_args(args.bench_args)) or 0)

@@ -1,0 +1,146 @@
+"""Parameters of the social-force model (SPEC §3), in SI units.
+
+Every constant the simulator uses lives in :class:`SocialForceParams`; each field names its
+symbol in Helbing & Molnár (1995) [HM95], Helbing, Farkas & Vicsek (2000) [HFV00] or
+Moussaïd et al. (2010) [M10], with its unit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+POTENTIALS = ("elliptic", "exponential")
+
+
+@dataclass(frozen=True)
+class SocialForceParams:
+    """Social-force model with group terms, integrated by pymunk.
+
+    Per agent ``i`` (unit mass; forces are accelerations, m/s²)::
+
+        dv_i/dt = (v0_i e_i - v_i)/tau + sum_j w(phi_ij) f_ij + sum_W f_iW + f_group_i
+
+    Attributes
+    ----------
+    dt : float
+        Integration time step, s. Default 0.04 s (25 frames/s).
+    tau : float
+        Relaxation time ``tau`` of the driving term [HM95 Eq. 2], s.
+    headway_time : float
+        Time headway ``T`` (s): the speed cap becomes ``min(1.3 v0, gap / T)``, where ``gap``
+        is the free distance along ``e_i`` to the nearest body in a 45° cone ahead that heads
+        the same way (desired directions within 60°). Plain HM95 forces keep a dense
+        unidirectional crowd near free speed, far above Weidmann's fundamental diagram; this
+        self-stopping rule (Parisi, Gilman & Moldovan 2009, Physica A 388; the headway law of
+        Tordeux et al.'s collision-free speed model, 2016) restores it. 0 disables it (pure
+        HM95).
+    potential : str
+        ``"elliptic"``: pedestrian potential ``V(b) = V0 exp(-b/sigma)`` over the semi-minor
+        axis ``b`` of the ellipse spanned by the other's step ``v_j * delta_t`` [HM95 Eq. 4];
+        ``"exponential"``: circular ``A exp((r_ij - d_ij)/B)`` [HFV00].
+    V0 : float
+        Pedestrian potential strength ``V0_ab`` [HM95], m²/s².
+    sigma : float
+        Pedestrian potential range ``sigma`` [HM95], m.
+    step_time : float
+        ``delta_t`` of the elliptic potential (the other's step ``v_j delta_t``) [HM95], s.
+    A : float
+        Exponential repulsion strength ``A_i`` [HFV00] divided by the 80 kg mass, m/s².
+    B : float
+        Exponential repulsion range ``B_i`` [HFV00], m.
+    U0 : float
+        Wall potential strength ``U0_aB`` [HM95 Eq. 5], m²/s².
+    R : float
+        Wall potential range ``R`` [HM95], m.
+    fov_deg : float
+        Field of view ``2 phi`` [HM95 Eq. 8], degrees; forces from outside are weighted by ``c``.
+    c : float
+        Weight ``c`` of interactions outside the field of view [HM95 Eq. 8].
+    speed_cap : float
+        Maximal speed as a multiple of ``v0_i`` (``v_max = 1.3 v0`` [HM95 Eq. 10]).
+    cutoff : float
+        Interaction range for pedestrian and wall terms, m. Beyond it the pedestrian force is
+        below ``V0/sigma exp(-cutoff/sigma)`` (2 m: 0.009 m/s², under 1 % of the force at
+        contact) and is neglected; it is also the side of the neighbour-grid cells.
+    beta1, beta2, beta3 : float
+        Group vision, attraction and repulsion strengths [M10], m/s² (per radian for beta1
+        scaled by speed).
+    group_gaze_deg : float
+        Half field of vision used by the group vision term [M10], degrees.
+    group_repulsion_gap : float
+        Gap added to the radii below which group members repel each other [M10], m.
+    mass : float
+        Body mass for pymunk contacts, kg (forces are scaled by it).
+    friction : float
+        Coulomb friction coefficient between bodies in contact (pymunk).
+    contact_slop : float
+        Allowed contact overlap before pymunk corrects it, m.
+    solver_iterations : int
+        pymunk contact solver iterations per step.
+    """
+
+    dt: float = 0.04
+    tau: float = 0.5
+    headway_time: float = 0.4
+    potential: str = "elliptic"
+    V0: float = 2.1
+    sigma: float = 0.3
+    step_time: float = 2.0
+    A: float = 25.0
+    B: float = 0.08
+    U0: float = 10.0
+    R: float = 0.2
+    fov_deg: float = 200.0
+    c: float = 0.5
+    speed_cap: float = 1.3
+    cutoff: float = 2.0
+    beta1: float = 4.0
+    beta2: float = 3.0
+    beta3: float = 1.0
+    group_gaze_deg: float = 90.0
+    group_repulsion_gap: float = 0.3
+    mass: float = 80.0
+    friction: float = 0.3
+    contact_slop: float = 0.005
+    solver_iterations: int = 10
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == "potential":
+                if value not in POTENTIALS:
+                    raise ValueError(f"potential must be one of {POTENTIALS}, got {value!r}")
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"{f.name} must be a number, got {value!r}")
+            if not math.isfinite(value):
+                raise ValueError(f"{f.name} must be finite, got {value!r}")
+        positive = ("dt", "tau", "sigma", "step_time", "B", "R", "speed_cap", "cutoff", "mass",
+                    "contact_slop", "solver_iterations")
+        for name in positive:
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("headway_time", "V0", "A", "U0", "beta1", "beta2", "beta3", "friction",
+                     "group_repulsion_gap"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0 < self.fov_deg <= 360:
+            raise ValueError(f"fov_deg must be in (0, 360], got {self.fov_deg!r}")
+        if not 0 <= self.c <= 1:
+            raise ValueError(f"c must be in [0, 1], got {self.c!r}")
+        if self.speed_cap < 1:
+            raise ValueError(f"speed_cap must be >= 1 (a multiple of v0), got {self.speed_cap!r}")
+        if self.dt > 0.2:
+            raise ValueError(f"dt must be <= 0.2 s for a stable integration, got {self.dt!r}")
+
+    def replace(self, **changes: Any) -> SocialForceParams:
+        """A copy with some fields changed (validated like the constructor)."""
+        unknown = set(changes) - {f.name for f in fields(self)}
+        if unknown:
+            raise ValueError(f"unknown social-force parameter(s): {', '.join(sorted(unknown))}")
+        return SocialForceParams(**{**asdict(self), **changes})
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)

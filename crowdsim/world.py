@@ -1,0 +1,308 @@
+"""Static geometry, routes, sources and agent batches that scenarios hand to the simulator.
+
+Everything here is plain data (struct of arrays, metres and seconds); the physics lives in
+:mod:`crowdsim.simulation` and :mod:`crowdsim.forces`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# ------------------------------------------------------------------------------ geometry
+
+
+def polyline(points: list[tuple[float, float]] | np.ndarray, thickness: float = 0.05,
+             closed: bool = False) -> np.ndarray:
+    """Wall segments ``(m, 5)`` (``x0, y0, x1, y1, half_thickness``) along a polyline."""
+    p = np.asarray(points, dtype=np.float64)
+    if closed:
+        p = np.vstack([p, p[:1]])
+    seg = np.column_stack([p[:-1], p[1:], np.full(len(p) - 1, thickness)])
+    return seg
+
+
+def rectangle(xmin: float, ymin: float, xmax: float, ymax: float,
+              thickness: float = 0.05) -> np.ndarray:
+    """Closed rectangular obstacle (or room) as wall segments ``(4, 5)``."""
+    return polyline([(xmin, ymin), (xmax, ymin), (xmax, ymax), (xmin, ymax)], thickness,
+                    closed=True)
+
+
+def arc(cx: float, cy: float, r: float, a0: float, a1: float, n: int) -> np.ndarray:
+    """``(n + 1, 2)`` points on a circle arc from angle ``a0`` to ``a1`` (radians)."""
+    a = np.linspace(a0, a1, n + 1)
+    return np.column_stack([cx + r * np.cos(a), cy + r * np.sin(a)])
+
+
+@dataclass(frozen=True)
+class World:
+    """Static scene.
+
+    Attributes
+    ----------
+    walls : (m, 5) float64
+        Wall segments ``x0, y0, x1, y1, half_thickness`` (m), static pymunk segments.
+    bounds : tuple of 4 floats
+        ``(xmin, ymin, xmax, ymax)`` (m); agents leaving it (by more than 1 m) are removed.
+    period : float
+        Length (m) of a periodic x axis on ``[0, period)``, 0 for none. Agents crossing
+        ``x = period`` re-enter at ``x = 0`` (and vice versa); forces see periodic images.
+    """
+
+    walls: np.ndarray
+    bounds: tuple[float, float, float, float]
+    period: float = 0.0
+
+    def __post_init__(self) -> None:
+        walls = np.asarray(self.walls, dtype=np.float64).reshape(-1, 5)
+        object.__setattr__(self, "walls", walls)
+
+    @property
+    def area(self) -> float:
+        xmin, ymin, xmax, ymax = self.bounds
+        return (xmax - xmin) * (ymax - ymin)
+
+
+@dataclass(frozen=True)
+class Route:
+    """A sequence of gates an agent walks through.
+
+    The desired direction points to the nearest point of the current gate (a segment; a
+    point when both ends coincide), so a crowd spreads over a wide gate instead of
+    converging on one point. A gate counts as passed within ``reach`` metres.
+
+    Attributes
+    ----------
+    gates : (k, 4) float64
+        Gate segments ``x0, y0, x1, y1`` in m.
+    loop : bool
+        Start again at the first gate after the last (circulation); otherwise an agent that
+        passes the last gate leaves the scene (the last gate is a sink).
+    direction : (2,) float64 or None
+        A fixed desired direction instead of gates (periodic corridors).
+    reach : float
+        Distance (m) at which a gate counts as passed.
+    """
+
+    gates: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    loop: bool = False
+    direction: tuple[float, float] | None = None
+    reach: float = 0.5
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "gates", np.asarray(self.gates, dtype=np.float64).reshape(-1, 4))
+        if self.direction is None and len(self.gates) == 0:
+            raise ValueError("a route needs gates or a fixed direction")
+
+
+class RouteTable:
+    """All routes of a scene packed into arrays for vectorised lookup.
+
+    ``gates (r, kmax, 4)``, ``length (r,)``, ``loop (r,)``, ``direction (r, 2)`` (zero when the
+    route uses gates), ``reach (r,)``.
+    """
+
+    def __init__(self, routes: list[Route]) -> None:
+        if not routes:
+            raise ValueError("a scene needs at least one route")
+        kmax = max(1, max(len(r.gates) for r in routes))
+        self.gates = np.zeros((len(routes), kmax, 4))
+        self.length = np.zeros(len(routes), dtype=np.int64)
+        self.loop = np.array([r.loop for r in routes])
+        self.direction = np.zeros((len(routes), 2))
+        self.reach = np.array([r.reach for r in routes])
+        for k, r in enumerate(routes):
+            self.gates[k, : len(r.gates)] = r.gates
+            self.length[k] = len(r.gates)
+            if r.direction is not None:
+                d = np.asarray(r.direction, dtype=np.float64)
+                self.direction[k] = d / np.linalg.norm(d)
+
+    def desired(self, pos: np.ndarray, route: np.ndarray,
+                wp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Desired unit directions, advanced waypoint indices and the "arrived" mask.
+
+        Parameters
+        ----------
+        pos : (n, 2) positions; route, wp : (n,) route and current gate index.
+
+        Returns
+        -------
+        e : (n, 2) unit directions; wp : (n,) new gate indices; done : (n,) bool, True for
+        agents that passed the last gate of a non-looping route.
+        """
+        n = len(pos)
+        e = np.zeros((n, 2))
+        done = np.zeros(n, dtype=bool)
+        if n == 0:
+            return e, wp, done
+        wp = wp.copy()
+        fixed = np.any(self.direction[route] != 0.0, axis=1)
+        e[fixed] = self.direction[route[fixed]]
+        g = ~fixed
+        if g.any():
+            idx = np.flatnonzero(g)
+            # Advance by at most two gates a step (gates are metres apart, steps centimetres).
+            for _ in range(2):
+                q, dist = self._nearest(pos[idx], route[idx], wp[idx])
+                passed = dist < self.reach[route[idx]]
+                if not passed.any():
+                    break
+                r = route[idx]
+                nxt = wp[idx] + passed
+                last = nxt >= self.length[r]
+                nxt = np.where(last & self.loop[r], 0, nxt)
+                done[idx[last & ~self.loop[r]]] = True
+                wp[idx] = np.minimum(nxt, self.length[r] - 1)
+            q, dist = self._nearest(pos[idx], route[idx], wp[idx])
+            d = q - pos[idx]
+            e[idx] = np.divide(d, dist[:, None], out=np.zeros_like(d), where=dist[:, None] > 1e-9)
+        return e, wp, done
+
+    def _nearest(self, pos: np.ndarray, route: np.ndarray,
+                 wp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        seg = self.gates[route, wp]
+        a, b = seg[:, :2], seg[:, 2:]
+        u = b - a
+        len2 = np.einsum("ij,ij->i", u, u)
+        t = np.divide(np.einsum("ij,ij->i", pos - a, u), len2, out=np.zeros(len(pos)),
+                      where=len2 > 0)
+        q = a + np.clip(t, 0.0, 1.0)[:, None] * u
+        return q, np.hypot(*(q - pos).T)
+
+
+# ------------------------------------------------------------------------------ agents
+
+
+@dataclass
+class AgentBatch:
+    """Agents to add to a simulation (struct of arrays, ``n`` rows).
+
+    pos, vel : (n, 2) m, m/s; radius, v0 : (n,) m, m/s; route, wp : (n,) int route and
+    starting gate; group : (n,) int, -1 = none (group ids are scene-global);
+    prominent : (n,) bool; anomaly : (n,) int8 (see ``ANOMALY_KINDS``);
+    stop_start, stop_end : (n,) s, an interval in which the agent wants to stand still
+    (``inf`` for never).
+    """
+
+    pos: np.ndarray
+    vel: np.ndarray
+    radius: np.ndarray
+    v0: np.ndarray
+    route: np.ndarray
+    wp: np.ndarray
+    group: np.ndarray
+    prominent: np.ndarray
+    anomaly: np.ndarray
+    stop_start: np.ndarray
+    stop_end: np.ndarray
+
+    FIELDS = ("pos", "vel", "radius", "v0", "route", "wp", "group", "prominent", "anomaly",
+              "stop_start", "stop_end")
+
+    @classmethod
+    def create(cls, pos: np.ndarray, radius: np.ndarray, v0: np.ndarray, route: np.ndarray | int,
+               rng: np.random.Generator, prominent_fraction: float, wp: np.ndarray | int = 0,
+               group: np.ndarray | None = None, anomaly: np.ndarray | None = None) -> AgentBatch:
+        pos = np.asarray(pos, dtype=np.float64).reshape(-1, 2)
+        n = len(pos)
+        return cls(
+            pos=pos,
+            vel=np.zeros((n, 2)),
+            radius=np.asarray(radius, dtype=np.float64),
+            v0=np.asarray(v0, dtype=np.float64),
+            route=np.broadcast_to(np.asarray(route, dtype=np.int64), (n,)).copy(),
+            wp=np.broadcast_to(np.asarray(wp, dtype=np.int64), (n,)).copy(),
+            group=np.full(n, -1, np.int64) if group is None else np.asarray(group, np.int64),
+            prominent=rng.random(n) < prominent_fraction,
+            anomaly=np.zeros(n, np.int8) if anomaly is None else np.asarray(anomaly, np.int8),
+            stop_start=np.full(n, np.inf),
+            stop_end=np.full(n, np.inf),
+        )
+
+    def __len__(self) -> int:
+        return len(self.pos)
+
+    def select(self, mask: np.ndarray) -> AgentBatch:
+        return AgentBatch(**{f: getattr(self, f)[mask] for f in self.FIELDS})
+
+    @classmethod
+    def concat(cls, batches: list[AgentBatch]) -> AgentBatch:
+        return cls(**{f: np.concatenate([getattr(b, f) for b in batches]) for f in cls.FIELDS})
+
+
+@dataclass(frozen=True)
+class SpeedDistribution:
+    """Desired speeds (m/s): normal ``N(mean, std)`` truncated to ``[low, high]``."""
+
+    mean: float = 1.34
+    std: float = 0.26
+    low: float = 0.5
+    high: float = 2.5
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        if self.std == 0:
+            return np.full(n, self.mean)
+        v = rng.normal(self.mean, self.std, n)
+        bad = (v < self.low) | (v > self.high)
+        while bad.any():  # rejection keeps the truncated normal exact
+            v[bad] = rng.normal(self.mean, self.std, int(bad.sum()))
+            bad = (v < self.low) | (v > self.high)
+        return v
+
+
+WALKERS = SpeedDistribution()
+"""Walkers: N(1.34, 0.26) m/s (SPEC §3), truncated to [0.5, 2.5]."""
+
+RUNNERS = SpeedDistribution(mean=2.9, std=0.5, low=2.5, high=4.5)
+"""Recreational runners: 2.5-4.5 m/s, mean about 2.9 m/s."""
+
+
+@dataclass(frozen=True)
+class Source:
+    """Agents entering through a rectangle ``region`` at ``rate`` per second (Poisson).
+
+    A new agent is placed at a uniform random point of the region, and only if it does not
+    overlap anybody, so a congested entrance limits its own inflow.
+    """
+
+    region: tuple[float, float, float, float]
+    rate: float
+    route: int
+    speeds: SpeedDistribution = WALKERS
+    heading: tuple[float, float] = (1.0, 0.0)
+    start: float = 0.0
+    stop: float = np.inf
+
+
+def hex_positions(rng: np.random.Generator, n: int, x0: float, y0: float, y1: float,
+                  density: float, r_max: float, direction: float = 1.0) -> np.ndarray:
+    """``n`` non-overlapping positions on a jittered hexagonal lattice at ``density`` /m².
+
+    The lattice fills the band ``y0 <= y <= y1`` and extends from ``x0`` along ``direction``
+    (+1 or -1) as far as needed. Jitter keeps a gap of at least ``2 r_max`` where the
+    lattice spacing allows it.
+    """
+    if n == 0:
+        return np.zeros((0, 2))
+    a = np.sqrt(2.0 / (np.sqrt(3.0) * density))  # hexagonal spacing at this density
+    dy = a * np.sqrt(3.0) / 2.0
+    rows = max(1, int(np.floor((y1 - y0 - 2 * r_max) / dy)) + 1)
+    per_col = rows
+    cols = int(np.ceil(n / per_col))
+    ys = y0 + r_max + dy * np.arange(rows) + 0.5 * ((y1 - y0 - 2 * r_max) - dy * (rows - 1))
+    xs = a * (np.arange(cols) + 0.5)
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    gx = gx + 0.5 * a * (np.arange(rows)[None, :] % 2)
+    pts = np.column_stack([gx.ravel(), gy.ravel()])[:n]
+    jitter = max(0.0, (a - 2 * r_max) / 2 - 1e-3)
+    pts += rng.uniform(-jitter, jitter, pts.shape) * [1.0, 0.0] if jitter > 0 else 0.0
+    pts[:, 0] = x0 + direction * pts[:, 0]
+    return pts
+
+
+def lattice_length(n: int, width: float, density: float) -> float:
+    """Length (m) of a band of ``width`` that holds ``n`` agents at ``density``."""
+    return n / (density * width)
