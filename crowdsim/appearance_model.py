@@ -44,6 +44,8 @@ SHOULDER_DEPTH: float = 0.28
 """Half depth of the shoulder ellipse as a fraction of the template size."""
 HEAD_RADIUS: float = 0.21
 """Head radius as a fraction of the template size."""
+FACE_OFFSET: float = 0.14
+"""Distance of the face crescent's centre ahead of the head centre, fraction of the template."""
 
 
 @dataclass(frozen=True)
@@ -240,10 +242,14 @@ def _draw_person(size_hi: int, centre: float, scale: float, angle: float, cloth:
     cv2.circle(img, c, r, tuple(float(v) for v in hair), -1, cv2.LINE_AA, shift)
     cv2.circle(mask, c, r, 1.0, -1, cv2.LINE_AA, shift)
     # Face: a skin crescent on the walking side of the head.
-    fc = (int(round((centre + 0.09 * scale * math.cos(angle)) * one)),
-          int(round((centre + 0.09 * scale * math.sin(angle)) * one)))
-    cv2.ellipse(img, fc, (int(round(0.12 * scale * one)), int(round(0.15 * scale * one))), deg,
-                0, 360, tuple(float(v) for v in skin), -1, cv2.LINE_AA, shift)
+    # From above mostly hair is seen; the face is a thin crescent at the front of the head,
+    # so the head centre (the ground-truth point) stays hair-coloured.
+    fwd = FACE_OFFSET * scale
+    fc = (int(round((centre + fwd * math.cos(angle)) * one)),
+          int(round((centre + fwd * math.sin(angle)) * one)))
+    face_axes = (int(round(0.07 * scale * one)), int(round(0.13 * scale * one)))
+    cv2.ellipse(img, fc, face_axes, deg, 0, 360, tuple(float(v) for v in skin), -1, cv2.LINE_AA,
+                shift)
     return img, mask
 
 

@@ -146,8 +146,9 @@ class Camera:
             return out
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, 0x4A17]))
         a = math.exp(-1.0 / JITTER_CORRELATION_FRAMES)
-        innov = rng.standard_normal((n_frames, 2)) * self.jitter_px * math.sqrt(1.0 - a * a)
+        # Draw in frame order so that frame t's offset does not depend on n_frames.
         out[0] = rng.standard_normal(2) * self.jitter_px
+        innov = rng.standard_normal((n_frames, 2)) * self.jitter_px * math.sqrt(1.0 - a * a)
         for t in range(1, n_frames):
             out[t] = a * out[t - 1] + innov[t]
         return out

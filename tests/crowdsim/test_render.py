@@ -1,0 +1,160 @@
+"""Renderer: plant people at known points and find them again in the frames."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from crowdsim.appearance_model import AppearanceParams, build_sprite_bank
+from crowdsim.camera import Camera
+from crowdsim.render import SceneRenderer, gt_rows, prepare_agents
+from crowdsim.trajectories import Trajectories
+from synth_data.mot import read_sequence
+from synth_data.writer import mot_ids, write_sequence
+
+
+def walkers(n_frames: int = 12, dt: float = 0.04) -> Trajectories:
+    """Six agents 3 m apart walking in six directions at 1.3 m/s; one enters late."""
+    rng = np.random.default_rng(1)
+    start = np.array([[x, y] for y in (2.0, 5.0) for x in (2.0, 5.0, 8.0)])
+    start += rng.uniform(-0.2, 0.2, start.shape)  # sub-pixel positions
+    ang = np.linspace(0, 2 * math.pi, 6, endpoint=False)
+    vel = 1.3 * np.column_stack([np.cos(ang), np.sin(ang)])
+    t = np.arange(n_frames)[:, None, None] * dt
+    pos = start[None] + vel[None] * t
+    pos[:3, 5] = np.nan  # agent 5 enters at row 3
+    return Trajectories(positions=pos, ids=np.arange(10, 16), dt=dt,
+                        attributes={"prominent": np.array([0, 0, 1, 0, 0, 0], bool)})
+
+
+PARAMS = AppearanceParams(template_px=12, shadow=0.0, noise_sigma=2.0, ground_texture=4.0,
+                          ground_bgr=(60, 170, 60),  # far from every hair colour
+                          prominent_fraction=0.0)
+CAMERA = Camera(px_per_m=24.0, width=256, height=176, center=(5.0, 3.5))
+
+
+def test_plant_and_recover_heads_through_disk(tmp_path):
+    traj = walkers()
+    write_sequence(tmp_path / "seq", traj, camera=CAMERA, appearance=PARAMS, seed=3)
+    seq = read_sequence(tmp_path / "seq")
+    assert (seq.width, seq.height, seq.length, seq.template_size) == (256, 176, 12, 12)
+    assert seq.box_type == "head"
+    ids, points = seq.gt_points()
+    np.testing.assert_array_equal(ids, np.arange(11, 17))
+    assert np.isnan(points[:3, 5]).all() and np.isfinite(points[3:, 5]).all()
+    np.testing.assert_allclose(points, CAMERA.project(traj.positions), atol=2e-3)
+    empty = SceneRenderer(CAMERA, PARAMS, seed=3, fps=traj.fps)
+    half = 7
+    yy, xx = np.mgrid[-half:half + 1, -half:half + 1]
+    errors = []
+    for t, frame in enumerate(seq.frames()):
+        assert frame.shape == (176, 256, 3) and frame.dtype == np.uint8
+        ground = empty.render(t, np.zeros((0, 2)), np.zeros(0), np.zeros(0, int))
+        diff = np.abs(frame.astype(float) - ground).sum(axis=2)
+        for n in range(len(ids)):
+            if np.isnan(points[t, n, 0]):
+                continue
+            u, v = points[t, n]
+            cu, cv = int(round(u)), int(round(v))
+            assert diff[cv, cu] > 60, "no person drawn at the gt head point"
+            win = diff[cv - half:cv + half + 1, cu - half:cu + half + 1]
+            w = np.where(win > 30, win, 0.0)
+            centroid = np.array([(w * (xx + cu)).sum(), (w * (yy + cv)).sum()]) / w.sum()
+            errors.append(np.hypot(*(centroid - (u, v))))
+        # Nothing is drawn far away from every person.
+        far = np.ones_like(diff, bool)
+        for u, v in points[t][np.isfinite(points[t, :, 0])]:
+            far[max(0, int(v) - 10):int(v) + 11, max(0, int(u) - 10):int(u) + 11] = False
+        assert np.percentile(diff[far], 99) < 30
+    # The person's centroid sits on the head; shoulders and face bias it a little.
+    assert max(errors) < 1.5 and np.mean(errors) < 0.75
+
+
+def test_same_seed_same_frames_other_seed_other_frames():
+    traj = walkers(4)
+    frames = []
+    for seed in (0, 0, 1):
+        r = SceneRenderer(CAMERA, PARAMS, seed=seed, fps=25.0)
+        tracks = prepare_agents(traj, CAMERA, PARAMS, seed)
+        frames.append(np.stack([r.render_tracks(tracks, t) for t in range(4)]))
+    np.testing.assert_array_equal(frames[0], frames[1])
+    assert not np.array_equal(frames[0], frames[2])
+    assert not np.array_equal(frames[0][0], frames[0][1])  # noise changes frame to frame
+
+
+def test_headings_follow_motion_and_hold_when_stopped():
+    pos = np.zeros((20, 2, 2))
+    pos[:, 0, 0] = np.arange(20) * 0.05  # +x at 1.25 m/s
+    pos[:10, 1, 1] = np.arange(10) * 0.05  # +y, then stops
+    pos[10:, 1, 1] = pos[9, 1, 1]
+    traj = Trajectories(positions=pos, ids=np.arange(2), dt=0.04)
+    tracks = prepare_agents(traj, CAMERA, AppearanceParams(sway_deg=0.0), seed=0)
+    np.testing.assert_allclose(tracks.heading[:, 0], 0.0, atol=1e-9)
+    np.testing.assert_allclose(tracks.heading[:, 1], math.pi / 2, atol=1e-9)
+    swayed = prepare_agents(traj, CAMERA, AppearanceParams(sway_deg=8.0), seed=0)
+    dev = np.degrees(np.abs(swayed.heading[:, 0]))
+    assert 1.0 < dev.max() <= 8.0 + 1e-9
+
+
+def test_prominent_attribute_gets_distinct_colours():
+    traj = walkers(2)
+    tracks = prepare_agents(traj, CAMERA, PARAMS, seed=0)
+    n_var = PARAMS.n_clusters * PARAMS.variants_per_cluster
+    np.testing.assert_array_equal(tracks.appearance >= n_var, traj.attributes["prominent"])
+
+
+@pytest.mark.parametrize("points", [
+    np.zeros((0, 2)),  # empty crowd
+    np.array([[np.nan, np.nan]]),  # absent agent
+    np.array([[-3.0, 5.0], [255.5, 175.5], [1e6, -1e6]]),  # partly and far outside
+])
+def test_edge_cases_render_without_error(points):
+    r = SceneRenderer(CAMERA, PARAMS, seed=0, fps=25.0)
+    frame = r.render(0, points, np.zeros(len(points)), np.zeros(len(points), int))
+    assert frame.shape == (176, 256, 3)
+
+
+def test_jitter_moves_ground_and_people_together():
+    cam = Camera(px_per_m=24.0, width=128, height=96, center=(0.0, 0.0), jitter_px=3.0, seed=2)
+    params = AppearanceParams(template_px=12, noise_sigma=0.0, illumination_drift=0.0,
+                              ground_texture=20.0)
+    r = SceneRenderer(cam, params, seed=0, fps=25.0)
+    none = (np.zeros((0, 2)), np.zeros(0), np.zeros(0, int))
+    offsets = cam.jitter(30)
+    t = int(np.argmax(np.abs(np.rint(offsets[:, 0]) - np.rint(offsets[0, 0]))))
+    a, b = r.render(0, *none).astype(float), r.render(t, *none).astype(float)
+    dx, dy = (np.rint(offsets[t]) - np.rint(offsets[0])).astype(int)
+    assert dx != 0
+    m = 12
+    shifted = b[m + dy:96 - m + dy, m + dx:128 - m + dx]
+    np.testing.assert_allclose(shifted, a[m:96 - m, m:128 - m], atol=1.0)
+
+
+def test_gt_rows_are_head_boxes_inside_the_frame():
+    traj = walkers(3)
+    tracks = prepare_agents(traj, CAMERA, PARAMS, seed=0)
+    tracks.pixels[0, 0] = (-1.0, 10.0)  # head outside: no row
+    tracks.pixels[0, 1] = (2.0, 10.0)  # head inside, box partly outside
+    rows = gt_rows(tracks, CAMERA, 12, mot_ids(tracks.ids))
+    assert rows.shape[1] == 9
+    assert not ((rows[:, 0] == 1) & (rows[:, 1] == 11)).any()
+    r = rows[(rows[:, 0] == 1) & (rows[:, 1] == 12)][0]
+    np.testing.assert_allclose(r[2:6], [-4.0, 4.0, 12.0, 12.0])
+    assert r[8] == pytest.approx(8 / 12)
+    assert (np.diff(rows[:, 0]) >= 0).all()
+
+
+def test_sprite_bank_is_anti_aliased_and_centred():
+    p = AppearanceParams(template_px=12, subpixel=2, orientation_bins=8)
+    bank = build_sprite_bank(p, np.random.default_rng(0))
+    z = bank.size
+    assert bank.alpha.shape == (p.n_appearances * 8 * 4, z, z)
+    assert 0.0 <= bank.alpha.min() and bank.alpha.max() <= 1.0 + 1e-6
+    assert ((bank.alpha > 0.05) & (bank.alpha < 0.95)).any()  # soft edges
+    idx = bank.index(np.array([0]), np.array([0]), np.array([0]), np.array([0]))[0]
+    a = bank.alpha[idx]
+    yy, xx = np.mgrid[0:z, 0:z]
+    centre = (z - 1) / 2
+    assert abs((a * yy).sum() / a.sum() - centre) < 0.1  # symmetric across the walking axis
