@@ -1,0 +1,177 @@
+"""``crowdsim bench track``: BQP tracking speed and the speed-up sampling trade-off.
+
+Measures, on seeded synthetic crowds rendered in memory by :mod:`crowdsim.render` (rendering
+is excluded from the timings):
+
+1. end-to-end tracking frames/s of the BQP tracker at 100 and 1000 targets (SPEC §9 targets:
+   >= 60 and >= 10 frames/s), with per-stage milliseconds per frame (appearance, terms,
+   solve) and the accuracy at 5 and 15 px;
+2. speed-up sampling (Sec. 6: m = 3 extrema + 10 samples) against dense candidates on the same
+   sequence: speed ratio (whole tracker and solve stage) and the accuracy@15 difference
+   (paper: about 6x faster for 0.2 points).
+
+Prints a table and one JSON object (last line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class Crowd:
+    """A rendered synthetic crowd: ``frames`` list of (H, W, 3) uint8, gt ``(T, N, 2)`` px."""
+
+    frames: list[np.ndarray]
+    ids: np.ndarray
+    points: np.ndarray
+    template_size: int
+
+
+def synthetic_crowd(n: int, n_frames: int, seed: int = 0, template_px: int = 12,
+                    size: tuple[int, int] = (1280, 720), fps: float = 25.0,
+                    speed: float = 1.3) -> Crowd:
+    """Render ``n`` people in lanes of opposite flows (counterflow bands of 4 m).
+
+    People start on a jittered grid that fills the frame, walk along x at N(speed, 0.15) m/s
+    (alternate 4 m bands walk the other way) with a slow sinusoidal weave, so that the
+    neighbourhood-motion and grouping terms have coherent groups to find.
+    """
+    from crowdsim.appearance_model import AppearanceParams
+    from crowdsim.camera import Camera
+    from crowdsim.render import SceneRenderer, default_px_per_m, prepare_agents
+    from crowdsim.trajectories import Trajectories
+
+    if n < 1 or n_frames < 2:
+        raise ValueError(f"need n >= 1 and n_frames >= 2, got {n}, {n_frames}")
+    rng = np.random.default_rng(seed)
+    ppm = default_px_per_m(template_px)
+    w_m, h_m = size[0] / ppm, size[1] / ppm
+    cols = max(1, int(round(math.sqrt(n * w_m / h_m))))
+    rows = int(math.ceil(n / cols))
+    gx, gy = np.meshgrid((np.arange(cols) + 0.5) * w_m / cols,
+                         (np.arange(rows) + 0.5) * h_m / rows)
+    start = np.stack([gx.ravel(), gy.ravel()], 1)[:n]
+    cell = min(w_m / cols, h_m / rows)
+    start += rng.uniform(-0.2, 0.2, start.shape) * cell
+    direction = np.where((start[:, 1] // 4.0) % 2 == 0, 1.0, -1.0)
+    v = direction * rng.normal(speed, 0.15, n)
+    dt = 1.0 / fps
+    t = np.arange(n_frames)[:, None] * dt
+    phase = rng.uniform(0, 2 * math.pi, n)
+    pos = np.empty((n_frames, n, 2))
+    pos[..., 0] = start[:, 0] + v * t
+    pos[..., 1] = start[:, 1] + 0.15 * np.sin(0.8 * t + phase)
+    traj = Trajectories(pos, np.arange(1, n + 1), dt)
+    cam = Camera(px_per_m=ppm, width=size[0], height=size[1], center=(w_m / 2, h_m / 2))
+    params = AppearanceParams(template_px=template_px)
+    tracks = prepare_agents(traj, cam, params, seed)
+    renderer = SceneRenderer(cam, params, seed, fps)
+    frames = [renderer.render_tracks(tracks, k).copy() for k in range(n_frames)]
+    pts = tracks.pixels.copy()
+    inside = (pts[..., 0] >= 0) & (pts[..., 0] <= size[0] - 1) & (pts[..., 1] >= 0) & \
+        (pts[..., 1] <= size[1] - 1)
+    pts[~inside] = np.nan
+    return Crowd(frames, traj.ids.copy(), pts, template_px)
+
+
+def run_tracker(tracker, crowd: Crowd) -> dict:
+    """Track ``crowd`` (births from ground truth); returns fps, per-stage ms and accuracy."""
+    from tracker.metrics import accuracy_curve
+    from tracker.mot_io import births_from_ground_truth
+
+    (ids, pts), births = births_from_ground_truth(crowd.ids, crowd.points)
+    t0 = time.perf_counter()
+    res = tracker.track(crowd.frames, ids, pts, crowd.template_size, births=births)
+    wall = time.perf_counter() - t0
+    steps = max(res.n_frames - 1, 1)
+    curve = accuracy_curve(crowd.ids, crowd.points, res.ids, res.positions)
+    out = {
+        "targets": int(len(ids)),
+        "frames": int(res.n_frames),
+        "fps": steps / res.timings.get("total", wall),
+        "wall_s": wall,
+        "acc@5": float(curve[5]),
+        "acc@15": float(curve[15]),
+    }
+    for k in ("appearance", "terms", "solve"):
+        out[f"{k}_ms"] = 1000.0 * res.timings.get(k, 0.0) / steps
+    if hasattr(tracker, "n_candidates"):
+        out["candidates_per_target"] = tracker.n_candidates / max(1, steps * len(ids))
+        out["solver_iterations_per_frame"] = tracker.solver_iterations / steps
+    return out
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--targets", type=int, nargs="+", default=[100, 1000],
+                        help="crowd sizes for the speed runs")
+    parser.add_argument("--frames", type=int, default=30, help="frames per run")
+    parser.add_argument("--sampling-targets", type=int, default=300,
+                        help="crowd size of the dense vs speed-up comparison")
+    parser.add_argument("--template", type=int, default=12, help="template size, px")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--quick", action="store_true",
+                        help="small run (50 and 200 targets, 12 frames) for smoke tests")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tracker.bqp import BQPTracker
+    from tracker.ncc import NCCTracker
+    from tracker.params import BQPParams
+
+    targets, frames, n_sampling = args.targets, args.frames, args.sampling_targets
+    if args.quick:
+        targets, frames, n_sampling = [50, 200], 12, 100
+    if frames < 2 or min(targets) < 1 or n_sampling < 1:
+        raise ValueError("need --frames >= 2 and crowd sizes >= 1")
+    # warm the numba solver so compilation is not timed
+    warm = synthetic_crowd(4, 3, args.seed, args.template, size=(160, 120))
+    run_tracker(BQPTracker(), warm)
+
+    rows = []
+    speed_runs = []
+    for n in targets:
+        crowd = synthetic_crowd(n, frames, args.seed, args.template)
+        for label, tr in (("bqp dense", BQPTracker()),
+                          ("bqp speedup", BQPTracker(BQPParams(speedup=True))),
+                          ("ncc", NCCTracker())):
+            r = run_tracker(tr, crowd)
+            r["method"] = label
+            speed_runs.append(r)
+            rows.append(r)
+    crowd = synthetic_crowd(n_sampling, frames, args.seed + 1, args.template)
+    dense = run_tracker(BQPTracker(), crowd)
+    fast = run_tracker(BQPTracker(BQPParams(speedup=True)), crowd)
+    sampling = {
+        "targets": n_sampling,
+        "frames": frames,
+        "speed_ratio_total": dense["fps"] and fast["fps"] / dense["fps"],
+        "speed_ratio_solve": dense["solve_ms"] / max(fast["solve_ms"], 1e-9),
+        "speed_ratio_terms_solve": (dense["solve_ms"] + dense["terms_ms"])
+        / max(fast["solve_ms"] + fast["terms_ms"], 1e-9),
+        "acc@15_dense": dense["acc@15"],
+        "acc@15_speedup": fast["acc@15"],
+        "acc@15_loss": dense["acc@15"] - fast["acc@15"],
+        "candidates_dense": dense.get("candidates_per_target"),
+        "candidates_speedup": fast.get("candidates_per_target"),
+    }
+    head = (f"{'method':<13}{'targets':>8}{'fps':>8}{'app ms':>8}{'terms':>8}{'solve':>8}"
+            f"{'acc@5':>8}{'acc@15':>8}")
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        print(f"{r['method']:<13}{r['targets']:>8}{r['fps']:>8.1f}{r['appearance_ms']:>8.1f}"
+              f"{r['terms_ms']:>8.1f}{r['solve_ms']:>8.1f}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%")
+    print(f"speed-up sampling at {n_sampling} targets: {sampling['speed_ratio_total']:.2f}x "
+          f"end to end, {sampling['speed_ratio_solve']:.2f}x solve, "
+          f"acc@15 {sampling['acc@15_dense']:.1f}% -> {sampling['acc@15_speedup']:.1f}%")
+    print(json.dumps({"benchmark": "track", "cpu_count": os.cpu_count(), "runs": rows,
+                      "sampling": sampling}))
+    return 0
