@@ -19,14 +19,21 @@ and duality gap vs iteration for the three variants) into ``--out``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import minimum_spanning_tree
 from scipy.spatial import cKDTree
 
-from tracker.qp import BlockQP
+from tracker.frank_wolfe import VARIANTS, FWParams, solve
+from tracker.qp import BlockQP, load_many
 
 # ------------------------------------------------------------------------ synthetic frames
 
@@ -203,3 +210,246 @@ def synthetic_frame_qp(spec: FrameSpec, rng: np.random.Generator) -> BlockQP:
     Q = sp.csc_matrix(Q)
     Q = (Q + Q.T) * 0.5  # exact symmetry after the float round-off of D^-1/2 S D^-1/2
     return BlockQP(c, sp.csc_matrix(Q), block_ptr)
+
+
+# ------------------------------------------------------------------------------ benchmark
+CLAIM_SPEEDUP: float = 20.0
+"""FW-SWAP must be at least this many times faster than the interior-point solver (SPEC §9)."""
+CLAIM_REL_OBJECTIVE: float = 1e-3
+"""... to the same relaxed objective within this relative difference."""
+CLAIM_SIZE: int = 1000
+"""Number of targets at which the speed claim is checked."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--sizes", default="100,300,1000",
+                        help="comma-separated numbers of targets of the synthetic frames "
+                             "(default: %(default)s)")
+    parser.add_argument("--frames", type=int, default=2,
+                        help="synthetic frames (QPs) per size (default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic frames")
+    parser.add_argument("--from-npz", action="append", default=[], metavar="FILE",
+                        help="QPs dumped from real tracking frames (tracker.qp.save_many); "
+                             "repeatable; replaces the synthetic frames")
+    parser.add_argument("--save-npz", metavar="FILE",
+                        help="also write the benchmarked QPs to FILE (.npz)")
+    parser.add_argument("--eps", type=float, default=0.01,
+                        help="duality-gap stop of every FW variant (paper: 0.01)")
+    parser.add_argument("--max-iter", type=int, default=20_000_000,
+                        help="iteration cap (block steps) of every FW variant")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="timed runs per FW variant and QP; the median is reported")
+    parser.add_argument("--reference", choices=("clarabel", "osqp", "none"),
+                        default="clarabel", help="interior-point / ADMM reference solver")
+    parser.add_argument("--reference-max-targets", type=int, default=1000,
+                        help="skip the reference solver above this many targets")
+    parser.add_argument("--out", default=os.path.join("benchmarks", "out"),
+                        help="folder of the convergence plot (default: %(default)s)")
+    parser.add_argument("--no-plot", action="store_true", help="skip the PNG")
+
+
+def _parse_sizes(text: str) -> list[int]:
+    try:
+        sizes = [int(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise ValueError(f"--sizes must be comma-separated integers, got {text!r}") from None
+    if not sizes or any(s < 1 for s in sizes):
+        raise ValueError(f"--sizes must list positive integers, got {text!r}")
+    return sizes
+
+
+def _problems(args: argparse.Namespace) -> list[tuple[str, BlockQP]]:
+    if args.from_npz:
+        out = []
+        for path in args.from_npz:
+            for i, qp in enumerate(load_many(path)):
+                out.append((f"{os.path.basename(path)}#{i}", qp))
+        return out
+    if args.frames < 1:
+        raise ValueError(f"--frames must be >= 1, got {args.frames}")
+    seeds = np.random.SeedSequence(args.seed)
+    out = []
+    for n in _parse_sizes(args.sizes):
+        for f, child in enumerate(seeds.spawn(args.frames)):
+            qp = synthetic_frame_qp(FrameSpec(n_targets=n), np.random.default_rng(child))
+            out.append((f"synthetic n={n} frame={f}", qp))
+    return out
+
+
+def _time_fw(qp: BlockQP, params: FWParams, repeats: int):
+    times = []
+    res = None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        res = solve(qp, params=params)
+        times.append(time.perf_counter() - t)
+    return res, float(np.median(times))
+
+
+def _plot(path: str, label: str, runs: dict, f_ref: float) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for v, res in runs.items():
+        it = np.arange(res.history.shape[0])
+        ax1.loglog(it + 1, np.maximum(res.history - f_ref, 1e-12), label=f"FW-{v}")
+        ax2.loglog(it + 1, np.maximum(res.gap_history, 1e-12), label=f"FW-{v}")
+    ax1.set_xlabel("iteration (block steps) + 1")
+    ax1.set_ylabel("f(x_k) - f*")
+    ax2.set_xlabel("iteration (block steps) + 1")
+    ax2.set_ylabel("duality gap")
+    for ax in (ax1, ax2):
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    fig.suptitle(f"Frank-Wolfe variants on {label}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.repeats < 1:
+        raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
+    params = {v: FWParams(variant=v, eps=args.eps, max_iter=args.max_iter) for v in VARIANTS}
+    t0 = time.perf_counter()
+    problems = _problems(args)
+    if args.save_npz:
+        from tracker.qp import save_many
+
+        save_many(args.save_npz, [qp for _, qp in problems])
+    build_s = time.perf_counter() - t0
+    # Compile (or load from cache) the numba kernels outside the timings.
+    solve(problems[0][1], params=FWParams(max_iter=1))
+
+    ref_solver = None
+    if args.reference != "none":
+        from tracker.qp_baselines import SOLVERS
+
+        ref_solver = SOLVERS[args.reference]
+
+    rows = []
+    hdr = (f"{'problem':<26} {'n':>5} {'l':>7} {'nnz(Q)':>9} | "
+           + " ".join(f"{'it ' + v:>9} {'ms':>7}" for v in VARIANTS)
+           + f" | {args.reference:>9} {'ms':>8} {'speedup':>8} {'rel.diff':>9}")
+    print(hdr)
+    print("-" * len(hdr))
+    for label, qp in problems:
+        row = {"problem": label, "n_targets": qp.n_blocks, "n_vars": qp.n_vars,
+               "nnz_Q": int(qp.Q.nnz), "variants": {}}
+        for v in VARIANTS:
+            res, wall = _time_fw(qp, params[v], args.repeats)
+            row["variants"][v] = {
+                "iterations": res.iterations, "seconds": wall, "converged": res.converged,
+                "objective": res.objective, "gap": res.gap,
+                "rounded_objective": res.rounded_objective, "steps": res.steps,
+                "support": int(np.count_nonzero(res.x)),
+            }
+        line = (f"{label:<26} {qp.n_blocks:>5} {qp.n_vars:>7} {qp.Q.nnz:>9} | "
+                + " ".join(f"{row['variants'][v]['iterations']:>9} "
+                           f"{row['variants'][v]['seconds'] * 1e3:>7.1f}" for v in VARIANTS))
+        if ref_solver is not None and qp.n_blocks <= args.reference_max_targets:
+            t = time.perf_counter()
+            ref = ref_solver(qp)
+            wall = time.perf_counter() - t
+            sw = row["variants"]["swap"]
+            rel = (sw["objective"] - ref.objective) / max(abs(ref.objective), 1e-12)
+            row["reference"] = {"solver": args.reference, "seconds": wall,
+                                "solve_seconds": ref.solve_time, "status": ref.status,
+                                "iterations": ref.iterations, "objective": ref.objective,
+                                "speedup_swap": wall / sw["seconds"],
+                                "rel_objective_diff": rel}
+            line += f" | {ref.status[:9]:>9} {wall * 1e3:>8.0f} {wall / sw['seconds']:>7.0f}x " \
+                    f"{rel:>9.1e}"
+        print(line, flush=True)
+        rows.append(row)
+
+    # Per size: mean iterations, median times, the claims.
+    sizes = sorted({r["n_targets"] for r in rows})
+    summary = {}
+    for n in sizes:
+        rs = [r for r in rows if r["n_targets"] == n]
+        s = {f"iterations_{v}": float(np.mean([r["variants"][v]["iterations"] for r in rs]))
+             for v in VARIANTS}
+        s.update({f"ms_{v}": 1e3 * float(np.median([r["variants"][v]["seconds"] for r in rs]))
+                  for v in VARIANTS})
+        s["all_converged"] = all(r["variants"][v]["converged"] for r in rs for v in VARIANTS)
+        s["order_swap_lt_away_lt_plain"] = (
+            s["iterations_swap"] < s["iterations_away"] < s["iterations_plain"])
+        refs = [r["reference"] for r in rs if "reference" in r]
+        if refs:
+            s["ref_ms"] = 1e3 * float(np.median([r["seconds"] for r in refs]))
+            s["speedup_swap_vs_ref"] = float(np.median([r["speedup_swap"] for r in refs]))
+            s["max_abs_rel_objective_diff"] = float(
+                max(abs(r["rel_objective_diff"]) for r in refs))
+        summary[str(n)] = s
+
+    print()
+    print(f"{'n':>5} | " + " ".join(f"{'mean it ' + v:>14}" for v in VARIANTS)
+          + f" | {'order ok':>8} | {'speedup':>8} {'rel.diff':>9}")
+    for n in sizes:
+        s = summary[str(n)]
+        sp_txt = (f"{s['speedup_swap_vs_ref']:>7.0f}x {s['max_abs_rel_objective_diff']:>9.1e}"
+                  if "speedup_swap_vs_ref" in s else f"{'-':>8} {'-':>9}")
+        print(f"{n:>5} | " + " ".join(f"{s['iterations_' + v]:>14.0f}" for v in VARIANTS)
+              + f" | {str(s['order_swap_lt_away_lt_plain']):>8} | {sp_txt}")
+
+    claims = {"fig13_order_all_sizes": all(summary[str(n)]["order_swap_lt_away_lt_plain"]
+                                           for n in sizes)}
+    big = summary.get(str(CLAIM_SIZE))
+    if big is not None and "speedup_swap_vs_ref" in big:
+        claims["speedup_at_1000"] = big["speedup_swap_vs_ref"]
+        claims["speedup_at_1000_ok"] = big["speedup_swap_vs_ref"] >= CLAIM_SPEEDUP
+        claims["rel_objective_at_1000_ok"] = (
+            big["max_abs_rel_objective_diff"] <= CLAIM_REL_OBJECTIVE)
+
+    plot_path = None
+    if not args.no_plot:
+        label, qp = max(problems, key=lambda p: p[1].n_blocks)
+        rec = {}
+        for v in VARIANTS:
+            first = next(r for r in rows if r["problem"] == label)["variants"][v]
+            rec[v] = solve(qp, params=FWParams(variant=v, eps=args.eps,
+                                               max_iter=first["iterations"],
+                                               record_history=True))
+        f_ref = min(r.objective for r in rec.values())
+        ref_row = next(r for r in rows if r["problem"] == label).get("reference")
+        if ref_row is not None:
+            f_ref = min(f_ref, ref_row["objective"])
+        os.makedirs(args.out, exist_ok=True)
+        plot_path = os.path.join(args.out, "solver_convergence.png")
+        _plot(plot_path, label, rec, f_ref - 1e-9)
+        print(f"\nconvergence plot: {plot_path}")
+
+    load = os.getloadavg() if hasattr(os, "getloadavg") else None
+    report = {
+        "benchmark": "solver",
+        "eps": args.eps,
+        "reference": args.reference,
+        "source": "npz" if args.from_npz else "synthetic",
+        "frame_spec": None if args.from_npz else asdict(FrameSpec()),
+        "iteration_unit": "block step (one target's simplex per iteration)",
+        "timing": "median wall seconds of --repeats runs; reference: one run, wall incl. setup",
+        "summary": summary,
+        "claims": claims,
+        "problems": rows,
+        "plot": plot_path,
+        "build_seconds": build_s,
+        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
+                    "loadavg": load},
+    }
+    print(json.dumps(report))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="benchmarks/solver.py", description=__doc__)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return run(args)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"solver benchmark: error: {exc}", file=sys.stderr)
+        return 2

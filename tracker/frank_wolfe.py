@@ -228,17 +228,25 @@ def _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps, 
 
 
 @njit(cache=True)
-def _col_entries(indptr, indices, data, j, r1, r2):
-    """``(Q[r1, j], Q[r2, j])`` by scanning column ``j``."""
-    a = 0.0
-    b = 0.0
-    for p in range(indptr[j], indptr[j + 1]):
-        r = indices[p]
-        if r == r1:
-            a = data[p]
-        if r == r2:
-            b = data[p]
-    return a, b
+def _lower_bound(indices, start, end, value):
+    """First position in the sorted ``indices[start:end]`` holding a row ``>= value``."""
+    while start < end:
+        mid = (start + end) // 2
+        if indices[mid] < value:
+            start = mid + 1
+        else:
+            end = mid
+    return start
+
+
+@njit(cache=True)
+def _entry(indptr, indices, data, row, col):
+    """``Q[row, col]`` by binary search in column ``col`` (sorted row indices)."""
+    end = indptr[col + 1]
+    p = _lower_bound(indices, indptr[col], end, row)
+    if p < end and indices[p] == row:
+        return data[p]
+    return 0.0
 
 
 @njit(cache=True)
@@ -256,8 +264,31 @@ def _line_search(gd, dqd, lam_max):
 
 
 @njit(cache=True)
+def _vertex_objective(indptr, indices, data, c, block_ptr, choice):
+    """``f`` at the one-hot vertex of ``choice``: O(nnz of the chosen columns)."""
+    l = c.shape[0]
+    chosen = np.zeros(l, dtype=np.bool_)
+    n = block_ptr.shape[0] - 1
+    for b in range(n):
+        chosen[block_ptr[b] + choice[b]] = True
+    f = 0.0
+    for b in range(n):
+        j = block_ptr[b] + choice[b]
+        f += c[j]
+        for p in range(indptr[j], indptr[j + 1]):
+            if chosen[indices[p]]:
+                f += data[p]
+    return f
+
+
+@njit(cache=True)
 def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max_iter,
-             f0, hist_f, hist_gap):
+             hist_f, hist_gap):
+    """The shared FW / away / SWAP loop; ``x`` is updated in place.
+
+    Returns ``(iterations, converged, gap, f(x), counts)`` with ``gap`` and ``f`` computed
+    from an exact (not incrementally updated) gradient.
+    """
     l = c.shape[0]
     n = block_ptr.shape[0] - 1
     kmax = 0
@@ -275,6 +306,7 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
     gx = np.empty(n)
     gaps = np.zeros(n)
     stamp = np.full(n, -1, dtype=np.int64)
+    rescan = np.zeros(n, dtype=np.bool_)
     dirty = np.empty(n, dtype=np.int64)
     w = np.empty(kmax)
     xn = np.empty(kmax)
@@ -284,7 +316,9 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
     total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps,
                      tree, size)
     fresh = True
-    f = f0
+    f = 0.0
+    for j in range(l):
+        f += 0.5 * (c[j] + g[j]) * x[j]  # f = c.x + x'Qx = (c.x + g.x) / 2
     if record:
         hist_f[0] = f
         hist_gap[0] = total
@@ -303,14 +337,6 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
         if it >= max_iter:
             break
         b = _tree_argmax(tree, size)
-        if gaps[b] <= 0.0:
-            if fresh:
-                converged = total <= eps
-                break
-            total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx,
-                             gaps, tree, size)
-            fresh = True
-            continue
         lo = block_ptr[b]
         hi = block_ptr[b + 1]
         k = hi - lo
@@ -320,23 +346,24 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
         gy = g[y]
         gxb = gx[b]
 
-        # w = (Q x_b) restricted to the block's rows: O(nnz of the support's columns).
+        # w = (Q x_b) on the block's own rows. Rows are sorted within a column, so the
+        # block's entries are one contiguous run found by binary search: O(|support| log).
         for i in range(k):
             w[i] = 0.0
         for j in range(lo, hi):
             xj = x[j]
             if xj != 0.0:
-                for p in range(indptr[j], indptr[j + 1]):
-                    r = indices[p]
-                    if r >= lo and r < hi:
-                        w[r - lo] += data[p] * xj
+                end = indptr[j + 1]
+                p = _lower_bound(indices, indptr[j], end, lo)
+                while p < end and indices[p] < hi:
+                    w[indices[p] - lo] += data[p] * xj
+                    p += 1
         xqx = 0.0
         for i in range(k):
             xqx += x[lo + i] * w[i]
-        q_ss, q_sy = _col_entries(indptr, indices, data, s, s, y)
-        q_yy, _unused = _col_entries(indptr, indices, data, y, y, y)
+        q_ss = _entry(indptr, indices, data, s, s)
 
-        # FW (toward) step, d = e_s - x_b: g.d = -block gap (Eq. 13).
+        # FW (toward) step, d = e_s - x_b: g.d = -(block gap); d'Qd from w (Eq. 13).
         gd_fw = gs - gxb
         lam, delta = _line_search(gd_fw, q_ss - 2.0 * w[s - lo] + xqx, 1.0)
         mode = 0
@@ -346,11 +373,14 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
             # Away step d = x_b - e_y, taken when it is the steeper descent direction.
             gd_aw = gxb - gy
             if -gd_aw > -gd_fw:
+                q_yy = _entry(indptr, indices, data, y, y)
                 lam_cap = alpha_y / (1.0 - alpha_y)
                 lam, delta = _line_search(gd_aw, xqx - 2.0 * w[y - lo] + q_yy, lam_cap)
                 mode = 1
         elif variant == 2 and s != y:
             # SWAP step d = e_s - e_y (Alg. 2): keep whichever of FW/SWAP decreases f more.
+            q_yy = _entry(indptr, indices, data, y, y)
+            q_sy = _entry(indptr, indices, data, s, y)
             lam_sw, delta_sw = _line_search(gs - gy, q_ss + q_yy - 2.0 * q_sy, alpha_y)
             if delta_sw < delta:
                 lam = lam_sw
@@ -358,8 +388,8 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
                 lam_cap = alpha_y
                 mode = 2
         if lam <= 0.0:
-            # No decrease possible in this block (only reachable through round-off):
-            # refresh exact statistics once, then give up rather than spin.
+            # No decrease possible (only reachable through round-off or eps = 0):
+            # refresh exact statistics once, then stop rather than spin.
             if fresh:
                 break
             total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx,
@@ -399,27 +429,60 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
                 xn[y - lo] -= lam
             counts[2] += 1
 
-        # g += 2 Q dx over the changed columns; mark every block those columns reach.
+        # g += 2 Q dx over the changed columns (rank-2 for a SWAP step). The statistics of
+        # the other blocks these columns reach are updated per touched row; a block is
+        # rescanned only if its argmin (or away vertex) got worse.
         it += 1
+        stamp[b] = it
+        rescan[b] = True
         nd = 1
         dirty[0] = b
-        stamp[b] = it
         for i in range(k):
             j = lo + i
             dxj = xn[i] - x[j]
-            if dxj != 0.0:
-                x[j] = xn[i]
-                for p in range(indptr[j], indptr[j + 1]):
-                    r = indices[p]
-                    g[r] += 2.0 * data[p] * dxj
-                    bb = block_of[r]
-                    if stamp[bb] != it:
-                        stamp[bb] = it
-                        dirty[nd] = bb
-                        nd += 1
+            if dxj == 0.0:
+                continue
+            x[j] = xn[i]
+            for p in range(indptr[j], indptr[j + 1]):
+                r = indices[p]
+                dg = 2.0 * data[p] * dxj
+                g[r] += dg
+                a = block_of[r]
+                if stamp[a] != it:
+                    stamp[a] = it
+                    rescan[a] = False
+                    dirty[nd] = a
+                    nd += 1
+                if rescan[a]:
+                    continue
+                xr = x[r]
+                gr = g[r]
+                sa = s_idx[a]
+                if r == sa:
+                    if dg > 0.0:
+                        rescan[a] = True
+                        continue
+                elif gr < g[sa]:
+                    s_idx[a] = r
+                if xr > 0.0:
+                    gx[a] += dg * xr
+                    ya = y_idx[a]
+                    if r == ya:
+                        if dg < 0.0:
+                            rescan[a] = True
+                    elif gr > g[ya]:
+                        y_idx[a] = r
         for t in range(nd):
-            total += _refresh_block(dirty[t], x, g, block_ptr, s_idx, y_idx, gx, gaps, tree,
-                                    size)
+            a = dirty[t]
+            if rescan[a]:
+                total += _refresh_block(a, x, g, block_ptr, s_idx, y_idx, gx, gaps, tree, size)
+            else:
+                gap = gx[a] - g[s_idx[a]]
+                if gap < 0.0:
+                    gap = 0.0
+                total += gap - gaps[a]
+                gaps[a] = gap
+                _tree_update(tree, size, a, gap)
         if total < 0.0:
             total = 0.0
         fresh = False
@@ -432,7 +495,10 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
         total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps,
                          tree, size)
         converged = total <= eps
-    return it, converged, total, counts
+    f = 0.0
+    for j in range(l):
+        f += 0.5 * (c[j] + g[j]) * x[j]
+    return it, converged, total, f, counts
 
 
 # --------------------------------------------------------------------------------- public
@@ -485,21 +551,21 @@ def solve(qp: BlockQP, x0: np.ndarray | None = None,
                         rounded_objective=0.0, gap=0.0, iterations=0, converged=True,
                         history=hist, gap_history=None if hist is None else hist.copy(),
                         steps=dict.fromkeys(STEP_KINDS, 0))
-    f0 = qp.objective(x)
     m = params.max_iter + 1 if params.record_history else 0
     hist_f = np.zeros(m)
     hist_gap = np.zeros(m)
     Q = qp.Q
-    it, converged, gap, counts = _fw_loop(
+    it, converged, gap, f, counts = _fw_loop(
         Q.indptr, Q.indices, Q.data, qp.c, qp.block_ptr, qp.block_of, x,
-        _VARIANT_CODE[params.variant], float(params.eps), int(params.max_iter), f0,
-        hist_f, hist_gap)
-    choice = round_choice(qp, x)
+        _VARIANT_CODE[params.variant], float(params.eps), int(params.max_iter), hist_f,
+        hist_gap)
+    choice = _block_argext(x, qp.block_ptr, True)
     return FWResult(
         x=x,
         choice=choice,
-        objective=qp.objective(x),
-        rounded_objective=qp.objective(qp.vertex(choice)),
+        objective=float(f),
+        rounded_objective=float(_vertex_objective(Q.indptr, Q.indices, Q.data, qp.c,
+                                                  qp.block_ptr, choice)),
         gap=float(gap),
         iterations=int(it),
         converged=bool(converged),

@@ -14,6 +14,8 @@ import importlib
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "sim": ("crowdsim.bench.sim", "simulator speed vs JuPedSim and PySocialForce (corridor)"),
     "fd": ("crowdsim.bench.fd", "fundamental diagram vs Weidmann and counterflow lanes"),
+    "solver": ("tracker.bench_solver",
+               "Frank-Wolfe plain/away/SWAP iterations and FW-SWAP vs Clarabel (relaxed BQP)"),
 }
 """Benchmark name -> (module, one-line help)."""
 

@@ -277,9 +277,43 @@ def test_infeasible_x0(x0, msg):
 
 
 def test_q_is_canonicalised_and_never_densified():
-    # Duplicate entries are summed; indices are int64 for the numba kernels.
+    # Duplicate entries are summed and rows sorted (the kernels binary-search columns).
     Q = sp.csc_matrix((np.array([1.0, 1.0, 2.0]), np.array([0, 0, 1]), np.array([0, 2, 3])),
                       shape=(2, 2))
     qp = BlockQP(np.zeros(2), Q, np.array([0, 2]))
     assert sp.issparse(qp.Q) and qp.Q.nnz == 2 and qp.Q[0, 0] == 2.0
-    assert qp.Q.indices.dtype == np.int64 and qp.Q.indptr.dtype == np.int64
+    assert qp.Q.has_canonical_format
+    # Unsorted rows and CSR / COO input are accepted too.
+    Q = sp.csc_matrix((np.array([1.0, 0.5, 0.5, 1.0]), np.array([1, 0, 1, 0]),
+                       np.array([0, 2, 4])), shape=(2, 2))
+    Q.has_sorted_indices = False
+    for M in (Q, Q.tocsr(), Q.tocoo()):
+        qp = BlockQP(np.array([0.0, 1.0]), M, np.array([0, 2]))
+        res = solve(qp, params=FWParams(eps=1e-9))
+        assert res.objective == pytest.approx(solve_clarabel(qp).objective, abs=1e-7)
+
+
+# ----------------------------------------------------------------------------- benchmark
+def test_bench_solver_smoke(tmp_path, capsys):
+    import json
+
+    from tracker.bench_solver import main
+
+    npz = tmp_path / "frames.npz"
+    args = ["--sizes", "8,12", "--frames", "1", "--repeats", "1", "--out", str(tmp_path),
+            "--save-npz", str(npz)]
+    assert main(args) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert set(report["summary"]) == {"8", "12"}
+    for s in report["summary"].values():
+        assert s["all_converged"] and s["max_abs_rel_objective_diff"] < 1e-3
+    assert (tmp_path / "solver_convergence.png").stat().st_size > 0
+    # Dumped frames come back through --from-npz with the same results.
+    assert main(["--from-npz", str(npz), "--repeats", "1", "--no-plot",
+                 "--reference", "none"]) == 0
+    again = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert again["source"] == "npz"
+    for n in ("8", "12"):
+        assert again["summary"][n]["iterations_swap"] == report["summary"][n]["iterations_swap"]
+    assert main(["--from-npz", str(tmp_path / "missing.npz")]) == 2
+    assert main(["--sizes", "ten"]) == 2
