@@ -78,6 +78,14 @@ def gaussian_label(size: int, sigma: float) -> np.ndarray:
     return np.outer(g, g).astype(np.float32)
 
 
+def _channel_sum(a: np.ndarray) -> np.ndarray:
+    """Sum over axis 1 of an ``(n, C, ...)`` array (faster than ``sum`` for small ``C``)."""
+    out = a[:, 0].copy()
+    for c in range(1, a.shape[1]):
+        out += a[:, c]
+    return out
+
+
 class AppearanceModel(ABC):
     """Per-target appearance models kept as stacked arrays (one row per target).
 
@@ -142,7 +150,7 @@ class KCFAppearance(AppearanceModel):
         self.learning_rate = float(learning_rate)
         self.workers = int(workers)
         w = self.window
-        self._hann = hann2d(w)
+        self._hann_scaled = hann2d(w) * np.float32(1.0 / 255.0)
         sigma = max(0.5, label_sigma * self.template_size)
         self._yf = scipy.fft.rfft2(gaussian_label(w, sigma)).astype(np.complex64)
         wf = w // 2 + 1
@@ -157,14 +165,16 @@ class KCFAppearance(AppearanceModel):
         """``(n, C, W, W//2+1)`` spectra of the windows centred at ``centers``."""
         centers = np.asarray(centers, dtype=np.int64).reshape(-1, 2)
         patches = extract_patches(frame, centers - self.window // 2, self.window)
-        x = patches.astype(np.float32) * np.float32(1.0 / 255.0)
-        x -= x.mean(axis=(2, 3), keepdims=True)
-        x *= self._hann
+        x = patches.astype(np.float32)
+        n, c = x.shape[:2]
+        x -= x.reshape(n, c, -1).mean(axis=2)[:, :, None, None]
+        x *= self._hann_scaled
         return scipy.fft.rfft2(x, axes=(-2, -1), workers=self.workers)
 
     def _train(self, xf: np.ndarray) -> np.ndarray:
         w = self.window
-        kf = (xf.real ** 2 + xf.imag ** 2).sum(axis=1) / np.float32(w * w * xf.shape[1])
+        p = xf.real ** 2 + xf.imag ** 2
+        kf = _channel_sum(p) / np.float32(w * w * xf.shape[1])
         return (self._yf / (kf + np.float32(self.lam))).astype(np.complex64)
 
     def add(self, frame: np.ndarray, centers: np.ndarray) -> None:
@@ -191,7 +201,7 @@ class KCFAppearance(AppearanceModel):
             return np.zeros((0, k, k), np.float32)
         zf = self._features(frame, centers)
         w = self.window
-        kzf = (np.conj(self.xf) * zf).sum(axis=1) / np.float32(w * w * zf.shape[1])
+        kzf = _channel_sum(np.conj(self.xf) * zf) / np.float32(w * w * zf.shape[1])
         resp = scipy.fft.irfft2(self.alphaf * kzf, s=(w, w), axes=(-2, -1),
                                 workers=self.workers)
         c, r = w // 2, self.radius

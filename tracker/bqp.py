@@ -39,11 +39,10 @@ from tracker.params import BQPParams, search_radius
 from tracker.terms import (
     coherent_groups,
     group_trees,
-    grouping_matrix,
     motion_cost,
     neighbourhood_cost,
     neighbours_in_groups,
-    proximity_matrix,
+    quadratic_matrix,
 )
 
 
@@ -168,15 +167,9 @@ class BQPTracker(Tracker):
     def quadratic(self, cands: Candidates) -> sp.csc_matrix:
         """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over the candidates, ``(l, l)`` CSC."""
         p = self.params
-        size = cands.n * cands.k
-        q = sp.csc_matrix((size, size))
-        if p.w_sp > 0:
-            q = q + p.w_sp * proximity_matrix(cands.positions, self._px(p.proximity_sigma),
-                                              p.proximity_cutoff)
-        if p.w_g > 0 and len(self.tree_edges):
-            q = q + p.w_g * grouping_matrix(cands.positions, self.tree_edges, self.tree_lengths,
-                                            self._px(p.group_sigma), p.group_cutoff)
-        return q.tocsc()
+        return quadratic_matrix(cands.positions, p.w_sp, self._px(p.proximity_sigma),
+                                p.proximity_cutoff, p.w_g, self.tree_edges, self.tree_lengths,
+                                self._px(p.group_sigma), p.group_cutoff)
 
     def _step(self, frame: np.ndarray) -> np.ndarray:
         from tracker.frank_wolfe import FWParams, solve

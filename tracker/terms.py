@@ -28,11 +28,9 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
-
-# Pair blocks (pairs x k x k) are evaluated in chunks of about this many entries.
-_CHUNK = 2_000_000
 
 
 def motion_cost(grid: np.ndarray, prediction: np.ndarray, sigma: float) -> np.ndarray:
@@ -219,85 +217,191 @@ def group_trees(positions: np.ndarray, labels: np.ndarray,
     return edges, np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1)
 
 
-def _pair_blocks(cand: np.ndarray, pa: np.ndarray, pb: np.ndarray, value_fn,
-                 target: np.ndarray | None = None):
-    """Evaluate ``value_fn(dist (P, k, k), chunk slice)`` for candidate pairs of target pairs.
+@njit(cache=True)
+def _pair_kernel(cand, pa, pb, lengths, sigma, reach, grouping, rows, cols, vals, fill):
+    """Count (``fill`` False) or write the kept candidate-pair entries of target pairs.
 
-    Yields (rows, cols, values) of the entries ``value_fn`` keeps (finite, > 0).
+    Proximity (Eq. 9): ``exp(-d^2 / 2 sigma^2)`` where ``d <= reach``. Grouping (Eq. 10):
+    ``exp(-(d - e)^2 / 2 sigma^2)`` where ``|d - e| <= reach``, ``e = lengths[p]``.
     """
-    n, k = cand.shape[:2]
-    step = max(1, _CHUNK // max(1, k * k))
-    for s in range(0, len(pa), step):
-        a, b = pa[s:s + step], pb[s:s + step]
-        diff = cand[a][:, :, None, :] - cand[b][:, None, :, :]
-        dist = np.sqrt((diff ** 2).sum(-1))
-        val = value_fn(dist, slice(s, s + step))
-        pi, ci, cj = np.nonzero(val > 0)
-        yield a[pi] * k + ci, b[pi] * k + cj, val[pi, ci, cj]
+    k = cand.shape[1]
+    inv = 1.0 / (2.0 * sigma * sigma)
+    reach2 = reach * reach
+    m = 0
+    for p in range(pa.shape[0]):
+        a = pa[p]
+        b = pb[p]
+        for i in range(k):
+            xi = cand[a, i, 0]
+            yi = cand[a, i, 1]
+            for j in range(k):
+                dx = xi - cand[b, j, 0]
+                dy = yi - cand[b, j, 1]
+                d2 = dx * dx + dy * dy
+                if grouping:
+                    dev = np.sqrt(d2) - lengths[p]
+                    if dev * dev > reach2:
+                        continue
+                    v = np.exp(-dev * dev * inv)
+                else:
+                    if d2 > reach2:
+                        continue
+                    v = np.exp(-d2 * inv)
+                if fill:
+                    rows[m] = a * k + i
+                    cols[m] = b * k + j
+                    vals[m] = v
+                m += 1
+    return m
 
 
-def _normalised(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, size: int,
-                sign: float) -> sp.csc_matrix:
-    """``diag(D > 0) + sign * D^-1/2 W D^-1/2`` for symmetric ``W`` given by its upper half."""
-    r = np.concatenate([rows, cols])
-    c = np.concatenate([cols, rows])
-    v = np.concatenate([vals, vals])
-    deg = np.bincount(r, weights=v, minlength=size)
+def _pair_entries(cand: np.ndarray, pa: np.ndarray, pb: np.ndarray, lengths: np.ndarray,
+                  sigma: float, reach: float, grouping: bool):
+    """Entries ``(rows, cols, vals)`` (upper half: target ``pa`` rows) of ``S`` or ``Gamma``."""
+    cand = np.ascontiguousarray(cand, dtype=np.float64)
+    pa = np.ascontiguousarray(pa, dtype=np.int64)
+    pb = np.ascontiguousarray(pb, dtype=np.int64)
+    lengths = np.ascontiguousarray(lengths, dtype=np.float64)
+    e_i = np.zeros(0, np.int64)
+    e_f = np.zeros(0, np.float64)
+    m = _pair_kernel(cand, pa, pb, lengths, sigma, reach, grouping, e_i, e_i, e_f, False)
+    rows = np.empty(m, np.int64)
+    cols = np.empty(m, np.int64)
+    vals = np.empty(m, np.float64)
+    _pair_kernel(cand, pa, pb, lengths, sigma, reach, grouping, rows, cols, vals, True)
+    return rows, cols, vals
+
+
+@njit(cache=True)
+def _csc_kernel(rows, cols, vals, diag, size, indptr, indices, data):
+    """Symmetric CSC from upper-half entries plus a diagonal, by a counting sort on columns."""
+    count = np.zeros(size + 1, np.int64)
+    for e in range(rows.shape[0]):
+        count[cols[e] + 1] += 1
+        count[rows[e] + 1] += 1
+    for c in range(size):
+        if diag[c] != 0.0:
+            count[c + 1] += 1
+    for c in range(size):
+        count[c + 1] += count[c]
+    for c in range(size + 1):
+        indptr[c] = count[c]
+    pos = count[:size].copy()
+    for c in range(size):
+        if diag[c] != 0.0:
+            indices[pos[c]] = c
+            data[pos[c]] = diag[c]
+            pos[c] += 1
+    for e in range(rows.shape[0]):
+        r = rows[e]
+        c = cols[e]
+        indices[pos[c]] = r
+        data[pos[c]] = vals[e]
+        pos[c] += 1
+        indices[pos[r]] = c
+        data[pos[r]] = vals[e]
+        pos[r] += 1
+
+
+def symmetric_csc(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, diag: np.ndarray,
+                  size: int) -> sp.csc_matrix:
+    """``(size, size)`` CSC of ``diag + W + W^T`` for ``W`` given by entries (no dense step)."""
+    nnz = 2 * len(rows) + int(np.count_nonzero(diag))
+    indptr = np.empty(size + 1, np.int64)
+    indices = np.empty(nnz, np.int64)
+    data = np.empty(nnz, np.float64)
+    _csc_kernel(np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64),
+                np.ascontiguousarray(vals, np.float64), np.ascontiguousarray(diag, np.float64),
+                size, indptr, indices, data)
+    return sp.csc_matrix((data, indices, indptr), shape=(size, size))
+
+
+def normalised_entries(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, size: int,
+                       sign: float) -> tuple[np.ndarray, np.ndarray]:
+    """Entries of ``sign D^-1/2 W D^-1/2`` and the diagonal ``1[D > 0]`` of the Laplacian.
+
+    ``W`` is symmetric and given by its upper-half entries; ``D = diag(W 1)``.
+    """
+    deg = np.bincount(rows, weights=vals, minlength=size) + \
+        np.bincount(cols, weights=vals, minlength=size)
     inv = np.zeros(size)
     pos = deg > 0
     inv[pos] = 1.0 / np.sqrt(deg[pos])
-    off = sp.csc_matrix((sign * v * inv[r] * inv[c], (r, c)), shape=(size, size))
-    return (sp.diags(pos.astype(np.float64), format="csc") + off).tocsc()
+    return sign * vals * inv[rows] * inv[cols], pos.astype(np.float64)
 
 
-def proximity_matrix(cand: np.ndarray, sigma: float, cutoff: float) -> sp.csc_matrix:
-    """Spatial-proximity matrix ``C_sp`` (Eq. 9) over candidates ``(n, k, 2)``.
+def proximity_entries(cand: np.ndarray, sigma: float, cutoff: float):
+    """Upper-half entries ``(rows, cols, S_ij)`` of Eq. 9 between candidates of different targets.
 
-    ``S_ij = exp(-|p_i - p_j|^2 / 2 sigma^2)`` between candidates of *different* targets,
-    dropped beyond ``cutoff * sigma`` px; ``C_sp = I + D^-1/2 S D^-1/2`` (signless normalised
-    Laplacian, see the module docstring). Returns an ``(l, l)`` CSC matrix, ``l = n k``.
+    ``S_ij = exp(-|p_i - p_j|^2 / 2 sigma^2)``, dropped beyond ``cutoff * sigma`` px.
     """
     n, k = cand.shape[:2]
-    size = n * k
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
     if n < 2:
-        return sp.csc_matrix((size, size))
+        return empty
     reach = cutoff * sigma
     centre = cand.mean(axis=1)
     spread = np.sqrt(((cand - centre[:, None]) ** 2).sum(-1)).max()
     pairs = cKDTree(centre).query_pairs(reach + 2 * spread, output_type="ndarray")
     if len(pairs) == 0:
-        return sp.csc_matrix((size, size))
+        return empty
+    return _pair_entries(cand, pairs[:, 0], pairs[:, 1], np.zeros(0), sigma, reach, False)
 
-    def value(dist, _):
-        return np.where(dist <= reach, np.exp(-dist ** 2 / (2 * sigma * sigma)), 0.0)
 
-    parts = list(_pair_blocks(cand, pairs[:, 0], pairs[:, 1], value))
-    rows = np.concatenate([p[0] for p in parts])
-    cols = np.concatenate([p[1] for p in parts])
-    vals = np.concatenate([p[2] for p in parts])
-    return _normalised(rows, cols, vals, size, +1.0)
+def grouping_entries(cand: np.ndarray, edges: np.ndarray, lengths: np.ndarray, sigma: float,
+                     cutoff: float):
+    """Upper-half entries ``(rows, cols, Gamma_ij)`` of Eq. 10 along the tree ``edges (E, 2)``.
+
+    ``Gamma_ij = exp(-(|p_i - p_j| - e_ij)^2 / 2 sigma^2)``, dropped where
+    ``| |p_i - p_j| - e_ij | > cutoff * sigma``.
+    """
+    if len(edges) == 0 or cand.shape[0] == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    return _pair_entries(cand, edges[:, 0], edges[:, 1], lengths, sigma, cutoff * sigma, True)
+
+
+def proximity_matrix(cand: np.ndarray, sigma: float, cutoff: float) -> sp.csc_matrix:
+    """Spatial-proximity matrix ``C_sp = I + D^-1/2 S D^-1/2`` (Eq. 9, signless; see module).
+
+    ``cand`` is ``(n, k, 2)``; returns an ``(l, l)`` CSC matrix, ``l = n k``.
+    """
+    size = cand.shape[0] * cand.shape[1]
+    r, c, v = proximity_entries(cand, sigma, cutoff)
+    off, diag = normalised_entries(r, c, v, size, +1.0)
+    return symmetric_csc(r, c, off, diag, size)
 
 
 def grouping_matrix(cand: np.ndarray, edges: np.ndarray, lengths: np.ndarray, sigma: float,
                     cutoff: float) -> sp.csc_matrix:
-    """Grouping matrix ``C_g = I - D^-1/2 Gamma D^-1/2`` (Eq. 10) over candidates ``(n, k, 2)``.
+    """Grouping matrix ``C_g = I - D^-1/2 Gamma D^-1/2`` (Eq. 10) over candidates ``(n, k, 2)``."""
+    size = cand.shape[0] * cand.shape[1]
+    r, c, v = grouping_entries(cand, edges, lengths, sigma, cutoff)
+    off, diag = normalised_entries(r, c, v, size, -1.0)
+    return symmetric_csc(r, c, off, diag, size)
 
-    ``Gamma_ij = exp(-(|p_i - p_j| - e_ij)^2 / 2 sigma^2)`` for candidates of the two ends of
-    every tree edge (``edges (E, 2)``, ``lengths (E,)`` px), dropped where
-    ``| |p_i - p_j| - e_ij | > cutoff * sigma``.
-    """
-    n, k = cand.shape[:2]
-    size = n * k
-    if len(edges) == 0:
+
+def quadratic_matrix(cand: np.ndarray, w_sp: float, sp_sigma: float, sp_cutoff: float,
+                     w_g: float, edges: np.ndarray, lengths: np.ndarray, g_sigma: float,
+                     g_cutoff: float) -> sp.csc_matrix:
+    """``w_sp C_sp + w_g C_g`` built in one pass (one CSC, duplicates summed by the QP)."""
+    size = cand.shape[0] * cand.shape[1]
+    parts_r, parts_c, parts_v = [], [], []
+    diag = np.zeros(size)
+    if w_sp > 0:
+        r, c, v = proximity_entries(cand, sp_sigma, sp_cutoff)
+        off, d = normalised_entries(r, c, v, size, +1.0)
+        parts_r.append(r)
+        parts_c.append(c)
+        parts_v.append(w_sp * off)
+        diag += w_sp * d
+    if w_g > 0 and len(edges):
+        r, c, v = grouping_entries(cand, edges, lengths, g_sigma, g_cutoff)
+        off, d = normalised_entries(r, c, v, size, -1.0)
+        parts_r.append(r)
+        parts_c.append(c)
+        parts_v.append(w_g * off)
+        diag += w_g * d
+    if not parts_r:
         return sp.csc_matrix((size, size))
-
-    def value(dist, sl):
-        dev = dist - lengths[sl][:, None, None]
-        return np.where(np.abs(dev) <= cutoff * sigma,
-                        np.exp(-dev ** 2 / (2 * sigma * sigma)), 0.0)
-
-    parts = list(_pair_blocks(cand, edges[:, 0], edges[:, 1], value))
-    rows = np.concatenate([p[0] for p in parts])
-    cols = np.concatenate([p[1] for p in parts])
-    vals = np.concatenate([p[2] for p in parts])
-    return _normalised(rows, cols, vals, size, -1.0)
+    return symmetric_csc(np.concatenate(parts_r), np.concatenate(parts_c),
+                         np.concatenate(parts_v), diag, size)
