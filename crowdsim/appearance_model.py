@@ -44,6 +44,14 @@ SHOULDER_DEPTH: float = 0.28
 """Half depth of the shoulder ellipse as a fraction of the template size."""
 HEAD_RADIUS: float = 0.21
 """Head radius as a fraction of the template size."""
+SHADOW_OFFSET: tuple[float, float] = (0.3, 0.21)
+"""Shadow centre offset from the head centre (u, v), fraction of the template (sun upper left)."""
+SHADOW_REACH: float = 0.55
+"""Padding of the sprites around the template for the shadow, fraction of the template."""
+SHADOW_BLUR: float = 0.08
+"""Shadow edge blur (Gaussian sigma), fraction of the template."""
+ALPHA_EPS: float = 0.004
+"""Coverage below this is treated as empty (not composited)."""
 FACE_OFFSET: float = 0.14
 """Distance of the face crescent's centre ahead of the head centre, fraction of the template."""
 
@@ -173,27 +181,31 @@ class AppearanceParams:
 
 @dataclass(frozen=True)
 class SpriteBank:
-    """Pre-rendered people and shadows.
+    """Pre-rendered people with their shadows baked in.
+
+    Sprite ``k = index(a, b, py, px)`` is appearance ``a`` facing orientation bin ``b`` with
+    sub-pixel phase ``(py, px)``; its head centre lies at
+    ``((Z - 1) / 2 + py / P, (Z - 1) / 2 + px / P)`` inside the ``Z x Z`` sprite.
 
     Attributes
     ----------
-    color : (A * B * P * P, Z, Z, 3) float32
-        Premultiplied BGR of sprite ``index(a, b, py, px)``.
-    alpha : (A * B * P * P, Z, Z) float32
-        Coverage in [0, 1].
-    shadow : (B, Z + 2 * pad, Z + 2 * pad) float32
-        Shadow coverage per orientation bin, centred like the sprites at phase 0.
-    n_bins, subpixel : int
-        ``B`` and ``P``.
+    color : (K, Z, Z, 3) float32
+        Premultiplied BGR (grey levels times coverage).
+    alpha : (K, Z, Z) float32
+        Coverage in [0, 1]; a shadow is a black, partly transparent part of the sprite.
+    spans : (K, Z, 2) int32
+        Per sprite row, the half-open column range ``[lo, hi)`` where alpha is not negligible
+        (``lo == hi`` for an empty row); lets the compositing loop skip empty pixels.
+    n_bins, subpixel, size : int
+        ``B``, ``P`` and ``Z``.
     """
 
     color: np.ndarray
     alpha: np.ndarray
-    shadow: np.ndarray
+    spans: np.ndarray
     n_bins: int
     subpixel: int
     size: int
-    shadow_pad: int
 
     def index(self, appearance: np.ndarray, bins: np.ndarray, py: np.ndarray,
               px: np.ndarray) -> np.ndarray:
@@ -253,16 +265,33 @@ def _draw_person(size_hi: int, centre: float, scale: float, angle: float, cloth:
     return img, mask
 
 
+def _shadow_hi(size_hi: int, centre: float, scale: float, angle: float,
+               blur_hi: float) -> np.ndarray:
+    """Soft shadow coverage at supersampled resolution, offset towards the lower right."""
+    hi = np.zeros((size_hi, size_hi), np.float32)
+    one = 16
+    cx = centre + SHADOW_OFFSET[0] * scale
+    cy = centre + SHADOW_OFFSET[1] * scale
+    cv2.ellipse(hi, (int(round(cx * one)), int(round(cy * one))),
+                (int(round(0.33 * scale * one)), int(round(0.5 * scale * one))),
+                math.degrees(angle), 0, 360, 1.0, -1, cv2.LINE_AA, 4)
+    return cv2.GaussianBlur(hi, (0, 0), blur_hi)
+
+
 def build_sprite_bank(params: AppearanceParams, rng: np.random.Generator) -> SpriteBank:
-    """Render every ``(appearance, orientation, sub-pixel phase)`` sprite.
+    """Render every ``(appearance, orientation, sub-pixel phase)`` sprite, shadow included.
 
     Orientation bin ``b`` faces the image direction ``angle = 2 pi b / B`` (``u`` right,
     ``v`` down).
     """
     s = params.template_px
-    z = s + 2
+    pad = int(math.ceil(SHADOW_REACH * s)) + 1 if params.shadow > 0 else 0
+    z = s + 2 + 2 * pad
     p = params.subpixel
     ss = SUPERSAMPLE
+    if ss % p:
+        raise ValueError(f"appearance.subpixel must divide {ss}, got {p}")
+    step = ss // p
     n_app = params.n_appearances
     nb = params.orientation_bins
     colours = appearance_colours(params, rng)
@@ -272,45 +301,39 @@ def build_sprite_bank(params: AppearanceParams, rng: np.random.Generator) -> Spr
     hair = ground + params.contrast * (hair - ground)
     skin = ground + params.contrast * (skin - ground)
     size_hi = z * ss
-    # Hi-res coordinate of the low-res pixel-centre (Z - 1) / 2.
-    centre_hi = ((z - 1) / 2.0 + 0.5) * ss - 0.5
-    step = ss // p if ss % p == 0 else None
-    if step is None:
-        raise ValueError(f"appearance.subpixel must divide {ss}, got {p}")
+    pad_hi = ss  # one low-res pixel of room for the sub-pixel shifts
+    # Hi-res coordinate of the low-res pixel centre (Z - 1) / 2, inside the padded canvas.
+    centre_hi = ((z - 1) / 2.0 + 0.5) * ss - 0.5 + pad_hi
     color = np.zeros((n_app, nb, p, p, z, z, 3), np.float32)
     alpha = np.zeros((n_app, nb, p, p, z, z), np.float32)
-    pad_hi = ss  # one low-res pixel of room for the sub-pixel shifts
-    for a in range(n_app):
-        for b in range(nb):
-            angle = 2.0 * math.pi * b / nb
-            img, mask = _draw_person(size_hi + 2 * pad_hi, centre_hi + pad_hi, s * ss, angle,
-                                     colours[a], hair[a], skin[a])
+    for b in range(nb):
+        angle = 2.0 * math.pi * b / nb
+        shadow = None
+        if params.shadow > 0:
+            shadow = params.shadow * _shadow_hi(size_hi + 2 * pad_hi, centre_hi, s * ss, angle,
+                                                max(0.6, SHADOW_BLUR * s) * ss)
+        for a in range(n_app):
             # Anti-aliased drawing over black is already premultiplied by the coverage.
-            pre = img
+            img, mask = _draw_person(size_hi + 2 * pad_hi, centre_hi, s * ss, angle,
+                                     colours[a], hair[a], skin[a])
+            if shadow is not None:  # person over a black, partly transparent shadow
+                mask = mask + shadow * (1.0 - mask)
             for py in range(p):
                 for px in range(p):
                     # Shift the drawing by (py, px) / P low-res pixels = step * (py, px) hi-res.
                     y0 = pad_hi - py * step
                     x0 = pad_hi - px * step
-                    sl_img = pre[y0:y0 + size_hi, x0:x0 + size_hi]
-                    sl_msk = mask[y0:y0 + size_hi, x0:x0 + size_hi]
-                    color[a, b, py, px] = cv2.resize(sl_img, (z, z), interpolation=cv2.INTER_AREA)
-                    alpha[a, b, py, px] = cv2.resize(sl_msk, (z, z), interpolation=cv2.INTER_AREA)
-    # Shadows: a soft blob of the body, offset towards the lower right (sun at upper left).
-    pad = max(2, int(math.ceil(0.4 * s)))
-    zs = z + 2 * pad
-    shadow = np.zeros((nb, zs, zs), np.float32)
-    off = 0.3 * s
-    for b in range(nb):
-        angle = 2.0 * math.pi * b / nb
-        hi = np.zeros((zs * ss, zs * ss), np.float32)
-        cx = ((zs - 1) / 2.0 + off + 0.5) * ss - 0.5
-        cy = ((zs - 1) / 2.0 + off * 0.7 + 0.5) * ss - 0.5
-        one = 16
-        cv2.ellipse(hi, (int(cx * one), int(cy * one)),
-                    (int(0.33 * s * ss * one), int(0.5 * s * ss * one)), math.degrees(angle),
-                    0, 360, 1.0, -1, cv2.LINE_AA, 4)
-        blob = cv2.resize(hi, (zs, zs), interpolation=cv2.INTER_AREA)
-        shadow[b] = cv2.GaussianBlur(blob, (0, 0), max(0.6, 0.08 * s))
-    return SpriteBank(color=color.reshape(-1, z, z, 3), alpha=alpha.reshape(-1, z, z),
-                      shadow=shadow, n_bins=nb, subpixel=p, size=z, shadow_pad=pad)
+                    color[a, b, py, px] = cv2.resize(img[y0:y0 + size_hi, x0:x0 + size_hi],
+                                                     (z, z), interpolation=cv2.INTER_AREA)
+                    alpha[a, b, py, px] = cv2.resize(mask[y0:y0 + size_hi, x0:x0 + size_hi],
+                                                     (z, z), interpolation=cv2.INTER_AREA)
+    alpha = alpha.reshape(-1, z, z)
+    visible = alpha > ALPHA_EPS
+    any_row = visible.any(axis=2)
+    lo = np.where(any_row, np.argmax(visible, axis=2), 0)
+    hi = np.where(any_row, z - np.argmax(visible[:, :, ::-1], axis=2), 0)
+    alpha[~visible] = 0.0
+    color = color.reshape(-1, z, z, 3)
+    color[~visible] = 0.0
+    return SpriteBank(color=color, alpha=alpha, spans=np.stack([lo, hi], -1).astype(np.int32),
+                      n_bins=nb, subpixel=p, size=z)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from crowdsim.appearance_model import (
     PROMINENT_COLOURS,
@@ -158,75 +158,66 @@ def prepare_agents(traj: Trajectories, camera: Camera, params: AppearanceParams,
 
 
 # ---------------------------------------------------------------------------- kernels
-@njit(cache=True, nogil=True)
-def _stamp_shadows(canvas, shadow, bins, x0, y0, strength):  # pragma: no cover - numba
-    h, w = canvas.shape[0], canvas.shape[1]
-    z = shadow.shape[1]
-    for k in range(bins.shape[0]):
-        b = bins[k]
-        oy = y0[k]
-        ox = x0[k]
-        for i in range(z):
-            y = oy + i
-            if y < 0 or y >= h:
-                continue
-            for j in range(z):
-                x = ox + j
-                if x < 0 or x >= w:
-                    continue
-                a = shadow[b, i, j]
-                if a > 0.004:
-                    f = 1.0 - strength * a
-                    canvas[y, x, 0] *= f
-                    canvas[y, x, 1] *= f
-                    canvas[y, x, 2] *= f
+# Frame = ground * illumination + noise, computed straight into uint8 (one parallel pass);
+# people are then composited onto it with the same illumination and noise at their pixels:
+#   out = out * (1 - alpha) + gain * premultiplied_colour + alpha * noise
+# which equals rendering the people first and lighting/noising the result afterwards.
+# Images are passed as (rows, columns * 3) views so the inner loops run over contiguous
+# memory and LLVM can vectorise them.
+@njit(cache=True, nogil=True, parallel=True)
+def _ground_pass(ground, oy, ox3, noise, ny, nx3, noise_scale, g0, gain_x, gy,
+                 out):  # pragma: no cover - numba
+    h, w3 = out.shape
+    inv_h = np.float32(1.0 / h)
+    for y in prange(h):
+        gyy = g0 + gy * (y * inv_h - np.float32(0.5))
+        grow = ground[oy + y]
+        nrow = noise[ny + y]
+        orow = out[y]
+        for q in range(w3):
+            v = (np.float32(grow[ox3 + q]) * (gyy + gain_x[q])
+                 + np.float32(nrow[nx3 + q]) * noise_scale + np.float32(0.5))
+            orow[q] = np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
 
 
 @njit(cache=True, nogil=True)
-def _stamp_sprites(canvas, color, alpha, idx, x0, y0):  # pragma: no cover - numba
-    h, w = canvas.shape[0], canvas.shape[1]
-    z = alpha.shape[1]
+def _stamp(out, color, alpha, spans, idx, x0, y0, noise, ny, nx3, noise_scale, g0, gx,
+           gy):  # pragma: no cover - numba
+    h, w3 = out.shape
+    w = w3 // 3
+    z = spans.shape[1]
+    half = np.float32(z / 2.0)
     for k in range(idx.shape[0]):
         s = idx[k]
         oy = y0[k]
-        ox = x0[k]
+        ox3 = 3 * x0[k]
+        # Illumination is smooth: one gain per sprite (its centre) is exact to ~1e-4.
+        g = (g0 + gx * ((x0[k] + half) / np.float32(w) - np.float32(0.5))
+             + gy * ((oy + half) / np.float32(h) - np.float32(0.5)))
         for i in range(z):
             y = oy + i
             if y < 0 or y >= h:
                 continue
-            for j in range(z):
-                x = ox + j
-                if x < 0 or x >= w:
-                    continue
-                a = alpha[s, i, j]
-                if a > 0.002:
-                    inv = 1.0 - a
-                    canvas[y, x, 0] = canvas[y, x, 0] * inv + color[s, i, j, 0]
-                    canvas[y, x, 1] = canvas[y, x, 1] * inv + color[s, i, j, 1]
-                    canvas[y, x, 2] = canvas[y, x, 2] * inv + color[s, i, j, 2]
-
-
-@njit(cache=True, nogil=True)
-def _finish(canvas, noise, ny, nx, noise_scale, g0, gx, gy, out):  # pragma: no cover - numba
-    h, w = canvas.shape[0], canvas.shape[1]
-    inv_w = 1.0 / w
-    inv_h = 1.0 / h
-    for y in range(h):
-        gyy = g0 + gy * (y * inv_h - 0.5)
-        for x in range(w):
-            g = gyy + gx * (x * inv_w - 0.5)
-            for c in range(3):
-                v = canvas[y, x, c] * g + noise[ny + y, nx + x, c] * noise_scale + 0.5
-                if v < 0.0:
-                    v = 0.0
-                elif v > 255.0:
-                    v = 255.0
-                out[y, x, c] = np.uint8(v)
+            lo = spans[s, i, 0]
+            hi = spans[s, i, 1]
+            if ox3 + lo < 0:
+                lo = -ox3
+            if ox3 + hi > w3:
+                hi = w3 - ox3
+            orow = out[y]
+            nrow = noise[ny + y]
+            crow = color[s, i]
+            arow = alpha[s, i]
+            for q in range(lo, hi):
+                a = arow[q]
+                v = (np.float32(orow[ox3 + q]) * (np.float32(1.0) - a) + crow[q] * g
+                     + a * noise_scale * np.float32(nrow[nx3 + q]) + np.float32(0.5))
+                orow[ox3 + q] = np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
 
 
 def make_ground(height: int, width: int, params: AppearanceParams, px_per_m: float,
                 rng: np.random.Generator) -> np.ndarray:
-    """``(height, width, 3)`` float32 textured ground: multi-scale noise, optional paving."""
+    """``(height, width, 3)`` uint8 textured ground: multi-scale noise, optional paving."""
     base = np.empty((height, width, 3), np.float32)
     base[:] = np.array(params.ground_bgr, np.float32)
     if params.ground_texture > 0:
@@ -247,7 +238,7 @@ def make_ground(height: int, width: int, params: AppearanceParams, px_per_m: flo
             yy, xx = np.mgrid[0:height, 0:width]
             joint = ((np.mod(xx, step) < 1.0) | (np.mod(yy, step) < 1.0)).astype(np.float32)
             base -= joint[..., None] * (0.25 * np.array(params.ground_bgr, np.float32))
-    return np.clip(base, 0, 255)
+    return np.clip(np.rint(base), 0, 255).astype(np.uint8)
 
 
 class SceneRenderer:
@@ -283,9 +274,16 @@ class SceneRenderer:
         self.noise = np.clip(rng.standard_normal((h + NOISE_POOL_MARGIN, w + NOISE_POOL_MARGIN, 3),
                                                  dtype=np.float32) * NOISE_POOL_SCALE,
                              -127, 127).astype(np.int8)
+        # Flat (rows, columns * 3) layouts for the kernels; alpha repeated per channel.
+        b = self.bank
+        k, z = b.alpha.shape[:2]
+        self._ground2 = self.ground.reshape(self.ground.shape[0], -1)
+        self._noise2 = self.noise.reshape(self.noise.shape[0], -1)
+        self._color3 = np.ascontiguousarray(b.color.reshape(k, z, 3 * z))
+        self._alpha3 = np.ascontiguousarray(np.repeat(b.alpha, 3, axis=2))
+        self._spans3 = (3 * b.spans).astype(np.int64)
         light = np.random.default_rng(s_light)
         self._phases = light.uniform(0, 2 * math.pi, 3)
-        self._canvas = np.empty((h, w, 3), np.float32)
         self._jitter = np.zeros((0, 2))
         self._blur = None
         if params.motion_blur_px >= 1:
@@ -333,26 +331,33 @@ class SceneRenderer:
         cam = self.camera
         h, w = cam.height, cam.width
         m = self.margin
+        oy = ox = m
         if m:
             j = np.clip(np.rint(self._frame_jitter(t)), -m, m).astype(int)
-            ground = self.ground[m - j[1]:m - j[1] + h, m - j[0]:m - j[0] + w]
-        else:
-            ground = self.ground
-        canvas = self._canvas
-        np.copyto(canvas, ground)
+            oy, ox = m - int(j[1]), m - int(j[0])
+        if out is None:
+            out = np.empty((h, w, 3), np.uint8)
+        g0, gx, gy = (np.float32(v) for v in self.illumination(t))
+        rng = np.random.default_rng([self.seed, 0x7015E, int(t)])
+        ny, nx = (int(v) for v in rng.integers(0, NOISE_POOL_MARGIN + 1, 2))
+        nscale = np.float32(self.params.noise_sigma / NOISE_POOL_SCALE)
+        gain_x = gx * (np.arange(w, dtype=np.float32) / np.float32(w) - np.float32(0.5))
+        out2 = out.reshape(h, w * 3)
+        _ground_pass(self._ground2, oy, 3 * ox, self._noise2, ny, 3 * nx, nscale, g0,
+                     np.repeat(gain_x, 3), gy, out2)
         pixels = np.asarray(pixels, np.float64)
-        ok = np.isfinite(pixels[:, 0]) & np.isfinite(pixels[:, 1])
         bank = self.bank
         z = bank.size
-        if ok.any():
-            pts = pixels[ok]
-            # Cull agents whose sprite (plus shadow) cannot touch the frame.
-            reach = z + bank.shadow_pad + 2
-            inside = ((pts[:, 0] > -reach) & (pts[:, 0] < w + reach)
-                      & (pts[:, 1] > -reach) & (pts[:, 1] < h + reach))
-            pts = pts[inside]
-            hd = np.asarray(heading, np.float64)[ok][inside]
-            ap = np.asarray(appearance, np.int64)[ok][inside]
+        if len(pixels):
+            ok = np.isfinite(pixels[:, 0]) & np.isfinite(pixels[:, 1])
+            # Cull agents whose sprite cannot touch the frame.
+            with np.errstate(invalid="ignore"):
+                ok &= ((pixels[:, 0] > -z) & (pixels[:, 0] < w + z)
+                       & (pixels[:, 1] > -z) & (pixels[:, 1] < h + z))
+            sel = np.flatnonzero(ok)
+            pts = pixels[sel]
+            hd = np.asarray(heading, np.float64)[sel]
+            ap = np.asarray(appearance, np.int64)[sel]
             p = bank.subpixel
             f = pts - (z - 1) / 2.0
             base = np.floor(f)
@@ -360,24 +365,16 @@ class SceneRenderer:
             carry = phase == p
             base += carry
             phase[carry] = 0
-            x0 = base[:, 0].astype(np.int64)
-            y0 = base[:, 1].astype(np.int64)
             nb = bank.n_bins
             bins = np.mod(np.rint(hd * (nb / (2 * math.pi))), nb).astype(np.int64)
-            if self.params.shadow > 0:
-                sp = bank.shadow_pad
-                _stamp_shadows(canvas, bank.shadow, bins, x0 - sp, y0 - sp,
-                               np.float32(self.params.shadow))
             idx = bank.index(ap, bins, phase[:, 1], phase[:, 0])
-            _stamp_sprites(canvas, bank.color, bank.alpha, idx, x0, y0)
-        if out is None:
-            out = np.empty((h, w, 3), np.uint8)
-        g0, gx, gy = self.illumination(t)
-        rng = np.random.default_rng([self.seed, 0x7015E, int(t)])
-        ny, nx = rng.integers(0, NOISE_POOL_MARGIN + 1, 2)
-        _finish(canvas, self.noise, int(ny), int(nx),
-                np.float32(self.params.noise_sigma / NOISE_POOL_SCALE),
-                np.float32(g0), np.float32(gx), np.float32(gy), out)
+            x0 = base[:, 0].astype(np.int64)
+            y0 = base[:, 1].astype(np.int64)
+            # Draw top to bottom: people lower in the frame overlap those above (right for a
+            # tilted camera), and row-ordered writes keep the frame and noise rows in cache.
+            order = np.argsort(y0, kind="stable")
+            _stamp(out2, self._color3, self._alpha3, self._spans3, idx[order], x0[order],
+                   y0[order], self._noise2, ny, 3 * nx, nscale, g0, gx, gy)
         if self._blur is not None:
             cv2.filter2D(out, -1, self._blur, dst=out, borderType=cv2.BORDER_REFLECT)
         return out

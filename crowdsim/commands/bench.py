@@ -16,6 +16,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "fd": ("crowdsim.bench.fd", "fundamental diagram vs Weidmann and counterflow lanes"),
     "solver": ("tracker.bench_solver",
                "Frank-Wolfe plain/away/SWAP iterations and FW-SWAP vs Clarabel (relaxed BQP)"),
+    "render": ("crowdsim.bench.render", "renderer frames/s, 1280x720/1k and 1920x1080/10k agents"),
 }
 """Benchmark name -> (module, one-line help)."""
 

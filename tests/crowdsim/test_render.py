@@ -147,10 +147,14 @@ def test_gt_rows_are_head_boxes_inside_the_frame():
 
 
 def test_sprite_bank_is_anti_aliased_and_centred():
-    p = AppearanceParams(template_px=12, subpixel=2, orientation_bins=8)
+    p = AppearanceParams(template_px=12, subpixel=2, orientation_bins=8, shadow=0.0)
     bank = build_sprite_bank(p, np.random.default_rng(0))
     z = bank.size
     assert bank.alpha.shape == (p.n_appearances * 8 * 4, z, z)
+    lo, hi = bank.spans[..., 0], bank.spans[..., 1]
+    cols = np.arange(z)
+    inside = (cols >= lo[..., None]) & (cols < hi[..., None])
+    assert not bank.alpha[~inside].any()  # spans cover every drawn pixel
     assert 0.0 <= bank.alpha.min() and bank.alpha.max() <= 1.0 + 1e-6
     assert ((bank.alpha > 0.05) & (bank.alpha < 0.95)).any()  # soft edges
     idx = bank.index(np.array([0]), np.array([0]), np.array([0]), np.array([0]))[0]
