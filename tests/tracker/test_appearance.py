@@ -1,0 +1,110 @@
+"""Appearance models: exact shift recovery, batching, gated updates, edge cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tracker_scenes import make_scene
+from tracker.appearance import KCFAppearance, NCCAppearance, extract_patches, make_appearance
+
+MODELS = [KCFAppearance, NCCAppearance]
+
+
+def _shifted_scene():
+    starts = [[30, 30], [70, 50], [100, 70]]
+    vel = [[3, -2], [-4, 1], [0, 4]]
+    return make_scene(starts, vel, n_frames=2, size=14), np.array(vel)
+
+
+@pytest.mark.parametrize("cls", MODELS)
+def test_peak_at_true_shift(cls):
+    sc, vel = _shifted_scene()
+    m = cls(14, 7)
+    centers = sc.points[0].astype(np.int64)
+    m.add(sc.frames[0], centers)
+    s = m.scores(sc.frames[1], centers)
+    assert s.shape == (3, 15, 15)
+    iy, ix = np.unravel_index(s.reshape(3, -1).argmax(1), (15, 15))
+    np.testing.assert_array_equal(np.c_[ix - 7, iy - 7], vel)
+    # on the training frame the peak is at the centre
+    s0 = m.scores(sc.frames[0], centers)
+    assert (s0.reshape(3, -1).argmax(1) == 7 * 15 + 7).all()
+    assert np.isfinite(s).all()
+
+
+def test_kcf_batch_equals_single_target_models():
+    sc, _ = _shifted_scene()
+    centers = sc.points[0].astype(np.int64)
+    batch = KCFAppearance(14, 7)
+    batch.add(sc.frames[0], centers)
+    sb = batch.scores(sc.frames[1], centers)
+    for i in range(3):
+        single = KCFAppearance(14, 7)
+        single.add(sc.frames[0], centers[i:i + 1])
+        np.testing.assert_allclose(single.scores(sc.frames[1], centers[i:i + 1])[0], sb[i],
+                                   rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("cls", MODELS)
+def test_update_only_when_confident(cls):
+    sc, vel = _shifted_scene()
+    centers = sc.points[0].astype(np.int64)
+    m = cls(14, 7, update_threshold=0.6)
+    m.add(sc.frames[0], centers)
+    before = m.scores(sc.frames[0], centers).copy()
+    for _ in range(12):  # NCC refreshes every 10 frames
+        m.update(sc.frames[1], centers + vel, np.array([0.1, 0.59, 0.2]))
+    np.testing.assert_allclose(m.scores(sc.frames[0], centers), before, atol=1e-6)
+    for _ in range(12):
+        m.update(sc.frames[1], centers + vel, np.array([0.9, 0.1, 0.1]))
+    after = m.scores(sc.frames[0], centers)
+    assert not np.allclose(after[0], before[0], atol=1e-4)
+    np.testing.assert_allclose(after[1:], before[1:], atol=1e-6)
+
+
+def test_ncc_updates_every_ten_frames():
+    sc, vel = _shifted_scene()
+    centers = sc.points[0].astype(np.int64)
+    m = NCCAppearance(14, 7, update_every=10)
+    m.add(sc.frames[0], centers)
+    t0 = m.templates.copy()
+    for k in range(9):
+        m.update(sc.frames[1], centers + vel, np.ones(3))
+    np.testing.assert_array_equal(m.templates, t0)
+    m.update(sc.frames[1], centers + vel, np.ones(3))
+    assert not np.array_equal(m.templates, t0)
+    np.testing.assert_array_equal(m.age, 0)
+
+
+@pytest.mark.parametrize("cls", MODELS)
+def test_empty_frame_zero_targets_and_border(cls):
+    m = cls(8, 4)
+    flat = np.full((40, 50, 3), 90, np.uint8)
+    assert m.scores(flat, np.zeros((0, 2))).shape == (0, 9, 9)
+    m.add(flat, np.array([[0, 0], [49, 39], [25, 20]]))  # corners: replicated border
+    s = m.scores(flat, np.array([[0, 0], [49, 39], [25, 20]]))
+    assert s.shape == (3, 9, 9) and np.isfinite(s).all()
+    m.keep(np.array([2]))
+    assert m.n == 1
+
+
+def test_extract_patches_replicates_border():
+    f = np.arange(12, dtype=np.uint8).reshape(3, 4, 1)
+    p = extract_patches(f, np.array([[-1, -1], [3, 2]]), 3)
+    assert p.shape == (2, 1, 3, 3)
+    np.testing.assert_array_equal(p[0, 0], [[0, 0, 1], [0, 0, 1], [4, 4, 5]])
+    np.testing.assert_array_equal(p[1, 0, 0], [11, 11, 11])
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="template_size"):
+        KCFAppearance(1, 3)
+    with pytest.raises(ValueError, match="unknown appearance"):
+        make_appearance("hog", 8, 4, update_threshold=0.6)
+    m = KCFAppearance(8, 4)
+    with pytest.raises(ValueError, match="uint8"):
+        m.add(np.zeros((10, 10)), np.zeros((1, 2)))
+    m.add(np.zeros((10, 10, 3), np.uint8), np.array([[5, 5]]))
+    with pytest.raises(ValueError, match="centres"):
+        m.scores(np.zeros((10, 10, 3), np.uint8), np.zeros((2, 2)))

@@ -1,0 +1,196 @@
+"""Cost terms (Eq. 6-10), candidates and the parameter dataclass."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from tracker.candidates import dense_candidates, grid_positions, speedup_candidates
+from tracker.params import BQPParams, search_radius
+from tracker.terms import (
+    coherent_groups,
+    group_trees,
+    grouping_matrix,
+    motion_cost,
+    neighbourhood_cost,
+    neighbours_in_groups,
+    proximity_matrix,
+    quadratic_matrix,
+)
+
+
+def test_motion_cost_peaks_at_prediction():
+    grid = grid_positions(np.array([[10, 10], [50, 40]]), 3)
+    pred = np.array([[12.0, 9.0], [50.0, 40.0]])
+    c = motion_cost(grid, pred, 2.0)
+    assert c.shape == (2, 7, 7)
+    assert np.unravel_index(c[0].argmin(), (7, 7)) == (3 - 1, 3 + 2)
+    assert c[1, 3, 3] == pytest.approx(-1.0)
+    assert (c <= 0).all() and (c >= -1).all()
+
+
+def test_neighbourhood_cost_uses_neighbour_velocities_eq7():
+    grid = grid_positions(np.array([[20, 20]]), 4)
+    pos = np.array([[20.0, 20.0], [30.0, 20.0], [40.0, 20.0]])
+    vel = np.array([[0.0, 0.0], [3.0, 0.0], [0.0, -2.0]])
+    nbr = np.array([[1, 2, -1]])
+    w = np.array([[0.75, 0.25, 0.0]])
+    c = neighbourhood_cost(grid, pos[:1], vel, nbr, w, 1.0)
+    # strongest pull at p_i + v_1 = (23, 20), weaker at p_i + v_2 = (20, 18)
+    assert np.unravel_index(c[0].argmin(), (9, 9)) == (4, 7)
+    assert c[0, 4 - 2, 4] == pytest.approx(-0.25, abs=5e-3)
+    none = neighbourhood_cost(grid, pos[:1], vel, np.full((1, 3), -1), np.zeros((1, 3)), 1.0)
+    assert (none == 0).all()
+
+
+def _history(n_frames=10):
+    # group A moves right, group B moves left, C stands still, D is far away moving right
+    t = np.arange(n_frames)[:, None]
+    xs = np.concatenate([10 + 2 * t + np.array([0, 8, 16]), 60 - 2 * t + np.array([0, 8, 16]),
+                         np.full((n_frames, 1), 40.0), 300 + 2 * t], axis=1)
+    ys = np.concatenate([np.full((n_frames, 3), 10.0), np.full((n_frames, 3), 30.0),
+                         np.full((n_frames, 1), 20.0), np.full((n_frames, 1), 10.0)], axis=1)
+    return np.stack([xs, ys], axis=-1)
+
+
+def test_coherent_groups_split_opposite_flows():
+    h = _history()
+    labels = coherent_groups(h, radius=20.0, threshold=0.8, min_speed=0.5)
+    assert labels[0] == labels[1] == labels[2] >= 0
+    assert labels[3] == labels[4] == labels[5] >= 0
+    assert labels[0] != labels[3]
+    assert labels[6] == -1 and labels[7] == -1  # still / isolated
+    assert (coherent_groups(h[:, :1], 20.0, 0.8) == -1).all()
+    h[:5, 1] = np.nan  # a target born mid-history still joins via the frames it shares
+    assert coherent_groups(h, 20.0, 0.8, 0.5)[1] == labels[0]
+
+
+def test_neighbours_and_weights_eq8():
+    pos = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 2.0], [50.0, 0.0]])
+    labels = np.array([0, 0, 0, -1])
+    nbr, w = neighbours_in_groups(pos, labels, k=5, radius=10.0, scale=1.0)
+    assert set(nbr[0][nbr[0] >= 0]) == {1, 2}
+    np.testing.assert_allclose(w.sum(1), [1, 1, 1, 0])
+    e1, e2 = np.exp(-1.0), np.exp(-4.0)
+    np.testing.assert_allclose(w[0][nbr[0] == 1], e1 / (e1 + e2))
+    assert (nbr[3] == -1).all()
+
+
+def test_group_trees_are_spanning_trees():
+    h = _history()
+    labels = coherent_groups(h, 20.0, 0.8, 0.5)
+    edges, lengths = group_trees(h[-1], labels, 20.0)
+    assert len(edges) == 4  # two groups of three -> 2 + 2 edges
+    assert (labels[edges[:, 0]] == labels[edges[:, 1]]).all()
+    np.testing.assert_allclose(lengths, 8.0)
+
+
+def _dense_reference(cand, sigma, cutoff, edges=None, lengths=None):
+    n, k = cand.shape[:2]
+    p = cand.reshape(-1, 2)
+    tgt = np.repeat(np.arange(n), k)
+    d = np.linalg.norm(p[:, None] - p[None], axis=-1)
+    if edges is None:
+        w = np.exp(-d ** 2 / (2 * sigma ** 2)) * (d <= cutoff * sigma)
+        w[tgt[:, None] == tgt[None]] = 0
+    else:
+        w = np.zeros_like(d)
+        for (a, b), e in zip(edges, lengths, strict=True):
+            ia, ib = np.flatnonzero(tgt == a), np.flatnonzero(tgt == b)
+            dev = d[np.ix_(ia, ib)] - e
+            blk = np.exp(-dev ** 2 / (2 * sigma ** 2)) * (np.abs(dev) <= cutoff * sigma)
+            w[np.ix_(ia, ib)] = blk
+            w[np.ix_(ib, ia)] = blk.T
+    deg = w.sum(1)
+    inv = np.where(deg > 0, 1 / np.sqrt(np.where(deg > 0, deg, 1)), 0)
+    return np.diag((deg > 0).astype(float)), inv[:, None] * w * inv[None]
+
+
+def test_proximity_matrix_matches_dense_reference_and_is_psd():
+    rng = np.random.default_rng(1)
+    cand = rng.uniform(0, 20, (5, 6, 2))
+    q = proximity_matrix(cand, sigma=3.0, cutoff=2.0)
+    assert sp.issparse(q) and q.shape == (30, 30)
+    eye, a = _dense_reference(cand, 3.0, 2.0)
+    np.testing.assert_allclose(q.toarray(), eye + a, atol=1e-12)
+    assert np.linalg.eigvalsh(q.toarray()).min() > -1e-9
+    # binary points: choosing two close candidates costs more than two far ones
+    p = cand.reshape(-1, 2)
+    x_close = np.zeros(30)
+    x_far = np.zeros(30)
+    d = np.linalg.norm(p[:6, None] - p[None, 6:12], axis=-1)
+    i, j = np.unravel_index(d.argmin(), d.shape)
+    x_close[[i, 6 + j]] = 1
+    i, j = np.unravel_index(d.argmax(), d.shape)
+    x_far[[i, 6 + j]] = 1
+    assert x_close @ q @ x_close > x_far @ q @ x_far
+
+
+def test_grouping_matrix_matches_dense_reference_and_is_psd():
+    rng = np.random.default_rng(2)
+    cand = rng.uniform(0, 20, (4, 5, 2))
+    edges = np.array([[0, 1], [1, 3]])
+    lengths = np.array([6.0, 9.0])
+    q = grouping_matrix(cand, edges, lengths, sigma=3.0, cutoff=2.5)
+    eye, a = _dense_reference(cand, 3.0, 2.5, edges, lengths)
+    np.testing.assert_allclose(q.toarray(), eye - a, atol=1e-12)
+    assert np.linalg.eigvalsh(q.toarray()).min() > -1e-9
+    both = quadratic_matrix(cand, 0.5, 3.0, 2.0, 2.0, edges, lengths, 3.0, 2.5)
+    ref = 0.5 * proximity_matrix(cand, 3.0, 2.0) + 2.0 * q
+    np.testing.assert_allclose(both.toarray(), ref.toarray(), atol=1e-12)
+
+
+def test_quadratic_terms_edge_cases():
+    assert proximity_matrix(np.zeros((0, 4, 2)), 3.0, 2.0).shape == (0, 0)
+    assert proximity_matrix(np.zeros((1, 4, 2)), 3.0, 2.0).nnz == 0
+    far = np.array([[[0.0, 0.0]], [[100.0, 0.0]]])
+    assert proximity_matrix(far, 3.0, 2.0).nnz == 0
+    assert quadratic_matrix(far, 1, 3, 2, 1, np.zeros((0, 2), int), np.zeros(0), 3, 2).nnz == 0
+
+
+def test_dense_and_speedup_candidates():
+    r = 3
+    centers = np.array([[10, 10], [30, 12]])
+    cost = np.zeros((2, 7, 7))
+    cost[0, 1, 5] = -3  # extremum at offset (+2, -2)
+    cost[0, 5, 1] = -2
+    cost[1, 3, 3] = -1
+    app = -cost.astype(np.float32)
+    d = dense_candidates(centers, r, cost, app, stride=1)
+    assert d.k == 49 and d.n == 2
+    np.testing.assert_array_equal(d.block_ptr, [0, 49, 98])
+    assert dense_candidates(centers, r, cost, app, stride=2).k == 9  # offsets -2, 0, 2
+    rng = np.random.default_rng(0)
+    s = speedup_candidates(centers, r, cost, app, rng, n_extrema=3, n_samples=10, window=6)
+    assert s.k == 33
+    np.testing.assert_array_equal(s.positions[0, 0], [12, 8])
+    np.testing.assert_array_equal(s.positions[0, 1], [8, 12])
+    assert s.cost[0, 0] == -3
+    # samples lie within the 6x6 neighbourhood of their extremum (clipped to the grid)
+    ext = s.positions[:, :3]
+    samp = s.positions[:, 3:].reshape(2, 3, 10, 2)
+    off = samp - ext[:, :, None]
+    assert (off >= -3).all() and (off <= 2).all()
+    assert (np.abs(s.positions - centers[:, None]) <= r).all()
+    empty = speedup_candidates(np.zeros((0, 2)), r, np.zeros((0, 7, 7)), np.zeros((0, 7, 7)),
+                               rng)
+    assert empty.n == 0 and empty.k == 33
+
+
+def test_params_validation():
+    assert BQPParams().zeta == 0.3 and BQPParams().eta == 0.2
+    assert BQPParams().update_threshold == 0.6
+    with pytest.raises(ValueError, match="zeta"):
+        BQPParams(zeta=-1)
+    with pytest.raises(ValueError, match="update_threshold"):
+        BQPParams(update_threshold=1.5)
+    with pytest.raises(ValueError, match="appearance"):
+        BQPParams(appearance="hog")
+    with pytest.raises(ValueError, match="fw_variant"):
+        BQPParams(fw_variant="newton")
+    with pytest.raises(ValueError, match="n_extrema"):
+        BQPParams(n_extrema=0)
+    with pytest.raises(ValueError, match="w_sp"):
+        BQPParams(w_sp=float("nan"))
+    assert search_radius(14, 2.0) == 7
