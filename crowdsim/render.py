@@ -47,6 +47,8 @@ SWAY_STRIDE_M: float = 1.4
 """Distance walked per full shoulder-sway period (two steps), metres."""
 NOISE_POOL_MARGIN: int = 61
 """Extra rows/columns of the sensor-noise pool; each frame reads it at a random offset."""
+STAMP_BANDS: int = 16
+"""Horizontal bands composited in parallel (the result does not depend on this number)."""
 NOISE_POOL_SCALE: float = 16.0
 """Standard normal noise is stored as int8 times this factor."""
 
@@ -180,39 +182,42 @@ def _ground_pass(ground, oy, ox3, noise, ny, nx3, noise_scale, g0, gain_x, gy,
             orow[q] = np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
 
 
-@njit(cache=True, nogil=True)
-def _stamp(out, color, alpha, spans, idx, x0, y0, noise, ny, nx3, noise_scale, g0, gx,
-           gy):  # pragma: no cover - numba
+@njit(cache=True, nogil=True, parallel=True)
+def _stamp(out, color, alpha, spans, idx, x0, y0, noise, ny, nx3, noise_scale, g0, gx, gy,
+           band_rows, band_first, band_last):  # pragma: no cover - numba
+    # Horizontal bands are composited in parallel; a pixel belongs to exactly one band and
+    # within a band agents are drawn in the given order, so the result equals a serial pass.
     h, w3 = out.shape
     w = w3 // 3
     z = spans.shape[1]
     half = np.float32(z / 2.0)
-    for k in range(idx.shape[0]):
-        s = idx[k]
-        oy = y0[k]
-        ox3 = 3 * x0[k]
-        # Illumination is smooth: one gain per sprite (its centre) is exact to ~1e-4.
-        g = (g0 + gx * ((x0[k] + half) / np.float32(w) - np.float32(0.5))
-             + gy * ((oy + half) / np.float32(h) - np.float32(0.5)))
-        for i in range(z):
-            y = oy + i
-            if y < 0 or y >= h:
-                continue
-            lo = spans[s, i, 0]
-            hi = spans[s, i, 1]
-            if ox3 + lo < 0:
-                lo = -ox3
-            if ox3 + hi > w3:
-                hi = w3 - ox3
-            orow = out[y]
-            nrow = noise[ny + y]
-            crow = color[s, i]
-            arow = alpha[s, i]
-            for q in range(lo, hi):
-                a = arow[q]
-                v = (np.float32(orow[ox3 + q]) * (np.float32(1.0) - a) + crow[q] * g
-                     + a * noise_scale * np.float32(nrow[nx3 + q]) + np.float32(0.5))
-                orow[ox3 + q] = np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
+    for b in prange(band_rows.shape[0] - 1):
+        ylo = band_rows[b]
+        yhi = band_rows[b + 1]
+        for k in range(band_first[b], band_last[b]):
+            s = idx[k]
+            oy = y0[k]
+            ox3 = 3 * x0[k]
+            # Illumination is smooth: one gain per sprite (its centre) is exact to ~1e-4.
+            g = (g0 + gx * ((x0[k] + half) / np.float32(w) - np.float32(0.5))
+                 + gy * ((oy + half) / np.float32(h) - np.float32(0.5)))
+            for i in range(max(0, ylo - oy), min(z, yhi - oy)):
+                y = oy + i
+                lo = spans[s, i, 0]
+                hi = spans[s, i, 1]
+                if ox3 + lo < 0:
+                    lo = -ox3
+                if ox3 + hi > w3:
+                    hi = w3 - ox3
+                orow = out[y]
+                nrow = noise[ny + y]
+                crow = color[s, i]
+                arow = alpha[s, i]
+                for q in range(lo, hi):
+                    a = arow[q]
+                    v = (np.float32(orow[ox3 + q]) * (np.float32(1.0) - a) + crow[q] * g
+                         + a * noise_scale * np.float32(nrow[nx3 + q]) + np.float32(0.5))
+                    orow[ox3 + q] = np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
 
 
 def make_ground(height: int, width: int, params: AppearanceParams, px_per_m: float,
@@ -373,8 +378,12 @@ class SceneRenderer:
             # Draw top to bottom: people lower in the frame overlap those above (right for a
             # tilted camera), and row-ordered writes keep the frame and noise rows in cache.
             order = np.argsort(y0, kind="stable")
-            _stamp(out2, self._color3, self._alpha3, self._spans3, idx[order], x0[order],
-                   y0[order], self._noise2, ny, 3 * nx, nscale, g0, gx, gy)
+            y0 = y0[order]
+            rows = np.linspace(0, h, STAMP_BANDS + 1).astype(np.int64)
+            first = np.searchsorted(y0, rows[:-1] - z + 1, side="left")
+            last = np.searchsorted(y0, rows[1:], side="left")
+            _stamp(out2, self._color3, self._alpha3, self._spans3, idx[order], x0[order], y0,
+                   self._noise2, ny, 3 * nx, nscale, g0, gx, gy, rows, first, last)
         if self._blur is not None:
             cv2.filter2D(out, -1, self._blur, dst=out, borderType=cv2.BORDER_REFLECT)
         return out

@@ -117,8 +117,21 @@ class _QueueProgress:
         self.q.put(n)
 
 
+def _single_threaded() -> None:
+    """One sequence per worker process: keep numba's parallel loops to one thread."""
+    import numba
+
+    numba.set_num_threads(1)
+
+
 def _pool_task(spec: SequenceSpec, out: str, overwrite: bool, q: Any) -> dict[str, Any]:
+    _single_threaded()
     return build_sequence(spec, out, overwrite, _QueueProgress(q))
+
+
+def _ray_task(spec: SequenceSpec, out: str, overwrite: bool) -> dict[str, Any]:
+    _single_threaded()
+    return build_sequence(spec, out, overwrite)
 
 
 # ---------------------------------------------------------------------------- manifest
@@ -327,7 +340,7 @@ def _run_ray(todo: list[SequenceSpec], out: Path, overwrite: bool, address: str 
                          "pip install 'crowdsim[distributed]'") from None
     if not ray.is_initialized():
         ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-    task = ray.remote(build_sequence)
+    task = ray.remote(num_cpus=1)(_ray_task)
     t0 = time.perf_counter()
     refs = {task.remote(s, str(out.resolve()), overwrite): s for s in todo}
     with _bar(sum(s.frames for s in todo), progress) as bar:
