@@ -79,7 +79,8 @@ def _build_grid(pos, cell, period):
 @nb.njit(cache=True, parallel=False, fastmath=False)
 def _pedestrian_wall_kernel(pos, vel, radius, v0, e, group, walls, period, cutoff, elliptic,
                             V0, sigma, step_time, A, B, U0, R, cos_half_fov, c_out, beta3,
-                            group_gap, tau, headway_time, speed_cap, dt, extra, out):
+                            group_gap, tau, headway_time, tan_cone, depth, speed_cap, dt, extra,
+                            out):
     n = pos.shape[0]
     if n == 0:
         return
@@ -151,7 +152,7 @@ def _pedestrian_wall_kernel(pos, vel, radius, v0, e, group, walls, period, cutof
                         fy *= c_out
                     ax += fx
                     ay += fy
-                    # Free headway along e_i to the nearest body in a 45-degree cone ahead
+                    # Free headway along e_i to the nearest body in a cone ahead
                     # that heads the same way (directions within 60 degrees), see
                     # SocialForceParams.headway_time. Such "following" relations cannot form
                     # two-agent cycles, so they cannot dead-lock.
@@ -160,8 +161,8 @@ def _pedestrian_wall_kernel(pos, vel, radius, v0, e, group, walls, period, cutof
                         if along > 0.0:
                             lateral = abs(e[i, 0] * ry - e[i, 1] * rx)
                             reach = radius[i] + radius[j]
-                            if lateral < reach and lateral <= along:
-                                gap = along - math.sqrt(reach * reach - lateral * lateral)
+                            if lateral < reach and lateral <= along * tan_cone:
+                                gap = along - depth * math.sqrt(reach * reach - lateral * lateral)
                                 gap_ahead = min(gap_ahead, gap)
                     # Group members keep a minimal distance [M10, f_rep].
                     if group[i] >= 0 and group[i] == group[j]:
@@ -272,5 +273,6 @@ def social_force(pos: np.ndarray, vel: np.ndarray, radius: np.ndarray, v0: np.nd
         params.potential == "elliptic", params.V0, params.sigma, params.step_time, params.A,
         params.B, params.U0, params.R, math.cos(math.radians(params.fov_deg / 2)), params.c,
         params.beta3, params.group_repulsion_gap, params.tau, params.headway_time,
+        math.tan(math.radians(params.headway_cone_deg)), params.headway_depth,
         params.speed_cap, params.dt, extra, acc)
     return acc

@@ -36,6 +36,13 @@ class SocialForceParams:
         self-stopping rule (Parisi, Gilman & Moldovan 2009, Physica A 388; the headway law of
         Tordeux et al.'s collision-free speed model, 2016) restores it. 0 disables it (pure
         HM95).
+    headway_cone_deg : float
+        Half-angle of the cone ahead in which bodies limit the headway, degrees (< 60 keeps
+        two agents from blocking each other).
+    headway_depth : float
+        Fraction of the touching distance counted along the walking direction in the
+        headway: bodies are about 2/3 as deep front-to-back as they are wide, so people close
+        up further behind each other than side by side.
     potential : str
         ``"elliptic"``: pedestrian potential ``V(b) = V0 exp(-b/sigma)`` over the semi-minor
         axis ``b`` of the ellipse spanned by the other's step ``v_j * delta_t`` [HM95 Eq. 4];
@@ -77,23 +84,28 @@ class SocialForceParams:
         Coulomb friction coefficient between bodies in contact (pymunk).
     contact_slop : float
         Allowed contact overlap before pymunk corrects it, m.
+    contact_bias : float
+        Fraction of a contact overlap left uncorrected after one second (pymunk's
+        ``collision_bias``; its default 0.0018 leaves 22 % of an overlap after a 0.04 s step).
     solver_iterations : int
         pymunk contact solver iterations per step.
     """
 
     dt: float = 0.04
     tau: float = 0.5
-    headway_time: float = 0.4
+    headway_time: float = 0.53
+    headway_cone_deg: float = 38.0
+    headway_depth: float = 0.95
     potential: str = "elliptic"
     V0: float = 2.1
     sigma: float = 0.3
-    step_time: float = 2.0
+    step_time: float = 0.4
     A: float = 25.0
     B: float = 0.08
     U0: float = 10.0
     R: float = 0.2
     fov_deg: float = 200.0
-    c: float = 0.5
+    c: float = 0.6
     speed_cap: float = 1.3
     cutoff: float = 2.0
     beta1: float = 4.0
@@ -104,6 +116,7 @@ class SocialForceParams:
     mass: float = 80.0
     friction: float = 0.3
     contact_slop: float = 0.005
+    contact_bias: float = 1e-6
     solver_iterations: int = 10
 
     def __post_init__(self) -> None:
@@ -128,6 +141,12 @@ class SocialForceParams:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
         if not 0 < self.fov_deg <= 360:
             raise ValueError(f"fov_deg must be in (0, 360], got {self.fov_deg!r}")
+        if not 0 < self.headway_depth <= 1:
+            raise ValueError(f"headway_depth must be in (0, 1], got {self.headway_depth!r}")
+        if not 0 < self.headway_cone_deg < 60:
+            raise ValueError(f"headway_cone_deg must be in (0, 60), got {self.headway_cone_deg!r}")
+        if not 0 < self.contact_bias < 1:
+            raise ValueError(f"contact_bias must be in (0, 1), got {self.contact_bias!r}")
         if not 0 <= self.c <= 1:
             raise ValueError(f"c must be in [0, 1], got {self.c!r}")
         if self.speed_cap < 1:

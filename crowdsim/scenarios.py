@@ -202,8 +202,12 @@ class Counterflow(Scenario):
     def build(self, rng: np.random.Generator) -> Setup:
         n, w = self.n_agents, self.width
         length = self._length()
-        pos = hex_positions(rng, n, 0.0, 0.0, w, self.density, self.radius[1])
-        length = max(length, float(pos[:, 0].max()) + 0.5 * (1 / math.sqrt(self.density)))
+        if self.periodic:  # exactly n / (density * width): the density is the target one
+            pos = hex_positions(rng, n, 0.0, 0.0, w, self.density, self.radius[1],
+                                length=length)
+        else:
+            pos = hex_positions(rng, n, 0.0, 0.0, w, self.density, self.radius[1])
+            length = max(length, float(pos[:, 0].max()) + 0.5 / math.sqrt(self.density))
         right = np.zeros(n, dtype=bool)
         right[rng.permutation(n)[: int(round(self.right_fraction * n))]] = True
         margin = 4.0

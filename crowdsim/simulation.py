@@ -141,6 +141,10 @@ class Simulation:
                                                       "desired_speed")}
         self._n_total = 0
         self._bodies: list[tuple[pymunk.Body, pymunk.Circle]] = []
+        # Periodic worlds: every agent has a kinematic ghost one period away, so that pymunk
+        # resolves contacts across the seam x = 0 = period as well.
+        self._ghosts: list[tuple[pymunk.Body, pymunk.Circle]] = []
+        self._row_of_ghost = np.zeros(0, np.int64)
         self._space = self._make_space(len(setup.agents))
         self._order_dirty = True
         self._row_of_agent = np.zeros(0, np.int64)
@@ -160,6 +164,8 @@ class Simulation:
             self._sync_order()
         e, v0 = self._desired_cache
         st = self.state
+        if self.world.period > 0 and st.n:
+            self._place_ghosts()
         if st.n:
             acc = social_force(st.pos, st.vel, st.radius, v0, e, st.group, self.world.walls, p,
                                self.world.period)
@@ -219,6 +225,7 @@ class Simulation:
         space = pymunk.Space()
         space.iterations = int(p.solver_iterations)
         space.collision_slop = p.contact_slop
+        space.collision_bias = p.contact_bias
         space.damping = 1.0
         # Spatial hash: cells about one body diameter, many equal circles (pymunk docs).
         space.use_spatial_hash(2.0 * self.scenario.radius[1], max(1000, 10 * n))
@@ -245,6 +252,15 @@ class Simulation:
             shape.elasticity = 0.0
             self._space.add(body, shape)
             self._bodies.append((body, shape))
+            if self.world.period > 0:
+                ghost = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+                ghost.position = (float(batch.pos[k, 0]) + self.world.period,
+                                  float(batch.pos[k, 1]))
+                gshape = pymunk.Circle(ghost, float(batch.radius[k]))
+                gshape.friction = p.friction
+                gshape.elasticity = 0.0
+                self._space.add(ghost, gshape)
+                self._ghosts.append((ghost, gshape))
         self.state.append(batch, ids)
         self._attrs["group"].append(batch.group)
         self._attrs["prominent"].append(batch.prominent)
@@ -257,7 +273,11 @@ class Simulation:
         """Drop the agents where ``mask`` is True (they left the scene)."""
         for k in np.flatnonzero(mask):  # only the leaving agents
             self._space.remove(*self._bodies[k])
-        self._bodies = [b for b, gone in zip(self._bodies, mask, strict=False) if not gone]
+            if self._ghosts:
+                self._space.remove(*self._ghosts[k])
+        self._bodies = [b for b, gone in zip(self._bodies, mask, strict=True) if not gone]
+        if self._ghosts:
+            self._ghosts = [g for g, gone in zip(self._ghosts, mask, strict=True) if not gone]
         self.state.keep(~mask)
         self._order_dirty = True
 
@@ -270,6 +290,9 @@ class Simulation:
         self._n_rows = len(space_ids)
         sorter = np.argsort(space_ids)
         self._row_of_agent = sorter[np.searchsorted(space_ids, ours, sorter=sorter)]
+        if self._ghosts:
+            ghosts = np.array([g.id for g, _ in self._ghosts], dtype=np.int64)
+            self._row_of_ghost = sorter[np.searchsorted(space_ids, ghosts, sorter=sorter)]
         self._order_dirty = False
 
     def _read_back(self) -> None:
@@ -300,6 +323,7 @@ class Simulation:
             self._remove(gone)
 
     def _write_positions(self) -> None:
+        """Push the (wrapped) positions of the agents back to pymunk."""
         buf = pb.Buffer()
         pb.get_space_bodies(self._space, _BODY.POSITION, buf)
         rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 2).copy()
@@ -307,6 +331,20 @@ class Simulation:
         out = pb.Buffer()
         out.set_float_buf(rows.ravel())
         pb.set_space_bodies(self._space, _BODY.POSITION, out)
+
+    def _place_ghosts(self) -> None:
+        """Put each ghost one period away from its agent, on the side nearer the seam."""
+        buf = pb.Buffer()
+        pb.get_space_bodies(self._space, _BODY.POSITION | _BODY.VELOCITY, buf)
+        rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 4).copy()
+        st, period = self.state, self.world.period
+        shift = np.where(st.pos[:, 0] < period / 2, period, -period)
+        rows[self._row_of_ghost, 0] = st.pos[:, 0] + shift
+        rows[self._row_of_ghost, 1] = st.pos[:, 1]
+        rows[self._row_of_ghost, 2:] = st.vel
+        out = pb.Buffer()
+        out.set_float_buf(rows.ravel())
+        pb.set_space_bodies(self._space, _BODY.POSITION | _BODY.VELOCITY, out)
 
     def _refresh_desired(self) -> tuple[np.ndarray, np.ndarray]:
         """Desired directions and speeds; agents past their final gate leave here."""

@@ -278,12 +278,14 @@ class Source:
 
 
 def hex_positions(rng: np.random.Generator, n: int, x0: float, y0: float, y1: float,
-                  density: float, r_max: float, direction: float = 1.0) -> np.ndarray:
+                  density: float, r_max: float, direction: float = 1.0,
+                  length: float | None = None) -> np.ndarray:
     """``n`` non-overlapping positions on a jittered hexagonal lattice at ``density`` /m².
 
     The lattice fills the band ``y0 <= y <= y1`` and extends from ``x0`` along ``direction``
-    (+1 or -1) as far as needed. Jitter keeps a gap of at least ``2 r_max`` where the
-    lattice spacing allows it.
+    (+1 or -1) as far as needed, or exactly over ``length`` metres when given (the column
+    spacing then adapts). Jitter keeps a gap of at least ``2 r_max`` where the lattice
+    spacing allows it.
     """
     if n == 0:
         return np.zeros((0, 2))
@@ -293,6 +295,8 @@ def hex_positions(rng: np.random.Generator, n: int, x0: float, y0: float, y1: fl
     per_col = rows
     cols = int(np.ceil(n / per_col))
     ys = y0 + r_max + dy * np.arange(rows) + 0.5 * ((y1 - y0 - 2 * r_max) - dy * (rows - 1))
+    if length is not None:
+        a = length / cols
     xs = a * (np.arange(cols) + 0.5)
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     gx = gx + 0.5 * a * (np.arange(rows)[None, :] % 2)
