@@ -37,12 +37,14 @@ class Crowd:
 
 def synthetic_crowd(n: int, n_frames: int, seed: int = 0, template_px: int = 12,
                     size: tuple[int, int] = (1280, 720), fps: float = 25.0,
-                    speed: float = 1.3) -> Crowd:
+                    speed: float = 1.3, contrast: float = 1.0,
+                    noise_sigma: float = 3.0) -> Crowd:
     """Render ``n`` people in lanes of opposite flows (counterflow bands of 4 m).
 
     People start on a jittered grid that fills the frame, walk along x at N(speed, 0.15) m/s
     (alternate 4 m bands walk the other way) with a slow sinusoidal weave, so that the
-    neighbourhood-motion and grouping terms have coherent groups to find.
+    neighbourhood-motion and grouping terms have coherent groups to find. ``contrast`` and
+    ``noise_sigma`` are the renderer's appearance knobs (lower contrast, more noise = harder).
     """
     from crowdsim.appearance_model import AppearanceParams
     from crowdsim.camera import Camera
@@ -71,7 +73,8 @@ def synthetic_crowd(n: int, n_frames: int, seed: int = 0, template_px: int = 12,
     pos[..., 1] = start[:, 1] + 0.15 * np.sin(0.8 * t + phase)
     traj = Trajectories(pos, np.arange(1, n + 1), dt)
     cam = Camera(px_per_m=ppm, width=size[0], height=size[1], center=(w_m / 2, h_m / 2))
-    params = AppearanceParams(template_px=template_px)
+    params = AppearanceParams(template_px=template_px, contrast=contrast,
+                              noise_sigma=noise_sigma)
     tracks = prepare_agents(traj, cam, params, seed)
     renderer = SceneRenderer(cam, params, seed, fps)
     frames = [renderer.render_tracks(tracks, k).copy() for k in range(n_frames)]

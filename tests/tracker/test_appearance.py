@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from tracker_scenes import make_scene
+
 from tracker.appearance import KCFAppearance, NCCAppearance, extract_patches, make_appearance
 
 MODELS = [KCFAppearance, NCCAppearance]
@@ -69,7 +69,7 @@ def test_ncc_updates_every_ten_frames():
     m = NCCAppearance(14, 7, update_every=10)
     m.add(sc.frames[0], centers)
     t0 = m.templates.copy()
-    for k in range(9):
+    for _ in range(9):
         m.update(sc.frames[1], centers + vel, np.ones(3))
     np.testing.assert_array_equal(m.templates, t0)
     m.update(sc.frames[1], centers + vel, np.ones(3))

@@ -25,7 +25,7 @@ class Scene:
 
 def make_scene(starts, velocities, n_frames: int = 12, shape=(96, 128), size: int = 8,
                seed: int = 0, colours=None, birth_frames=None) -> Scene:
-    """Blobs of ``size - 2`` px drawn at ``start + t * velocity`` (integer pixels)."""
+    """Two-tone blobs of ``size - 2`` px (dark 2x2 centre) at ``start + t * velocity`` (px)."""
     rng = np.random.default_rng(seed)
     starts = np.asarray(starts, dtype=np.int64).reshape(-1, 2)
     vel = np.asarray(velocities, dtype=np.int64).reshape(-1, 2)
@@ -47,5 +47,7 @@ def make_scene(starts, velocities, n_frames: int = 12, shape=(96, 128), size: in
                 continue
             pts[t, i] = (x, y)
             f[max(0, y - half):y + half + 1, max(0, x - half):x + half + 1] = cols[i]
+            # a dark "head" in the middle so that no template is flat (NCC needs variance)
+            f[max(0, y - 1):y + 1, max(0, x - 1):x + 1] = cols[i] // 4
         frames.append(f)
     return Scene(frames, np.arange(1, n + 1), pts, size)

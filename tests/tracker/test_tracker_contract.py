@@ -1,0 +1,140 @@
+"""One contract suite over every tracker implementation (STYLE habit 8).
+
+Tiny hand-built scenes with exact expected positions, edge cases (zero targets, empty frames,
+image border, leaving targets, births), bad inputs, and plant-and-recover on a rendered crowd
+with a stored accuracy floor (``accuracy_floor.json``).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from tracker_scenes import make_scene
+
+from tracker.base import Tracker, TrackResult
+from tracker.bqp import BQPTracker
+from tracker.metrics import accuracy_curve
+from tracker.ncc import NCCTracker
+from tracker.params import BQPParams
+
+FACTORIES = {
+    "bqp": lambda: BQPTracker(),
+    "bqp-speedup": lambda: BQPTracker(BQPParams(speedup=True)),
+    "bqp-ncc": lambda: BQPTracker(BQPParams(appearance="ncc")),
+    "ncc": lambda: NCCTracker(),
+}
+FLOOR = json.loads((Path(__file__).parent / "accuracy_floor.json").read_text())
+
+
+@pytest.fixture(params=list(FACTORIES))
+def make(request):
+    return FACTORIES[request.param], request.param
+
+
+def _track(tracker: Tracker, sc, births=None) -> TrackResult:
+    (ids, pts) = (sc.ids, sc.points[0])
+    present = np.isfinite(pts).all(1)
+    return tracker.track(sc.frames, ids[present], pts[present], sc.template_size, births=births)
+
+
+def test_exact_positions_on_hand_built_scene(make):
+    factory, _ = make
+    sc = make_scene([[20, 20], [90, 20], [100, 75], [25, 75]],
+                    [[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=12)
+    res = _track(factory(), sc)
+    assert isinstance(res, TrackResult)
+    assert res.positions.shape == (12, 4, 2)
+    np.testing.assert_array_equal(res.ids, sc.ids)
+    np.testing.assert_array_equal(res.positions, sc.points)
+    assert res.timings["total"] > 0
+
+
+def test_zero_targets(make):
+    factory, _ = make
+    sc = make_scene(np.zeros((0, 2)), np.zeros((0, 2)), n_frames=4)
+    res = factory().track(sc.frames, [], np.zeros((0, 2)), 8)
+    assert res.positions.shape == (4, 0, 2) and res.ids.shape == (0,)
+
+
+def test_empty_frames_give_finite_points(make):
+    factory, _ = make
+    flat = [np.full((60, 80, 3), 100, np.uint8)] * 5
+    res = factory().track(flat, [1, 2], np.array([[20.0, 20.0], [60.0, 40.0]]), 8)
+    assert np.isfinite(res.positions).all()
+    assert np.abs(res.positions - res.positions[0]).max() <= 4 * 5
+
+
+def test_targets_at_the_border(make):
+    factory, _ = make
+    sc = make_scene([[3, 3], [124, 50]], [[2, 0], [0, 2]], n_frames=8, shape=(96, 128))
+    res = _track(factory(), sc)
+    assert np.isfinite(res.positions).all()
+    assert np.abs(res.positions - sc.points).max() <= 2
+
+
+def test_leaving_targets_are_terminated_and_births_added(make):
+    factory, _ = make
+    sc = make_scene([[110, 30], [30, 60], [60, 20]], [[3, 0], [1, 0], [0, 2]], n_frames=14,
+                    shape=(96, 128), birth_frames=[0, 0, 5])
+    births = {5: (sc.ids[2:], sc.points[5, 2:])}
+    res = _track(factory(), sc, births=births)
+    np.testing.assert_array_equal(res.ids, sc.ids)
+    gone = np.flatnonzero(np.isnan(sc.points[:, 0, 0]))[0]  # id 1 leaves on the right
+    assert np.isnan(res.positions[gone + 1:, 0]).all()
+    assert np.isnan(res.positions[:5, 2]).all()
+    np.testing.assert_array_equal(res.positions[5:, 2], sc.points[5:, 2])
+    np.testing.assert_array_equal(res.positions[:, 1], sc.points[:, 1])
+
+
+def test_bad_inputs(make):
+    factory, _ = make
+    sc = make_scene([[20, 20]], [[1, 0]], n_frames=3)
+    tr = factory()
+    with pytest.raises(ValueError, match="init"):
+        tr.step(sc.frames[0])
+    with pytest.raises(ValueError, match="duplicate"):
+        tr.init(sc.frames[0], [1, 1], np.zeros((2, 2)), 8)
+    with pytest.raises(ValueError, match="outside"):
+        tr.init(sc.frames[0], [1], np.array([[500.0, 5.0]]), 8)
+    with pytest.raises(ValueError, match="template_size"):
+        tr.init(sc.frames[0], [1], np.array([[5.0, 5.0]]), 1)
+    tr.init(sc.frames[0], [1], sc.points[0], 8)
+    with pytest.raises(ValueError, match="mismatched frame sizes"):
+        tr.step(sc.frames[1][:50])
+    with pytest.raises(ValueError, match="already used"):
+        tr.step(sc.frames[1], births=(np.array([1]), np.array([[40.0, 40.0]])))
+    with pytest.raises(ValueError, match="uint8"):
+        tr.step(sc.frames[1].astype(np.float32))
+    with pytest.raises(ValueError, match="no frames"):
+        tr.track([], [1], sc.points[0], 8)
+
+
+def test_deterministic(make):
+    factory, _ = make
+    sc = make_scene([[20, 20], [26, 28], [60, 50]], [[2, 1], [2, 1], [-1, 1]], n_frames=10)
+    a = _track(factory(), sc).positions
+    b = _track(factory(), sc).positions
+    np.testing.assert_array_equal(a, b)
+
+
+@pytest.fixture(scope="module")
+def crowd():
+    from tracker.bench_track import synthetic_crowd
+
+    return synthetic_crowd(150, 20, seed=3, template_px=10, size=(320, 240), contrast=0.2,
+                           noise_sigma=10, speed=2.6)
+
+
+def test_plant_and_recover_accuracy_floor(make, crowd):
+    from tracker.mot_io import births_from_ground_truth
+
+    factory, name = make
+    (ids, pts), births = births_from_ground_truth(crowd.ids, crowd.points)
+    res = factory().track(crowd.frames, ids, pts, crowd.template_size, births=births)
+    curve = accuracy_curve(crowd.ids, crowd.points, res.ids, res.positions, strict=True)
+    assert np.isfinite(res.positions[np.isfinite(res.positions)]).all()
+    assert curve[5] >= FLOOR[name]["acc@5"], (name, curve[5])
+    assert curve[15] >= FLOOR[name]["acc@15"], (name, curve[15])
