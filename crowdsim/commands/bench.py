@@ -17,6 +17,8 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "solver": ("tracker.bench_solver",
                "Frank-Wolfe plain/away/SWAP iterations and FW-SWAP vs Clarabel (relaxed BQP)"),
     "render": ("crowdsim.bench.render", "renderer frames/s, 1280x720/1k and 1920x1080/10k agents"),
+    "track": ("tracker.bench_track",
+              "BQP tracking frames/s at 100/1000 targets, per stage; speed-up vs dense candidates"),
 }
 """Benchmark name -> (module, one-line help)."""
 
