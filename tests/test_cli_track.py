@@ -1,0 +1,129 @@
+"""``crowdsim track`` and ``crowdsim evaluate`` end to end on tiny hand-built sequences."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from crowdsim.cli import main
+from synth_data.mot import write_mot, write_seqinfo
+from tracker.mot_io import tracks_to_mot_rows
+
+sys.path.insert(0, str(Path(__file__).parent / "tracker"))
+from tracker_scenes import make_scene  # noqa: E402
+
+
+@pytest.fixture
+def scene():
+    return make_scene([[20, 20], [90, 20], [100, 75], [25, 75]],
+                      [[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=10)
+
+
+@pytest.fixture
+def seq(tmp_path, scene):
+    d = tmp_path / "seq"
+    (d / "img1").mkdir(parents=True)
+    (d / "gt").mkdir()
+    for i, f in enumerate(scene.frames, start=1):
+        cv2.imwrite(str(d / "img1" / f"{i:06d}.png"), f)
+    h, w = scene.frames[0].shape[:2]
+    write_seqinfo(d, name="tiny", frame_rate=25, length=len(scene.frames), width=w, height=h,
+                  template_size=scene.template_size, im_ext=".png")
+    rows = tracks_to_mot_rows(scene.ids, scene.points, scene.template_size)
+    rows[:, 7] = 1  # class: pedestrian
+    rows[:, 8] = 1  # visibility
+    write_mot(d / "gt" / "gt.txt", rows[:, :9])
+    return d
+
+
+def _error_line(capsys, command):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"crowdsim {command}: error:"), err
+    return err[0]
+
+
+@pytest.mark.parametrize("tracker", ["bqp", "ncc"])
+def test_track_then_evaluate(tmp_path, seq, capsys, tracker):
+    out = tmp_path / f"{tracker}.txt"
+    video = tmp_path / "overlay.mp4"
+    assert main(["track", str(seq), "--tracker", tracker, "--out", str(out), "--video",
+                 str(video), "--evaluate", "--no-progress"]) == 0
+    captured = capsys.readouterr()
+    assert "acc@15" in captured.out and "frames/s" in captured.err
+    assert out.is_file() and video.stat().st_size > 0
+    assert main(["evaluate", str(out), str(seq), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    for key in ("acc@5", "acc@15", "mota", "idf1", "hota"):
+        assert key in rep
+    assert rep["acc@5"] == 100.0 and rep["mota"] == pytest.approx(100.0)
+    assert [c["T"] for c in rep["curve"]] == list(range(26))
+    png = tmp_path / "curve.png"
+    assert main(["evaluate", str(out), str(seq), "--plot", str(png)]) == 0
+    assert "accuracy" in capsys.readouterr().out and png.is_file()
+
+
+def test_track_video_with_points_csv(tmp_path, scene, capsys):
+    video = tmp_path / "in.mp4"
+    h, w = scene.frames[0].shape[:2]
+    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (w, h))
+    for f in scene.frames:
+        vw.write(f)
+    vw.release()
+    pts = tmp_path / "init.csv"
+    pts.write_text("frame,id,x,y\n" + "".join(
+        f"1,{i},{x:g},{y:g}\n" for i, (x, y) in zip(scene.ids, scene.points[0], strict=True)))
+    out = tmp_path / "res.txt"
+    assert main(["track", str(video), "--tracker", "ncc", "--init", str(pts), "--out",
+                 str(out), "--template-size", "8", "--no-progress"]) == 0
+    rows = np.loadtxt(out, delimiter=",")
+    assert rows.shape[1] == 10 and set(rows[:, 1].astype(int)) == set(scene.ids.tolist())
+    capsys.readouterr()
+    assert main(["track", str(video), "--out", str(out)]) == 2
+    assert "--init" in _error_line(capsys, "track")
+
+
+def test_track_bad_inputs(tmp_path, seq, capsys):
+    out = tmp_path / "r.txt"
+    assert main(["track", str(tmp_path / "nope"), "--out", str(out)]) == 2
+    _error_line(capsys, "track")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("frame,id,x,y\n1,999,5,5\n")
+    assert main(["track", str(seq), "--init", str(bad), "--out", str(out)]) == 2
+    assert "unknown" in _error_line(capsys, "track")
+    bad.write_text("frame,id,x,y\n1,1,5000,5\n")
+    assert main(["track", str(seq), "--init", str(bad), "--out", str(out), "--no-progress"]) == 2
+    assert "outside" in _error_line(capsys, "track")
+    (tmp_path / "video.mp4").write_bytes(b"not a video")
+    pts = tmp_path / "p.csv"
+    pts.write_text("id,x,y\n1,5,5\n")
+    assert main(["track", str(tmp_path / "video.mp4"), "--init", str(pts), "--out",
+                 str(out)]) == 2
+    assert "video" in _error_line(capsys, "track")
+
+
+def test_evaluate_bad_inputs(tmp_path, seq, scene, capsys):
+    res = tmp_path / "r.txt"
+    res.write_text("1,1,10,10,8,8,1,-1,-1,-1\n1,1,oops,10,8,8,1,-1,-1,-1\n")
+    assert main(["evaluate", str(res), str(seq)]) == 2
+    assert "non-numeric" in _error_line(capsys, "evaluate")
+    rows = tracks_to_mot_rows(scene.ids + 100, scene.points, 8)
+    write_mot(res, rows)
+    assert main(["evaluate", str(res), str(seq)]) == 2
+    assert "unknown" in _error_line(capsys, "evaluate")
+    rows = tracks_to_mot_rows(scene.ids, scene.points * 4, 8)  # tracks of a 4x larger video
+    write_mot(res, rows)
+    assert main(["evaluate", str(res), str(seq)]) == 2
+    assert "mismatched frame sizes" in _error_line(capsys, "evaluate")
+    rows = tracks_to_mot_rows(scene.ids, np.concatenate([scene.points, scene.points]), 8)
+    write_mot(res, rows)
+    assert main(["evaluate", str(res), str(seq)]) == 2
+    assert "outside the sequence" in _error_line(capsys, "evaluate")
+    assert main(["evaluate", str(tmp_path / "missing.txt"), str(seq)]) == 2
+    _error_line(capsys, "evaluate")
+    assert main(["evaluate", str(res), str(tmp_path)]) == 2
+    _error_line(capsys, "evaluate")
