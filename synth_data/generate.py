@@ -38,6 +38,8 @@ from synth_data.spec import SequenceSpec
 from synth_data.writer import TMP_PREFIX, verify_sequence, write_sequence
 
 MANIFEST = "manifest.json"
+EXTENT_PERCENTILE = 1.0
+"""The camera frames the 1st to 99th percentile of the crowd's positions on each axis."""
 MANIFEST_FORMAT = 1
 
 
@@ -68,9 +70,27 @@ def simulate(spec: SequenceSpec) -> Any:
                         attributes={k: v[keep] for k, v in traj.attributes.items()}, meta=meta)
 
 
+def crowd_extent(traj: Any, percent: float = EXTENT_PERCENTILE) -> tuple[float, ...]:
+    """``(xmin, ymin, xmax, ymax)`` metres holding all but ``percent`` % of the positions
+    on each side: where the crowd is, not every straggler (the camera frames this)."""
+    xy = traj.positions[traj.present]
+    if len(xy) == 0:
+        raise ValueError("the simulation produced no agent inside the recorded frames")
+    if len(xy) > 2_000_000:  # a subsample is plenty for percentiles
+        xy = xy[:: len(xy) // 1_000_000]
+    lo = np.percentile(xy, percent, axis=0)
+    hi = np.percentile(xy, 100.0 - percent, axis=0)
+    return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
+
+
 def camera_for(spec_camera: dict[str, Any], template_px: int, extent: tuple[float, ...],
-               seed: int) -> Any:
-    """The :class:`~crowdsim.camera.Camera` of a spec's ``[camera]`` table for ``extent``."""
+               seed: int, focus: tuple[float, float] | None = None) -> Any:
+    """The :class:`~crowdsim.camera.Camera` of a spec's ``[camera]`` table for ``extent``.
+
+    Without an explicit ``center`` the camera looks at the centre of ``extent``; when the
+    frame is smaller than the extent it moves towards ``focus`` (e.g. the crowd's median
+    position) as far as it can while staying inside the extent.
+    """
     from crowdsim.camera import Camera
     from crowdsim.render import default_px_per_m
 
@@ -86,6 +106,16 @@ def camera_for(spec_camera: dict[str, Any], template_px: int, extent: tuple[floa
                         jitter_px=float(cam.get("jitter_px", 0.0)), seed=seed)
     if "center" in cam:
         camera = replace(camera, center=tuple(float(c) for c in cam["center"]))
+    elif focus is not None:
+        half = (camera.width / camera.px_per_m / 2.0, camera.height / camera.px_per_m / 2.0)
+        centre = []
+        for axis in (0, 1):
+            lo, hi = extent[axis], extent[axis + 2]
+            if hi - lo <= 2 * half[axis]:
+                centre.append((lo + hi) / 2.0)
+            else:
+                centre.append(float(np.clip(focus[axis], lo + half[axis], hi - half[axis])))
+        camera = replace(camera, center=(centre[0], centre[1]))
     return camera
 
 
@@ -96,7 +126,10 @@ def build_sequence(spec: SequenceSpec, out: str | os.PathLike[str], overwrite: b
 
     cv2.setNumThreads(1)  # one sequence per core; OpenCV's own threads only add contention
     traj = simulate(spec)
-    camera = camera_for(spec.camera, spec.appearance.template_px, traj.extent(), spec.seed)
+    xy = traj.positions[traj.present]
+    focus = (float(np.median(xy[:, 0])), float(np.median(xy[:, 1])))
+    camera = camera_for(spec.camera, spec.appearance.template_px, crowd_extent(traj), spec.seed,
+                        focus=focus)
     meta = {"spec": spec.to_dict(), "spec_sha256": spec.digest(), "seed": spec.seed,
             "spec_file": spec.source}
     entry = write_sequence(Path(out) / spec.name, traj, camera=camera,
