@@ -183,3 +183,24 @@ def test_ray_missing_is_a_clear_user_error(tmp_path):
         pytest.skip("Ray is installed; the missing-Ray message cannot be shown")
     with pytest.raises(ValueError, match=r"--backend ray needs Ray.*crowdsim\[distributed\]"):
         generate([tiny()], tmp_path / "out", backend="ray", progress=False, log=lambda m: None)
+
+
+def test_video_only_output_is_read_back(tmp_path):
+    import cv2
+
+    probe = cv2.VideoWriter(str(tmp_path / "probe.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 25.0,
+                            (32, 32))
+    if not probe.isOpened():
+        pytest.skip("this OpenCV build cannot write mp4v")
+    probe.release()
+    spec = tiny()
+    spec = spec_from_dict({**spec.to_dict(), "output": {"images": False, "video": True}},
+                          source="video.toml")
+    generate([spec], tmp_path / "out", progress=False, log=lambda m: None)
+    seq_dir = tmp_path / "out" / "tiny"
+    assert (seq_dir / "video.mp4").is_file() and not (seq_dir / "img1").exists()
+    seq = read_sequence(seq_dir)
+    frames = list(seq.frames())
+    assert len(frames) == seq.length == 6
+    assert frames[0].shape == (seq.height, seq.width, 3)
+    assert_manifest_verified(tmp_path / "out", ["tiny"])
