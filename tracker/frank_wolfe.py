@@ -31,17 +31,22 @@ sum of per-block FW steps sharing one ``lambda``; the SWAP step likewise would n
 ``lambda`` clipped by the *smallest* ``alpha_y`` over all blocks, which with a thousand
 targets makes almost every SWAP a tiny drop step. We therefore apply Alg. 2 block by block
 (block-coordinate Frank-Wolfe, Lacoste-Julien et al. 2013), choosing the block with the
-largest block gap (gap-greedy selection, Osokin et al. 2016). Each iteration then changes
-at most the support of one block (SWAP: exactly two coordinates), so keeping ``g = c + 2Qx``
-current is a rank-1/rank-2 (SWAP) or support-sized column update of the CSC matrix: the
-cost of an iteration is O(nnz of the touched columns) plus re-scanning the blocks those
-columns reach, plus O(log n) for the max-gap tree. ``iterations`` counts block steps, for
-all three variants alike, so Fig. 13-style comparisons are like for like.
+largest block gap (gap-greedy selection, Osokin et al. 2016: the stopping test is the sum
+of block gaps, and a block's gap bounds the decrease a step there can make). Each iteration
+then changes at most the support of one block (SWAP: exactly two coordinates), so keeping
+``g = c + 2Qx`` current is a rank-2 (SWAP) or support-sized (FW, away) column update of the
+CSC matrix. The cost of an iteration is O(nnz of the touched columns): the statistics of the
+other blocks those columns reach are updated per touched row, and a block is rescanned
+(O(its size)) only when its toward or away vertex got worse; plus O(log n) per reached
+block for the max-gap tree. ``iterations`` counts block steps, for all three variants
+alike, so Fig. 13-style comparisons are like for like.
 
 Line search (Eq. 13) is exact: ``f(x + lam d) = f(x) + lam g.d + lam^2 d^T Q d``, so
 ``lam = -g.d / (2 d^T Q d)`` clipped to ``[0, lam_max]``; ``lam_max`` is 1 for FW steps,
-``alpha_y / (1 - alpha_y)`` for away steps and ``alpha_y`` for SWAP steps. ``d^T Q d`` needs
-only the block's diagonal entries of ``Q`` and ``Q x_b`` restricted to the block.
+``alpha_y / (1 - alpha_y)`` for away steps and ``alpha_y`` for SWAP steps (Alg. 2 prints
+``max(lambda_swap, alpha_y)``; staying in D needs the min). ``d^T Q d`` needs only the
+block's own entries of ``Q``: ``Q_ss, Q_sy, Q_yy`` and ``Q x_b`` on the block's rows, found by
+binary search since the rows of a CSC column are sorted.
 
 Rounding (Eq. 14) is the argmax of ``x`` within each block.
 """
@@ -369,7 +374,7 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
         mode = 0
         alpha_y = x[y]
         lam_cap = 1.0
-        if variant == 1 and alpha_y < 1.0:
+        if variant == _AWAY and alpha_y < 1.0:
             # Away step d = x_b - e_y, taken when it is the steeper descent direction.
             gd_aw = gxb - gy
             if -gd_aw > -gd_fw:
@@ -377,7 +382,7 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
                 lam_cap = alpha_y / (1.0 - alpha_y)
                 lam, delta = _line_search(gd_aw, xqx - 2.0 * w[y - lo] + q_yy, lam_cap)
                 mode = 1
-        elif variant == 2 and s != y:
+        elif variant == _SWAP and s != y:
             # SWAP step d = e_s - e_y (Alg. 2): keep whichever of FW/SWAP decreases f more.
             q_yy = _entry(indptr, indices, data, y, y)
             q_sy = _entry(indptr, indices, data, s, y)
