@@ -152,6 +152,7 @@ class Simulation:
         self._recorder = TrajectoryRecorder() if record else None
         self._add_agents(setup.agents)
         self._refresh_desired()
+        self._sync_order()
         self._record()
 
     # ------------------------------------------------------------------ public API
@@ -181,6 +182,33 @@ class Simulation:
             self._read_back()
             self._wrap_and_cull()
         self._record()
+
+    def set_state(self, pos: np.ndarray | None = None, vel: np.ndarray | None = None) -> None:
+        """Overwrite positions ``(n, 2)`` m and/or velocities ``(n, 2)`` m/s of the present
+        agents (in :attr:`state` order), e.g. to build a hand-made scene."""
+        n = self.state.n
+        for name, value in (("pos", pos), ("vel", vel)):
+            if value is None:
+                continue
+            value = np.array(value, dtype=np.float64)
+            if value.shape != (n, 2):
+                raise ValueError(f"{name} must have shape ({n}, 2), got {value.shape}")
+            if not np.isfinite(value).all():
+                raise ValueError(f"{name} must be finite")
+            setattr(self.state, name, value)
+        if self.world.period > 0:
+            self.state.pos[:, 0] %= self.world.period
+        if self._order_dirty:
+            self._sync_order()
+        buf = pb.Buffer()
+        pb.get_space_bodies(self._space, _BODY.POSITION | _BODY.VELOCITY, buf)
+        rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 4).copy()
+        rows[self._row_of_agent, :2] = self.state.pos
+        rows[self._row_of_agent, 2:] = self.state.vel
+        out = pb.Buffer()
+        out.set_float_buf(rows.ravel())
+        pb.set_space_bodies(self._space, _BODY.POSITION | _BODY.VELOCITY, out)
+        self._refresh_desired()
 
     def run(self, n_steps: int, progress: bool = False) -> Trajectories | None:
         """Take ``n_steps`` steps; return all recorded trajectories (None if not recording)."""
@@ -313,7 +341,7 @@ class Simulation:
             out = (st.pos[:, 0] < 0) | (st.pos[:, 0] >= period)
             if out.any():
                 st.pos[:, 0] %= period
-                self._write_positions()
+                self.set_state(pos=st.pos)
         xmin, ymin, xmax, ymax = self.world.bounds
         gone = ((st.pos[:, 0] < xmin - 1) | (st.pos[:, 0] > xmax + 1)
                 | (st.pos[:, 1] < ymin - 1) | (st.pos[:, 1] > ymax + 1))
@@ -321,16 +349,6 @@ class Simulation:
             gone &= (st.pos[:, 1] < ymin - 1) | (st.pos[:, 1] > ymax + 1)
         if gone.any():
             self._remove(gone)
-
-    def _write_positions(self) -> None:
-        """Push the (wrapped) positions of the agents back to pymunk."""
-        buf = pb.Buffer()
-        pb.get_space_bodies(self._space, _BODY.POSITION, buf)
-        rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 2).copy()
-        rows[self._row_of_agent] = self.state.pos
-        out = pb.Buffer()
-        out.set_float_buf(rows.ravel())
-        pb.set_space_bodies(self._space, _BODY.POSITION, out)
 
     def _place_ghosts(self) -> None:
         """Put each ghost one period away from its agent, on the side nearer the seam."""

@@ -1,0 +1,86 @@
+"""`crowdsim simulate` contract and the trajectory file formats."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from crowdsim.cli import main
+from crowdsim.trajectories import Trajectories
+
+
+def test_simulate_writes_npz_contract(tmp_path, capsys):
+    out = tmp_path / "m.npz"
+    rc = main(["simulate", "marathon", "--agents", "30", "--steps", "12", "--seed", "3",
+               "--out", str(out), "--no-progress"])
+    assert rc == 0
+    table = capsys.readouterr().out
+    for key in ("agents", "mean speed", "density", "wall time", "steps/s"):
+        assert key in table
+    with np.load(out) as data:
+        pos = data["positions"]
+        assert pos.shape[0] == 13 and pos.shape[2] == 2
+        assert data["ids"].shape == (pos.shape[1],)
+        for attr in ("group", "prominent", "anomaly", "radius", "desired_speed"):
+            assert data[f"attr_{attr}"].shape == (pos.shape[1],)
+    again = tmp_path / "again.npz"
+    main(["simulate", "marathon", "--agents", "30", "--steps", "12", "--seed", "3",
+          "--out", str(again), "--no-progress"])
+    a, b = Trajectories.load(out), Trajectories.load(again)
+    assert np.array_equal(a.positions, b.positions, equal_nan=True)
+    assert not list(tmp_path.glob(".*"))  # no temporary file left behind
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["simulate", "parade"], "unknown scenario 'parade'"),
+    (["simulate", "marathon", "--agents", "-4"], "--agents must be >= 1, got -4"),
+    (["simulate", "marathon", "--agents", "0"], "--agents must be >= 1, got 0"),
+    (["simulate", "marathon", "--density", "7"], "--density must be in (0, 6]"),
+    (["simulate", "marathon", "--dt", "0"], "--dt must be > 0 seconds, got 0.0"),
+    (["simulate", "marathon", "--dt", "nan"], "--dt must be > 0 seconds, got nan"),
+    (["simulate", "marathon", "--param", "tau=nan"], "tau must be finite, got nan"),
+    (["simulate", "marathon", "--set", "road_width=nan"], "road_width must be finite"),
+    (["simulate", "marathon", "--set", "bogus=1"], "bogus"),
+    (["simulate", "marathon", "--out", "x.csv"], "--out must end in .npz"),
+])
+def test_simulate_bad_input_exit_2_one_line(argv, needle):
+    proc = subprocess.run([sys.executable, "-m", "crowdsim.cli", *argv, "--steps", "1",
+                           "--no-progress"], capture_output=True, text=True)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and "Traceback" not in proc.stderr
+
+
+def test_npz_and_csv_round_trip(tmp_path):
+    pos = np.full((3, 2, 2), np.nan)
+    pos[0, 0] = [1.0, 2.0]
+    pos[1, 0] = [1.5, 2.0]
+    pos[1, 1] = [4.0, 4.0]
+    pos[2, 1] = [4.5, 4.0]
+    traj = Trajectories(pos, np.array([5, 9]), dt=0.04)
+    back = Trajectories.load(traj.save(tmp_path / "t.npz"))
+    assert np.array_equal(back.positions, pos, equal_nan=True)
+    assert back.dt == 0.04 and list(back.ids) == [5, 9]
+    csv = Trajectories.from_csv(traj.to_csv(tmp_path / "t.csv"), fps=25.0)
+    assert np.allclose(csv.positions, pos, equal_nan=True)
+    assert list(csv.ids) == [5, 9]
+
+
+def test_bad_trajectory_files(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("frame,id,x,y\n0,1,2.0,3.0\n1,1,oops,3.0\n")
+    with pytest.raises(ValueError, match=r"bad.csv:3: non-numeric"):
+        Trajectories.from_csv(bad, fps=25)
+    bad.write_text("0,1,2.0\n")
+    with pytest.raises(ValueError, match="expected 4 columns"):
+        Trajectories.from_csv(bad, fps=25)
+    with pytest.raises(ValueError, match="no such trajectory file"):
+        Trajectories.load(tmp_path / "missing.npz")
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="not a readable"):
+        Trajectories.load(tmp_path / "junk.npz")
+    with pytest.raises(ValueError, match="fps"):
+        Trajectories.from_csv(bad, fps=0)

@@ -1,0 +1,190 @@
+"""Simulator behaviour: exact tiny scenes, determinism, sources and sinks, sanity."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from crowdsim.params import SocialForceParams
+from crowdsim.scenarios import SCENARIOS, make_scenario
+from crowdsim.simulation import Simulation
+from crowdsim.validation import max_overlap
+
+
+def single_walker(**params) -> Simulation:
+    """One agent in a wide periodic corridor: no wall or neighbour within the cutoff."""
+    sc = make_scenario("counterflow", n_agents=1, density=0.05, width=30.0,
+                       right_fraction=1.0, periodic=True, inflow=False)
+    sim = Simulation(sc, seed=3, params=SocialForceParams(**params), record=True)
+    sim.set_state(pos=[[sim.world.period / 2, 15.0]])  # 15 m from both walls
+    return sim
+
+
+def test_free_walker_relaxes_to_desired_speed_exactly():
+    """Alone, dv/dt = (v0 - v)/tau; pymunk's explicit Euler gives v_k = v0 (1 - (1-dt/tau)^k)."""
+    sim = single_walker()
+    v0 = sim.state.desired_speed[0]
+    p = sim.params
+    for k in range(1, 41):
+        sim.step()
+        expected = v0 * (1.0 - (1.0 - p.dt / p.tau) ** k)
+        assert sim.state.vel[0, 0] == pytest.approx(expected, rel=1e-9, abs=1e-12)
+        assert sim.state.vel[0, 1] == pytest.approx(0.0, abs=1e-12)
+    assert np.isfinite(sim.state.pos).all()
+
+
+def test_free_walker_never_exceeds_speed_cap():
+    sim = single_walker(tau=0.05, dt=0.04)  # stiff relaxation would overshoot without the cap
+    for _ in range(30):
+        sim.step()
+        speed = np.hypot(*sim.state.vel[0])
+        assert speed <= sim.params.speed_cap * sim.state.desired_speed[0] + 1e-9
+
+
+def test_head_on_pair_passes_without_overlap():
+    """Two agents walking at each other on one line avoid each other and both get past."""
+    sc = make_scenario("counterflow", n_agents=2, density=0.004, width=25.0,
+                       right_fraction=0.5, periodic=True, inflow=False)
+    sim = Simulation(sc, seed=0)
+    st = sim.state
+    period = sim.world.period
+    assert period == pytest.approx(20.0)
+    # 8 m apart, nearly on one line (0.2 m lateral offset, less than a body width).
+    right = st.route == 0
+    start = np.where(right[:, None], [[6.0, 12.5]], [[14.0, 12.7]])
+    sim.set_state(pos=start)
+    start_x = st.pos[:, 0].copy()
+    worst = 0.0
+    for _ in range(150):  # 6 s: about 8 m each, less than half the period
+        sim.step()
+        worst = max(worst, max_overlap(sim.state.pos, sim.state.radius, period))
+    moved = (sim.state.pos[:, 0] - start_x + period / 2) % period - period / 2
+    assert worst < 0.2
+    assert moved[right][0] > 5.0 and moved[~right][0] < -5.0  # both got past each other
+
+
+def test_wall_is_never_crossed():
+    """Agents pushed against a wall by their goal stay inside the corridor."""
+    sc = make_scenario("counterflow", n_agents=60, density=3.0, width=3.0, right_fraction=1.0,
+                       periodic=True, inflow=False)
+    sim = Simulation(sc, seed=1)
+    sim.routes.direction[0] = [0.6, 0.8]  # everybody walks diagonally into the upper wall
+    for _ in range(150):
+        sim.step()
+        y = sim.state.pos[:, 1]
+        assert (y - sim.state.radius > -0.06).all() and (y + sim.state.radius < 3.06).all()
+
+
+@pytest.mark.parametrize("name", sorted(SCENARIOS))
+def test_same_seed_bit_identical_however_split(name):
+    sc = make_scenario(name, n_agents=60)
+    a = Simulation(sc, seed=7).run(30)
+    sim_b = Simulation(sc, seed=7)
+    for chunk in (1, 9, 0, 20):
+        sim_b.run(chunk)
+    b = sim_b.trajectories
+    assert a.positions.shape == b.positions.shape
+    assert np.array_equal(a.positions, b.positions, equal_nan=True)
+    assert np.array_equal(a.ids, b.ids)
+    for key in a.attributes:
+        assert np.array_equal(a.attributes[key], b.attributes[key])
+
+
+def test_different_seeds_differ():
+    sc = make_scenario("station", n_agents=50)
+    a = Simulation(sc, seed=1).run(10)
+    b = Simulation(sc, seed=2).run(10)
+    assert a.positions.shape != b.positions.shape or not np.array_equal(
+        a.positions, b.positions, equal_nan=True)
+
+
+@pytest.mark.parametrize("name", sorted(SCENARIOS))
+def test_every_scenario_runs_clean(name):
+    """No NaN or inf ever; overlaps below 20 % of the radius; trajectory shapes hold."""
+    sim = Simulation(make_scenario(name, n_agents=120), seed=0)
+    worst = 0.0
+    for k in range(100):
+        sim.step()
+        assert np.isfinite(sim.state.pos).all() and np.isfinite(sim.state.vel).all()
+        if k % 10 == 0:
+            worst = max(worst, max_overlap(sim.state.pos, sim.state.radius, sim.world.period))
+    assert worst <= 0.2, f"{name}: overlap {worst:.3f} of the radius"
+    traj = sim.trajectories
+    assert traj.positions.shape == (101, sim.n_total, 2)
+    present = traj.present
+    assert present[-1].sum() == sim.state.n
+    # Where present, finite; where absent, NaN in both coordinates.
+    assert np.isfinite(traj.positions[present]).all()
+    assert np.isnan(traj.positions[~present]).all()
+
+
+def test_sources_add_agents_and_sinks_remove_them_ids_never_reused():
+    sim = Simulation(make_scenario("counterflow", n_agents=40, density=1.0, width=4.0), seed=0)
+    traj = sim.run(600)  # 24 s: the corridor (10 m + margins) empties and refills
+    assert sim.n_total > 40, "sources must add agents"
+    present = traj.present
+    left = present[:-1] & ~present[1:]
+    assert left.any(), "some agents must leave through the sinks"
+    # Once gone, an agent never comes back (ids are not reused).
+    for n in range(traj.n_agents):
+        rows = np.flatnonzero(present[:, n])
+        assert len(rows) and np.all(np.diff(rows) == 1), f"agent {n} reappeared"
+    assert np.array_equal(traj.ids, np.arange(sim.n_total))
+
+
+def test_single_agent_and_empty_after_leaving():
+    """One agent reaches the exit and leaves; stepping an empty scene is fine."""
+    sc = make_scenario("counterflow", n_agents=1, density=1.0, width=3.0, inflow=False)
+    sim = Simulation(sc, seed=0)
+    for _ in range(500):
+        sim.step()
+    assert sim.state.n == 0
+    sim.step()
+    assert sim.trajectories.present[-1].sum() == 0
+
+
+def test_groups_keep_formation():
+    sim = Simulation(make_scenario("groups", n_agents=80, density=0.8), seed=2)
+    sim.run(250)
+    st = sim.state
+    g = st.group
+    assert (g >= 0).sum() > 20
+    spreads = []
+    for gid in np.unique(g[g >= 0]):
+        m = g == gid
+        if m.sum() >= 2:
+            spreads.append(np.hypot(*(st.pos[m] - st.pos[m].mean(0)).T).max())
+    assert np.median(spreads) < 1.5, f"groups scattered: median spread {np.median(spreads):.2f} m"
+
+
+def test_anomalies_behave_as_labelled():
+    sc = make_scenario("anomalies", n_agents=150, density=1.0, anomaly_fraction=0.2)
+    sim = Simulation(sc, seed=4)
+    traj = sim.run(150)
+    vel = traj.velocities()
+    kind = traj.attributes["anomaly"]
+    seen = np.isfinite(vel[50:, :, 0]).any(axis=0)  # present after the first 2 s
+    vx = np.nanmean(vel[50:, seen, 0], axis=0)
+    against, normal = kind[seen] == 1, kind[seen] == 0
+    assert against.sum() > 3
+    assert vx[against].mean() < -0.3 < 0.3 < vx[normal].mean()
+    stoppers = np.flatnonzero(kind == 2)
+    assert len(stoppers) > 0
+
+
+def test_circulation_turns_counter_clockwise():
+    sim = Simulation(make_scenario("circulation", n_agents=150, density=2.0), seed=0)
+    sim.run(100)
+    p, v = sim.state.pos, sim.state.vel
+    omega = (p[:, 0] * v[:, 1] - p[:, 1] * v[:, 0]) / np.hypot(p[:, 0], p[:, 1]) ** 2
+    assert np.mean(omega) > 0.03
+
+
+def test_counterflow_forms_lanes_well_above_random_mix():
+    from crowdsim.validation import lane_formation
+
+    res = lane_formation(n_agents=200, density=1.0, width=5.0, seconds=30.0, every_s=3.0)
+    late = np.mean(res["lane_order"][-3:])
+    mix = np.mean(res["random_mix"][-3:])
+    assert res["lane_order"][0] < mix + 0.1  # starts mixed
+    assert late > 2.0 * mix and late > 0.4, (late, mix)
