@@ -241,7 +241,12 @@ def generate(specs: list[SequenceSpec], out: str | os.PathLike[str], *, workers:
     GenerationError
         A worker died or failed; completed sequences are in the manifest.
     """
-    log = log or (lambda msg: print(msg, file=sys.stderr))
+    if log is None:
+        from tqdm import tqdm
+
+        def log(msg: str) -> None:  # prints above the progress bar instead of through it
+            tqdm.write(msg, file=sys.stderr)
+
     if backend not in ("local", "ray"):
         raise ValueError(f"--backend must be local or ray, got {backend!r}")
     if workers < 1:
