@@ -5,10 +5,17 @@ The renderer consumes state; it never simulates (STYLE habit 6). Two steps:
 1. :func:`prepare_agents` turns :class:`~crowdsim.trajectories.Trajectories` and a
    :class:`~crowdsim.camera.Camera` into an :class:`AgentTracks` struct of arrays: head
    centres in pixels ``(T, N, 2)``, headings ``(T, N)`` (with sway), one appearance per agent.
-2. :class:`SceneRenderer` draws frame ``t``: a pre-built textured ground (cropped to follow the
-   camera jitter), shadows and people stamped from a :class:`~crowdsim.appearance_model.SpriteBank`
-   by compiled loops (no per-pixel Python), then illumination drift and sensor noise in one
-   fused pass to ``uint8``. JPEG compression happens when the frame is written.
+2. :class:`SceneRenderer` draws frame ``t`` in two compiled passes (no per-pixel Python):
+   the pre-built textured ground (cropped to follow the camera jitter) with illumination
+   drift and sensor noise straight to ``uint8``, then every person stamped from a
+   :class:`~crowdsim.appearance_model.SpriteBank` (per-orientation, per-sub-pixel-phase
+   sprites with the shadow baked in), lit and noised the same way. People are composited
+   top to bottom in horizontal bands processed in parallel; a pixel belongs to one band, so
+   the result does not depend on the thread count. JPEG compression happens when the frame
+   is written (:func:`encode_jpeg`); optional camera motion blur is a final filter.
+
+Sprites keep their template size over the whole frame, also under a tilted camera (the
+ground-truth box is the template, SPEC §2); the tilt moves people through the homography.
 
 All randomness derives from the ``seed`` given to the functions, split with
 :class:`numpy.random.SeedSequence` per purpose, so a frame depends only on
