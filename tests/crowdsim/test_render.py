@@ -176,3 +176,22 @@ def test_parallel_bands_give_the_same_frame_as_one_band(monkeypatch):
     many = r.render(2, pts, hd, app).copy()
     monkeypatch.setattr(render_mod, "STAMP_BANDS", 1)
     np.testing.assert_array_equal(r.render(2, pts, hd, app), many)
+
+
+def test_illumination_drifts_and_motion_blur_smooths():
+    cam = Camera(px_per_m=24.0, width=96, height=64)
+    none = (np.zeros((0, 2)), np.zeros(0), np.zeros(0, int))
+    lit = AppearanceParams(illumination_drift=0.2, illumination_period_s=1.0, noise_sigma=0.0)
+    r = SceneRenderer(cam, lit, seed=0, fps=25.0)
+    means = [r.render(t, *none).mean() for t in range(25)]
+    assert max(means) / min(means) > 1.15  # +-20 % over one period
+    flat = SceneRenderer(cam, AppearanceParams(illumination_drift=0.0, noise_sigma=0.0), seed=0,
+                         fps=25.0)
+    assert np.ptp([flat.render(t, *none).mean() for t in range(5)]) < 1e-9
+    sharp = SceneRenderer(cam, AppearanceParams(ground_texture=30.0), seed=0, fps=25.0)
+    blurred = SceneRenderer(cam, AppearanceParams(ground_texture=30.0, motion_blur_px=7.0),
+                            seed=0, fps=25.0)
+    a, b = sharp.render(0, *none), blurred.render(0, *none)
+    assert np.abs(np.diff(b.astype(float), axis=1)).mean() < \
+        0.7 * np.abs(np.diff(a.astype(float), axis=1)).mean()
+    np.testing.assert_array_equal(b, blurred.render(0, *none))
