@@ -76,8 +76,7 @@ def _build_grid(pos, cell, period):
     return order, start, nx, ny, x0, y0, cx, cy
 
 
-@nb.njit(cache=True, parallel=False, fastmath=False)
-def _pedestrian_wall_kernel(pos, vel, radius, v0, e, group, walls, period, cutoff, elliptic,
+def _pedestrian_wall_impl(pos, vel, radius, v0, e, group, walls, period, cutoff, elliptic,
                             V0, sigma, step_time, A, B, U0, R, cos_half_fov, c_out, beta3,
                             group_gap, tau, headway_time, tan_cone, depth, speed_cap, dt, extra,
                             out):
@@ -87,7 +86,7 @@ def _pedestrian_wall_kernel(pos, vel, radius, v0, e, group, walls, period, cutof
     order, start, nx, ny, x0, y0, cx, cy = _build_grid(pos, cutoff, period)
     cut2 = cutoff * cutoff
     n_walls = walls.shape[0]
-    for i in range(n):
+    for i in nb.prange(n):
         xi = pos[i, 0]
         yi = pos[i, 1]
         # Driving term (v0 e - v) / tau  [HM95 Eq. 2].
@@ -208,6 +207,14 @@ def _pedestrian_wall_kernel(pos, vel, radius, v0, e, group, walls, period, cutof
         out[i, 1] = ay
 
 
+_kernel_serial = nb.njit(cache=True)(_pedestrian_wall_impl)
+_kernel_parallel = nb.njit(cache=True, parallel=True)(_pedestrian_wall_impl)
+
+PARALLEL_MIN_AGENTS = 5000
+"""From this many agents the force kernel runs on all of numba's threads
+(``NUMBA_NUM_THREADS``); each agent's sum stays in one thread, so results do not change."""
+
+
 def group_vision_attraction(pos: np.ndarray, vel: np.ndarray, e: np.ndarray, group: np.ndarray,
                             params: SocialForceParams) -> np.ndarray:
     """Group vision and attraction accelerations of Moussaïd et al. (2010), ``(n, 2)``.
@@ -268,7 +275,8 @@ def social_force(pos: np.ndarray, vel: np.ndarray, radius: np.ndarray, v0: np.nd
                          f"got {period}")
     extra = (group_vision_attraction(pos, vel, e, group, params) if (group >= 0).any()
              else np.zeros((n, 2)))
-    _pedestrian_wall_kernel(
+    kernel = _kernel_parallel if n >= PARALLEL_MIN_AGENTS else _kernel_serial
+    kernel(
         pos, vel, radius, v0, e, group, walls, float(period), params.cutoff,
         params.potential == "elliptic", params.V0, params.sigma, params.step_time, params.A,
         params.B, params.U0, params.R, math.cos(math.radians(params.fov_deg / 2)), params.c,

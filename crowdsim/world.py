@@ -6,8 +6,10 @@ Everything here is plain data (struct of arrays, metres and seconds); the physic
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
+import numba as nb
 import numpy as np
 
 # ------------------------------------------------------------------------------ geometry
@@ -136,41 +138,53 @@ class RouteTable:
         n = len(pos)
         e = np.zeros((n, 2))
         done = np.zeros(n, dtype=bool)
-        if n == 0:
-            return e, wp, done
         wp = wp.copy()
-        fixed = np.any(self.direction[route] != 0.0, axis=1)
-        e[fixed] = self.direction[route[fixed]]
-        g = ~fixed
-        if g.any():
-            idx = np.flatnonzero(g)
-            # Advance by at most two gates a step (gates are metres apart, steps centimetres).
-            for _ in range(2):
-                q, dist = self._nearest(pos[idx], route[idx], wp[idx])
-                passed = dist < self.reach[route[idx]]
-                if not passed.any():
-                    break
-                r = route[idx]
-                nxt = wp[idx] + passed
-                last = nxt >= self.length[r]
-                nxt = np.where(last & self.loop[r], 0, nxt)
-                done[idx[last & ~self.loop[r]]] = True
-                wp[idx] = np.minimum(nxt, self.length[r] - 1)
-            q, dist = self._nearest(pos[idx], route[idx], wp[idx])
-            d = q - pos[idx]
-            e[idx] = np.divide(d, dist[:, None], out=np.zeros_like(d), where=dist[:, None] > 1e-9)
+        if n:
+            _route_kernel(pos, route, wp, self.gates, self.length, self.loop, self.direction,
+                          self.reach, e, done)
         return e, wp, done
 
-    def _nearest(self, pos: np.ndarray, route: np.ndarray,
-                 wp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        seg = self.gates[route, wp]
-        a, b = seg[:, :2], seg[:, 2:]
-        u = b - a
-        len2 = np.einsum("ij,ij->i", u, u)
-        t = np.divide(np.einsum("ij,ij->i", pos - a, u), len2, out=np.zeros(len(pos)),
-                      where=len2 > 0)
-        q = a + np.clip(t, 0.0, 1.0)[:, None] * u
-        return q, np.hypot(*(q - pos).T)
+
+@nb.njit(cache=True)
+def _nearest_on_gate(x, y, g):
+    ux = g[2] - g[0]
+    uy = g[3] - g[1]
+    len2 = ux * ux + uy * uy
+    t = 0.0
+    if len2 > 0.0:
+        t = min(1.0, max(0.0, ((x - g[0]) * ux + (y - g[1]) * uy) / len2))
+    return g[0] + t * ux, g[1] + t * uy
+
+
+@nb.njit(cache=True)
+def _route_kernel(pos, route, wp, gates, length, loop, direction, reach, e, done):
+    """Per agent: advance past reached gates (at most two a step), then aim at the nearest
+    point of the current gate; a fixed route direction overrides gates."""
+    for i in range(pos.shape[0]):
+        r = route[i]
+        if direction[r, 0] != 0.0 or direction[r, 1] != 0.0:
+            e[i, 0] = direction[r, 0]
+            e[i, 1] = direction[r, 1]
+            continue
+        x = pos[i, 0]
+        y = pos[i, 1]
+        for _ in range(2):  # gates are metres apart, steps centimetres
+            qx, qy = _nearest_on_gate(x, y, gates[r, wp[i]])
+            if math.hypot(qx - x, qy - y) >= reach[r]:
+                break
+            if wp[i] + 1 >= length[r]:
+                if loop[r]:
+                    wp[i] = 0
+                else:
+                    done[i] = True
+                    break
+            else:
+                wp[i] += 1
+        qx, qy = _nearest_on_gate(x, y, gates[r, wp[i]])
+        dist = math.hypot(qx - x, qy - y)
+        if dist > 1e-9:
+            e[i, 0] = (qx - x) / dist
+            e[i, 1] = (qy - y) / dist
 
 
 # ------------------------------------------------------------------------------ agents
