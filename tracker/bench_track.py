@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
     speed_runs = []
     for n in targets:
         crowd = synthetic_crowd(n, frames, args.seed, args.template)
-        for label, tr in (("bqp dense", BQPTracker()),
+        for label, tr in (("bqp dense", BQPTracker(BQPParams(speedup=False))),
                           ("bqp speedup", BQPTracker(BQPParams(speedup=True))),
                           ("ncc", NCCTracker())):
             r = run_tracker(tr, crowd)
@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
             speed_runs.append(r)
             rows.append(r)
     crowd = synthetic_crowd(n_sampling, frames, args.seed + 1, args.template)
-    dense = run_tracker(BQPTracker(), crowd)
+    dense = run_tracker(BQPTracker(BQPParams(speedup=False)), crowd)
     fast = run_tracker(BQPTracker(BQPParams(speedup=True)), crowd)
     sampling = {
         "targets": n_sampling,

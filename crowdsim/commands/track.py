@@ -33,8 +33,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=None, help="track only the first N frames")
     p.add_argument("--appearance", choices=("kcf", "ncc"), default="kcf",
                    help="appearance model of the BQP tracker")
-    p.add_argument("--speedup", action="store_true",
-                   help="BQP speed-up sampling (m=3 extrema + 10 samples each)")
+    p.add_argument("--dense", action="store_true",
+                   help="BQP with dense candidates instead of the default speed-up sampling "
+                   "(m=3 extrema + 10 samples each)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -106,13 +107,13 @@ def load_input(path: str, init: str | None, template_size: int | None):
     return src, int(size), (i_ids, i_pts), births, gt
 
 
-def make_tracker(name: str, appearance: str = "kcf", speedup: bool = False):
+def make_tracker(name: str, appearance: str = "kcf", dense: bool = False):
     from tracker.bqp import BQPTracker
     from tracker.ncc import NCCTracker
     from tracker.params import BQPParams
 
     if name == "bqp":
-        return BQPTracker(BQPParams(appearance=appearance, speedup=speedup))
+        return BQPTracker(BQPParams(appearance=appearance, speedup=not dense))
     if name == "ncc":
         return NCCTracker()
     raise ValueError(f"unknown tracker {name!r}; expected one of {TRACKERS}")
@@ -130,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
     if args.evaluate and not Path(args.input).is_dir():
         raise ValueError("--evaluate needs a sequence folder with ground truth as INPUT")
     src, size, (ids, pts), births, gt = load_input(args.input, args.init, args.template_size)
-    tracker = make_tracker(args.tracker, args.appearance, args.speedup)
+    tracker = make_tracker(args.tracker, args.appearance, args.dense)
     n_total = src.length if args.frames is None else min(args.frames, src.length or args.frames)
     frames = itertools.islice(src.frames(), n_total)
     result = tracker.track(frames, ids, pts, size, births=births, n_frames=n_total,

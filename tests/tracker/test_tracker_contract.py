@@ -21,8 +21,8 @@ from tracker.ncc import NCCTracker
 from tracker.params import BQPParams
 
 FACTORIES = {
-    "bqp": lambda: BQPTracker(),
-    "bqp-speedup": lambda: BQPTracker(BQPParams(speedup=True)),
+    "bqp": lambda: BQPTracker(),  # speed-up sampling (the default)
+    "bqp-dense": lambda: BQPTracker(BQPParams(speedup=False)),
     "bqp-ncc": lambda: BQPTracker(BQPParams(appearance="ncc")),
     "ncc": lambda: NCCTracker(),
 }
