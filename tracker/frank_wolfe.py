@@ -45,8 +45,9 @@ Line search (Eq. 13) is exact: ``f(x + lam d) = f(x) + lam g.d + lam^2 d^T Q d``
 ``lam = -g.d / (2 d^T Q d)`` clipped to ``[0, lam_max]``; ``lam_max`` is 1 for FW steps,
 ``alpha_y / (1 - alpha_y)`` for away steps and ``alpha_y`` for SWAP steps (Alg. 2 prints
 ``max(lambda_swap, alpha_y)``; staying in D needs the min). ``d^T Q d`` needs only the
-block's own entries of ``Q``: ``Q_ss, Q_sy, Q_yy`` and ``Q x_b`` on the block's rows, found by
-binary search since the rows of a CSC column are sorted.
+block's own entries of ``Q``: ``Q_ss, Q_sy, Q_yy`` and ``Q x_b`` on the block's rows. They are
+gathered once per solve into a compact block-diagonal copy (a binary search per column, as
+the rows of a CSC column are sorted), so line searches never touch the big arrays.
 
 Rounding (Eq. 14) is the argmax of ``x`` within each block.
 """
@@ -245,12 +246,48 @@ def _lower_bound(indices, start, end, value):
 
 
 @njit(cache=True)
-def _entry(indptr, indices, data, row, col):
-    """``Q[row, col]`` by binary search in column ``col`` (sorted row indices)."""
-    end = indptr[col + 1]
-    p = _lower_bound(indices, indptr[col], end, row)
-    if p < end and indices[p] == row:
-        return data[p]
+def _intra_block(indptr, indices, data, block_ptr, block_of):
+    """The block-diagonal part of ``Q`` as a compact CSC with block-local row indices.
+
+    The line searches only need ``Q``'s entries inside the stepped block; gathering them
+    once (a binary search per column, O(l log)) keeps the hot loop away from the big
+    arrays, where every lookup would be a cache miss.
+    """
+    l = indptr.shape[0] - 1
+    ptr = np.zeros(l + 1, dtype=np.int64)
+    cap = 2 * l + 16
+    rows = np.empty(cap, dtype=np.int64)
+    vals = np.empty(cap)
+    m = 0
+    for j in range(l):
+        b = block_of[j]
+        lo = block_ptr[b]
+        hi = block_ptr[b + 1]
+        end = indptr[j + 1]
+        p = _lower_bound(indices, indptr[j], end, lo)
+        while p < end and indices[p] < hi:
+            if m == cap:
+                cap *= 2
+                nr = np.empty(cap, dtype=np.int64)
+                nv = np.empty(cap)
+                nr[:m] = rows[:m]
+                nv[:m] = vals[:m]
+                rows = nr
+                vals = nv
+            rows[m] = indices[p] - lo
+            vals[m] = data[p]
+            m += 1
+            p += 1
+        ptr[j + 1] = m
+    return ptr, rows[:m], vals[:m]
+
+
+@njit(cache=True)
+def _intra_entry(ptr, rows, vals, col, local_row):
+    """``Q[lo + local_row, col]`` from the block-diagonal part (columns are tiny)."""
+    for q in range(ptr[col], ptr[col + 1]):
+        if rows[q] == local_row:
+            return vals[q]
     return 0.0
 
 
@@ -318,6 +355,7 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
     counts = np.zeros(4, dtype=np.int64)  # fw, away, swap, drop
     record = hist_f.shape[0] > 0
 
+    in_ptr, in_rows, in_vals = _intra_block(indptr, indices, data, block_ptr, block_of)
     total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps,
                      tree, size)
     fresh = True
@@ -351,22 +389,18 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
         gy = g[y]
         gxb = gx[b]
 
-        # w = (Q x_b) on the block's own rows. Rows are sorted within a column, so the
-        # block's entries are one contiguous run found by binary search: O(|support| log).
+        # w = (Q x_b) on the block's own rows: only the block-diagonal part of Q is needed.
         for i in range(k):
             w[i] = 0.0
         for j in range(lo, hi):
             xj = x[j]
             if xj != 0.0:
-                end = indptr[j + 1]
-                p = _lower_bound(indices, indptr[j], end, lo)
-                while p < end and indices[p] < hi:
-                    w[indices[p] - lo] += data[p] * xj
-                    p += 1
+                for q in range(in_ptr[j], in_ptr[j + 1]):
+                    w[in_rows[q]] += in_vals[q] * xj
         xqx = 0.0
         for i in range(k):
             xqx += x[lo + i] * w[i]
-        q_ss = _entry(indptr, indices, data, s, s)
+        q_ss = _intra_entry(in_ptr, in_rows, in_vals, s, s - lo)
 
         # FW (toward) step, d = e_s - x_b: g.d = -(block gap); d'Qd from w (Eq. 13).
         gd_fw = gs - gxb
@@ -378,14 +412,14 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
             # Away step d = x_b - e_y, taken when it is the steeper descent direction.
             gd_aw = gxb - gy
             if -gd_aw > -gd_fw:
-                q_yy = _entry(indptr, indices, data, y, y)
+                q_yy = _intra_entry(in_ptr, in_rows, in_vals, y, y - lo)
                 lam_cap = alpha_y / (1.0 - alpha_y)
                 lam, delta = _line_search(gd_aw, xqx - 2.0 * w[y - lo] + q_yy, lam_cap)
                 mode = 1
         elif variant == _SWAP and s != y:
             # SWAP step d = e_s - e_y (Alg. 2): keep whichever of FW/SWAP decreases f more.
-            q_yy = _entry(indptr, indices, data, y, y)
-            q_sy = _entry(indptr, indices, data, s, y)
+            q_yy = _intra_entry(in_ptr, in_rows, in_vals, y, y - lo)
+            q_sy = _intra_entry(in_ptr, in_rows, in_vals, y, s - lo)
             lam_sw, delta_sw = _line_search(gs - gy, q_ss + q_yy - 2.0 * q_sy, alpha_y)
             if delta_sw < delta:
                 lam = lam_sw
