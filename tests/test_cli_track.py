@@ -127,3 +127,15 @@ def test_evaluate_bad_inputs(tmp_path, seq, scene, capsys):
     _error_line(capsys, "evaluate")
     assert main(["evaluate", str(res), str(tmp_path)]) == 2
     _error_line(capsys, "evaluate")
+
+
+def test_demo_writes_table_curve_and_overlay(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--frames", "6", "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "acc@15" in text and "BQP" in text and "NCC" in text
+    for name in ("accuracy_curve.png", "overlay_bqp.mp4", "results_bqp.txt", "results_ncc.txt"):
+        assert (out / name).stat().st_size > 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["results"]) == {"BQP", "NCC"}
+    assert summary["results"]["BQP"]["acc@15"] >= 90.0
