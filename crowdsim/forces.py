@@ -78,8 +78,8 @@ def _build_grid(pos, cell, period):
 
 def _pedestrian_wall_impl(pos, vel, radius, v0, e, group, walls, period, cutoff, elliptic,
                             V0, sigma, step_time, A, B, U0, R, cos_half_fov, c_out, beta3,
-                            group_gap, tau, headway_time, tan_cone, depth, speed_cap, dt, extra,
-                            out):
+                            group_gap, tau, headway_time, tan_cone, depth, b_min, speed_cap, dt,
+                          extra, out):
     n = pos.shape[0]
     if n == 0:
         return
@@ -136,7 +136,7 @@ def _pedestrian_wall_impl(pos, vel, radius, v0, e, group, walls, period, cutoff,
                         tot = d + dq
                         b2 = tot * tot - (sx * sx + sy * sy)
                         b = 0.5 * math.sqrt(max(b2, 1e-12))
-                        b = max(b, 1e-3)
+                        b = max(b, b_min)
                         mag = V0 / sigma * math.exp(-b / sigma) * tot / (4.0 * b)
                         fx = mag * (rx / d + (qx / dq if dq > 1e-9 else 0.0))
                         fy = mag * (ry / d + (qy / dq if dq > 1e-9 else 0.0))
@@ -282,5 +282,5 @@ def social_force(pos: np.ndarray, vel: np.ndarray, radius: np.ndarray, v0: np.nd
         params.B, params.U0, params.R, math.cos(math.radians(params.fov_deg / 2)), params.c,
         params.beta3, params.group_repulsion_gap, params.tau, params.headway_time,
         math.tan(math.radians(params.headway_cone_deg)), params.headway_depth,
-        params.speed_cap, params.dt, extra, acc)
+        params.b_min, params.speed_cap, params.dt, extra, acc)
     return acc
