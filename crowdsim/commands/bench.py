@@ -45,6 +45,11 @@ def bench_parser(name: str) -> tuple[argparse.ArgumentParser, object]:
     return parser, mod
 
 
+def main(name: str, argv: list[str] | None = None) -> int:
+    """Run benchmark ``name`` with command-line ``argv`` (the ``benchmarks/`` scripts)."""
+    parser, mod = bench_parser(name)
+    return int(mod.run(parser.parse_args(argv)) or 0)
+
+
 def run(args: argparse.Namespace) -> int:
-    parser, mod = bench_parser(args.benchmark)
-    return int(mod.run(parser.parse_args(args.bench_args)) or 0)
+    return main(args.benchmark, args.bench_args)

@@ -84,3 +84,35 @@ def test_bad_trajectory_files(tmp_path):
         Trajectories.load(tmp_path / "junk.npz")
     with pytest.raises(ValueError, match="fps"):
         Trajectories.from_csv(bad, fps=0)
+
+
+def _last_json(text: str) -> dict:
+    import json
+
+    return json.loads([line for line in text.splitlines() if line.startswith("{")][-1])
+
+
+def test_bench_sim_prints_table_and_json(capsys):
+    assert main(["bench", "sim", "--sizes", "300", "--peers", "none"]) == 0
+    out = capsys.readouterr().out
+    assert "sim s/wall s" in out
+    report = _last_json(out)
+    (ours,) = report["results"]
+    assert ours["simulator"] == "crowdsim" and ours["agents"] == 300
+    assert ours["steps_per_s"] > 0 and ours["max_overlap"] <= 0.2
+
+
+def test_bench_fd_writes_plots(tmp_path, capsys):
+    argv = ["bench", "fd", "--densities", "1", "--length", "8", "--width", "3", "--warmup", "2",
+            "--measure", "2", "--lane-seconds", "2", "--out", str(tmp_path)]
+    assert main(argv) == 0
+    report = _last_json(capsys.readouterr().out)
+    assert report["fundamental_diagram"][0]["target_density"] == 1.0
+    assert (tmp_path / "fd.png").stat().st_size > 1000
+    assert (tmp_path / "lanes.png").stat().st_size > 1000
+
+
+def test_bench_bad_flags_are_user_errors():
+    proc = subprocess.run([sys.executable, "-m", "crowdsim.cli", "bench", "fd", "--densities",
+                           "9"], capture_output=True, text=True)
+    assert proc.returncode == 2 and "--densities must lie in (0, 6]" in proc.stderr
