@@ -65,6 +65,9 @@ from tracker.qp import BlockQP
 VARIANTS: tuple[str, ...] = ("plain", "away", "swap")
 _VARIANT_CODE = {name: i for i, name in enumerate(VARIANTS)}
 _PLAIN, _AWAY, _SWAP = 0, 1, 2
+STALL_RTOL: float = 1e-13
+"""A largest block gap below this times the size of the gradient entries it is computed
+from is round-off: the solver stops (``converged`` then says whether ``eps`` was met)."""
 STEP_KINDS: tuple[str, ...] = ("fw", "away", "swap", "drop")
 """Kinds counted in :attr:`FWResult.steps` (``drop``: away/SWAP steps that emptied ``alpha_y``)."""
 
@@ -426,9 +429,9 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
                 delta = delta_sw
                 lam_cap = alpha_y
                 mode = 2
-        if lam <= 0.0:
-            # No decrease possible (only reachable through round-off or eps = 0):
-            # refresh exact statistics once, then stop rather than spin.
+        if lam <= 0.0 or gxb - gs <= STALL_RTOL * (abs(gs) + abs(gxb)):
+            # No decrease left above round-off (reachable with eps ~ 0): refresh the exact
+            # statistics once, then stop rather than spin until max_iter.
             if fresh:
                 break
             total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx,

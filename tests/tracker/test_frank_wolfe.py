@@ -317,3 +317,13 @@ def test_bench_solver_smoke(tmp_path, capsys):
         assert again["summary"][n]["iterations_swap"] == report["summary"][n]["iterations_swap"]
     assert main(["--from-npz", str(tmp_path / "missing.npz")]) == 2
     assert main(["--sizes", "ten"]) == 2
+
+
+def test_eps_zero_stops_at_round_off():
+    for seed in range(4):
+        qp = random_qp(seed, 10, 5)
+        for variant in VARIANTS:
+            res = solve(qp, params=FWParams(variant=variant, eps=0.0, max_iter=100_000))
+            assert res.iterations < 100_000
+            assert res.gap < 1e-9
+            check_result(qp, res, 0.0)
