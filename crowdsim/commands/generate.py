@@ -16,7 +16,7 @@ import os
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("generate", help="generate synthetic benchmark sequences (MOT layout)",
-                       description=__doc__.splitlines()[0])
+                       description=__doc__.splitlines()[0].replace("``", ""))
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--suite", choices=("ucf9", "galleria", "stress"),
                      help="named suite of spec files shipped with crowdsim")

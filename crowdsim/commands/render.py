@@ -22,7 +22,7 @@ def _size(text: str) -> tuple[int, int]:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("render", help="render trajectories to a MOTChallenge sequence",
-                       description=__doc__.splitlines()[0])
+                       description=__doc__.splitlines()[0].replace("``", ""))
     p.add_argument("--trajectories", required=True, metavar="FILE",
                    help=".npz from crowdsim simulate, or a CSV frame,id,x,y in metres")
     p.add_argument("--fps", type=float, default=None, metavar="F",
