@@ -5,6 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from synth_data.mot import read_mot_file, read_sequence, write_mot
 
@@ -127,3 +129,20 @@ def test_bad_sequence_folders_give_clear_errors(tmp_path, ini, message):
         (seq_dir / "seqinfo.ini").write_text(ini)
     with pytest.raises(ValueError, match=message):
         read_sequence(seq_dir)
+
+_row = st.tuples(st.integers(1, 10_000), st.integers(1, 10_000),
+                 st.floats(-1e4, 1e4, allow_nan=False), st.floats(-1e4, 1e4, allow_nan=False),
+                 st.floats(0, 500, allow_nan=False), st.floats(0, 500, allow_nan=False),
+                 st.sampled_from([0.0, 1.0]), st.integers(1, 12), st.floats(0, 1))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(_row, max_size=30))
+def test_mot_round_trip_property(tmp_path_factory, rows):
+    path = tmp_path_factory.mktemp("mot") / "gt.txt"
+    arr = np.array(rows, dtype=float).reshape(-1, 9)
+    back = read_mot_file(write_mot(path, arr))
+    assert back.shape == arr.shape
+    np.testing.assert_array_equal(back[:, [0, 1, 7]], arr[:, [0, 1, 7]])
+    np.testing.assert_allclose(back[:, 2:6], arr[:, 2:6], atol=6e-4)
+    np.testing.assert_allclose(back[:, 8], arr[:, 8], atol=6e-5)
