@@ -327,3 +327,16 @@ def test_eps_zero_stops_at_round_off():
             assert res.iterations < 100_000
             assert res.gap < 1e-9
             check_result(qp, res, 0.0)
+
+
+def test_bench_solver_on_tracker_frames(capsys):
+    import json
+
+    pytest.importorskip("cv2")
+    from tracker.bench_solver import main
+
+    assert main(["--tracker-frames", "3", "--frames", "2", "--sizes", "6", "--repeats", "1",
+                 "--no-plot"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert report["source"] == "tracker" and len(report["problems"]) == 2
+    assert report["summary"]["6"]["all_converged"]
