@@ -140,10 +140,12 @@ class Simulation:
                                                      ("group", "prominent", "anomaly", "radius",
                                                       "desired_speed")}
         self._n_total = 0
-        self._bodies: list[tuple[pymunk.Body, pymunk.Circle]] = []
-        # Periodic worlds: every agent has a kinematic ghost one period away, so that pymunk
-        # resolves contacts across the seam x = 0 = period as well.
-        self._ghosts: list[tuple[pymunk.Body, pymunk.Circle]] = []
+        # pymunk body id -> (body, shape); body ids of the agents in state order. Periodic
+        # worlds give every agent a kinematic ghost one period away, so that pymunk resolves
+        # contacts across the seam x = 0 = period as well.
+        self._shapes: dict[int, tuple[pymunk.Body, pymunk.Circle]] = {}
+        self._body_ids = np.zeros(0, np.int64)
+        self._ghost_ids = np.zeros(0, np.int64)
         self._row_of_ghost = np.zeros(0, np.int64)
         self._space = self._make_space(len(setup.agents))
         self._order_dirty = True
@@ -269,31 +271,34 @@ class Simulation:
             space.add(seg)
         return space
 
+    def _add_body(self, body: pymunk.Body, x: float, y: float, radius: float) -> int:
+        body.position = (x, y)
+        shape = pymunk.Circle(body, radius)
+        shape.friction = self.params.friction
+        shape.elasticity = 0.0
+        self._space.add(body, shape)
+        self._shapes[body.id] = (body, shape)
+        return body.id
+
     def _add_agents(self, batch: AgentBatch) -> None:
         n = len(batch)
         if n == 0:
             return
         ids = np.arange(self._n_total, self._n_total + n, dtype=np.int64)
         self._n_total += n
-        p = self.params
+        body_ids = np.empty(n, np.int64)
+        ghost_ids = np.empty(n, np.int64)
         for k in range(n):  # only the entering agents
-            body = pymunk.Body(p.mass, float("inf"))
-            body.position = (float(batch.pos[k, 0]), float(batch.pos[k, 1]))
+            x, y, r = float(batch.pos[k, 0]), float(batch.pos[k, 1]), float(batch.radius[k])
+            body = pymunk.Body(self.params.mass, float("inf"))
             body.velocity = (float(batch.vel[k, 0]), float(batch.vel[k, 1]))
-            shape = pymunk.Circle(body, float(batch.radius[k]))
-            shape.friction = p.friction
-            shape.elasticity = 0.0
-            self._space.add(body, shape)
-            self._bodies.append((body, shape))
+            body_ids[k] = self._add_body(body, x, y, r)
             if self.world.period > 0:
                 ghost = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
-                ghost.position = (float(batch.pos[k, 0]) + self.world.period,
-                                  float(batch.pos[k, 1]))
-                gshape = pymunk.Circle(ghost, float(batch.radius[k]))
-                gshape.friction = p.friction
-                gshape.elasticity = 0.0
-                self._space.add(ghost, gshape)
-                self._ghosts.append((ghost, gshape))
+                ghost_ids[k] = self._add_body(ghost, x + self.world.period, y, r)
+        self._body_ids = np.concatenate([self._body_ids, body_ids])
+        if self.world.period > 0:
+            self._ghost_ids = np.concatenate([self._ghost_ids, ghost_ids])
         self.state.append(batch, ids)
         self._attrs["group"].append(batch.group)
         self._attrs["prominent"].append(batch.prominent)
@@ -304,13 +309,13 @@ class Simulation:
 
     def _remove(self, mask: np.ndarray) -> None:
         """Drop the agents where ``mask`` is True (they left the scene)."""
-        for k in np.flatnonzero(mask):  # only the leaving agents
-            self._space.remove(*self._bodies[k])
-            if self._ghosts:
-                self._space.remove(*self._ghosts[k])
-        self._bodies = [b for b, gone in zip(self._bodies, mask, strict=True) if not gone]
-        if self._ghosts:
-            self._ghosts = [g for g, gone in zip(self._ghosts, mask, strict=True) if not gone]
+        gone = [self._body_ids[mask]]
+        if self.world.period > 0:
+            gone.append(self._ghost_ids[mask])
+            self._ghost_ids = self._ghost_ids[~mask]
+        for body_id in np.concatenate(gone):  # only the leaving agents
+            self._space.remove(*self._shapes.pop(int(body_id)))
+        self._body_ids = self._body_ids[~mask]
         self.state.keep(~mask)
         self._order_dirty = True
 
@@ -319,13 +324,12 @@ class Simulation:
         buf = pb.Buffer()
         pb.get_space_bodies(self._space, _BODY.BODY_ID, buf)
         space_ids = np.frombuffer(buf.int_buf(), dtype=np.uintp).astype(np.int64)
-        ours = np.array([b.id for b, _ in self._bodies], dtype=np.int64)
         self._n_rows = len(space_ids)
         sorter = np.argsort(space_ids)
-        self._row_of_agent = sorter[np.searchsorted(space_ids, ours, sorter=sorter)]
-        if self._ghosts:
-            ghosts = np.array([g.id for g, _ in self._ghosts], dtype=np.int64)
-            self._row_of_ghost = sorter[np.searchsorted(space_ids, ghosts, sorter=sorter)]
+        self._row_of_agent = sorter[np.searchsorted(space_ids, self._body_ids, sorter=sorter)]
+        if self.world.period > 0:
+            self._row_of_ghost = sorter[np.searchsorted(space_ids, self._ghost_ids,
+                                                        sorter=sorter)]
         self._order_dirty = False
 
     def _read_back(self) -> None:
