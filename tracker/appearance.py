@@ -182,7 +182,9 @@ class KCFAppearance(AppearanceModel):
         """``(n, C, W, W//2+1)`` spectra of the windows centred at ``centers``."""
         centers = np.asarray(centers, dtype=np.int64).reshape(-1, 2)
         patches = extract_patches(frame, centers - self.window // 2, self.window)
-        x = patches.astype(np.float32)
+        # the gathered view is strided (channels last in memory): one C-order copy makes the
+        # reductions and FFTs below ~10x faster
+        x = patches.astype(np.float32, order="C")
         n, c = x.shape[:2]
         x -= x.reshape(n, c, -1).mean(axis=2)[:, :, None, None]
         x *= self._hann_scaled

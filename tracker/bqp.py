@@ -65,8 +65,9 @@ class BQPTracker(Tracker):
         Last ``params.history`` positions, oldest first, NaN before a target existed.
     groups : (n,) int64
         Coherent-motion group of each target, ``-1`` for none (refreshed every ``tau``).
-    tree_edges : (E, 2) int64, tree_lengths : (E,) float64
-        Spanning-tree edges of the groups and their lengths ``e_ij`` (Eq. 10), px.
+    tree_edges : (E, 2) int64, tree_lengths : (E,) float64, tree_offsets : (E, 2) float64
+        Spanning-tree edges of the groups, their lengths ``e_ij`` (Eq. 10) and relative
+        positions ``p_a - p_b`` at the last refresh, px.
     solver_iterations : int
         Frank-Wolfe iterations summed over frames.
     """
@@ -97,6 +98,7 @@ class BQPTracker(Tracker):
         self.groups = np.zeros(0, np.int64)
         self.tree_edges = np.zeros((0, 2), np.int64)
         self.tree_lengths = np.zeros(0)
+        self.tree_offsets = np.zeros((0, 2))
         self.rng = np.random.default_rng(p.seed)
         self.since_refresh = 0
         self.solver_iterations = 0
@@ -125,6 +127,7 @@ class BQPTracker(Tracker):
             e = remap[self.tree_edges]
             ok = (e >= 0).all(1)
             self.tree_edges, self.tree_lengths = e[ok], self.tree_lengths[ok]
+            self.tree_offsets = self.tree_offsets[ok]
 
     def _predicted(self) -> np.ndarray:
         return self.points + self.velocities
@@ -167,8 +170,9 @@ class BQPTracker(Tracker):
     def quadratic(self, cands: Candidates) -> sp.csc_matrix:
         """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over the candidates, ``(l, l)`` CSC."""
         p = self.params
+        ref = self.tree_offsets if p.group_offsets else self.tree_lengths
         return quadratic_matrix(cands.positions, p.w_sp, self._px(p.proximity_sigma),
-                                p.proximity_cutoff, p.w_g, self.tree_edges, self.tree_lengths,
+                                p.proximity_cutoff, p.w_g, self.tree_edges, ref,
                                 self._px(p.group_sigma), p.group_cutoff)
 
     def _step(self, frame: np.ndarray) -> np.ndarray:
@@ -215,3 +219,4 @@ class BQPTracker(Tracker):
                                       p.coherence_threshold, p.min_group_speed)
         self.tree_edges, self.tree_lengths = group_trees(pos, self.groups,
                                                          self._px(p.group_radius))
+        self.tree_offsets = pos[self.tree_edges[:, 0]] - pos[self.tree_edges[:, 1]]

@@ -82,6 +82,9 @@ class BQPParams:
         Entries of ``S`` (Eq. 9) beyond ``proximity_cutoff * sigma`` are dropped (sparse ``S``).
     group_sigma : float
         ``sigma`` of Eq. 10, template sizes.
+    group_offsets : bool
+        Grouping term on relative positions ``e_ij = p_i - p_j`` (2-vectors) instead of the
+        distances ``|p_i - p_j|`` of Eq. 10; see :func:`tracker.terms.grouping_entries`.
     group_cutoff : float
         Entries of ``Gamma`` (Eq. 10) with ``| |p_i - p_j| - e_ij | > group_cutoff * sigma`` are
         dropped.
@@ -134,7 +137,8 @@ class BQPParams:
     proximity_sigma: float = 0.5
     proximity_cutoff: float = 2.0
     group_sigma: float = 0.25
-    group_cutoff: float = 2.5
+    group_cutoff: float = 2.0
+    group_offsets: bool = False
     candidate_stride: int = 1
     speedup: bool = True
     n_extrema: int = 3

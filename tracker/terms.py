@@ -52,8 +52,9 @@ def motion_cost(grid: np.ndarray, prediction: np.ndarray, sigma: float) -> np.nd
     -------
     (n, K, K) float64
     """
-    d2 = ((grid - prediction[:, None, None, :]) ** 2).sum(-1)
-    return -np.exp(-d2 / (2.0 * sigma * sigma))
+    dx = grid[..., 0] - prediction[:, 0, None, None]
+    dy = grid[..., 1] - prediction[:, 1, None, None]
+    return -np.exp((dx * dx + dy * dy) * (-0.5 / (sigma * sigma)))
 
 
 def neighbourhood_cost(grid: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
@@ -88,8 +89,9 @@ def neighbourhood_cost(grid: np.ndarray, positions: np.ndarray, velocities: np.n
         w = np.where(has[:, j], weights[:, j], 0.0)
         if not w.any():
             continue
-        d2 = ((grid - pred[:, j, None, None, :]) ** 2).sum(-1)
-        out -= w[:, None, None] * np.exp(-d2 / (2.0 * sigma * sigma))
+        dx = grid[..., 0] - pred[:, j, 0, None, None]
+        dy = grid[..., 1] - pred[:, j, 1, None, None]
+        out -= w[:, None, None] * np.exp((dx * dx + dy * dy) * (-0.5 / (sigma * sigma)))
     return out
 
 
@@ -218,11 +220,13 @@ def group_trees(positions: np.ndarray, labels: np.ndarray,
 
 
 @njit(cache=True)
-def _pair_kernel(cand, pa, pb, lengths, sigma, reach, grouping, rows, cols, vals, fill):
+def _pair_kernel(cand, pa, pb, ref, sigma, reach, mode, rows, cols, vals, fill):
     """Count (``fill`` False) or write the kept candidate-pair entries of target pairs.
 
-    Proximity (Eq. 9): ``exp(-d^2 / 2 sigma^2)`` where ``d <= reach``. Grouping (Eq. 10):
-    ``exp(-(d - e)^2 / 2 sigma^2)`` where ``|d - e| <= reach``, ``e = lengths[p]``.
+    ``mode`` 0, proximity (Eq. 9): ``exp(-d^2 / 2 sigma^2)`` where ``d <= reach``.
+    ``mode`` 1, grouping (Eq. 10): ``exp(-(d - e)^2 / 2 sigma^2)`` where ``|d - e| <= reach``,
+    ``e = ref[p, 0]``. ``mode`` 2, grouping with offsets: ``exp(-|(p_i - p_j) - e|^2 / 2
+    sigma^2)`` where that distance is ``<= reach``, ``e = ref[p]`` (2-vector).
     """
     k = cand.shape[1]
     inv = 1.0 / (2.0 * sigma * sigma)
@@ -237,38 +241,41 @@ def _pair_kernel(cand, pa, pb, lengths, sigma, reach, grouping, rows, cols, vals
             for j in range(k):
                 dx = xi - cand[b, j, 0]
                 dy = yi - cand[b, j, 1]
-                d2 = dx * dx + dy * dy
-                if grouping:
-                    dev = np.sqrt(d2) - lengths[p]
-                    if dev * dev > reach2:
-                        continue
-                    v = np.exp(-dev * dev * inv)
+                if mode == 0:
+                    dev2 = dx * dx + dy * dy
+                elif mode == 1:
+                    dev = np.sqrt(dx * dx + dy * dy) - ref[p, 0]
+                    dev2 = dev * dev
                 else:
-                    if d2 > reach2:
-                        continue
-                    v = np.exp(-d2 * inv)
+                    ex = dx - ref[p, 0]
+                    ey = dy - ref[p, 1]
+                    dev2 = ex * ex + ey * ey
+                if dev2 > reach2:
+                    continue
                 if fill:
                     rows[m] = a * k + i
                     cols[m] = b * k + j
-                    vals[m] = v
+                    vals[m] = np.exp(-dev2 * inv)
                 m += 1
     return m
 
 
-def _pair_entries(cand: np.ndarray, pa: np.ndarray, pb: np.ndarray, lengths: np.ndarray,
-                  sigma: float, reach: float, grouping: bool):
+def _pair_entries(cand: np.ndarray, pa: np.ndarray, pb: np.ndarray, ref: np.ndarray,
+                  sigma: float, reach: float, mode: int):
     """Entries ``(rows, cols, vals)`` (upper half: target ``pa`` rows) of ``S`` or ``Gamma``."""
     cand = np.ascontiguousarray(cand, dtype=np.float64)
     pa = np.ascontiguousarray(pa, dtype=np.int64)
     pb = np.ascontiguousarray(pb, dtype=np.int64)
-    lengths = np.ascontiguousarray(lengths, dtype=np.float64)
+    ref = np.ascontiguousarray(np.asarray(ref, dtype=np.float64).reshape(len(pa), -1))
+    if ref.shape[1] == 1:
+        ref = np.concatenate([ref, np.zeros_like(ref)], axis=1)
     e_i = np.zeros(0, np.int64)
     e_f = np.zeros(0, np.float64)
-    m = _pair_kernel(cand, pa, pb, lengths, sigma, reach, grouping, e_i, e_i, e_f, False)
+    m = _pair_kernel(cand, pa, pb, ref, sigma, reach, mode, e_i, e_i, e_f, False)
     rows = np.empty(m, np.int64)
     cols = np.empty(m, np.int64)
     vals = np.empty(m, np.float64)
-    _pair_kernel(cand, pa, pb, lengths, sigma, reach, grouping, rows, cols, vals, True)
+    _pair_kernel(cand, pa, pb, ref, sigma, reach, mode, rows, cols, vals, True)
     return rows, cols, vals
 
 
@@ -341,23 +348,29 @@ def proximity_entries(cand: np.ndarray, sigma: float, cutoff: float):
         return empty
     reach = cutoff * sigma
     centre = cand.mean(axis=1)
-    spread = np.sqrt(((cand - centre[:, None]) ** 2).sum(-1)).max()
+    off = cand - centre[:, None]
+    spread = float(np.sqrt((off[..., 0] ** 2 + off[..., 1] ** 2).max()))
     pairs = cKDTree(centre).query_pairs(reach + 2 * spread, output_type="ndarray")
     if len(pairs) == 0:
         return empty
-    return _pair_entries(cand, pairs[:, 0], pairs[:, 1], np.zeros(0), sigma, reach, False)
+    return _pair_entries(cand, pairs[:, 0], pairs[:, 1], np.zeros((len(pairs), 2)), sigma,
+                         reach, 0)
 
 
 def grouping_entries(cand: np.ndarray, edges: np.ndarray, lengths: np.ndarray, sigma: float,
                      cutoff: float):
     """Upper-half entries ``(rows, cols, Gamma_ij)`` of Eq. 10 along the tree ``edges (E, 2)``.
 
-    ``Gamma_ij = exp(-(|p_i - p_j| - e_ij)^2 / 2 sigma^2)``, dropped where
-    ``| |p_i - p_j| - e_ij | > cutoff * sigma``.
+    ``lengths (E,)``: ``Gamma_ij = exp(-(|p_i - p_j| - e_ij)^2 / 2 sigma^2)`` (Eq. 10), dropped
+    where ``| |p_i - p_j| - e_ij | > cutoff * sigma``. ``lengths (E, 2)``: relative positions
+    ``e_ij = p_a - p_b`` and ``Gamma_ij = exp(-|(p_i - p_j) - e_ij|^2 / 2 sigma^2)``, which
+    keeps the formation's orientation too and is far sparser (a disc, not an annulus).
     """
     if len(edges) == 0 or cand.shape[0] == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    return _pair_entries(cand, edges[:, 0], edges[:, 1], lengths, sigma, cutoff * sigma, True)
+    lengths = np.asarray(lengths, dtype=np.float64)
+    mode = 2 if lengths.ndim == 2 else 1
+    return _pair_entries(cand, edges[:, 0], edges[:, 1], lengths, sigma, cutoff * sigma, mode)
 
 
 def proximity_matrix(cand: np.ndarray, sigma: float, cutoff: float) -> sp.csc_matrix:
