@@ -173,7 +173,13 @@ def run_pysocialforce(layout: Layout, dt: float = 0.4) -> dict[str, Any]:
     import tempfile
 
     logging.getLogger("matplotlib").setLevel(logging.WARNING)  # psf logs at DEBUG on import
-    import pysocialforce as psf
+    cwd = os.getcwd()
+    with tempfile.TemporaryDirectory() as tmp:
+        os.chdir(tmp)  # psf opens a "file.log" in the working directory on import
+        try:
+            import pysocialforce as psf
+        finally:
+            os.chdir(cwd)
 
     logging.getLogger().setLevel(logging.WARNING)
     L, W = layout.length, layout.width
