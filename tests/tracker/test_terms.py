@@ -194,3 +194,23 @@ def test_params_validation():
     with pytest.raises(ValueError, match="w_sp"):
         BQPParams(w_sp=float("nan"))
     assert search_radius(14, 2.0) == 7
+
+
+def test_grouping_with_relative_offsets():
+    rng = np.random.default_rng(4)
+    cand = rng.uniform(0, 20, (3, 5, 2))
+    edges = np.array([[0, 1], [2, 1]])
+    off = np.array([[-4.0, 1.0], [3.0, 3.0]])
+    q = grouping_matrix(cand, edges, off, sigma=3.0, cutoff=2.0).toarray()
+    p = cand.reshape(-1, 2)
+    w = np.zeros((15, 15))
+    for (a, b), e in zip(edges, off, strict=True):
+        for i in range(5):
+            for j in range(5):
+                dev = np.linalg.norm(p[a * 5 + i] - p[b * 5 + j] - e)
+                if dev <= 6.0:
+                    w[a * 5 + i, b * 5 + j] = w[b * 5 + j, a * 5 + i] = np.exp(-dev ** 2 / 18)
+    deg = w.sum(1)
+    inv = np.where(deg > 0, 1 / np.sqrt(np.where(deg > 0, deg, 1)), 0)
+    np.testing.assert_allclose(q, np.diag((deg > 0) * 1.0) - inv[:, None] * w * inv[None],
+                               atol=1e-12)
