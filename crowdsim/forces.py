@@ -76,7 +76,8 @@ def _build_grid(pos, cell, period):
     return order, start, nx, ny, x0, y0, cx, cy
 
 
-def _pedestrian_wall_impl(pos, vel, radius, v0, e, group, walls, period, cutoff, elliptic,
+def _pedestrian_wall_impl(pos, vel, radius, v0, e, group, walls, wall_grid, wall_start,
+                          wall_items, period, cutoff, elliptic,
                             V0, sigma, step_time, A, B, U0, R, cos_half_fov, c_out, beta3,
                             group_gap, tau, headway_time, tan_cone, depth, b_min, speed_cap, dt,
                           extra, out):
@@ -85,7 +86,8 @@ def _pedestrian_wall_impl(pos, vel, radius, v0, e, group, walls, period, cutoff,
         return
     order, start, nx, ny, x0, y0, cx, cy = _build_grid(pos, cutoff, period)
     cut2 = cutoff * cutoff
-    n_walls = walls.shape[0]
+    wgx0, wgy0, wcell, wnx, wny = wall_grid[0], wall_grid[1], wall_grid[2], int(wall_grid[3]), \
+        int(wall_grid[4])
     for i in nb.prange(n):
         xi = pos[i, 0]
         yi = pos[i, 1]
@@ -169,7 +171,11 @@ def _pedestrian_wall_impl(pos, vel, radius, v0, e, group, walls, period, cutoff,
                             ax += beta3 * rx / d
                             ay += beta3 * ry / d
         # Walls: U0/R exp(-d/R) away from the nearest point of each segment [HM95 Eq. 5].
-        for w in range(n_walls):
+        wcx = min(max(int((xi - wgx0) // wcell), 0), wnx - 1)
+        wcy = min(max(int((yi - wgy0) // wcell), 0), wny - 1)
+        wc = wcx * wny + wcy
+        for ws in range(wall_start[wc], wall_start[wc + 1]):
+            w = wall_items[ws]
             wx0 = walls[w, 0]
             wy0 = walls[w, 1]
             ux = walls[w, 2] - wx0
@@ -205,6 +211,74 @@ def _pedestrian_wall_impl(pos, vel, radius, v0, e, group, walls, period, cutoff,
             ay = (nvy * scale - vel[i, 1]) / dt
         out[i, 0] = ax
         out[i, 1] = ay
+
+
+class WallGrid:
+    """Walls binned into square cells, built once per scene (walls are static).
+
+    Cell ``c`` lists every wall that comes within ``cutoff`` of any point of the cell, so an
+    agent only visits the walls of its own cell: O(walls near it), not O(all walls). Agents
+    outside the grid use the nearest border cell, whose list covers them as long as they stay
+    within ``cutoff`` of the grid (farther out no wall is in range anyway).
+
+    Attributes: ``params (5,)`` = ``x0, y0, cell, nx, ny``; ``start (nx*ny + 1,)`` and
+    ``items`` in CSR form.
+    """
+
+    def __init__(self, walls: np.ndarray, cutoff: float, cell: float | None = None) -> None:
+        walls = np.asarray(walls, dtype=np.float64).reshape(-1, 5)
+        cell = float(cell or max(cutoff, 1.0))
+        if len(walls) == 0:
+            self.params = np.array([0.0, 0.0, cell, 1.0, 1.0])
+            self.start = np.zeros(2, np.int64)
+            self.items = np.zeros(0, np.int64)
+            return
+        reach = cutoff + walls[:, 4]
+        lo = np.minimum(walls[:, :2], walls[:, 2:4]) - reach[:, None]
+        hi = np.maximum(walls[:, :2], walls[:, 2:4]) + reach[:, None]
+        x0, y0 = lo.min(axis=0)
+        nx = int((hi[:, 0].max() - x0) // cell) + 1
+        ny = int((hi[:, 1].max() - y0) // cell) + 1
+        self.params = np.array([x0, y0, cell, nx, ny], dtype=np.float64)
+        self.start, self.items = _bin_walls(walls, reach, x0, y0, cell, nx, ny)
+
+
+@nb.njit(cache=True)
+def _bin_walls(walls, reach, x0, y0, cell, nx, ny):
+    """CSR lists of the walls within ``reach`` of each cell (exact segment-box test)."""
+    counts = np.zeros(nx * ny + 1, np.int64)
+    for phase in range(2):
+        if phase == 1:
+            start = np.cumsum(counts)
+            fill = start[:-1].copy()
+            items = np.empty(start[-1], np.int64)
+        for w in range(walls.shape[0]):
+            ax, ay, bx, by = walls[w, 0], walls[w, 1], walls[w, 2], walls[w, 3]
+            i0 = max(0, int((min(ax, bx) - reach[w] - x0) // cell))
+            i1 = min(nx - 1, int((max(ax, bx) + reach[w] - x0) // cell))
+            j0 = max(0, int((min(ay, by) - reach[w] - y0) // cell))
+            j1 = min(ny - 1, int((max(ay, by) + reach[w] - y0) // cell))
+            for i in range(i0, i1 + 1):
+                for j in range(j0, j1 + 1):
+                    # Distance from the cell's centre to the segment, minus the cell's
+                    # half-diagonal: a conservative "could be within reach" test.
+                    cx = x0 + (i + 0.5) * cell
+                    cy = y0 + (j + 0.5) * cell
+                    ux, uy = bx - ax, by - ay
+                    len2 = ux * ux + uy * uy
+                    t = 0.0
+                    if len2 > 0.0:
+                        t = min(1.0, max(0.0, ((cx - ax) * ux + (cy - ay) * uy) / len2))
+                    d = math.hypot(cx - ax - t * ux, cy - ay - t * uy)
+                    if d - 0.7072 * cell > reach[w]:
+                        continue
+                    k = i * ny + j
+                    if phase == 0:
+                        counts[k + 1] += 1
+                    else:
+                        items[fill[k]] = w
+                        fill[k] += 1
+    return start, items
 
 
 _kernel_serial = nb.njit(cache=True)(_pedestrian_wall_impl)
@@ -252,7 +326,7 @@ def group_vision_attraction(pos: np.ndarray, vel: np.ndarray, e: np.ndarray, gro
 
 def social_force(pos: np.ndarray, vel: np.ndarray, radius: np.ndarray, v0: np.ndarray,
                  e: np.ndarray, group: np.ndarray, walls: np.ndarray, params: SocialForceParams,
-                 period: float = 0.0) -> np.ndarray:
+                 period: float = 0.0, wall_grid: WallGrid | None = None) -> np.ndarray:
     """Total social-force acceleration ``(n, 2)`` in m/s², speed cap included.
 
     Parameters
@@ -265,6 +339,8 @@ def social_force(pos: np.ndarray, vel: np.ndarray, radius: np.ndarray, v0: np.nd
     params : SocialForceParams
     period : float
         Length of a periodic x axis in m (0 = not periodic); needs ``period >= 3 * cutoff``.
+    wall_grid : WallGrid, optional
+        The walls binned for this ``cutoff`` (built here when omitted; pass it to reuse it).
     """
     n = pos.shape[0]
     acc = np.zeros((n, 2))
@@ -276,8 +352,11 @@ def social_force(pos: np.ndarray, vel: np.ndarray, radius: np.ndarray, v0: np.nd
     extra = (group_vision_attraction(pos, vel, e, group, params) if (group >= 0).any()
              else np.zeros((n, 2)))
     kernel = _kernel_parallel if n >= PARALLEL_MIN_AGENTS else _kernel_serial
+    if wall_grid is None:
+        wall_grid = WallGrid(walls, params.cutoff)
     kernel(
-        pos, vel, radius, v0, e, group, walls, float(period), params.cutoff,
+        pos, vel, radius, v0, e, group, walls, wall_grid.params, wall_grid.start,
+        wall_grid.items, float(period), params.cutoff,
         params.potential == "elliptic", params.V0, params.sigma, params.step_time, params.A,
         params.B, params.U0, params.R, math.cos(math.radians(params.fov_deg / 2)), params.c,
         params.beta3, params.group_repulsion_gap, params.tau, params.headway_time,

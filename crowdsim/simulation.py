@@ -30,7 +30,7 @@ import numpy as np
 import pymunk
 import pymunk.batch as pb
 
-from crowdsim.forces import social_force
+from crowdsim.forces import WallGrid, social_force
 from crowdsim.params import SocialForceParams
 from crowdsim.scenarios import Scenario
 from crowdsim.trajectories import Trajectories, TrajectoryRecorder
@@ -130,6 +130,7 @@ class Simulation:
         self._spawn_rng = np.random.default_rng(spawn_seq)
         setup = scenario.build(np.random.default_rng(build_seq))
         self.world = setup.world
+        self._wall_grid = WallGrid(self.world.walls, self.params.cutoff)
         self.routes = RouteTable(setup.routes)
         self.sources = setup.sources
         self.info = setup.info
@@ -171,7 +172,7 @@ class Simulation:
             self._place_ghosts()
         if st.n:
             acc = social_force(st.pos, st.vel, st.radius, v0, e, st.group, self.world.walls, p,
-                               self.world.period)
+                               self.world.period, self._wall_grid)
             forces = np.zeros((self._n_rows, 2))
             forces[self._row_of_agent] = acc * p.mass
             buf = pb.Buffer()
