@@ -173,7 +173,7 @@ class BQPTracker(Tracker):
         ref = self.tree_offsets if p.group_offsets else self.tree_lengths
         return quadratic_matrix(cands.positions, p.w_sp, self._px(p.proximity_sigma),
                                 p.proximity_cutoff, p.w_g, self.tree_edges, ref,
-                                self._px(p.group_sigma), p.group_cutoff)
+                                self._px(p.group_sigma), p.group_cutoff, p.laplacian_tau)
 
     def _step(self, frame: np.ndarray) -> np.ndarray:
         from tracker.frank_wolfe import FWParams, solve

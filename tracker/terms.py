@@ -324,17 +324,23 @@ def symmetric_csc(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, diag: np
 
 
 def normalised_entries(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, size: int,
-                       sign: float) -> tuple[np.ndarray, np.ndarray]:
-    """Entries of ``sign D^-1/2 W D^-1/2`` and the diagonal ``1[D > 0]`` of the Laplacian.
+                       sign: float, tau: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Off-diagonal entries and diagonal of ``(D + tau I)^-1/2 (D + sign W) (D + tau I)^-1/2``.
 
-    ``W`` is symmetric and given by its upper-half entries; ``D = diag(W 1)``.
+    ``W`` is symmetric and given by its upper-half entries; ``D = diag(W 1)``. With ``tau = 0``
+    this is the normalised Laplacian ``I + sign D^-1/2 W D^-1/2`` of the paper (identity only
+    where ``D > 0``). ``tau > 0`` regularises the degrees (as in regularised spectral
+    clustering): a candidate whose only neighbour is barely similar then keeps a weak coupling
+    instead of the full-strength one plain normalisation gives it. PSD either way.
     """
     deg = np.bincount(rows, weights=vals, minlength=size) + \
         np.bincount(cols, weights=vals, minlength=size)
     inv = np.zeros(size)
     pos = deg > 0
-    inv[pos] = 1.0 / np.sqrt(deg[pos])
-    return sign * vals * inv[rows] * inv[cols], pos.astype(np.float64)
+    inv[pos] = 1.0 / np.sqrt(deg[pos] + tau)
+    diag = np.zeros(size)
+    diag[pos] = deg[pos] / (deg[pos] + tau)
+    return sign * vals * inv[rows] * inv[cols], diag
 
 
 def proximity_entries(cand: np.ndarray, sigma: float, cutoff: float):
@@ -373,43 +379,44 @@ def grouping_entries(cand: np.ndarray, edges: np.ndarray, lengths: np.ndarray, s
     return _pair_entries(cand, edges[:, 0], edges[:, 1], lengths, sigma, cutoff * sigma, mode)
 
 
-def proximity_matrix(cand: np.ndarray, sigma: float, cutoff: float) -> sp.csc_matrix:
+def proximity_matrix(cand: np.ndarray, sigma: float, cutoff: float,
+                     tau: float = 0.0) -> sp.csc_matrix:
     """Spatial-proximity matrix ``C_sp = I + D^-1/2 S D^-1/2`` (Eq. 9, signless; see module).
 
     ``cand`` is ``(n, k, 2)``; returns an ``(l, l)`` CSC matrix, ``l = n k``.
     """
     size = cand.shape[0] * cand.shape[1]
     r, c, v = proximity_entries(cand, sigma, cutoff)
-    off, diag = normalised_entries(r, c, v, size, +1.0)
+    off, diag = normalised_entries(r, c, v, size, +1.0, tau)
     return symmetric_csc(r, c, off, diag, size)
 
 
 def grouping_matrix(cand: np.ndarray, edges: np.ndarray, lengths: np.ndarray, sigma: float,
-                    cutoff: float) -> sp.csc_matrix:
+                    cutoff: float, tau: float = 0.0) -> sp.csc_matrix:
     """Grouping matrix ``C_g = I - D^-1/2 Gamma D^-1/2`` (Eq. 10) over candidates ``(n, k, 2)``."""
     size = cand.shape[0] * cand.shape[1]
     r, c, v = grouping_entries(cand, edges, lengths, sigma, cutoff)
-    off, diag = normalised_entries(r, c, v, size, -1.0)
+    off, diag = normalised_entries(r, c, v, size, -1.0, tau)
     return symmetric_csc(r, c, off, diag, size)
 
 
 def quadratic_matrix(cand: np.ndarray, w_sp: float, sp_sigma: float, sp_cutoff: float,
                      w_g: float, edges: np.ndarray, lengths: np.ndarray, g_sigma: float,
-                     g_cutoff: float) -> sp.csc_matrix:
+                     g_cutoff: float, tau: float = 0.0) -> sp.csc_matrix:
     """``w_sp C_sp + w_g C_g`` built in one pass (one CSC, duplicates summed by the QP)."""
     size = cand.shape[0] * cand.shape[1]
     parts_r, parts_c, parts_v = [], [], []
     diag = np.zeros(size)
     if w_sp > 0:
         r, c, v = proximity_entries(cand, sp_sigma, sp_cutoff)
-        off, d = normalised_entries(r, c, v, size, +1.0)
+        off, d = normalised_entries(r, c, v, size, +1.0, tau)
         parts_r.append(r)
         parts_c.append(c)
         parts_v.append(w_sp * off)
         diag += w_sp * d
     if w_g > 0 and len(edges):
         r, c, v = grouping_entries(cand, edges, lengths, g_sigma, g_cutoff)
-        off, d = normalised_entries(r, c, v, size, -1.0)
+        off, d = normalised_entries(r, c, v, size, -1.0, tau)
         parts_r.append(r)
         parts_c.append(c)
         parts_v.append(w_g * off)

@@ -214,3 +214,19 @@ def test_grouping_with_relative_offsets():
     inv = np.where(deg > 0, 1 / np.sqrt(np.where(deg > 0, deg, 1)), 0)
     np.testing.assert_allclose(q, np.diag((deg > 0) * 1.0) - inv[:, None] * w * inv[None],
                                atol=1e-12)
+
+
+def test_regularised_laplacian_keeps_weak_couplings_weak():
+    far = np.array([[[0.0, 0.0]], [[5.9, 0.0]]])  # one barely-similar pair (S ~ 0.14)
+    plain = proximity_matrix(far, 3.0, 2.0).toarray()
+    reg = proximity_matrix(far, 3.0, 2.0, tau=1.0).toarray()
+    s = np.exp(-5.9 ** 2 / 18)
+    assert plain[0, 1] == pytest.approx(1.0)  # plain normalisation: full strength
+    assert reg[0, 1] == pytest.approx(s / (s + 1.0))
+    assert reg[0, 0] == pytest.approx(s / (s + 1.0))
+    rng = np.random.default_rng(5)
+    cand = rng.uniform(0, 20, (4, 5, 2))
+    for q in (proximity_matrix(cand, 3.0, 2.0, tau=1.0),
+              grouping_matrix(cand, np.array([[0, 1], [1, 2]]), np.array([5.0, 7.0]), 3.0, 2.0,
+                              tau=1.0)):
+        assert np.linalg.eigvalsh(q.toarray()).min() > -1e-9
