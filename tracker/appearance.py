@@ -145,7 +145,8 @@ class KCFAppearance(AppearanceModel):
 
     def __init__(self, template_size: int, radius: int, update_threshold: float = 0.6,
                  lam: float = 1e-4, learning_rate: float = 0.05, label_sigma: float = 0.1,
-                 kernel: str = "linear", kernel_sigma: float = 0.2, workers: int = 1):
+                 kernel: str = "linear", kernel_sigma: float = 0.2, target_window: float = 0.0,
+                 workers: int = 1):
         super().__init__(template_size, radius, update_threshold)
         if not lam > 0:
             raise ValueError(f"lam must be > 0, got {lam!r}")
@@ -162,6 +163,15 @@ class KCFAppearance(AppearanceModel):
         self.workers = int(workers)
         w = self.window
         self._hann_scaled = hann2d(w) * np.float32(1.0 / 255.0)
+        self._train_window = self._hann_scaled
+        if target_window > 0:
+            # Hann window of ~target_window template sizes, zero outside: the filter learns the
+            # person, not the static ground around it (which a wide window would track)
+            tw = min(w, max(3, int(round(target_window * self.template_size))))
+            inner = np.zeros((w, w), np.float32)
+            o = (w - tw) // 2
+            inner[o:o + tw, o:o + tw] = hann2d(tw)
+            self._train_window = inner * np.float32(1.0 / 255.0)
         sigma = max(0.5, label_sigma * self.template_size)
         self._yf = scipy.fft.rfft2(gaussian_label(w, sigma)).astype(np.complex64)
         wf = w // 2 + 1
@@ -178,8 +188,12 @@ class KCFAppearance(AppearanceModel):
     def n(self) -> int:
         return self.xf.shape[0]
 
-    def _features(self, frame: np.ndarray, centers: np.ndarray) -> np.ndarray:
-        """``(n, C, W, W//2+1)`` spectra of the windows centred at ``centers``."""
+    def _features(self, frame: np.ndarray, centers: np.ndarray,
+                  train: bool = False) -> np.ndarray:
+        """``(n, C, W, W//2+1)`` spectra of the windows centred at ``centers``.
+
+        Training windows use the narrower target window (see ``target_window``).
+        """
         centers = np.asarray(centers, dtype=np.int64).reshape(-1, 2)
         patches = extract_patches(frame, centers - self.window // 2, self.window)
         # the gathered view is strided (channels last in memory): one C-order copy makes the
@@ -187,7 +201,7 @@ class KCFAppearance(AppearanceModel):
         x = patches.astype(np.float32, order="C")
         n, c = x.shape[:2]
         x -= x.reshape(n, c, -1).mean(axis=2)[:, :, None, None]
-        x *= self._hann_scaled
+        x *= self._train_window if train else self._hann_scaled
         return scipy.fft.rfft2(x, axes=(-2, -1), workers=self.workers)
 
     def _energy(self, xf: np.ndarray) -> np.ndarray:
@@ -215,7 +229,7 @@ class KCFAppearance(AppearanceModel):
         centers = np.asarray(centers).reshape(-1, 2)
         if len(centers) == 0:
             return
-        xf = self._features(frame, centers)
+        xf = self._features(frame, centers, train=True)
         self.xf = np.concatenate([self.xf, xf.astype(np.complex64)])
         self.alphaf = np.concatenate([self.alphaf, self._train(xf)])
 
@@ -247,7 +261,7 @@ class KCFAppearance(AppearanceModel):
         sel = np.flatnonzero(confidence >= self.update_threshold)
         if len(sel) == 0:
             return
-        xf = self._features(frame, np.asarray(centers).reshape(-1, 2)[sel])
+        xf = self._features(frame, np.asarray(centers).reshape(-1, 2)[sel], train=True)
         lr = np.float32(self.learning_rate)
         self.xf[sel] = (1 - lr) * self.xf[sel] + lr * xf
         self.alphaf[sel] = (1 - lr) * self.alphaf[sel] + lr * self._train(xf)
@@ -330,12 +344,13 @@ class NCCAppearance(AppearanceModel):
 def make_appearance(kind: str, template_size: int, radius: int, *, update_threshold: float,
                     lam: float = 1e-4, learning_rate: float = 0.05, label_sigma: float = 0.1,
                     kernel: str = "linear", kernel_sigma: float = 0.2,
-                    update_every: int = 10) -> AppearanceModel:
+                    target_window: float = 0.0, update_every: int = 10) -> AppearanceModel:
     """Build the appearance model named ``kind`` (``"kcf"`` or ``"ncc"``)."""
     if kind == "kcf":
         return KCFAppearance(template_size, radius, update_threshold, lam=lam,
                              learning_rate=learning_rate, label_sigma=label_sigma,
-                             kernel=kernel, kernel_sigma=kernel_sigma)
+                             kernel=kernel, kernel_sigma=kernel_sigma,
+                             target_window=target_window)
     if kind == "ncc":
         return NCCAppearance(template_size, radius, update_threshold, update_every=update_every)
     raise ValueError(f"unknown appearance model {kind!r}; expected 'kcf' or 'ncc'")

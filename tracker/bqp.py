@@ -92,7 +92,8 @@ class BQPTracker(Tracker):
         self.appearance = make_appearance(
             p.appearance, self.template_size, self.radius, update_threshold=p.update_threshold,
             lam=p.kcf_lambda, learning_rate=p.kcf_learning_rate, label_sigma=p.kcf_label_sigma,
-            kernel=p.kcf_kernel, kernel_sigma=p.kcf_kernel_sigma, update_every=p.ncc_update_every)
+            kernel=p.kcf_kernel, kernel_sigma=p.kcf_kernel_sigma,
+            target_window=p.kcf_target_window, update_every=p.ncc_update_every)
         self.velocities = np.zeros((0, 2))
         self.history = np.zeros((p.history, 0, 2))
         self.groups = np.zeros(0, np.int64)

@@ -50,6 +50,12 @@ class BQPParams:
     kcf_kernel : str
         ``"gaussian"`` (KCF's Gaussian kernel, [15]) or ``"linear"`` (plain ridge regression
         of Eq. 4 on the colour channels).
+    kcf_target_window : float
+        Side (template sizes) of the Hann window applied to *training* patches, zero outside;
+        0 = KCF's window over the whole search region. Detection always uses the whole
+        region. Default 1.6: with the whole region the filter also learns the static ground
+        around a walking person and lags behind; on a low-contrast synthetic crowd this
+        raised BQP's accuracy at 5 px from 95.0 to 96.3 %.
     kcf_kernel_sigma : float
         Bandwidth of the Gaussian kernel (features are pixel values / 255, mean-removed).
     ncc_update_every : int
@@ -131,6 +137,7 @@ class BQPParams:
     kcf_label_sigma: float = 0.1
     kcf_kernel: str = "linear"
     kcf_kernel_sigma: float = 0.2
+    kcf_target_window: float = 1.6
     ncc_update_every: int = 10
     motion_sigma: float = 0.5
     velocity_smoothing: float = 0.5
@@ -160,7 +167,7 @@ class BQPParams:
 
     def __post_init__(self) -> None:
         nonneg = ("zeta", "eta", "w_sp", "w_g", "velocity_smoothing", "min_group_speed",
-                  "border_penalty", "laplacian_tau")
+                  "border_penalty", "laplacian_tau", "kcf_target_window")
         positive = ("kcf_lambda", "kcf_label_sigma", "kcf_kernel_sigma", "motion_sigma",
                     "neighbour_scale", "group_radius", "proximity_sigma", "proximity_cutoff",
                     "group_sigma", "group_cutoff", "fw_eps")

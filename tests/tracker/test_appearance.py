@@ -8,7 +8,8 @@ from tracker_scenes import make_scene
 
 from tracker.appearance import KCFAppearance, NCCAppearance, extract_patches, make_appearance
 
-MODELS = [KCFAppearance, NCCAppearance]
+MODELS = [KCFAppearance, NCCAppearance,
+          lambda s, r, **kw: KCFAppearance(s, r, target_window=1.6, **kw)]
 
 
 def _shifted_scene():
@@ -31,6 +32,16 @@ def test_peak_at_true_shift(cls):
     s0 = m.scores(sc.frames[0], centers)
     assert (s0.reshape(3, -1).argmax(1) == 7 * 15 + 7).all()
     assert np.isfinite(s).all()
+
+
+def test_kcf_gaussian_kernel_recovers_shift():
+    sc, vel = _shifted_scene()
+    m = KCFAppearance(14, 7, kernel="gaussian", target_window=1.6)
+    centers = sc.points[0].astype(np.int64)
+    m.add(sc.frames[0], centers)
+    s = m.scores(sc.frames[1], centers)
+    iy, ix = np.unravel_index(s.reshape(3, -1).argmax(1), (15, 15))
+    np.testing.assert_array_equal(np.c_[ix - 7, iy - 7], vel)
 
 
 def test_kcf_batch_equals_single_target_models():
