@@ -204,7 +204,7 @@ class Counterflow(Scenario):
         length = self._length()
         if self.periodic:  # exactly n / (density * width): the density is the target one
             pos = hex_positions(rng, n, 0.0, 0.0, w, self.density, self.radius[1],
-                                length=length)
+                                length=length, ordered=True)
         else:
             pos = hex_positions(rng, n, 0.0, 0.0, w, self.density, self.radius[1])
             length = max(length, float(pos[:, 0].max()) + 0.5 / math.sqrt(self.density))

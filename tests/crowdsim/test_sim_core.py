@@ -158,7 +158,8 @@ def test_groups_keep_formation():
 
 
 def test_anomalies_behave_as_labelled():
-    sc = make_scenario("anomalies", n_agents=150, density=1.0, anomaly_fraction=0.2)
+    sc = make_scenario("anomalies", n_agents=150, density=0.8, anomaly_fraction=0.3,
+                       kinds=("against", "stop"))
     sim = Simulation(sc, seed=4)
     traj = sim.run(150)
     vel = traj.velocities()
@@ -166,10 +167,16 @@ def test_anomalies_behave_as_labelled():
     seen = np.isfinite(vel[50:, :, 0]).any(axis=0)  # present after the first 2 s
     vx = np.nanmean(vel[50:, seen, 0], axis=0)
     against, normal = kind[seen] == 1, kind[seen] == 0
-    assert against.sum() > 3
-    assert vx[against].mean() < -0.3 < 0.3 < vx[normal].mean()
-    stoppers = np.flatnonzero(kind == 2)
-    assert len(stoppers) > 0
+    assert against.sum() >= 10
+    # Walkers against the flow make headway against it; the others go with it.
+    assert np.median(vx[against]) < -0.2 and np.median(vx[normal]) > 0.5
+    # Stoppers inside their stop window stand, though the passing crowd jostles them.
+    st = sim.state
+    stopped = (st.anomaly == 2) & (st.stop_start + 0.5 < sim.time) & (sim.time < st.stop_end)
+    walking = st.anomaly == 0
+    assert stopped.sum() >= 5
+    speed = np.hypot(st.vel[:, 0], st.vel[:, 1])
+    assert np.median(speed[stopped]) < 0.35 < 0.8 < np.median(speed[walking])
 
 
 def test_circulation_turns_counter_clockwise():
