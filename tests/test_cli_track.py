@@ -137,5 +137,5 @@ def test_demo_writes_table_curve_and_overlay(tmp_path, capsys):
     for name in ("accuracy_curve.png", "overlay_bqp.mp4", "results_bqp.txt", "results_ncc.txt"):
         assert (out / name).stat().st_size > 0
     summary = json.loads((out / "summary.json").read_text())
-    assert set(summary["results"]) == {"BQP", "NCC"}
+    assert set(summary["results"]) == {"BQP", "BQP-NCC", "NCC"}
     assert summary["results"]["BQP"]["acc@15"] >= 90.0
