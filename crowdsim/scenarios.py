@@ -36,6 +36,7 @@ from crowdsim.world import (
     lattice_length,
     polyline,
     rectangle,
+    relax_overlaps,
 )
 
 MAX_AGENTS = 100_000
@@ -510,7 +511,8 @@ class Circulation(Scenario):
         n = self.n_agents
         r_in = self.block_side / math.sqrt(2) + 0.8
         r_out = math.sqrt(n / (self.density * math.pi) + r_in**2) + 0.6
-        # Place on concentric rings at the requested density.
+        # Place on concentric rings at the requested density; below 62 % coverage, shake
+        # them into a relaxed random packing inside the annulus (cf. hex_positions).
         a = 1.0 / math.sqrt(self.density)
         pos_list = []
         r = r_in + self.radius[1] + 0.05
@@ -522,6 +524,15 @@ class Circulation(Scenario):
         pos = np.vstack(pos_list)
         pos = pos[rng.permutation(len(pos))[:n]]
         r_out = max(r_out, r + 0.3 - a)
+        r_lo, r_hi = r_in + self.radius[1] + 0.05, r_out - self.radius[1] - 0.05
+        if self.density * math.pi * self.radius[1] ** 2 <= 0.62:
+            rad = np.sqrt(rng.uniform(r_lo**2, r_hi**2, n))
+            ang = rng.uniform(0, 2 * math.pi, n)
+            pos = np.column_stack([rad * np.cos(ang), rad * np.sin(ang)])
+            for _ in range(20):
+                pos = relax_overlaps(pos, 2 * self.radius[1] + 0.02, -r_hi, r_hi, max_iter=20)
+                rad = np.hypot(pos[:, 0], pos[:, 1])
+                pos *= (np.clip(rad, r_lo, r_hi) / np.maximum(rad, 1e-9))[:, None]
         h = self.block_side / 2
         walls = np.vstack([rectangle(-h, -h, h, h), polyline(arc(0, 0, r_out, 0, 2 * math.pi, 72))])
         world = World(walls, (-r_out - 1, -r_out - 1, r_out + 1, r_out + 1))
