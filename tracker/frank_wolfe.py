@@ -84,7 +84,10 @@ class FWParams:
         Duality-gap stopping threshold ``epsilon`` of Alg. 2 (absolute, objective units;
         the gap bounds ``f(x) - f*``). The paper uses 0.01 when tracking.
     max_iter : int
-        Maximum number of iterations (block steps, see the module docstring).
+        Maximum number of iterations, counted in block steps (see the module docstring).
+        Dense 1,000-target frames need about 25 steps per target at ``eps = 0.01`` with
+        SWAP steps (30 with away steps, ~600 plain), so the default 10,000 suits up to a few
+        hundred targets; pass about ``50 * n`` for larger frames.
     record_history : bool
         Keep the objective and the duality gap after every iteration (for plots); costs
         two ``(max_iter + 1,)`` float arrays.

@@ -161,9 +161,12 @@ class BlockQP:
         finite, symmetric = _check_csc(Q.indptr, Q.indices, Q.data, SYMMETRY_RTOL)
         if not finite:
             raise ValueError("BlockQP.Q must be finite; it holds NaN or inf entries")
-        if not symmetric:
+        if not symmetric:  # confirm entry-wise, and word the error
             diff = abs(Q - Q.T).tocoo()
-            i = int(np.argmax(diff.data))
+            i = int(np.argmax(diff.data)) if diff.nnz else 0
+            if diff.nnz == 0 or diff.data[i] <= SYMMETRY_RTOL * float(abs(Q.data).max()):
+                symmetric = True
+        if not symmetric:
             raise ValueError(
                 f"BlockQP.Q must be symmetric; max |Q - Q^T| = {diff.data[i]:.3g} at "
                 f"({diff.row[i]}, {diff.col[i]}): Q[{diff.row[i]}, {diff.col[i]}] = "
