@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from tracker.metrics import (
     THRESHOLDS,
@@ -125,3 +127,23 @@ def test_births_from_ground_truth():
     assert i_ids.tolist() == [1, 2, 3]
     assert list(births) == [2] and births[2][0].tolist() == [4]
     np.testing.assert_allclose(births[2][1], gt[2, [3]])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 6), st.integers(0, 5), st.integers(0, 2**31 - 1), st.floats(0, 40))
+def test_accuracy_curve_properties(t, n, seed, noise):
+    rng = np.random.default_rng(seed)
+    gt = rng.uniform(0, 100, (t, n, 2))
+    gt[rng.random((t, n)) < 0.2] = np.nan
+    tr = gt + rng.normal(0, noise, gt.shape)
+    tr[rng.random((t, n)) < 0.2] = np.nan
+    ids = np.arange(n)
+    curve = accuracy_curve(ids, gt, ids, tr)
+    assert ((curve >= 0) & (curve <= 100)).all() and (np.diff(curve) >= 0).all()
+    assert accuracy_curve(ids, gt, ids, gt)[0] == (100.0 if np.isfinite(gt).any() else 0.0)
+    rows = tracks_to_mot_rows(ids, tr, 10)
+    back_ids, back = mot_rows_to_tracks(rows, length=t)
+    full = np.full_like(tr, np.nan)
+    cols = np.searchsorted(ids, back_ids)
+    full[:, cols] = back
+    np.testing.assert_allclose(full, tr)
