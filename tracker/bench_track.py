@@ -166,8 +166,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ablation", action="store_true",
                         help="also run the term ablation of the paper's Table 3")
     parser.add_argument("--sequence", default=None, metavar="SEQ_DIR",
-                        help="run the ablation on this MOT sequence (default: a synthetic "
-                        "dense crowd)")
+                        help="run the ablation on this MOT sequence (default: a "
+                        "low-contrast synthetic crowd)")
     parser.add_argument("--quick", action="store_true",
                         help="small run (50 and 200 targets, 12 frames) for smoke tests")
 

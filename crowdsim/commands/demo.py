@@ -49,7 +49,7 @@ video = false
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="run the embedded default job and print its results",
-                       description=__doc__.splitlines()[0])
+                       description=__doc__.splitlines()[0].replace("``", ""))
     p.add_argument("--out", type=Path, default=Path("demo_out"), metavar="DIR",
                    help="output folder (default ./demo_out)")
     p.add_argument("--frames", type=int, default=None,

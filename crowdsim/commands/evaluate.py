@@ -14,7 +14,7 @@ from pathlib import Path
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("evaluate", help="score MOT results against a sequence's ground truth",
-                       description=__doc__.splitlines()[0])
+                       description=__doc__.splitlines()[0].replace("``", ""))
     p.add_argument("results", help="MOT results file (frame,id,left,top,w,h,...)")
     p.add_argument("sequence", help="MOT sequence folder with gt/gt.txt")
     p.add_argument("--json", action="store_true", help="print one JSON object")

@@ -19,7 +19,7 @@ TRACKERS = ("bqp", "ncc")
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("track", help="track a sequence or video (BQP or NCC), write MOT results",
-                       description=__doc__.splitlines()[0])
+                       description=__doc__.splitlines()[0].replace("``", ""))
     p.add_argument("input", help="MOT sequence folder or video file")
     p.add_argument("--tracker", choices=TRACKERS, default="bqp",
                    help="bqp: the BQP/Frank-Wolfe tracker; ncc: independent NCC templates")
