@@ -220,68 +220,77 @@ def group_trees(positions: np.ndarray, labels: np.ndarray,
 
 
 @njit(cache=True)
-def _pair_kernel(cand, pa, pb, ref, sigma, reach, mode, rows, cols, vals, fill):
-    """Count (``fill`` False) or write the kept candidate-pair entries of target pairs.
+def _pair_value(cand, a, i, b, j, flag, rx, ry, mode_g, inv_s, reach2_s, inv_g, reach2_g,
+                values=True):
+    """``(S, Gamma)`` between candidate ``i`` of target ``a`` and ``j`` of target ``b``.
 
-    ``mode`` 0, proximity (Eq. 9): ``exp(-d^2 / 2 sigma^2)`` where ``d <= reach``.
-    ``mode`` 1, grouping (Eq. 10): ``exp(-(d - e)^2 / 2 sigma^2)`` where ``|d - e| <= reach``,
-    ``e = ref[p, 0]``. ``mode`` 2, grouping with offsets: ``exp(-|(p_i - p_j) - e|^2 / 2
-    sigma^2)`` where that distance is ``<= reach``, ``e = ref[p]`` (2-vector).
+    0 where the pair is not linked (``flag`` bit 0: proximity, bit 1: tree edge) or beyond
+    the cutoff. Grouping compares ``p_a,i - p_b,j`` with ``ref = (rx, ry)``: its length
+    (``mode_g`` 1, Eq. 10) or the vector itself (``mode_g`` 2). ``values=False`` returns 1
+    instead of the Gaussians (counting needs no ``exp``).
+    """
+    dx = cand[a, i, 0] - cand[b, j, 0]
+    dy = cand[a, i, 1] - cand[b, j, 1]
+    s = 0.0
+    g = 0.0
+    if flag & 1:
+        d2 = dx * dx + dy * dy
+        if d2 <= reach2_s:
+            s = np.exp(-d2 * inv_s) if values else 1.0
+    if flag & 2:
+        if mode_g == 1:
+            dev = np.sqrt(dx * dx + dy * dy) - rx
+            dev2 = dev * dev
+        else:
+            ex = dx - rx
+            ey = dy - ry
+            dev2 = ex * ex + ey * ey
+        if dev2 <= reach2_g:
+            g = np.exp(-dev2 * inv_g) if values else 1.0
+    return s, g
+
+
+@njit(cache=True)
+def _pair_entries_kernel(cand, box, pa, pb, flags, ref, mode_g, inv_s, reach2_s, inv_g,
+                         reach2_g, rows, cols, s_out, g_out, fill):
+    """Count (``fill`` False) or write the linked candidate pairs of the target pairs.
+
+    Entries come out in the order (pair, i, j); with pairs sorted by ``(a, b)``, ``a < b``,
+    every CSC column built from them is already sorted (see :func:`_csc_kernel`).
     """
     k = cand.shape[1]
-    inv = 1.0 / (2.0 * sigma * sigma)
-    reach2 = reach * reach
     m = 0
     for p in range(pa.shape[0]):
         a = pa[p]
         b = pb[p]
+        if flags[p] == 1:
+            # proximity only: skip pairs whose candidate boxes are farther apart than reach
+            gx = max(0.0, max(box[a, 0] - box[b, 2], box[b, 0] - box[a, 2]))
+            gy = max(0.0, max(box[a, 1] - box[b, 3], box[b, 1] - box[a, 3]))
+            if gx * gx + gy * gy > reach2_s:
+                continue
         for i in range(k):
-            xi = cand[a, i, 0]
-            yi = cand[a, i, 1]
             for j in range(k):
-                dx = xi - cand[b, j, 0]
-                dy = yi - cand[b, j, 1]
-                if mode == 0:
-                    dev2 = dx * dx + dy * dy
-                elif mode == 1:
-                    dev = np.sqrt(dx * dx + dy * dy) - ref[p, 0]
-                    dev2 = dev * dev
-                else:
-                    ex = dx - ref[p, 0]
-                    ey = dy - ref[p, 1]
-                    dev2 = ex * ex + ey * ey
-                if dev2 > reach2:
-                    continue
-                if fill:
-                    rows[m] = a * k + i
-                    cols[m] = b * k + j
-                    vals[m] = np.exp(-dev2 * inv)
-                m += 1
+                s, g = _pair_value(cand, a, i, b, j, flags[p], ref[p, 0], ref[p, 1], mode_g,
+                                   inv_s, reach2_s, inv_g, reach2_g, fill)
+                if s > 0.0 or g > 0.0:
+                    if fill:
+                        rows[m] = a * k + i
+                        cols[m] = b * k + j
+                        s_out[m] = s
+                        g_out[m] = g
+                    m += 1
     return m
-
-
-def _pair_entries(cand: np.ndarray, pa: np.ndarray, pb: np.ndarray, ref: np.ndarray,
-                  sigma: float, reach: float, mode: int):
-    """Entries ``(rows, cols, vals)`` (upper half: target ``pa`` rows) of ``S`` or ``Gamma``."""
-    cand = np.ascontiguousarray(cand, dtype=np.float64)
-    pa = np.ascontiguousarray(pa, dtype=np.int64)
-    pb = np.ascontiguousarray(pb, dtype=np.int64)
-    ref = np.ascontiguousarray(np.asarray(ref, dtype=np.float64).reshape(len(pa), -1))
-    if ref.shape[1] == 1:
-        ref = np.concatenate([ref, np.zeros_like(ref)], axis=1)
-    e_i = np.zeros(0, np.int64)
-    e_f = np.zeros(0, np.float64)
-    m = _pair_kernel(cand, pa, pb, ref, sigma, reach, mode, e_i, e_i, e_f, False)
-    rows = np.empty(m, np.int64)
-    cols = np.empty(m, np.int64)
-    vals = np.empty(m, np.float64)
-    _pair_kernel(cand, pa, pb, ref, sigma, reach, mode, rows, cols, vals, True)
-    return rows, cols, vals
 
 
 @njit(cache=True)
 def _csc_kernel(rows, cols, vals, diag, size, indptr, indices, data):
-    """Symmetric CSC from upper-half entries plus a diagonal, by a counting sort on columns."""
+    """Symmetric CSC of upper-half entries plus a diagonal, rows sorted in every column.
+
+    Column ``c`` receives, in this order, the rows ``r < c`` of the upper entries, the
+    diagonal, then the rows ``> c`` of the mirrored entries; entries sorted by target pair
+    ``(a, b)`` and then ``(i, j)`` keep each part sorted, so the result is canonical.
+    """
     count = np.zeros(size + 1, np.int64)
     for e in range(rows.shape[0]):
         count[cols[e] + 1] += 1
@@ -294,134 +303,147 @@ def _csc_kernel(rows, cols, vals, diag, size, indptr, indices, data):
     for c in range(size + 1):
         indptr[c] = count[c]
     pos = count[:size].copy()
+    for e in range(rows.shape[0]):  # rows above the diagonal
+        c = cols[e]
+        indices[pos[c]] = rows[e]
+        data[pos[c]] = vals[e]
+        pos[c] += 1
     for c in range(size):
         if diag[c] != 0.0:
             indices[pos[c]] = c
             data[pos[c]] = diag[c]
             pos[c] += 1
-    for e in range(rows.shape[0]):
+    for e in range(rows.shape[0]):  # rows below the diagonal
         r = rows[e]
-        c = cols[e]
-        indices[pos[c]] = r
-        data[pos[c]] = vals[e]
-        pos[c] += 1
-        indices[pos[r]] = c
+        indices[pos[r]] = cols[e]
         data[pos[r]] = vals[e]
         pos[r] += 1
 
 
-def symmetric_csc(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, diag: np.ndarray,
-                  size: int) -> sp.csc_matrix:
-    """``(size, size)`` CSC of ``diag + W + W^T`` for ``W`` given by entries (no dense step)."""
-    nnz = 2 * len(rows) + int(np.count_nonzero(diag))
-    indptr = np.empty(size + 1, np.int64)
-    indices = np.empty(nnz, np.int64)
-    data = np.empty(nnz, np.float64)
-    _csc_kernel(np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64),
-                np.ascontiguousarray(vals, np.float64), np.ascontiguousarray(diag, np.float64),
-                size, indptr, indices, data)
-    return sp.csc_matrix((data, indices, indptr), shape=(size, size))
-
-
-def normalised_entries(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, size: int,
-                       sign: float, tau: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Off-diagonal entries and diagonal of ``(D + tau I)^-1/2 (D + sign W) (D + tau I)^-1/2``.
-
-    ``W`` is symmetric and given by its upper-half entries; ``D = diag(W 1)``. With ``tau = 0``
-    this is the normalised Laplacian ``I + sign D^-1/2 W D^-1/2`` of the paper (identity only
-    where ``D > 0``). ``tau > 0`` regularises the degrees (as in regularised spectral
-    clustering): a candidate whose only neighbour is barely similar then keeps a weak coupling
-    instead of the full-strength one plain normalisation gives it. PSD either way.
-    """
-    deg = np.bincount(rows, weights=vals, minlength=size) + \
-        np.bincount(cols, weights=vals, minlength=size)
-    inv = np.zeros(size)
-    pos = deg > 0
-    inv[pos] = 1.0 / np.sqrt(deg[pos] + tau)
-    diag = np.zeros(size)
-    diag[pos] = deg[pos] / (deg[pos] + tau)
-    return sign * vals * inv[rows] * inv[cols], diag
-
-
-def proximity_entries(cand: np.ndarray, sigma: float, cutoff: float):
-    """Upper-half entries ``(rows, cols, S_ij)`` of Eq. 9 between candidates of different targets.
-
-    ``S_ij = exp(-|p_i - p_j|^2 / 2 sigma^2)``, dropped beyond ``cutoff * sigma`` px.
-    """
-    n, k = cand.shape[:2]
-    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
-    if n < 2:
-        return empty
-    reach = cutoff * sigma
+def proximity_pairs(cand: np.ndarray, reach: float) -> np.ndarray:
+    """``(P, 2)`` target pairs ``a < b`` whose candidates may lie within ``reach`` px."""
+    if cand.shape[0] < 2:
+        return np.zeros((0, 2), np.int64)
     centre = cand.mean(axis=1)
     off = cand - centre[:, None]
     spread = float(np.sqrt((off[..., 0] ** 2 + off[..., 1] ** 2).max()))
-    pairs = cKDTree(centre).query_pairs(reach + 2 * spread, output_type="ndarray")
-    if len(pairs) == 0:
-        return empty
-    return _pair_entries(cand, pairs[:, 0], pairs[:, 1], np.zeros((len(pairs), 2)), sigma,
-                         reach, 0)
+    return cKDTree(centre).query_pairs(reach + 2 * spread,
+                                       output_type="ndarray").astype(np.int64)
 
 
-def grouping_entries(cand: np.ndarray, edges: np.ndarray, lengths: np.ndarray, sigma: float,
-                     cutoff: float):
-    """Upper-half entries ``(rows, cols, Gamma_ij)`` of Eq. 10 along the tree ``edges (E, 2)``.
+def _merged_pairs(n: int, pairs: np.ndarray, edges: np.ndarray, ref: np.ndarray):
+    """Union of proximity pairs and tree edges as sorted ``a < b`` pairs with flags and refs.
 
-    ``lengths (E,)``: ``Gamma_ij = exp(-(|p_i - p_j| - e_ij)^2 / 2 sigma^2)`` (Eq. 10), dropped
-    where ``| |p_i - p_j| - e_ij | > cutoff * sigma``. ``lengths (E, 2)``: relative positions
-    ``e_ij = p_a - p_b`` and ``Gamma_ij = exp(-|(p_i - p_j) - e_ij|^2 / 2 sigma^2)``, which
-    keeps the formation's orientation too and is far sparser (a disc, not an annulus).
+    ``flags``: 1 proximity, 2 tree edge (3 both). ``ref[p]`` is ``(e_ab, 0)`` for lengths or
+    ``p_a - p_b`` for offsets (an edge stored as ``(b, a)`` is flipped).
     """
-    if len(edges) == 0 or cand.shape[0] == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    lengths = np.asarray(lengths, dtype=np.float64)
-    mode = 2 if lengths.ndim == 2 else 1
-    return _pair_entries(cand, edges[:, 0], edges[:, 1], lengths, sigma, cutoff * sigma, mode)
+    ref = np.asarray(ref, dtype=np.float64)
+    vec = ref.ndim == 2
+    ref = ref.reshape(len(edges), 2 if vec else 1)
+    if not vec:
+        ref = np.concatenate([ref, np.zeros_like(ref)], axis=1)
+    flip = edges[:, 0] > edges[:, 1]
+    e = np.where(flip[:, None], edges[:, ::-1], edges)
+    if vec:
+        ref = np.where(flip[:, None], -ref, ref)
+    pa = np.concatenate([pairs[:, 0], e[:, 0]])
+    pb = np.concatenate([pairs[:, 1], e[:, 1]])
+    flag = np.concatenate([np.ones(len(pairs), np.int64), np.full(len(e), 2, np.int64)])
+    r = np.concatenate([np.zeros((len(pairs), 2)), ref])
+    key = pa * n + pb
+    order = np.argsort(key, kind="stable")
+    key, flag, r = key[order], flag[order], r[order]
+    start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    flags = np.bitwise_or.reduceat(flag, start)
+    refs = np.add.reduceat(r, start, axis=0)  # a pair is at most once a tree edge
+    ukey = key[start]
+    return ukey // n, ukey % n, flags.astype(np.int64), np.ascontiguousarray(refs), \
+        (2 if vec else 1)
+
+
+def quadratic_matrix(cand: np.ndarray, w_sp: float, sp_sigma: float, sp_cutoff: float,
+                     w_g: float, edges: np.ndarray, lengths: np.ndarray, g_sigma: float,
+                     g_cutoff: float, tau: float = 0.0) -> sp.csc_matrix:
+    """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over candidates ``cand (n, k, 2)``, ``(l, l)`` CSC.
+
+    ``C_sp = (D_s + tau I)^-1/2 (D_s + S) (D_s + tau I)^-1/2`` with ``S`` of Eq. 9 between
+    candidates of different targets (dropped beyond ``sp_cutoff * sp_sigma`` px);
+    ``C_g = (D_g + tau I)^-1/2 (D_g - Gamma) (D_g + tau I)^-1/2`` with ``Gamma`` of Eq. 10 along
+    the tree ``edges (E, 2)``; ``lengths`` are the ``e_ij`` (``(E,)``, Eq. 10) or relative
+    positions ``p_a - p_b`` (``(E, 2)``, see :func:`grouping_matrix`). ``tau = 0`` is the
+    paper's ``I -/+ D^-1/2 W D^-1/2`` (identity only where ``D > 0``); see the module docstring.
+
+    Compiled kernels evaluate each linked candidate pair once and write a canonical CSC
+    (sorted rows, no duplicates) directly: no COO stage, no dense matrix.
+    """
+    n, k = cand.shape[:2]
+    size = n * k
+    cand = np.ascontiguousarray(cand, dtype=np.float64)
+    reach_s = sp_cutoff * sp_sigma
+    pairs = proximity_pairs(cand, reach_s) if w_sp > 0 else np.zeros((0, 2), np.int64)
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    lengths = np.asarray(lengths, dtype=np.float64)[:len(edges)]
+    if w_g <= 0:
+        edges = np.zeros((0, 2), np.int64)
+        lengths = np.zeros(0)
+    if len(pairs) == 0 and len(edges) == 0:
+        return sp.csc_matrix((size, size))
+    pa, pb, flags, ref, mode_g = _merged_pairs(n, pairs, edges, lengths)
+    box = np.concatenate([cand.min(axis=1), cand.max(axis=1)], axis=1)  # (n, 4) x0 y0 x1 y1
+    args = (cand, box, pa, pb, flags, ref, mode_g, 1.0 / (2.0 * sp_sigma * sp_sigma), reach_s ** 2,
+            1.0 / (2.0 * g_sigma * g_sigma), (g_cutoff * g_sigma) ** 2)
+    e_i = np.zeros(0, np.int64)
+    e_f = np.zeros(0)
+    m = _pair_entries_kernel(*args, e_i, e_i, e_f, e_f, False)
+    rows = np.empty(m, np.int64)
+    cols = np.empty(m, np.int64)
+    s_val = np.empty(m)
+    g_val = np.empty(m)
+    _pair_entries_kernel(*args, rows, cols, s_val, g_val, True)
+    deg_s = np.bincount(rows, s_val, size) + np.bincount(cols, s_val, size)
+    deg_g = np.bincount(rows, g_val, size) + np.bincount(cols, g_val, size)
+    norm_s, diag_s = _degree_norm(deg_s, tau)
+    norm_g, diag_g = _degree_norm(deg_g, tau)
+    vals = w_sp * s_val * norm_s[rows] * norm_s[cols] - w_g * g_val * norm_g[rows] * norm_g[cols]
+    diag = w_sp * diag_s + w_g * diag_g
+    nnz = 2 * m + int(np.count_nonzero(diag))
+    indptr = np.empty(size + 1, np.int64)
+    indices = np.empty(nnz, np.int64)
+    data = np.empty(nnz, np.float64)
+    _csc_kernel(rows, cols, vals, diag, size, indptr, indices, data)
+    out = sp.csc_matrix((data, indices, indptr), shape=(size, size))
+    out.has_sorted_indices = True
+    return out
+
+
+def _degree_norm(deg: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(D + tau)^-1/2`` and ``D / (D + tau)`` where ``D > 0`` (0 elsewhere)."""
+    pos = deg > 0
+    norm = np.zeros_like(deg)
+    diag = np.zeros_like(deg)
+    norm[pos] = 1.0 / np.sqrt(deg[pos] + tau)
+    diag[pos] = deg[pos] / (deg[pos] + tau)
+    return norm, diag
 
 
 def proximity_matrix(cand: np.ndarray, sigma: float, cutoff: float,
                      tau: float = 0.0) -> sp.csc_matrix:
     """Spatial-proximity matrix ``C_sp = I + D^-1/2 S D^-1/2`` (Eq. 9, signless; see module).
 
-    ``cand`` is ``(n, k, 2)``; returns an ``(l, l)`` CSC matrix, ``l = n k``.
+    ``cand`` is ``(n, k, 2)``; ``S_ij = exp(-|p_i - p_j|^2 / 2 sigma^2)`` between candidates of
+    different targets, dropped beyond ``cutoff * sigma`` px. Returns ``(l, l)`` CSC, ``l = nk``.
     """
-    size = cand.shape[0] * cand.shape[1]
-    r, c, v = proximity_entries(cand, sigma, cutoff)
-    off, diag = normalised_entries(r, c, v, size, +1.0, tau)
-    return symmetric_csc(r, c, off, diag, size)
+    return quadratic_matrix(cand, 1.0, sigma, cutoff, 0.0, np.zeros((0, 2), np.int64),
+                            np.zeros(0), 1.0, 1.0, tau)
 
 
 def grouping_matrix(cand: np.ndarray, edges: np.ndarray, lengths: np.ndarray, sigma: float,
                     cutoff: float, tau: float = 0.0) -> sp.csc_matrix:
-    """Grouping matrix ``C_g = I - D^-1/2 Gamma D^-1/2`` (Eq. 10) over candidates ``(n, k, 2)``."""
-    size = cand.shape[0] * cand.shape[1]
-    r, c, v = grouping_entries(cand, edges, lengths, sigma, cutoff)
-    off, diag = normalised_entries(r, c, v, size, -1.0, tau)
-    return symmetric_csc(r, c, off, diag, size)
+    """Grouping matrix ``C_g = I - D^-1/2 Gamma D^-1/2`` (Eq. 10) over candidates ``(n, k, 2)``.
 
-
-def quadratic_matrix(cand: np.ndarray, w_sp: float, sp_sigma: float, sp_cutoff: float,
-                     w_g: float, edges: np.ndarray, lengths: np.ndarray, g_sigma: float,
-                     g_cutoff: float, tau: float = 0.0) -> sp.csc_matrix:
-    """``w_sp C_sp + w_g C_g`` built in one pass (one CSC, duplicates summed by the QP)."""
-    size = cand.shape[0] * cand.shape[1]
-    parts_r, parts_c, parts_v = [], [], []
-    diag = np.zeros(size)
-    if w_sp > 0:
-        r, c, v = proximity_entries(cand, sp_sigma, sp_cutoff)
-        off, d = normalised_entries(r, c, v, size, +1.0, tau)
-        parts_r.append(r)
-        parts_c.append(c)
-        parts_v.append(w_sp * off)
-        diag += w_sp * d
-    if w_g > 0 and len(edges):
-        r, c, v = grouping_entries(cand, edges, lengths, g_sigma, g_cutoff)
-        off, d = normalised_entries(r, c, v, size, -1.0, tau)
-        parts_r.append(r)
-        parts_c.append(c)
-        parts_v.append(w_g * off)
-        diag += w_g * d
-    if not parts_r:
-        return sp.csc_matrix((size, size))
-    return symmetric_csc(np.concatenate(parts_r), np.concatenate(parts_c),
-                         np.concatenate(parts_v), diag, size)
+    ``lengths (E,)``: ``Gamma_ij = exp(-(|p_i - p_j| - e_ij)^2 / 2 sigma^2)`` (Eq. 10), dropped
+    where ``| |p_i - p_j| - e_ij | > cutoff * sigma``. ``lengths (E, 2)``: relative positions
+    ``e_ij = p_a - p_b`` and ``Gamma_ij = exp(-|(p_i - p_j) - e_ij|^2 / 2 sigma^2)``, which
+    keeps the formation's orientation too and is sparser (a disc, not an annulus).
+    """
+    return quadratic_matrix(cand, 0.0, 1.0, 1.0, 1.0, edges, lengths, sigma, cutoff, tau)

@@ -230,3 +230,19 @@ def test_regularised_laplacian_keeps_weak_couplings_weak():
               grouping_matrix(cand, np.array([[0, 1], [1, 2]]), np.array([5.0, 7.0]), 3.0, 2.0,
                               tau=1.0)):
         assert np.linalg.eigvalsh(q.toarray()).min() > -1e-9
+
+
+def test_quadratic_matrix_is_canonical_csc():
+    rng = np.random.default_rng(6)
+    cand = rng.uniform(0, 30, (6, 7, 2))
+    q = quadratic_matrix(cand, 0.3, 3.0, 2.0, 1.0, np.array([[0, 2], [2, 5], [1, 4]]),
+                         np.array([4.0, 6.0, 9.0]), 2.0, 2.0, 1.0)
+    for col in range(q.shape[1]):
+        rows = q.indices[q.indptr[col]:q.indptr[col + 1]]
+        assert (np.diff(rows) > 0).all()  # sorted, no duplicates
+    ref = q.copy()
+    ref.has_sorted_indices = False
+    ref.sort_indices()
+    ref.sum_duplicates()
+    np.testing.assert_array_equal(ref.indices, q.indices)
+    np.testing.assert_allclose(q.toarray(), q.toarray().T, atol=1e-14)
