@@ -57,6 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, metavar="K", help="random seed (default 0)")
     p.add_argument("--out", type=Path, default=None, metavar="FILE.npz",
                    help="trajectory file to write (atomically); omit to only print the table")
+    p.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
+                   help="also draw the trajectories over the walls as a PNG")
     p.add_argument("--set", dest="scenario_params", action="append", metavar="NAME=VALUE",
                    help="scenario parameter, e.g. --set width=8 (repeatable)")
     p.add_argument("--param", dest="model_params", action="append", metavar="NAME=VALUE",
@@ -78,6 +80,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--density must be in (0, 6] persons/m², got {args.density}")
     if args.out is not None and args.out.suffix != ".npz":
         raise ValueError(f"--out must end in .npz, got {str(args.out)!r}")
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        raise ValueError(f"--plot must end in .png, got {str(args.plot)!r}")
 
     import time
 
@@ -101,6 +105,11 @@ def run(args: argparse.Namespace) -> int:
     assert traj is not None
     if args.out is not None:
         traj.save(args.out)
+    if args.plot is not None:
+        from crowdsim.plotting import plot_trajectories
+
+        plot_trajectories(traj, sim.world.walls, args.plot,
+                          title=f"{scenario.name}: {traj.n_agents} agents, seed {args.seed}")
     speed = np.hypot(*np.moveaxis(traj.velocities(), -1, 0))
     rows = [
         ("scenario", scenario.name),
@@ -111,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
         ("wall time (s)", f"{wall:.2f}"),
         ("steps/s", f"{args.steps / wall:.1f}" if wall > 0 else "n/a"),
         ("output", str(args.out) if args.out else "(not written)"),
+        *([("plot", str(args.plot))] if args.plot else []),
     ]
     width = max(len(k) for k, _ in rows)
     for key, value in rows:

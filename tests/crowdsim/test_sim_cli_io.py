@@ -15,8 +15,9 @@ from crowdsim.trajectories import Trajectories
 def test_simulate_writes_npz_contract(tmp_path, capsys):
     out = tmp_path / "m.npz"
     rc = main(["simulate", "marathon", "--agents", "30", "--steps", "12", "--seed", "3",
-               "--out", str(out), "--no-progress"])
+               "--out", str(out), "--plot", str(tmp_path / "m.png"), "--no-progress"])
     assert rc == 0
+    assert (tmp_path / "m.png").stat().st_size > 1000
     table = capsys.readouterr().out
     for key in ("agents", "mean speed", "density", "wall time", "steps/s"):
         assert key in table
@@ -45,6 +46,7 @@ def test_simulate_writes_npz_contract(tmp_path, capsys):
     (["simulate", "marathon", "--set", "road_width=nan"], "road_width must be finite"),
     (["simulate", "marathon", "--set", "bogus=1"], "bogus"),
     (["simulate", "marathon", "--out", "x.csv"], "--out must end in .npz"),
+    (["simulate", "marathon", "--plot", "x.jpg"], "--plot must end in .png"),
 ])
 def test_simulate_bad_input_exit_2_one_line(argv, needle):
     proc = subprocess.run([sys.executable, "-m", "crowdsim.cli", *argv, "--steps", "1",
