@@ -12,7 +12,8 @@ minimum spanning trees of Eq. 10 from :func:`group_trees`.
 Quadratic terms are sparse ``(l, l)`` CSC matrices over the ``l = n k`` candidates:
 
 * :func:`proximity_matrix` -- spatial proximity, Eq. 9;
-* :func:`grouping_matrix` -- grouping, Eq. 10.
+* :func:`grouping_matrix` -- grouping, Eq. 10;
+* :func:`quadratic_matrix` -- their weighted sum, as the tracker builds it each frame.
 
 Both follow the paper's normalised-Laplacian construction on a sparse similarity ``W``
 (``D = diag(W 1)``, ``W_hat = D^-1/2 W D^-1/2``). For grouping, ``C_g = I - W_hat`` (Eq. 10's
@@ -21,7 +22,9 @@ proximity the paper's ``C_sp = I - D^-1/2 S D^-1/2`` would *reward* co-selecting
 candidates of two targets, the opposite of its stated purpose; we use the signless normalised
 Laplacian ``C_sp = I + D^-1/2 S D^-1/2 = D^-1/2 (D + S) D^-1/2``, which is PSD as well and
 penalises close co-selection. On binary points the identity part is a constant. The identity
-is only put on candidates with at least one neighbour (``D_ii > 0``).
+is only put on candidates with at least one neighbour (``D_ii > 0``). Optionally the degrees
+are regularised, ``(D + tau I)^-1/2 (D +/- W) (D + tau I)^-1/2`` (still PSD), so that a weak
+similarity between two otherwise isolated candidates stays weak (the tracker uses tau = 1).
 """
 
 from __future__ import annotations
