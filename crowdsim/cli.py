@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="crowdsim",
         description="Dense-crowd tracking testbed: simulate crowds, render synthetic "
-        "benchmarks, track, evaluate and tune.",
+        "benchmarks, track and evaluate.",
     )
     parser.add_argument("--version", action="version", version=f"crowdsim {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
