@@ -33,24 +33,21 @@ def _build_grid(pos, cell, period):
     ``order[start[k]:start[k+1]]``. With ``period > 0`` the x axis is periodic on [0, period).
     """
     n = pos.shape[0]
+    xmin = xmax = pos[0, 0]
+    ymin = ymax = pos[0, 1]
+    for i in range(n):
+        xmin = min(xmin, pos[i, 0])
+        xmax = max(xmax, pos[i, 0])
+        ymin = min(ymin, pos[i, 1])
+        ymax = max(ymax, pos[i, 1])
     if period > 0.0:
         nx = max(1, int(period // cell))
         x0 = 0.0
         cx = period / nx
     else:
-        xmin = pos[0, 0]
-        xmax = pos[0, 0]
-        for i in range(n):
-            xmin = min(xmin, pos[i, 0])
-            xmax = max(xmax, pos[i, 0])
         nx = int((xmax - xmin) // cell) + 1
         x0 = xmin
         cx = cell
-    ymin = pos[0, 1]
-    ymax = pos[0, 1]
-    for i in range(n):
-        ymin = min(ymin, pos[i, 1])
-        ymax = max(ymax, pos[i, 1])
     ny = int((ymax - ymin) // cell) + 1
     y0 = ymin
     cy = cell

@@ -22,6 +22,7 @@ import math
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -72,6 +73,16 @@ def overlap_stats(pos: np.ndarray, radii: np.ndarray) -> tuple[float, float]:
     return (float(rel.mean()), float(rel.max())) if len(rel) else (0.0, 0.0)
 
 
+def _timed(step: Callable[[], Any]) -> float:
+    """Wall seconds of ``STEPS`` calls of ``step`` after ``WARMUP`` untimed ones."""
+    for _ in range(WARMUP):
+        step()
+    t0 = time.perf_counter()
+    for _ in range(STEPS):
+        step()
+    return time.perf_counter() - t0
+
+
 def _result(name: str, n: int, dt: float, wall: float, pos: np.ndarray,
             radii: np.ndarray, **extra: Any) -> dict[str, Any]:
     mean_ov, max_ov = overlap_stats(pos, radii)
@@ -113,12 +124,7 @@ def run_ours(layout: Layout) -> dict[str, Any]:
     from crowdsim.simulation import Simulation
 
     sim = Simulation(_ours_scenario(layout), seed=0, record=False)
-    for _ in range(WARMUP):
-        sim.step()
-    t0 = time.perf_counter()
-    for _ in range(STEPS):
-        sim.step()
-    wall = time.perf_counter() - t0
+    wall = _timed(sim.step)
     if sim.state.n != len(layout.radii):
         raise RuntimeError("agents left the benchmark corridor; make it longer")
     return _result("crowdsim", len(layout.radii), sim.params.dt, wall, sim.state.pos,
@@ -150,12 +156,7 @@ def run_jupedsim(layout: Layout, model: str) -> dict[str, Any]:
                 position=(float(x), float(y)), journey_id=journey, stage_id=exit_id,
                 desired_speed=V0, radius=float(r))
         sim.add_agent(params)
-    for _ in range(WARMUP):
-        sim.iterate()
-    t0 = time.perf_counter()
-    for _ in range(STEPS):
-        sim.iterate()
-    wall = time.perf_counter() - t0
+    wall = _timed(sim.iterate)
     agents = list(sim.agents())
     pos = np.array([a.position for a in agents])
     radii = np.array([a.model.radius for a in agents])
@@ -199,10 +200,7 @@ def run_pysocialforce(layout: Layout, dt: float = 0.4) -> dict[str, Any]:
         os.unlink(cfg)
     sim.peds.initial_speeds = np.full(n, V0)
     sim.peds.max_speeds = 1.3 * sim.peds.initial_speeds
-    sim.step(WARMUP)
-    t0 = time.perf_counter()
-    sim.step(STEPS)
-    wall = time.perf_counter() - t0
+    wall = _timed(sim.step)
     pos = sim.peds.pos()
     return _result("PySocialForce", n, dt, wall, pos, np.full(n, 0.225),
                    version=getattr(psf, "__version__", "1.1"))
