@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from crowdsim.atomic import atomic_path
 from crowdsim.trajectories import Trajectories
 
 
@@ -43,13 +43,9 @@ def plot_trajectories(traj: Trajectories, walls: np.ndarray, path: str | os.Path
     ax.set_ylabel("y (m)")
     ax.set_title(title or f"{traj.n_agents} agents, {(traj.n_steps - 1) * traj.dt:g} s")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png")
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110)
     finally:
         plt.close(fig)
-        Path(tmp).unlink(missing_ok=True)
     return path

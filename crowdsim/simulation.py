@@ -14,7 +14,7 @@ Everything random comes from the seed: the same scenario, parameters and seed gi
 bit-identical trajectories however the steps are split across :meth:`Simulation.run` calls.
 
 >>> from crowdsim.scenarios import make_scenario
->>> sim = Simulation(make_scenario("counterflow", n_agents=20, density=1.0), seed=1)
+>>> sim = Simulation(make_scenario("counterflow", n_agents=20, inflow=False), seed=1)
 >>> traj = sim.run(5)
 >>> traj.positions.shape
 (6, 20, 2)

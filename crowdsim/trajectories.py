@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from crowdsim.atomic import atomic_path
 
 ANOMALY_KINDS: tuple[str, ...] = ("none", "against", "stop", "cross", "leave")
 """Anomaly codes stored in ``attributes["anomaly"]``: index into this tuple."""
@@ -124,18 +125,11 @@ class Trajectories:
         path = Path(path)
         if path.suffix != ".npz":
             raise ValueError(f"trajectory file must end in .npz, got {str(path)!r}")
-        path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {f"attr_{k}": v for k, v in self.attributes.items()}
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".npz")
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez_compressed(fh, positions=self.positions, ids=self.ids,
-                                    dt=np.float64(self.dt), meta=np.str_(json.dumps(self.meta)),
-                                    **arrays)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_path(path) as tmp:
+            np.savez_compressed(tmp, positions=self.positions, ids=self.ids,
+                                dt=np.float64(self.dt), meta=np.str_(json.dumps(self.meta)),
+                                **arrays)
         return path
 
     @classmethod
@@ -163,16 +157,9 @@ class Trajectories:
         path = Path(path)
         t, n = np.nonzero(self.present)
         rows = np.column_stack([t, self.ids[n], self.positions[t, n, 0], self.positions[t, n, 1]])
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".csv")
-        try:
-            with os.fdopen(fd, "w") as fh:
-                fh.write("frame,id,x,y\n")
-                np.savetxt(fh, rows, fmt=["%d", "%d", "%.6f", "%.6f"], delimiter=",")
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_path(path) as tmp, open(tmp, "w") as fh:
+            fh.write("frame,id,x,y\n")
+            np.savetxt(fh, rows, fmt=["%d", "%d", "%.6f", "%.6f"], delimiter=",")
         return path
 
     @classmethod

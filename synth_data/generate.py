@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from crowdsim.atomic import write_text_atomic
 from synth_data.spec import SequenceSpec
 from synth_data.writer import TMP_PREFIX, verify_sequence, write_sequence
 
@@ -180,10 +181,8 @@ def read_manifest(out: Path) -> dict[str, Any]:
 
 
 def write_manifest(out: Path, manifest: dict[str, Any]) -> None:
-    tmp = out / f".{MANIFEST}.{os.getpid()}.tmp"
     manifest["sequences"] = dict(sorted(manifest["sequences"].items()))
-    tmp.write_text(json.dumps(manifest, indent=1) + "\n")
-    os.replace(tmp, out / MANIFEST)
+    write_text_atomic(out / MANIFEST, json.dumps(manifest, indent=1) + "\n")
 
 
 def _pid_alive(pid: int) -> bool:

@@ -36,12 +36,13 @@ from __future__ import annotations
 import configparser
 import csv
 import os
-import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from crowdsim.atomic import write_text_atomic
 
 MOT_COLUMNS: tuple[str, ...] = ("frame", "id", "bb_left", "bb_top", "bb_width", "bb_height",
                                 "conf", "class", "visibility")
@@ -67,7 +68,7 @@ def write_mot(path: str | os.PathLike[str], rows: np.ndarray) -> Path:
         tail = f"{r[6]:g},{int(r[7])},{r[8]:.4f}"
         extra = "".join(f",{v:g}" for v in r[9:])
         lines.append(f"{head},{tail}{extra}\n")
-    _atomic_write_text(path, "".join(lines))
+    write_text_atomic(path, "".join(lines))
     return path
 
 
@@ -130,18 +131,6 @@ def _is_float(text: str) -> bool:
     return True
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 # ---------------------------------------------------------------------------- writer helpers
 def write_seqinfo(seq_dir: str | os.PathLike[str], *, name: str, frame_rate: float, length: int,
                   width: int, height: int, template_size: int | None = None,
@@ -154,7 +143,7 @@ def write_seqinfo(seq_dir: str | os.PathLike[str], *, name: str, frame_rate: flo
         lines.append(f"templateSize={int(template_size)}")
     lines.append(f"boxType={box_type}")
     path = Path(seq_dir) / "seqinfo.ini"
-    _atomic_write_text(path, "\n".join(lines) + "\n")
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return path
 
 
@@ -163,7 +152,7 @@ def write_agents_csv(path: str | os.PathLike[str], table: dict[str, np.ndarray])
     cols = [np.asarray(table[c]).astype(np.int64) for c in AGENT_COLUMNS]
     lines = [",".join(AGENT_COLUMNS)]
     lines.extend(",".join(str(int(v)) for v in row) for row in zip(*cols, strict=True))
-    _atomic_write_text(Path(path), "\n".join(lines) + "\n")
+    write_text_atomic(Path(path), "\n".join(lines) + "\n")
     return Path(path)
 
 

@@ -14,6 +14,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from crowdsim.atomic import atomic_path
+
 GREEN = (0, 255, 0)
 YELLOW = (0, 255, 255)
 TAIL = 8
@@ -57,32 +59,25 @@ def write_overlay(path: str | os.PathLike[str], frames: Iterable[np.ndarray],
     path = Path(path)
     if not fps > 0:
         raise ValueError(f"fps must be > 0, got {fps!r}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.partial{path.suffix or '.mp4'}")
     writer = None
-    n = 0
-    try:
-        for t, frame in enumerate(frames):
-            if writer is None:
-                h, w = frame.shape[:2]
-                writer = cv2.VideoWriter(os.fspath(tmp), cv2.VideoWriter_fourcc(*"mp4v"),
-                                         float(fps), (w, h))
-                if not writer.isOpened():
-                    raise ValueError(f"{path}: OpenCV cannot write an MP4 video here")
-            img = np.ascontiguousarray(frame).copy()
-            if ground_truth is not None and t < len(ground_truth):
-                _draw(img, ground_truth, t, template_size, GREEN, tail)
-            if tracks is not None and t < len(tracks):
-                _draw(img, tracks, t, template_size, YELLOW, tail)
-            writer.write(img)
-            n += 1
-    except BaseException:
-        if writer is not None:
-            writer.release()
-        tmp.unlink(missing_ok=True)
-        raise
-    if writer is None:
-        raise ValueError(f"{path}: no frames to write")
-    writer.release()
-    os.replace(tmp, path)
+    with atomic_path(path, suffix=path.suffix or ".mp4") as tmp:
+        try:
+            for t, frame in enumerate(frames):
+                if writer is None:
+                    h, w = frame.shape[:2]
+                    writer = cv2.VideoWriter(os.fspath(tmp), cv2.VideoWriter_fourcc(*"mp4v"),
+                                             float(fps), (w, h))
+                    if not writer.isOpened():
+                        raise ValueError(f"{path}: OpenCV cannot write an MP4 video here")
+                img = np.ascontiguousarray(frame).copy()
+                if ground_truth is not None and t < len(ground_truth):
+                    _draw(img, ground_truth, t, template_size, GREEN, tail)
+                if tracks is not None and t < len(tracks):
+                    _draw(img, tracks, t, template_size, YELLOW, tail)
+                writer.write(img)
+        finally:
+            if writer is not None:
+                writer.release()
+        if writer is None:
+            raise ValueError(f"{path}: no frames to write")
     return path
