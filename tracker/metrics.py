@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from crowdsim.atomic import atomic_path
+
 THRESHOLDS: np.ndarray = np.arange(26)
 """Pixel thresholds ``T = 0 .. 25`` of the papers' accuracy curve."""
 SIMILARITY_SCALE: float = 15.0
@@ -192,5 +194,8 @@ def plot_accuracy(curves: dict[str, np.ndarray], path: str | os.PathLike[str],
     if title:
         ax.set_title(title)
     fig.tight_layout()
-    fig.savefig(os.fspath(path))
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp)
+    finally:
+        plt.close(fig)

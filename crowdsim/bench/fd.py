@@ -45,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
         if not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
 
+    from crowdsim.atomic import write_text_atomic
     from crowdsim.validation import fundamental_diagram, lane_formation
 
     points = fundamental_diagram(densities, length=args.length, width=args.width,
@@ -67,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     }
     args.out.mkdir(parents=True, exist_ok=True)
     _plot(report, args.out)
-    (args.out / "fd.json").write_text(json.dumps(report) + "\n")
+    write_text_atomic(args.out / "fd.json", json.dumps(report) + "\n")
 
     print(f"{'rho target':>10} {'rho PedPy':>10} {'v (m/s)':>8} {'Weidmann':>9} {'ratio':>6} "
           f"{'max ov':>7}")
@@ -104,9 +105,7 @@ def _plot(report: dict[str, Any], out: Path) -> None:
     ax.set_ylabel("speed (m/s)")
     ax.set_title("Fundamental diagram, periodic corridor")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(out / "fd.png", dpi=120)
-    plt.close(fig)
+    _save(fig, out / "fd.png")
 
     lanes = report["lanes"]
     fig, ax = plt.subplots(figsize=(6, 3.5))
@@ -116,6 +115,17 @@ def _plot(report: dict[str, Any], out: Path) -> None:
     ax.set_ylabel("lane order parameter")
     ax.set_ylim(0, 1)
     ax.legend()
+    _save(fig, out / "lanes.png")
+
+
+def _save(fig: Any, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    from crowdsim.atomic import atomic_path
+
     fig.tight_layout()
-    fig.savefig(out / "lanes.png", dpi=120)
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=120)
+    finally:
+        plt.close(fig)
