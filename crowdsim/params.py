@@ -141,6 +141,8 @@ class SocialForceParams:
                 raise ValueError(f"{f.name} must be a number, got {value!r}")
             if not math.isfinite(value):
                 raise ValueError(f"{f.name} must be finite, got {value!r}")
+            if isinstance(f.default, int) and value != int(value):
+                raise ValueError(f"{f.name} must be a whole number, got {value!r}")
         positive = ("dt", "tau", "sigma", "step_time", "b_min", "B", "R", "speed_cap", "cutoff",
                     "mass", "contact_slop", "solver_iterations", "contact_substeps")
         for name in positive:

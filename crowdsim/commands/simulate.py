@@ -92,12 +92,16 @@ def run(args: argparse.Namespace) -> int:
     from crowdsim.simulation import Simulation
 
     scenario_kw = parse_assignments(args.scenario_params, "--set")
+    model_kw = parse_assignments(args.model_params, "--param")
+    for flag, key, own in (("--set", "n_agents", "--agents"), ("--set", "density", "--density"),
+                           ("--param", "dt", "--dt")):
+        if key in (scenario_kw if flag == "--set" else model_kw):
+            raise ValueError(f"{flag} {key}: use {own} instead")
     scenario_kw["n_agents"] = args.agents
     if args.density is not None:
         scenario_kw["density"] = args.density
     scenario = make_scenario(args.scenario, **scenario_kw)
-    params = SocialForceParams().replace(dt=args.dt, **parse_assignments(args.model_params,
-                                                                         "--param"))
+    params = SocialForceParams().replace(dt=args.dt, **model_kw)
     sim = Simulation(scenario, seed=args.seed, params=params)
     t0 = time.perf_counter()
     traj = sim.run(args.steps, progress=not args.no_progress)

@@ -47,6 +47,9 @@ def test_simulate_writes_npz_contract(tmp_path, capsys):
     (["simulate", "marathon", "--set", "bogus=1"], "bogus"),
     (["simulate", "marathon", "--out", "x.csv"], "--out must end in .npz"),
     (["simulate", "marathon", "--plot", "x.jpg"], "--plot must end in .png"),
+    (["simulate", "marathon", "--param", "dt=0.02"], "--param dt: use --dt instead"),
+    (["simulate", "marathon", "--set", "n_agents=5"], "--set n_agents: use --agents instead"),
+    (["simulate", "marathon", "--param", "contact_substeps=2.5"], "must be a whole number"),
 ])
 def test_simulate_bad_input_exit_2_one_line(argv, needle):
     proc = subprocess.run([sys.executable, "-m", "crowdsim.cli", *argv, "--steps", "1",
