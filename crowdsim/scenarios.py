@@ -40,6 +40,9 @@ from crowdsim.world import (
 )
 
 MAX_AGENTS = 100_000
+EXIT_DISTANCE = 3.0
+"""Metres beyond a station door, or the far kerb of a crossing's queue, at which walkers
+leave: sinks sit outside the area a camera frames."""
 MAX_DENSITY = 6.0
 
 
@@ -446,8 +449,8 @@ class Crossing(Scenario):
     """Two opposing flows over a street crossing (zebra crossing).
 
     Half the people wait on each kerb, packed at ``density`` in a band as wide as the
-    crossing, and cross the street (``street_width`` m) to the opposite kerb, where they
-    leave. The crossing itself has no walls.
+    crossing, cross the street (``street_width`` m) and walk on past the other side's queue
+    before they leave. The crossing itself has no walls.
 
     Extra attributes: ``street_width``, ``crossing_width`` (m).
     """
@@ -478,9 +481,15 @@ class Crossing(Scenario):
             polyline([(-10.0, 0.0), (-0.5, 0.0)]), polyline([(cw + 0.5, 0.0), (cw + 10.0, 0.0)]),
             polyline([(-10.0, sw), (-0.5, sw)]), polyline([(cw + 0.5, sw), (cw + 10.0, sw)]),
         ])
-        world = World(walls, (-10.0, -far - 1.0, cw + 10.0, sw + far + 1.0))
-        routes = [Route([[0.3, sw + 2.0, cw - 0.3, sw + 2.0]], reach=0.4),
-                  Route([[0.3, -2.0, cw - 0.3, -2.0]], reach=0.4)]
+        # Walkers leave beyond the opposite queue, outside the area a camera frames.
+        world = World(walls, (-10.0, -far - EXIT_DISTANCE - 1.0, cw + 10.0,
+                              sw + far + EXIT_DISTANCE + 1.0))
+        routes = [Route([[0.3, sw + 0.5, cw - 0.3, sw + 0.5],
+                         [0.3, sw + far + EXIT_DISTANCE, cw - 0.3, sw + far + EXIT_DISTANCE]],
+                        reach=0.4),
+                  Route([[0.3, -0.5, cw - 0.3, -0.5],
+                         [0.3, -far - EXIT_DISTANCE, cw - 0.3, -far - EXIT_DISTANCE]],
+                        reach=0.4)]
         route = np.r_[np.zeros(n_up, np.int64), np.ones(n_down, np.int64)]
         agents = AgentBatch.create(pos, self._radii(rng, n), WALKERS.sample(rng, n), route, rng,
                                    self.prominent_fraction)
@@ -554,8 +563,10 @@ class Circulation(Scenario):
 class Station(Scenario):
     """A station hall at medium density with ``n_doors`` doors, each a source and a sink.
 
-    People walk from their door to another, random door, around a grid of pillars; sources
-    at the doors replace those who leave, so the population stays near ``n_agents``.
+    People walk from their door to another, random door, around a grid of pillars. They
+    leave 3 m outside a door and arrive 1.5-3 m outside one (so that in a video framed on
+    the hall they walk in and out across the frame's border); arrivals replace those who
+    leave, so the population stays near ``n_agents``.
 
     Extra attributes: ``n_doors``, ``door_width`` (m), ``pillar_spacing`` (m, 0 = none).
     """
@@ -614,13 +625,16 @@ class Station(Scenario):
                 for py in ticks:
                     walls.append(rectangle(px - 0.4, py - 0.4, px + 0.4, py + 0.4))
         walls = np.vstack(walls)
-        world = World(walls, (-4.0, -4.0, side + 4.0, side + 4.0))
-        routes = []
-        for d in doors:
-            gate_in = d[:4].copy()
-            out = d[4:6] * 2.0
-            gate_out = gate_in + np.r_[out, out]
-            routes.append(Route(np.array([gate_in, gate_out]), reach=0.6))
+        world = World(walls, (-EXIT_DISTANCE - 1, -EXIT_DISTANCE - 1, side + EXIT_DISTANCE + 1,
+                              side + EXIT_DISTANCE + 1))
+        # Route j: through door j and on to 3 m outside it (where walkers vanish). Route
+        # n_doors + k * n_doors + j: enter through door k first (people arriving outside it).
+        gate_in = doors[:, :4]
+        gate_out = gate_in + np.tile(doors[:, 4:6] * EXIT_DISTANCE, 2)
+        routes = [Route(np.array([gate_in[j], gate_out[j]]), reach=0.6)
+                  for j in range(self.n_doors)]
+        routes += [Route(np.array([gate_in[k], gate_in[j], gate_out[j]]), reach=0.6)
+                   for k in range(self.n_doors) for j in range(self.n_doors)]
         # Initial people: uniform in the hall (away from pillars), each bound for a random door.
         cand = rng.uniform(0.6, side - 0.6, (4 * n + 16, 2))
         if self.pillar_spacing > 0:
@@ -635,16 +649,17 @@ class Station(Scenario):
         trip = side / WALKERS.mean
         sources = []
         for k, d in enumerate(doors):
-            # A 1 m deep strip just inside the door, 0.3 m narrower than it on each side.
+            # People arrive 1.5-3 m outside the door (out of the camera's view) and walk in.
             normal = d[4:6]
             along = (d[2:4] - d[:2]) / self.door_width
-            corners_in = np.array([d[:2] + 0.3 * along - 0.5 * normal,
-                                   d[2:4] - 0.3 * along - 1.5 * normal])
-            lo, hi = corners_in.min(axis=0), corners_in.max(axis=0)
+            corners_out = np.array([d[:2] + 0.3 * along + 1.5 * normal,
+                                    d[2:4] - 0.3 * along + EXIT_DISTANCE * normal])
+            lo, hi = corners_out.min(axis=0), corners_out.max(axis=0)
             dest = [j for j in range(self.n_doors) if j != k]
             rate = n / trip / self.n_doors / len(dest)
             for j in dest:
-                sources.append(Source((lo[0], lo[1], hi[0], hi[1]), rate, j,
+                sources.append(Source((lo[0], lo[1], hi[0], hi[1]), rate,
+                                      self.n_doors + k * self.n_doors + j,
                                       heading=(float(-normal[0]), float(-normal[1]))))
         return Setup(world, routes, agents, sources, {"side": side, "doors": doors[:, :4]})
 

@@ -42,6 +42,8 @@ MANIFEST = "manifest.json"
 EXTENT_PERCENTILE = 1.0
 """The camera frames the 1st to 99th percentile of the crowd's positions on each axis."""
 MANIFEST_FORMAT = 1
+SETTLE_S = 3.0
+"""Seconds after entering and before leaving during which positions do not set the frame."""
 
 
 class GenerationError(RuntimeError):
@@ -71,10 +73,30 @@ def simulate(spec: SequenceSpec) -> Any:
                         attributes={k: v[keep] for k, v in traj.attributes.items()}, meta=meta)
 
 
-def crowd_extent(traj: Any, percent: float = EXTENT_PERCENTILE) -> tuple[float, ...]:
+def crowd_extent(traj: Any, percent: float = EXTENT_PERCENTILE,
+                 settle_s: float = SETTLE_S) -> tuple[float, ...]:
     """``(xmin, ymin, xmax, ymax)`` metres holding all but ``percent`` % of the positions
-    on each side: where the crowd is, not every straggler (the camera frames this)."""
-    xy = traj.positions[traj.present]
+    on each side: where the crowd is, not every straggler (the camera frames this).
+
+    Positions within ``settle_s`` seconds (at most a quarter of the clip) of an agent
+    entering (after the first frame) or leaving (before the last frame) do not count, so
+    that sources and sinks, where people appear and vanish, fall outside the frame: in the
+    video people walk in and out across its border, as they do in real footage.
+    """
+    present = traj.present
+    t = present.shape[0]
+    k = min(max(0, int(round(settle_s / traj.dt))), t // 4)  # short clips: a quarter
+    settled = present.copy()
+    if k:
+        rows = np.arange(t)[:, None]
+        seen = present.any(axis=0)
+        first = np.where(seen, present.argmax(axis=0), 0)
+        last = np.where(seen, t - 1 - present[::-1].argmax(axis=0), t - 1)
+        settled &= ~((first > 0) & (rows < first + k))
+        settled &= ~((last < t - 1) & (rows > last - k))
+        if not settled.any():
+            settled = present
+    xy = traj.positions[settled]
     if len(xy) == 0:
         raise ValueError("the simulation produced no agent inside the recorded frames")
     if len(xy) > 2_000_000:  # a subsample is plenty for percentiles
