@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from crowdsim.atomic import atomic_path
+from crowdsim.plotting import save_figure
 
 THRESHOLDS: np.ndarray = np.arange(26)
 """Pixel thresholds ``T = 0 .. 25`` of the papers' accuracy curve."""
@@ -193,9 +193,4 @@ def plot_accuracy(curves: dict[str, np.ndarray], path: str | os.PathLike[str],
     ax.legend(loc="lower right")
     if title:
         ax.set_title(title)
-    fig.tight_layout()
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp)
-    finally:
-        plt.close(fig)
+    save_figure(fig, path, dpi=120)

@@ -91,6 +91,7 @@ def _plot(report: dict[str, Any], out: Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
+    from crowdsim.plotting import save_figure
     from crowdsim.scenarios import weidmann_speed
 
     rows = report["fundamental_diagram"]
@@ -105,7 +106,7 @@ def _plot(report: dict[str, Any], out: Path) -> None:
     ax.set_ylabel("speed (m/s)")
     ax.set_title("Fundamental diagram, periodic corridor")
     ax.legend()
-    _save(fig, out / "fd.png")
+    save_figure(fig, out / "fd.png")
 
     lanes = report["lanes"]
     fig, ax = plt.subplots(figsize=(6, 3.5))
@@ -115,17 +116,5 @@ def _plot(report: dict[str, Any], out: Path) -> None:
     ax.set_ylabel("lane order parameter")
     ax.set_ylim(0, 1)
     ax.legend()
-    _save(fig, out / "lanes.png")
+    save_figure(fig, out / "lanes.png")
 
-
-def _save(fig: Any, path: Path) -> None:
-    import matplotlib.pyplot as plt
-
-    from crowdsim.atomic import atomic_path
-
-    fig.tight_layout()
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=120)
-    finally:
-        plt.close(fig)
