@@ -20,6 +20,8 @@ from dataclasses import asdict, dataclass, fields
 import cv2
 import numpy as np
 
+from crowdsim.checks import require_choice, require_number
+
 PALETTES: dict[str, tuple[tuple[int, int, int], ...]] = {
     # BGR clothing cluster centres.
     "dull": ((60, 50, 45), (40, 40, 40), (120, 110, 100), (90, 70, 50), (150, 150, 150)),
@@ -125,35 +127,25 @@ class AppearanceParams:
     subpixel: int = 2
 
     def __post_init__(self) -> None:
-        def bad(name: str, rule: str) -> ValueError:
-            return ValueError(f"appearance.{name} must be {rule}, got {getattr(self, name)!r}")
-
-        if not (4 <= self.template_px <= 64):
-            raise bad("template_px", "an integer in [4, 64]")
-        if self.palette not in PALETTES:
-            raise bad("palette", f"one of {sorted(PALETTES)}")
-        if not (1 <= self.n_clusters <= len(PALETTES[self.palette])):
-            raise bad("n_clusters", f"in [1, {len(PALETTES[self.palette])}]")
-        if not (1 <= self.variants_per_cluster <= 16):
-            raise bad("variants_per_cluster", "in [1, 16]")
+        own = "appearance"
+        require_choice(own, "palette", self.palette, tuple(sorted(PALETTES)))
+        for name, lo, hi in (("template_px", 4, 64), ("n_clusters", 1, len(PALETTES[self.palette])),
+                             ("variants_per_cluster", 1, 16), ("jpeg_quality", 1, 100),
+                             ("orientation_bins", 4, 128), ("subpixel", 1, 4)):
+            require_number(own, name, getattr(self, name), lo=lo, hi=hi, integer=True)
         for name, lo, hi in (("cluster_spread", 0, 100), ("prominent_fraction", 0, 1),
                              ("contrast", 0.05, 2), ("ground_texture", 0, 80),
                              ("paving_m", 0, 100), ("shadow", 0, 1), ("sway_deg", 0, 45),
                              ("illumination_drift", 0, 0.5), ("noise_sigma", 0, 50),
                              ("motion_blur_px", 0, 30)):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and lo <= value <= hi):
-                raise bad(name, f"a number in [{lo}, {hi}]")
-        if not (self.illumination_period_s > 0):
-            raise bad("illumination_period_s", "> 0")
-        if not (1 <= self.jpeg_quality <= 100):
-            raise bad("jpeg_quality", "an integer in [1, 100]")
-        if not (4 <= self.orientation_bins <= 128):
-            raise bad("orientation_bins", "in [4, 128]")
-        if not (1 <= self.subpixel <= 4):
-            raise bad("subpixel", "in [1, 4]")
-        if len(self.ground_bgr) != 3 or not all(0 <= c <= 255 for c in self.ground_bgr):
-            raise bad("ground_bgr", "three numbers in [0, 255]")
+            require_number(own, name, getattr(self, name), lo=lo, hi=hi)
+        require_number(own, "illumination_period_s", self.illumination_period_s, lo=0,
+                       lo_open=True)
+        if len(self.ground_bgr) != 3:
+            raise ValueError(f"appearance.ground_bgr must be three numbers in [0, 255], "
+                             f"got {self.ground_bgr!r}")
+        for c in self.ground_bgr:
+            require_number(own, "ground_bgr", c, lo=0, hi=255)
         object.__setattr__(self, "ground_bgr", tuple(int(c) for c in self.ground_bgr))
 
     @classmethod

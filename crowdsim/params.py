@@ -7,9 +7,10 @@ Moussaïd et al. (2010) [M10], with its unit.
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any
+
+from crowdsim.checks import require_choice, require_number
 
 POTENTIALS = ("elliptic", "exponential")
 
@@ -131,41 +132,27 @@ class SocialForceParams:
     solver_iterations: int = 10
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.name == "potential":
-                if value not in POTENTIALS:
-                    raise ValueError(f"potential must be one of {POTENTIALS}, got {value!r}")
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ValueError(f"{f.name} must be a number, got {value!r}")
-            if not math.isfinite(value):
-                raise ValueError(f"{f.name} must be finite, got {value!r}")
-            if isinstance(f.default, int) and value != int(value):
-                raise ValueError(f"{f.name} must be a whole number, got {value!r}")
+        own = "SocialForceParams"
+        require_choice(own, "potential", self.potential, POTENTIALS)
         positive = ("dt", "tau", "sigma", "step_time", "b_min", "B", "R", "speed_cap", "cutoff",
-                    "mass", "contact_slop", "solver_iterations", "contact_substeps")
+                    "mass", "contact_slop")
+        nonneg = ("headway_time", "V0", "A", "U0", "beta1", "beta2", "beta3", "friction",
+                  "group_repulsion_gap", "group_gaze_deg")
         for name in positive:
-            if getattr(self, name) <= 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
-        for name in ("headway_time", "V0", "A", "U0", "beta1", "beta2", "beta3", "friction",
-                     "group_repulsion_gap"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
-        if not 0 < self.fov_deg <= 360:
-            raise ValueError(f"fov_deg must be in (0, 360], got {self.fov_deg!r}")
-        if not 0 < self.headway_depth <= 1:
-            raise ValueError(f"headway_depth must be in (0, 1], got {self.headway_depth!r}")
-        if not 0 < self.headway_cone_deg < 60:
-            raise ValueError(f"headway_cone_deg must be in (0, 60), got {self.headway_cone_deg!r}")
-        if not 0 < self.contact_bias < 1:
-            raise ValueError(f"contact_bias must be in (0, 1), got {self.contact_bias!r}")
-        if not 0 <= self.c <= 1:
-            raise ValueError(f"c must be in [0, 1], got {self.c!r}")
-        if self.speed_cap < 1:
-            raise ValueError(f"speed_cap must be >= 1 (a multiple of v0), got {self.speed_cap!r}")
-        if self.dt > 0.2:
-            raise ValueError(f"dt must be <= 0.2 s for a stable integration, got {self.dt!r}")
+            require_number(own, name, getattr(self, name), lo=0, lo_open=True)
+        for name in nonneg:
+            require_number(own, name, getattr(self, name), lo=0)
+        for name in ("solver_iterations", "contact_substeps"):
+            require_number(own, name, getattr(self, name), lo=1, integer=True)
+        require_number(own, "dt", self.dt, lo=0, hi=0.2, lo_open=True)  # stable integration
+        require_number(own, "fov_deg", self.fov_deg, lo=0, hi=360, lo_open=True)
+        require_number(own, "headway_depth", self.headway_depth, lo=0, hi=1, lo_open=True)
+        require_number(own, "headway_cone_deg", self.headway_cone_deg, lo=0, hi=60,
+                       lo_open=True, hi_open=True)
+        require_number(own, "contact_bias", self.contact_bias, lo=0, hi=1, lo_open=True,
+                       hi_open=True)
+        require_number(own, "c", self.c, lo=0, hi=1)
+        require_number(own, "speed_cap", self.speed_cap, lo=1)  # a multiple of v0
 
     def replace(self, **changes: Any) -> SocialForceParams:
         """A copy with some fields changed (validated like the constructor)."""

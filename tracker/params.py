@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+from crowdsim.checks import require_choice, require_number
+
 APPEARANCE_MODELS: tuple[str, ...] = ("kcf", "ncc")
 FW_VARIANTS: tuple[str, ...] = ("plain", "away", "swap")
 
@@ -170,49 +172,32 @@ class BQPParams:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        nonneg = ("zeta", "eta", "w_sp", "w_g", "velocity_smoothing", "min_group_speed",
-                  "border_penalty", "laplacian_tau", "kcf_target_window")
+        own = "BQPParams"
+        nonneg = ("zeta", "eta", "w_sp", "w_g", "min_group_speed", "border_penalty",
+                  "laplacian_tau", "kcf_target_window")
         positive = ("kcf_lambda", "kcf_label_sigma", "kcf_kernel_sigma", "motion_sigma",
                     "neighbour_scale", "group_radius", "proximity_sigma", "proximity_cutoff",
                     "group_sigma", "group_cutoff", "fw_eps")
+        counts = ("ncc_update_every", "n_neighbours", "group_refresh", "candidate_stride",
+                  "n_extrema", "n_samples", "sample_window", "fw_max_iter")
         for name in nonneg:
-            v = getattr(self, name)
-            if not (v >= 0 and v < float("inf")):
-                raise ValueError(f"BQPParams.{name} must be a finite number >= 0, got {v!r}")
+            require_number(own, name, getattr(self, name), lo=0)
         for name in positive:
-            v = getattr(self, name)
-            if not (v > 0 and v < float("inf")):
-                raise ValueError(f"BQPParams.{name} must be a finite number > 0, got {v!r}")
-        if not 0.0 <= self.update_threshold <= 1.0:
-            raise ValueError(
-                f"BQPParams.update_threshold must be in [0, 1], got {self.update_threshold!r}")
-        if not 0.0 < self.kcf_learning_rate <= 1.0:
-            raise ValueError(
-                f"BQPParams.kcf_learning_rate must be in (0, 1], got {self.kcf_learning_rate!r}")
-        if not self.velocity_smoothing < 1.0:
-            raise ValueError(
-                f"BQPParams.velocity_smoothing must be < 1, got {self.velocity_smoothing!r}")
-        if not -1.0 <= self.coherence_threshold <= 1.0:
-            raise ValueError("BQPParams.coherence_threshold must be in [-1, 1], "
-                             f"got {self.coherence_threshold!r}")
-        if not self.search_factor > 1.0:
-            raise ValueError(f"BQPParams.search_factor must be > 1, got {self.search_factor!r}")
-        if self.appearance not in APPEARANCE_MODELS:
-            raise ValueError(f"BQPParams.appearance must be one of {APPEARANCE_MODELS}, "
-                             f"got {self.appearance!r}")
-        if self.kcf_kernel not in ("gaussian", "linear"):
-            raise ValueError(f"BQPParams.kcf_kernel must be 'gaussian' or 'linear', "
-                             f"got {self.kcf_kernel!r}")
-        if self.fw_variant not in FW_VARIANTS:
-            raise ValueError(f"BQPParams.fw_variant must be one of {FW_VARIANTS}, "
-                             f"got {self.fw_variant!r}")
-        for name in ("ncc_update_every", "n_neighbours", "history", "group_refresh",
-                     "candidate_stride", "n_extrema", "n_samples", "sample_window", "fw_max_iter"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-                raise ValueError(f"BQPParams.{name} must be an integer >= 1, got {v!r}")
-        if self.history < 2:
-            raise ValueError(f"BQPParams.history must be >= 2, got {self.history!r}")
+            require_number(own, name, getattr(self, name), lo=0, lo_open=True)
+        for name in counts:
+            require_number(own, name, getattr(self, name), lo=1, integer=True)
+        require_number(own, "history", self.history, lo=2, integer=True)
+        require_number(own, "seed", self.seed, lo=0, integer=True)
+        require_number(own, "update_threshold", self.update_threshold, lo=0, hi=1)
+        require_number(own, "kcf_learning_rate", self.kcf_learning_rate, lo=0, hi=1,
+                       lo_open=True)
+        require_number(own, "velocity_smoothing", self.velocity_smoothing, lo=0, hi=1,
+                       hi_open=True)
+        require_number(own, "coherence_threshold", self.coherence_threshold, lo=-1, hi=1)
+        require_number(own, "search_factor", self.search_factor, lo=1, lo_open=True)
+        require_choice(own, "appearance", self.appearance, APPEARANCE_MODELS)
+        require_choice(own, "kcf_kernel", self.kcf_kernel, ("gaussian", "linear"))
+        require_choice(own, "fw_variant", self.fw_variant, FW_VARIANTS)
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:

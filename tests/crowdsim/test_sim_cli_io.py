@@ -42,14 +42,16 @@ def test_simulate_writes_npz_contract(tmp_path, capsys):
     (["simulate", "marathon", "--density", "7"], "--density must be in (0, 6]"),
     (["simulate", "marathon", "--dt", "0"], "--dt must be > 0 seconds, got 0.0"),
     (["simulate", "marathon", "--dt", "nan"], "--dt must be > 0 seconds, got nan"),
-    (["simulate", "marathon", "--param", "tau=nan"], "tau must be finite, got nan"),
+    (["simulate", "marathon", "--param", "tau=nan"],
+     "SocialForceParams.tau must be a finite number > 0, got nan"),
     (["simulate", "marathon", "--set", "road_width=nan"], "road_width must be finite"),
     (["simulate", "marathon", "--set", "bogus=1"], "bogus"),
     (["simulate", "marathon", "--out", "x.csv"], "--out must end in .npz"),
     (["simulate", "marathon", "--plot", "x.jpg"], "--plot must end in .png"),
     (["simulate", "marathon", "--param", "dt=0.02"], "--param dt: use --dt instead"),
     (["simulate", "marathon", "--set", "n_agents=5"], "--set n_agents: use --agents instead"),
-    (["simulate", "marathon", "--param", "contact_substeps=2.5"], "must be a whole number"),
+    (["simulate", "marathon", "--param", "contact_substeps=2.5"],
+     "contact_substeps must be an integer >= 1, got 2.5"),
 ])
 def test_simulate_bad_input_exit_2_one_line(argv, needle):
     proc = subprocess.run([sys.executable, "-m", "crowdsim.cli", *argv, "--steps", "1",

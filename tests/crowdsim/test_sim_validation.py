@@ -91,6 +91,15 @@ def test_bad_model_parameters(kwargs, field):
         SocialForceParams(**kwargs)
 
 
+def test_every_model_parameter_is_validated():
+    from dataclasses import fields
+
+    for f in fields(SocialForceParams):
+        bad = "cubic" if f.name == "potential" else math.nan
+        with pytest.raises(ValueError, match=f"SocialForceParams.{f.name} must be"):
+            SocialForceParams(**{f.name: bad})
+
+
 def test_simulation_rejects_bad_seed_and_steps():
     sc = make_scenario("crossing", n_agents=4)
     with pytest.raises(ValueError, match="seed"):
