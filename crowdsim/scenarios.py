@@ -22,6 +22,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from crowdsim.checks import require_number
 from crowdsim.trajectories import ANOMALY_KINDS
 from crowdsim.world import (
     RUNNERS,
@@ -94,15 +95,10 @@ class Scenario(ABC):
         for f in fields(self):
             _check_type(self.name, f.name, getattr(self, f.name), f.default)
         if isinstance(self.n_agents, bool) or not isinstance(self.n_agents, (int, np.integer)):
-            raise ValueError(f"n_agents must be an integer, got {self.n_agents!r}")
-        if not 1 <= self.n_agents <= MAX_AGENTS:
-            raise ValueError(f"n_agents must be in [1, {MAX_AGENTS}], got {self.n_agents}")
-        if not 0 < self.density <= MAX_DENSITY:
-            raise ValueError(f"density must be in (0, {MAX_DENSITY}] persons/m², "
-                             f"got {self.density!r}")
-        if not 0 <= self.prominent_fraction <= 1:
-            raise ValueError(f"prominent_fraction must be in [0, 1], "
-                             f"got {self.prominent_fraction!r}")
+            raise ValueError(f"{self.name}.n_agents must be an integer, got {self.n_agents!r}")
+        require_number(self.name, "n_agents", self.n_agents, lo=1, hi=MAX_AGENTS, integer=True)
+        require_number(self.name, "density", self.density, lo=0, hi=MAX_DENSITY, lo_open=True)
+        self._fraction("prominent_fraction")
         lo, hi = self.radius
         if not 0.1 <= lo <= hi <= 0.4:
             raise ValueError(f"radius must satisfy 0.1 <= low <= high <= 0.4 m, got {self.radius}")
@@ -113,14 +109,11 @@ class Scenario(ABC):
 
     def _positive(self, *names: str) -> None:
         for name in names:
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{self.name}.{name} must be > 0, got {getattr(self, name)!r}")
+            require_number(self.name, name, getattr(self, name), lo=0, lo_open=True)
 
     def _fraction(self, *names: str) -> None:
         for name in names:
-            if not 0 <= getattr(self, name) <= 1:
-                raise ValueError(f"{self.name}.{name} must be in [0, 1], "
-                                 f"got {getattr(self, name)!r}")
+            require_number(self.name, name, getattr(self, name), lo=0, hi=1)
 
     @abstractmethod
     def build(self, rng: np.random.Generator) -> Setup:

@@ -60,6 +60,7 @@ def test_max_overlap_exact():
     ({"n_agents": -5}, "n_agents"),
     ({"n_agents": 100_001}, "n_agents"),
     ({"n_agents": 2.5}, "n_agents"),
+    ({"n_agents": 5.0}, "n_agents"),
     ({"density": 6.5}, "density"),
     ({"density": 0.0}, "density"),
     ({"density": math.nan}, "density"),
