@@ -74,10 +74,9 @@ def _build_grid(pos, cell, period):
 
 
 def _pedestrian_wall_impl(pos, vel, radius, v0, e, group, walls, wall_grid, wall_start,
-                          wall_items, period, cutoff, elliptic,
-                            V0, sigma, step_time, A, B, U0, R, cos_half_fov, c_out, beta3,
-                            group_gap, tau, headway_time, tan_cone, depth, b_min, speed_cap, dt,
-                          extra, out):
+                          wall_items, period, cutoff, elliptic, V0, sigma, step_time, A, B, U0,
+                          R, cos_half_fov, c_out, beta3, group_gap, tau, headway_time, tan_cone,
+                          depth, v_ref, b_min, speed_cap, dt, extra, out):
     n = pos.shape[0]
     if n == 0:
         return
@@ -194,11 +193,11 @@ def _pedestrian_wall_impl(pos, vel, radius, v0, e, group, walls, wall_grid, wall
         ax += extra[i, 0]
         ay += extra[i, 1]
         # Speed cap v_max = 1.3 v0 [HM95 Eq. 10] (standing agents: that of a 0.5 m/s walker),
-        # lowered to the free headway over T; applied as a limit on the acceleration so that
+        # lowered to (v0 / v_ref) gap / T; applied as a limit on the acceleration so that
         # |v + a dt| <= v_max.
         cap = speed_cap * max(v0[i], 0.5)
         if headway_time > 0.0:
-            cap = min(cap, max(gap_ahead, 0.0) / headway_time)
+            cap = min(cap, max(gap_ahead, 0.0) / headway_time * v0[i] / v_ref)
         nvx = vel[i, 0] + ax * dt
         nvy = vel[i, 1] + ay * dt
         sp = math.sqrt(nvx * nvx + nvy * nvy)
@@ -358,5 +357,5 @@ def social_force(pos: np.ndarray, vel: np.ndarray, radius: np.ndarray, v0: np.nd
         params.B, params.U0, params.R, math.cos(math.radians(params.fov_deg / 2)), params.c,
         params.beta3, params.group_repulsion_gap, params.tau, params.headway_time,
         math.tan(math.radians(params.headway_cone_deg)), params.headway_depth,
-        params.b_min, params.speed_cap, params.dt, extra, acc)
+        params.headway_ref_speed, params.b_min, params.speed_cap, params.dt, extra, acc)
     return acc

@@ -30,13 +30,17 @@ class SocialForceParams:
     tau : float
         Relaxation time ``tau`` of the driving term [HM95 Eq. 2], s.
     headway_time : float
-        Time headway ``T`` (s): the speed cap becomes ``min(1.3 v0, gap / T)``, where ``gap``
-        is the free distance along ``e_i`` to the nearest body in a 45° cone ahead that heads
-        the same way (desired directions within 60°). Plain HM95 forces keep a dense
-        unidirectional crowd near free speed, far above Weidmann's fundamental diagram; this
-        self-stopping rule (Parisi, Gilman & Moldovan 2009, Physica A 388; the headway law of
-        Tordeux et al.'s collision-free speed model, 2016) restores it. 0 disables it (pure
+        Time headway ``T`` (s): the speed cap becomes ``min(1.3 v0, (v0 / v_ref) gap / T)``,
+        where ``gap`` is the free distance along ``e_i`` to the nearest body in a cone ahead
+        that heads the same way (desired directions within 60°). Plain HM95 forces keep a
+        dense unidirectional crowd near free speed, far above Weidmann's fundamental diagram;
+        this self-stopping rule (Parisi, Gilman & Moldovan 2009, Physica A 388; the headway law
+        of Tordeux et al.'s collision-free speed model, 2016) restores it. 0 disables it (pure
         HM95).
+    headway_ref_speed : float
+        ``v_ref`` (m/s): a walker at this desired speed needs ``v_ref T`` of free gap to walk
+        freely; everybody keeps the same gap relative to their own pace, so a pack of
+        runners still runs (2.7 m/s at 1 /m² in ``marathon``) where walkers slow down.
     headway_cone_deg : float
         Half-angle of the cone ahead in which bodies limit the headway, degrees (< 60 keeps
         two agents from blocking each other).
@@ -103,8 +107,9 @@ class SocialForceParams:
 
     dt: float = 0.04
     tau: float = 0.5
-    headway_time: float = 0.53
-    headway_cone_deg: float = 38.0
+    headway_time: float = 0.49
+    headway_ref_speed: float = 1.34
+    headway_cone_deg: float = 35.0
     headway_depth: float = 0.95
     potential: str = "elliptic"
     V0: float = 2.1
@@ -135,7 +140,7 @@ class SocialForceParams:
         own = "SocialForceParams"
         require_choice(own, "potential", self.potential, POTENTIALS)
         positive = ("dt", "tau", "sigma", "step_time", "b_min", "B", "R", "speed_cap", "cutoff",
-                    "mass", "contact_slop")
+                    "mass", "contact_slop", "headway_ref_speed")
         nonneg = ("headway_time", "V0", "A", "U0", "beta1", "beta2", "beta3", "friction",
                   "group_repulsion_gap", "group_gaze_deg")
         for name in positive:

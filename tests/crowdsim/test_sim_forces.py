@@ -80,7 +80,7 @@ def test_wall_grid_gives_the_same_forces_as_one_cell_with_every_wall():
 
 
 def test_headway_caps_speed_behind_a_standing_body():
-    """A walker 0.3 m behind a standing person may not exceed gap / T."""
+    """A walker behind a standing person may not exceed (v0 / v_ref) gap / T."""
     p = SocialForceParams()
     pos = np.array([[0.0, 0.0], [0.75, 0.0]])
     vel = np.array([[1.0, 0.0], [0.0, 0.0]])
@@ -90,7 +90,7 @@ def test_headway_caps_speed_behind_a_standing_body():
                        np.zeros((0, 5)), p)
     gap = 0.75 - p.headway_depth * 0.44
     v_next = np.hypot(*(vel[0] + acc[0] * p.dt))
-    assert v_next == pytest.approx(gap / p.headway_time, rel=1e-9)
+    assert v_next == pytest.approx(1.3 / p.headway_ref_speed * gap / p.headway_time, rel=1e-9)
 
 
 def test_no_agents_no_walls():
