@@ -1,19 +1,8 @@
-"""Renderer frames per second; same as ``crowdsim bench render``.
+"""Same as ``crowdsim bench render`` (``python benchmarks/render.py --help`` lists its options)."""
 
-Usage: ``python benchmarks/render.py [--cases 1280x720:1000 1920x1080:10000] [--frames 100]``
-"""
-
-import argparse
 import sys
 
-from crowdsim.bench import render
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=render.__doc__.splitlines()[0])
-    render.add_arguments(parser)
-    return render.run(parser.parse_args(argv))
-
+from crowdsim.bench import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main("render"))

@@ -1,8 +1,8 @@
-"""Same as ``crowdsim bench sim`` (see ``python benchmarks/sim.py --help``)."""
+"""Same as ``crowdsim bench sim`` (``python benchmarks/sim.py --help`` lists its options)."""
 
 import sys
 
-from crowdsim.commands.bench import main
+from crowdsim.bench import main
 
 if __name__ == "__main__":
     sys.exit(main("sim"))

@@ -1,11 +1,8 @@
-"""Frank-Wolfe variants vs Clarabel on relaxed BQP frames; same as ``crowdsim bench solver``.
-
-Usage: ``python benchmarks/solver.py [--sizes 100,300,1000] [--from-npz FILE] [--out DIR]``
-"""
+"""Same as ``crowdsim bench solver`` (``python benchmarks/solver.py --help`` lists its options)."""
 
 import sys
 
-from tracker.bench_solver import main
+from crowdsim.bench import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main("solver"))

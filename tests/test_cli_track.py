@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -13,9 +11,7 @@ import pytest
 from crowdsim.cli import main
 from synth_data.mot import write_mot, write_seqinfo
 from tracker.mot_io import tracks_to_mot_rows
-
-sys.path.insert(0, str(Path(__file__).parent / "tracker"))
-from tracker_scenes import make_scene  # noqa: E402
+from tracker.testing import make_scene
 
 
 @pytest.fixture

@@ -167,3 +167,16 @@ def speedup_candidates(centers: np.ndarray, radius: int, cost_map: np.ndarray,
     samples = (sy * side + sx).reshape(n, m * ns)
     cell = np.concatenate([ext, samples], axis=1)
     return _gather(centers, radius, cost_map, app_map, cell)
+
+
+def search_radius(template_size: int, search_factor: float) -> int:
+    """Candidate radius ``r`` (px) for a search region of ``search_factor`` template sizes.
+
+    >>> search_radius(14, 2.0)
+    7
+    >>> search_radius(8, 2.0)
+    4
+    """
+    if template_size < 2:
+        raise ValueError(f"template_size must be >= 2 px, got {template_size!r}")
+    return max(1, int(round((search_factor - 1.0) * template_size / 2.0)))

@@ -1,0 +1,37 @@
+"""Every benchmark of crowdsim, importable: ``crowdsim bench NAME`` and ``benchmarks/NAME.py``.
+
+Each benchmark is a module of this package exposing ``add_arguments(parser)`` and
+``run(args) -> int``; it prints a table and one JSON object (last line). A benchmark is
+imported only when run, so its heavy or optional dependencies (JuPedSim, PySocialForce,
+Clarabel, ...) never slow down or break other commands.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+BENCHMARKS: dict[str, tuple[str, str]] = {
+    "sim": ("crowdsim.bench.sim", "simulator speed vs JuPedSim and PySocialForce (corridor)"),
+    "fd": ("crowdsim.bench.fd", "fundamental diagram vs Weidmann and counterflow lanes"),
+    "solver": ("crowdsim.bench.solver",
+               "Frank-Wolfe plain/away/SWAP iterations and FW-SWAP vs Clarabel (relaxed BQP)"),
+    "render": ("crowdsim.bench.render", "renderer frames/s, 1280x720/1k and 1920x1080/10k agents"),
+    "track": ("crowdsim.bench.track",
+              "BQP tracking frames/s at 100/1000 targets, per stage; speed-up vs dense candidates"),
+}
+"""Benchmark name -> (module, one-line help)."""
+
+
+def bench_parser(name: str) -> tuple[argparse.ArgumentParser, object]:
+    module, help_text = BENCHMARKS[name]
+    mod = importlib.import_module(module)
+    parser = argparse.ArgumentParser(prog=f"crowdsim bench {name}", description=help_text)
+    mod.add_arguments(parser)
+    return parser, mod
+
+
+def main(name: str, argv: list[str] | None = None) -> int:
+    """Run benchmark ``name`` with command-line ``argv`` (``benchmarks/NAME.py`` calls this)."""
+    parser, mod = bench_parser(name)
+    return int(mod.run(parser.parse_args(argv)) or 0)

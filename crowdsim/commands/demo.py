@@ -96,12 +96,12 @@ def _track_and_report(out: Path, seq_dir: Path, progress: bool, t_start: float) 
     import numpy as np
 
     from synth_data.mot import read_sequence, write_mot
-    from tracker.bqp import BQPTracker
+    from tracker.baselines.ncc import NCCTracker
+    from tracker.bqp.params import BQPParams
+    from tracker.bqp.tracker import BQPTracker
     from tracker.metrics import evaluate, plot_accuracy
     from tracker.mot_io import births_from_ground_truth, tracks_to_mot_rows
-    from tracker.ncc import NCCTracker
     from tracker.overlay import write_overlay
-    from tracker.params import BQPParams
 
     seq = read_sequence(seq_dir)
     gt_ids, gt_pts = seq.gt_points()

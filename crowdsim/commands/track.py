@@ -108,9 +108,9 @@ def load_input(path: str, init: str | None, template_size: int | None):
 
 
 def make_tracker(name: str, appearance: str = "kcf", dense: bool = False):
-    from tracker.bqp import BQPTracker
-    from tracker.ncc import NCCTracker
-    from tracker.params import BQPParams
+    from tracker.baselines.ncc import NCCTracker
+    from tracker.bqp.params import BQPParams
+    from tracker.bqp.tracker import BQPTracker
 
     if name == "bqp":
         return BQPTracker(BQPParams(appearance=appearance, speedup=not dense))

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tracker_scenes import make_scene
 
 from tracker.appearance import KCFAppearance, NCCAppearance, extract_patches, make_appearance
+from tracker.testing import make_scene
 
 MODELS = [KCFAppearance, NCCAppearance,
           lambda s, r, **kw: KCFAppearance(s, r, target_window=1.6, **kw)]

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tracker_scenes import make_scene
 
-from tracker.bqp import BQPTracker
-from tracker.ncc import NCCTracker
-from tracker.params import BQPParams
+from tracker.baselines.ncc import NCCTracker
+from tracker.bqp.params import BQPParams
+from tracker.bqp.tracker import BQPTracker
+from tracker.testing import make_scene
 
 
 def _convoy(n_frames=24):

@@ -8,11 +8,11 @@ import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tracker.frank_wolfe import VARIANTS, FWParams, FWResult, default_start, solve
-from tracker.qp import BlockQP, load_many, save_many
+from tracker.bqp.frank_wolfe import VARIANTS, FWParams, FWResult, default_start, solve
+from tracker.bqp.qp import BlockQP, load_many, save_many
 
 clarabel = pytest.importorskip("clarabel")
-from tracker.qp_baselines import solve_clarabel, solve_osqp  # noqa: E402
+from tracker.bqp.qp_baselines import solve_clarabel, solve_osqp  # noqa: E402
 
 FAST = settings(max_examples=40, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow])
@@ -207,7 +207,7 @@ def test_save_load_roundtrip(tmp_path):
 # ----------------------------------------------------------------------------- iterations
 def test_iteration_order_on_tracking_like_instances():
     """Fig. 13: SWAP needs fewer iterations than away steps, which need fewer than plain FW."""
-    from tracker.bench_solver import FrameSpec, synthetic_frame_qp
+    from tracker.testing import FrameSpec, synthetic_frame_qp
 
     its = {v: [] for v in VARIANTS}
     for seed in range(3):
@@ -297,7 +297,10 @@ def test_q_is_canonicalised_and_never_densified():
 def test_bench_solver_smoke(tmp_path, capsys):
     import json
 
-    from tracker.bench_solver import main
+    from crowdsim.bench import main as bench_main
+
+    def main(argv):
+        return bench_main("solver", argv)
 
     npz = tmp_path / "frames.npz"
     args = ["--sizes", "8,12", "--frames", "1", "--repeats", "1", "--out", str(tmp_path),
@@ -333,7 +336,10 @@ def test_bench_solver_on_tracker_frames(capsys):
     import json
 
     pytest.importorskip("cv2")
-    from tracker.bench_solver import main
+    from crowdsim.bench import main as bench_main
+
+    def main(argv):
+        return bench_main("solver", argv)
 
     assert main(["--tracker-frames", "3", "--frames", "2", "--sizes", "6", "--repeats", "1",
                  "--no-plot"]) == 0

@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from tracker.candidates import dense_candidates, grid_positions, speedup_candidates
-from tracker.params import BQPParams, search_radius
-from tracker.terms import (
+from tracker.bqp.params import BQPParams
+from tracker.bqp.terms import (
     coherent_groups,
     group_trees,
     grouping_matrix,
@@ -18,6 +17,7 @@ from tracker.terms import (
     proximity_matrix,
     quadratic_matrix,
 )
+from tracker.candidates import dense_candidates, grid_positions, search_radius, speedup_candidates
 
 
 def test_motion_cost_peaks_at_prediction():

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tracker_scenes import make_scene
 
 from tracker.base import Tracker, TrackResult
-from tracker.bqp import BQPTracker
+from tracker.baselines.ncc import NCCTracker
+from tracker.bqp.params import BQPParams
+from tracker.bqp.tracker import BQPTracker
 from tracker.metrics import accuracy_curve
-from tracker.ncc import NCCTracker
-from tracker.params import BQPParams
+from tracker.testing import make_scene
 
 FACTORIES = {
     "bqp": lambda: BQPTracker(),  # speed-up sampling (the default)
@@ -122,7 +122,7 @@ def test_deterministic(make):
 
 @pytest.fixture(scope="module")
 def crowd():
-    from tracker.bench_track import synthetic_crowd
+    from crowdsim.bench.track import synthetic_crowd
 
     return synthetic_crowd(150, 20, seed=3, template_px=10, size=(320, 240), contrast=0.2,
                            noise_sigma=10, speed=2.6)

@@ -5,7 +5,7 @@ Per frame, for the ``n`` active targets with ``k`` candidates each (Eq. 1):
 ``min_x  c_a.x + zeta c_m.x + eta c_nm.x + w_sp x^T C_sp x + w_g x^T C_g x``
 
 over one-hot ``x`` per target (Eq. 2-3), relaxed to a product of simplices and solved by
-:func:`tracker.frank_wolfe.solve` (Sec. 5), then rounded per target (Eq. 14).
+:func:`tracker.bqp.frank_wolfe.solve` (Sec. 5), then rounded per target (Eq. 14).
 
 Stages of a frame (their seconds are accumulated in ``timings``):
 
@@ -15,10 +15,10 @@ Stages of a frame (their seconds are accumulated in ``timings``):
 ``terms``
     Motion (Eq. 6) and neighbourhood-motion (Eq. 7-8) maps, candidate selection (dense or
     speed-up sampling, :mod:`tracker.candidates`), the sparse quadratic terms (Eq. 9-10,
-    :mod:`tracker.terms`) and, every ``group_refresh`` frames, the coherent-motion groups and
+    :mod:`tracker.bqp.terms`) and, every ``group_refresh`` frames, the coherent-motion groups and
     their spanning trees.
 ``solve``
-    Building the :class:`tracker.qp.BlockQP` and running Frank-Wolfe.
+    Building the :class:`tracker.bqp.qp.BlockQP` and running Frank-Wolfe.
 
 Search windows are centred on the constant-velocity prediction ``p + p_dot``; targets whose
 prediction leaves the image are terminated; births come from the caller (ground truth on
@@ -34,15 +34,21 @@ import scipy.sparse as sp
 
 from tracker.appearance import make_appearance
 from tracker.base import Tracker
-from tracker.candidates import Candidates, dense_candidates, grid_positions, speedup_candidates
-from tracker.params import BQPParams, search_radius
-from tracker.terms import (
+from tracker.bqp.params import BQPParams
+from tracker.bqp.terms import (
     coherent_groups,
     group_trees,
     motion_cost,
     neighbourhood_cost,
     neighbours_in_groups,
     quadratic_matrix,
+)
+from tracker.candidates import (
+    Candidates,
+    dense_candidates,
+    grid_positions,
+    search_radius,
+    speedup_candidates,
 )
 
 
@@ -54,7 +60,7 @@ class BQPTracker(Tracker):
     params : BQPParams, optional
         All weights and thresholds (default: the paper's values).
     record_qps : bool
-        Keep every frame's :class:`tracker.qp.BlockQP` in ``recorded_qps`` (for the solver
+        Keep every frame's :class:`tracker.bqp.qp.BlockQP` in ``recorded_qps`` (for the solver
         benchmark: "relaxed QPs taken from real tracking frames").
 
     Attributes
@@ -177,8 +183,8 @@ class BQPTracker(Tracker):
                                 self._px(p.group_sigma), p.group_cutoff, p.laplacian_tau)
 
     def _step(self, frame: np.ndarray) -> np.ndarray:
-        from tracker.frank_wolfe import FWParams, solve
-        from tracker.qp import BlockQP
+        from tracker.bqp.frank_wolfe import FWParams, solve
+        from tracker.bqp.qp import BlockQP
 
         p = self.params
         n = len(self.points)

@@ -122,8 +122,8 @@ ABLATION: tuple[tuple[str, dict], ...] = (
 
 def run_ablation(crowd: Crowd) -> list[dict]:
     """Table 3: accuracy of every term combination, with KCF and with NCC appearance."""
-    from tracker.bqp import BQPTracker
-    from tracker.params import BQPParams
+    from tracker.bqp.params import BQPParams
+    from tracker.bqp.tracker import BQPTracker
 
     rows = []
     for label, over in ABLATION:
@@ -182,9 +182,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tracker.bqp import BQPTracker
-    from tracker.ncc import NCCTracker
-    from tracker.params import BQPParams
+    from tracker.baselines.ncc import NCCTracker
+    from tracker.bqp.params import BQPParams
+    from tracker.bqp.tracker import BQPTracker
 
     targets, frames, n_sampling = args.targets, args.frames, args.sampling_targets
     if args.quick:

@@ -11,9 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 
 from crowdsim.checks import require_choice, require_number
+from tracker.bqp.frank_wolfe import VARIANTS as FW_VARIANTS
 
 APPEARANCE_MODELS: tuple[str, ...] = ("kcf", "ncc")
-FW_VARIANTS: tuple[str, ...] = ("plain", "away", "swap")
 
 
 @dataclass(frozen=True)
@@ -95,13 +95,13 @@ class BQPParams:
     laplacian_tau : float
         Degree regulariser ``tau`` of both normalised Laplacians,
         ``(D + tau I)^-1/2 (D -/+ W) (D + tau I)^-1/2`` (0 = the paper's ``I -/+ D^-1/2 W
-        D^-1/2``); see :func:`tracker.terms.quadratic_matrix`. Default 1: with ``tau = 0``
+        D^-1/2``); see :func:`tracker.bqp.terms.quadratic_matrix`. Default 1: with ``tau = 0``
         a candidate pair that is barely similar but has no other neighbour gets a
         full-strength proximity penalty, which cost 0.4 points at 5 px on a 300-person
         synthetic crowd; ``tau = 1`` lost nothing.
     group_offsets : bool
         Grouping term on relative positions ``e_ij = p_i - p_j`` (2-vectors) instead of the
-        distances ``|p_i - p_j|`` of Eq. 10; see :func:`tracker.terms.grouping_matrix`.
+        distances ``|p_i - p_j|`` of Eq. 10; see :func:`tracker.bqp.terms.grouping_matrix`.
     group_cutoff : float
         Entries of ``Gamma`` (Eq. 10) with ``| |p_i - p_j| - e_ij | > group_cutoff * sigma`` are
         dropped (same reasoning as ``proximity_cutoff``).
@@ -203,16 +203,3 @@ class BQPParams:
     def field_names(cls) -> tuple[str, ...]:
         """Names of all parameters, in declaration order."""
         return tuple(f.name for f in fields(cls))
-
-
-def search_radius(template_size: int, search_factor: float) -> int:
-    """Candidate radius ``r`` (px) for a search region of ``search_factor`` template sizes.
-
-    >>> search_radius(14, 2.0)
-    7
-    >>> search_radius(8, 2.0)
-    4
-    """
-    if template_size < 2:
-        raise ValueError(f"template_size must be >= 2 px, got {template_size!r}")
-    return max(1, int(round((search_factor - 1.0) * template_size / 2.0)))

@@ -1,7 +1,7 @@
 """Reference solvers for the relaxed BQP: Clarabel (interior point) and OSQP (ADMM).
 
-They solve the same :class:`tracker.qp.BlockQP` as :mod:`tracker.frank_wolfe`, standing in for
-the paper's ILOG CPLEX (Sec. 7.4, Fig. 12). Both take the problem in the form::
+They solve the same :class:`tracker.bqp.qp.BlockQP` as :mod:`tracker.bqp.frank_wolfe`,
+standing in for the paper's ILOG CPLEX (Sec. 7.4, Fig. 12). Both take the problem in the form::
 
     min 1/2 x^T P x + q^T x   with  P = 2 Q  (upper triangle),  q = c
     Clarabel:  A x + s = b,  s in {0}^n x R_+^l,  A = [B; -I], b = [1; 0]
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from tracker.qp import BlockQP
+from tracker.bqp.qp import BlockQP
 
 _INSTALL_HINT = (
     "{name} is needed for the reference QP solver; install it with "

@@ -10,7 +10,7 @@ normalised-Laplacian quadratic terms, Eq. 9-10), which is positive semi-definite
 
 :class:`BlockQP` is only the container: it validates shapes, symmetry and the block layout,
 evaluates the objective and converts per-block choices to one-hot vertices. The solver lives in
-:mod:`tracker.frank_wolfe`, the reference solvers in :mod:`tracker.qp_baselines`.
+:mod:`tracker.bqp.frank_wolfe`, the reference solvers in :mod:`tracker.bqp.qp_baselines`.
 """
 
 from __future__ import annotations

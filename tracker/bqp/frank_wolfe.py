@@ -15,7 +15,7 @@ One implementation serves three variants, selected by :attr:`FWParams.variant`:
 
 Domain and bookkeeping
 ----------------------
-The domain is a product of simplices (one per target, see :class:`tracker.qp.BlockQP`). A
+The domain is a product of simplices (one per target, see :class:`tracker.bqp.qp.BlockQP`). A
 block's values ``x_b`` are its own barycentric coordinates over the block's vertices, so
 the active set ``S`` of Alg. 2 is simply the support of ``x_b`` and ``alpha_y = x_y``; a drop
 step sets ``x_y = 0`` exactly. Per block we keep the toward index ``s_b`` (argmin ``g`` in the
@@ -60,7 +60,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from tracker.qp import BlockQP
+from tracker.bqp.qp import BlockQP
 
 VARIANTS: tuple[str, ...] = ("plain", "away", "swap")
 _VARIANT_CODE = {name: i for i, name in enumerate(VARIANTS)}

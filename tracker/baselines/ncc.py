@@ -16,8 +16,7 @@ import numpy as np
 
 from tracker.appearance import NCCAppearance
 from tracker.base import Tracker
-from tracker.candidates import grid_offsets
-from tracker.params import search_radius
+from tracker.candidates import grid_offsets, search_radius
 
 
 @dataclass(frozen=True)

@@ -9,9 +9,9 @@ Reproduces two claims on the relaxed per-frame QP of the BQP tracker:
 Problems come from one of three sources:
 
 * ``--tracker-frames N``: the BQP tracker (:class:`tracker.bqp.BQPTracker`) itself runs N
-  frames on a crowd rendered by :func:`tracker.bench_track.synthetic_crowd` at each size and
+  frames on a crowd rendered by :func:`crowdsim.bench.track.synthetic_crowd` at each size and
   its recorded per-frame QPs are taken;
-* ``--from-npz FILE``: QPs dumped from tracking frames with :func:`tracker.qp.save_many`
+* ``--from-npz FILE``: QPs dumped from tracking frames with :func:`tracker.bqp.qp.save_many`
   (e.g. ``BQPTracker(record_qps=True).recorded_qps``), for instance on real video;
 * default: :func:`synthetic_frame_qp`, which builds a denser frame the way the tracker
   does: targets on a dense jittered lattice, a dense candidate grid in each
@@ -29,194 +29,14 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import minimum_spanning_tree
-from scipy.spatial import cKDTree
 
-from tracker.frank_wolfe import VARIANTS, FWParams, solve
-from tracker.qp import BlockQP, load_many
-
-# ------------------------------------------------------------------------ synthetic frames
-
-
-@dataclass(frozen=True)
-class FrameSpec:
-    """A synthetic tracking frame, shaped like the BQP tracker's per-frame QP.
-
-    Attributes
-    ----------
-    n_targets : int
-        Number of targets ``n`` (blocks).
-    target_size : float
-        Head template side ``s``, pixels.
-    spacing : float
-        Mean distance between neighbouring targets, pixels (dense crowd: ~1.5 sizes).
-    grid : int
-        Candidates per side of the search window (2x target size): ``grid**2`` candidates.
-    drop : float
-        Fraction of candidates removed at random per target (so ``k`` varies, ~50-100).
-    motion_sigma : float
-        Std of the motion prediction error, pixels (``c_m``, Eq. 6).
-    zeta : float
-        Weight of the motion term ``c_m`` (Eq. 1).
-    w_sp, w_g : float
-        Weights of the spatial-proximity ``C_sp`` (Eq. 9) and grouping ``C_g`` (Eq. 10) terms.
-    group_fraction : float
-        Fraction of targets walking in groups of 2-5 (grouping term).
-    proximity_sigma, proximity_cutoff : float
-        ``sigma`` of Eq. 9 in target sizes (paper: 0.5), and the cutoff in ``sigma``.
-    group_sigma, group_cutoff : float
-        ``sigma`` of Eq. 10 in target sizes, and the cutoff on ``| |p_i - p_j| - e_ij |``
-        in ``sigma``.
-    noise : float
-        Std of the appearance-response noise.
-    """
-
-    n_targets: int = 100
-    target_size: float = 12.0
-    spacing: float = 18.0
-    grid: int = 9
-    drop: float = 0.2
-    motion_sigma: float = 3.0
-    zeta: float = 0.3
-    w_sp: float = 1.0
-    w_g: float = 1.0
-    group_fraction: float = 0.3
-    proximity_sigma: float = 0.5
-    proximity_cutoff: float = 2.0
-    group_sigma: float = 0.25
-    group_cutoff: float = 2.5
-    noise: float = 0.05
-
-    def __post_init__(self) -> None:
-        if self.n_targets < 0:
-            raise ValueError(f"FrameSpec.n_targets must be >= 0, got {self.n_targets}")
-        if self.grid < 1:
-            raise ValueError(f"FrameSpec.grid must be >= 1, got {self.grid}")
-        if not 0.0 <= self.drop < 1.0:
-            raise ValueError(f"FrameSpec.drop must be in [0, 1), got {self.drop}")
-        for name in ("target_size", "spacing", "motion_sigma", "proximity_sigma",
-                     "proximity_cutoff", "group_sigma", "group_cutoff"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"FrameSpec.{name} must be > 0, got {getattr(self, name)}")
-
-
-def _normalised_laplacian(S: sp.coo_matrix, l: int, sign: float) -> sp.csc_matrix:
-    """``I + sign D^-1/2 S D^-1/2`` on the nodes with an edge (isolated nodes: 0 row/column).
-
-    ``sign = -1``: normalised Laplacian; ``sign = +1``: signless normalised Laplacian. Both
-    are PSD (eigenvalues of ``D^-1/2 S D^-1/2`` lie in [-1, 1]).
-    """
-    S = S.tocsr()
-    d = np.asarray(S.sum(axis=1)).ravel()
-    has = d > 0
-    inv = np.zeros(l)
-    inv[has] = 1.0 / np.sqrt(d[has])
-    Dm = sp.diags(inv)
-    return (sp.diags(has.astype(float)) + sign * (Dm @ S @ Dm)).tocsc()
-
-
-def synthetic_frame_qp(spec: FrameSpec, rng: np.random.Generator) -> BlockQP:
-    """A relaxed QP shaped like a real frame of the BQP tracker (see :class:`FrameSpec`).
-
-    Returns a :class:`BlockQP` with ``c = c_a + zeta c_m`` and ``Q = w_sp C_sp + w_g C_g``.
-    As in :mod:`tracker.terms`, ``C_sp`` is the *signless* normalised Laplacian
-    ``I + D^-1/2 S D^-1/2`` (the paper's ``I - ...`` would reward co-selecting close
-    candidates) and ``C_g = I - D^-1/2 Gamma D^-1/2``; both are PSD, so ``Q`` is PSD.
-    """
-    n = spec.n_targets
-    if n == 0:
-        return BlockQP(np.zeros(0), sp.csc_matrix((0, 0)), np.zeros(1, dtype=np.int64))
-    sigma = spec.proximity_sigma * spec.target_size
-    sigma_g = spec.group_sigma * spec.target_size
-    sigma_a = spec.target_size / 4.0
-    side = int(np.ceil(np.sqrt(n)))
-    lattice = np.stack(np.meshgrid(np.arange(side), np.arange(side), indexing="ij"),
-                       axis=-1).reshape(-1, 2)[:n].astype(float)
-    true = (lattice + 0.25 * rng.standard_normal((n, 2))) * spec.spacing
-    pred = true + spec.motion_sigma * rng.standard_normal((n, 2))
-
-    # Candidate grid over each search window (2x the target size), centred on the prediction.
-    half = spec.target_size
-    ticks = np.linspace(-half, half, spec.grid)
-    offs = np.stack(np.meshgrid(ticks, ticks, indexing="ij"), axis=-1).reshape(-1, 2)
-    pts, owner = [], []
-    for i in range(n):
-        keep = rng.random(offs.shape[0]) >= spec.drop
-        keep[np.argmin(np.linalg.norm(offs, axis=1))] = True
-        pts.append(pred[i] + offs[keep])
-        owner.append(np.full(int(keep.sum()), i, dtype=np.int64))
-    p = np.concatenate(pts)
-    owner = np.concatenate(owner)
-    l = p.shape[0]
-    block_ptr = np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=n))]).astype(np.int64)
-
-    # Appearance (c_a): correlation-filter response peaks at the target and, weaker, at
-    # look-alike neighbours; motion (c_m, Eq. 6): Gaussian prediction around ``pred``.
-    tree_t = cKDTree(true)
-    resp = np.exp(-np.sum((p - true[owner]) ** 2, axis=1) / (2 * sigma_a**2))
-    for a, b in tree_t.query_pairs(2.0 * spec.target_size):
-        for i, j in ((a, b), (b, a)):
-            sl = slice(block_ptr[i], block_ptr[i + 1])
-            look = 0.3 + 0.4 * rng.random()
-            resp[sl] = np.maximum(
-                resp[sl], look * np.exp(-np.sum((p[sl] - true[j]) ** 2, axis=1)
-                                        / (2 * sigma_a**2)))
-    c_a = -(resp + spec.noise * rng.standard_normal(l))
-    c_m = 1.0 - np.exp(-np.sum((p - pred[owner]) ** 2, axis=1) / (2 * spec.motion_sigma**2))
-    c = c_a + spec.zeta * c_m
-
-    # C_sp (Eq. 9): S_ij between candidates of different targets within the cutoff.
-    pairs = cKDTree(p).query_pairs(spec.proximity_cutoff * sigma, output_type="ndarray")
-    pairs = pairs[owner[pairs[:, 0]] != owner[pairs[:, 1]]]
-    sv = np.exp(-np.sum((p[pairs[:, 0]] - p[pairs[:, 1]]) ** 2, axis=1) / (2 * sigma**2))
-    S = sp.coo_matrix((np.concatenate([sv, sv]),
-                       (np.concatenate([pairs[:, 0], pairs[:, 1]]),
-                        np.concatenate([pairs[:, 1], pairs[:, 0]]))), shape=(l, l))
-    Q = spec.w_sp * _normalised_laplacian(S, l, +1.0)
-
-    # C_g (Eq. 10): groups of 2-5 nearby targets, an MST per group; Gamma between candidates
-    # of MST neighbours rewards keeping the previous inter-target distance e_ij.
-    if spec.w_g > 0 and spec.group_fraction > 0 and n > 1:
-        rows, cols, vals = [], [], []
-        in_group = np.zeros(n, dtype=bool)
-        for seed_t in rng.permutation(n):
-            if in_group[seed_t] or in_group.mean() >= spec.group_fraction:
-                continue
-            size = int(rng.integers(2, 6))
-            members = [m for m in tree_t.query(true[seed_t], k=min(size, n))[1]
-                       if not in_group[m]]
-            if len(members) < 2:
-                continue
-            in_group[members] = True
-            d = np.linalg.norm(true[members][:, None] - true[members][None], axis=-1)
-            mst = minimum_spanning_tree(sp.csr_matrix(d + 1e-9 * (d == 0))).tocoo()
-            for a, b in zip(mst.row, mst.col, strict=True):
-                i, j = members[a], members[b]
-                e_ij = d[a, b]
-                ii = np.arange(block_ptr[i], block_ptr[i + 1])
-                jj = np.arange(block_ptr[j], block_ptr[j + 1])
-                dist = np.linalg.norm(p[ii][:, None] - p[jj][None], axis=-1)
-                dev = dist - e_ij
-                keep = np.abs(dev) <= spec.group_cutoff * sigma_g
-                gam = np.exp(-(dev**2) / (2 * sigma_g**2))
-                r, cc = np.nonzero(keep)
-                rows += [ii[r], jj[cc]]
-                cols += [jj[cc], ii[r]]
-                vals += [gam[keep], gam[keep]]
-        if rows:
-            G = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                      np.concatenate(cols))), shape=(l, l))
-            Q = Q + spec.w_g * _normalised_laplacian(G, l, -1.0)
-    Q = sp.csc_matrix(Q)
-    Q = (Q + Q.T) * 0.5  # exact symmetry after the float round-off of D^-1/2 S D^-1/2
-    return BlockQP(c, sp.csc_matrix(Q), block_ptr)
-
+from tracker.bqp.frank_wolfe import VARIANTS, FWParams, solve
+from tracker.bqp.qp import BlockQP, load_many
+from tracker.testing import FrameSpec, synthetic_frame_qp
 
 # ------------------------------------------------------------------------------ benchmark
 CLAIM_SPEEDUP: float = 20.0
@@ -235,11 +55,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="synthetic frames (QPs) per size (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic frames")
     parser.add_argument("--from-npz", action="append", default=[], metavar="FILE",
-                        help="QPs dumped from real tracking frames (tracker.qp.save_many); "
+                        help="QPs dumped from real tracking frames (tracker.bqp.qp.save_many); "
                              "repeatable; replaces the synthetic frames")
     parser.add_argument("--tracker-frames", type=int, default=0, metavar="N",
                         help="instead of synthetic QPs, run the BQP tracker for N frames on a "
-                             "rendered crowd of each --sizes (tracker.bench_track) and take "
+                             "rendered crowd of each --sizes (crowdsim.bench.track) and take "
                              "the QPs of its last --frames frames")
     parser.add_argument("--tracker-dense", action="store_true",
                         help="with --tracker-frames: dense candidates instead of the "
@@ -296,9 +116,9 @@ def _problems(args: argparse.Namespace) -> list[tuple[str, BlockQP]]:
 
 def _tracker_problems(args: argparse.Namespace) -> list[tuple[str, BlockQP]]:
     """QPs recorded by the BQP tracker itself on rendered crowds (``--tracker-frames``)."""
-    from tracker.bench_track import run_tracker, synthetic_crowd
-    from tracker.bqp import BQPTracker
-    from tracker.params import BQPParams
+    from crowdsim.bench.track import run_tracker, synthetic_crowd
+    from tracker.bqp.params import BQPParams
+    from tracker.bqp.tracker import BQPTracker
 
     if args.tracker_frames < args.frames:
         raise ValueError(f"--tracker-frames ({args.tracker_frames}) must be >= --frames "
@@ -362,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     problems = _problems(args)
     if args.save_npz:
-        from tracker.qp import save_many
+        from tracker.bqp.qp import save_many
 
         save_many(args.save_npz, [qp for _, qp in problems])
     build_s = time.perf_counter() - t0
@@ -371,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
 
     ref_solver = None
     if args.reference != "none":
-        from tracker.qp_baselines import SOLVERS
+        from tracker.bqp.qp_baselines import SOLVERS
 
         ref_solver = SOLVERS[args.reference]
 
@@ -515,14 +335,3 @@ def run(args: argparse.Namespace) -> int:
     }
     print(json.dumps(report))
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="benchmarks/solver.py", description=__doc__)
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return run(args)
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"solver benchmark: error: {exc}", file=sys.stderr)
-        return 2

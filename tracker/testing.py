@@ -1,0 +1,238 @@
+"""Test material shipped with the tracker library: scenes, QPs and the tracker contract check.
+
+* :func:`make_scene` -- tiny hand-built scenes with exact ground truth;
+* :func:`synthetic_frame_qp` -- relaxed QPs shaped like a BQP tracking frame (solver tests and
+  ``crowdsim bench solver``).
+
+Scenes:
+
+Coloured square "heads" of ``size`` px move at integer velocities over a seeded random
+texture; positions are integer pixels, so a correct tracker recovers them exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import minimum_spanning_tree
+from scipy.spatial import cKDTree
+
+from tracker.bqp.qp import BlockQP
+
+PALETTE = np.array([[255, 40, 40], [40, 220, 255], [40, 40, 230], [40, 230, 40],
+                    [230, 40, 230], [240, 240, 40], [200, 200, 200], [20, 120, 250]],
+                   dtype=np.uint8)
+
+
+@dataclass
+class Scene:
+    frames: list[np.ndarray]
+    ids: np.ndarray
+    points: np.ndarray  # (T, N, 2) float, NaN where absent
+    template_size: int
+
+
+def make_scene(starts, velocities, n_frames: int = 12, shape=(96, 128), size: int = 8,
+               seed: int = 0, colours=None, birth_frames=None) -> Scene:
+    """Two-tone blobs of ``size - 2`` px (dark 2x2 centre) at ``start + t * velocity`` (px)."""
+    rng = np.random.default_rng(seed)
+    starts = np.asarray(starts, dtype=np.int64).reshape(-1, 2)
+    vel = np.asarray(velocities, dtype=np.int64).reshape(-1, 2)
+    n = len(starts)
+    h, w = shape
+    bg = rng.integers(70, 130, (h, w, 3)).astype(np.uint8)
+    cols = PALETTE[np.arange(n) % len(PALETTE)] if colours is None else np.asarray(colours)
+    birth = np.zeros(n, np.int64) if birth_frames is None else np.asarray(birth_frames)
+    pts = np.full((n_frames, n, 2), np.nan)
+    frames = []
+    half = (size - 2) // 2
+    for t in range(n_frames):
+        f = bg.copy()
+        for i in range(n):
+            if t < birth[i]:
+                continue
+            x, y = starts[i] + (t - birth[i]) * vel[i]
+            if not (0 <= x < w and 0 <= y < h):
+                continue
+            pts[t, i] = (x, y)
+            f[max(0, y - half):y + half + 1, max(0, x - half):x + half + 1] = cols[i]
+            # a dark "head" in the middle so that no template is flat (NCC needs variance)
+            f[max(0, y - 1):y + 1, max(0, x - 1):x + 1] = cols[i] // 4
+        frames.append(f)
+    return Scene(frames, np.arange(1, n + 1), pts, size)
+
+
+@dataclass(frozen=True)
+class FrameSpec:
+    """A synthetic tracking frame, shaped like the BQP tracker's per-frame QP.
+
+    Attributes
+    ----------
+    n_targets : int
+        Number of targets ``n`` (blocks).
+    target_size : float
+        Head template side ``s``, pixels.
+    spacing : float
+        Mean distance between neighbouring targets, pixels (dense crowd: ~1.5 sizes).
+    grid : int
+        Candidates per side of the search window (2x target size): ``grid**2`` candidates.
+    drop : float
+        Fraction of candidates removed at random per target (so ``k`` varies, ~50-100).
+    motion_sigma : float
+        Std of the motion prediction error, pixels (``c_m``, Eq. 6).
+    zeta : float
+        Weight of the motion term ``c_m`` (Eq. 1).
+    w_sp, w_g : float
+        Weights of the spatial-proximity ``C_sp`` (Eq. 9) and grouping ``C_g`` (Eq. 10) terms.
+    group_fraction : float
+        Fraction of targets walking in groups of 2-5 (grouping term).
+    proximity_sigma, proximity_cutoff : float
+        ``sigma`` of Eq. 9 in target sizes (paper: 0.5), and the cutoff in ``sigma``.
+    group_sigma, group_cutoff : float
+        ``sigma`` of Eq. 10 in target sizes, and the cutoff on ``| |p_i - p_j| - e_ij |``
+        in ``sigma``.
+    noise : float
+        Std of the appearance-response noise.
+    """
+
+    n_targets: int = 100
+    target_size: float = 12.0
+    spacing: float = 18.0
+    grid: int = 9
+    drop: float = 0.2
+    motion_sigma: float = 3.0
+    zeta: float = 0.3
+    w_sp: float = 1.0
+    w_g: float = 1.0
+    group_fraction: float = 0.3
+    proximity_sigma: float = 0.5
+    proximity_cutoff: float = 2.0
+    group_sigma: float = 0.25
+    group_cutoff: float = 2.5
+    noise: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.n_targets < 0:
+            raise ValueError(f"FrameSpec.n_targets must be >= 0, got {self.n_targets}")
+        if self.grid < 1:
+            raise ValueError(f"FrameSpec.grid must be >= 1, got {self.grid}")
+        if not 0.0 <= self.drop < 1.0:
+            raise ValueError(f"FrameSpec.drop must be in [0, 1), got {self.drop}")
+        for name in ("target_size", "spacing", "motion_sigma", "proximity_sigma",
+                     "proximity_cutoff", "group_sigma", "group_cutoff"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"FrameSpec.{name} must be > 0, got {getattr(self, name)}")
+
+
+def _normalised_laplacian(S: sp.coo_matrix, l: int, sign: float) -> sp.csc_matrix:
+    """``I + sign D^-1/2 S D^-1/2`` on the nodes with an edge (isolated nodes: 0 row/column).
+
+    ``sign = -1``: normalised Laplacian; ``sign = +1``: signless normalised Laplacian. Both
+    are PSD (eigenvalues of ``D^-1/2 S D^-1/2`` lie in [-1, 1]).
+    """
+    S = S.tocsr()
+    d = np.asarray(S.sum(axis=1)).ravel()
+    has = d > 0
+    inv = np.zeros(l)
+    inv[has] = 1.0 / np.sqrt(d[has])
+    Dm = sp.diags(inv)
+    return (sp.diags(has.astype(float)) + sign * (Dm @ S @ Dm)).tocsc()
+
+
+def synthetic_frame_qp(spec: FrameSpec, rng: np.random.Generator) -> BlockQP:
+    """A relaxed QP shaped like a real frame of the BQP tracker (see :class:`FrameSpec`).
+
+    Returns a :class:`BlockQP` with ``c = c_a + zeta c_m`` and ``Q = w_sp C_sp + w_g C_g``.
+    As in :mod:`tracker.bqp.terms`, ``C_sp`` is the *signless* normalised Laplacian
+    ``I + D^-1/2 S D^-1/2`` (the paper's ``I - ...`` would reward co-selecting close
+    candidates) and ``C_g = I - D^-1/2 Gamma D^-1/2``; both are PSD, so ``Q`` is PSD.
+    """
+    n = spec.n_targets
+    if n == 0:
+        return BlockQP(np.zeros(0), sp.csc_matrix((0, 0)), np.zeros(1, dtype=np.int64))
+    sigma = spec.proximity_sigma * spec.target_size
+    sigma_g = spec.group_sigma * spec.target_size
+    sigma_a = spec.target_size / 4.0
+    side = int(np.ceil(np.sqrt(n)))
+    lattice = np.stack(np.meshgrid(np.arange(side), np.arange(side), indexing="ij"),
+                       axis=-1).reshape(-1, 2)[:n].astype(float)
+    true = (lattice + 0.25 * rng.standard_normal((n, 2))) * spec.spacing
+    pred = true + spec.motion_sigma * rng.standard_normal((n, 2))
+
+    # Candidate grid over each search window (2x the target size), centred on the prediction.
+    half = spec.target_size
+    ticks = np.linspace(-half, half, spec.grid)
+    offs = np.stack(np.meshgrid(ticks, ticks, indexing="ij"), axis=-1).reshape(-1, 2)
+    pts, owner = [], []
+    for i in range(n):
+        keep = rng.random(offs.shape[0]) >= spec.drop
+        keep[np.argmin(np.linalg.norm(offs, axis=1))] = True
+        pts.append(pred[i] + offs[keep])
+        owner.append(np.full(int(keep.sum()), i, dtype=np.int64))
+    p = np.concatenate(pts)
+    owner = np.concatenate(owner)
+    l = p.shape[0]
+    block_ptr = np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=n))]).astype(np.int64)
+
+    # Appearance (c_a): correlation-filter response peaks at the target and, weaker, at
+    # look-alike neighbours; motion (c_m, Eq. 6): Gaussian prediction around ``pred``.
+    tree_t = cKDTree(true)
+    resp = np.exp(-np.sum((p - true[owner]) ** 2, axis=1) / (2 * sigma_a**2))
+    for a, b in tree_t.query_pairs(2.0 * spec.target_size):
+        for i, j in ((a, b), (b, a)):
+            sl = slice(block_ptr[i], block_ptr[i + 1])
+            look = 0.3 + 0.4 * rng.random()
+            resp[sl] = np.maximum(
+                resp[sl], look * np.exp(-np.sum((p[sl] - true[j]) ** 2, axis=1)
+                                        / (2 * sigma_a**2)))
+    c_a = -(resp + spec.noise * rng.standard_normal(l))
+    c_m = 1.0 - np.exp(-np.sum((p - pred[owner]) ** 2, axis=1) / (2 * spec.motion_sigma**2))
+    c = c_a + spec.zeta * c_m
+
+    # C_sp (Eq. 9): S_ij between candidates of different targets within the cutoff.
+    pairs = cKDTree(p).query_pairs(spec.proximity_cutoff * sigma, output_type="ndarray")
+    pairs = pairs[owner[pairs[:, 0]] != owner[pairs[:, 1]]]
+    sv = np.exp(-np.sum((p[pairs[:, 0]] - p[pairs[:, 1]]) ** 2, axis=1) / (2 * sigma**2))
+    S = sp.coo_matrix((np.concatenate([sv, sv]),
+                       (np.concatenate([pairs[:, 0], pairs[:, 1]]),
+                        np.concatenate([pairs[:, 1], pairs[:, 0]]))), shape=(l, l))
+    Q = spec.w_sp * _normalised_laplacian(S, l, +1.0)
+
+    # C_g (Eq. 10): groups of 2-5 nearby targets, an MST per group; Gamma between candidates
+    # of MST neighbours rewards keeping the previous inter-target distance e_ij.
+    if spec.w_g > 0 and spec.group_fraction > 0 and n > 1:
+        rows, cols, vals = [], [], []
+        in_group = np.zeros(n, dtype=bool)
+        for seed_t in rng.permutation(n):
+            if in_group[seed_t] or in_group.mean() >= spec.group_fraction:
+                continue
+            size = int(rng.integers(2, 6))
+            members = [m for m in tree_t.query(true[seed_t], k=min(size, n))[1]
+                       if not in_group[m]]
+            if len(members) < 2:
+                continue
+            in_group[members] = True
+            d = np.linalg.norm(true[members][:, None] - true[members][None], axis=-1)
+            mst = minimum_spanning_tree(sp.csr_matrix(d + 1e-9 * (d == 0))).tocoo()
+            for a, b in zip(mst.row, mst.col, strict=True):
+                i, j = members[a], members[b]
+                e_ij = d[a, b]
+                ii = np.arange(block_ptr[i], block_ptr[i + 1])
+                jj = np.arange(block_ptr[j], block_ptr[j + 1])
+                dist = np.linalg.norm(p[ii][:, None] - p[jj][None], axis=-1)
+                dev = dist - e_ij
+                keep = np.abs(dev) <= spec.group_cutoff * sigma_g
+                gam = np.exp(-(dev**2) / (2 * sigma_g**2))
+                r, cc = np.nonzero(keep)
+                rows += [ii[r], jj[cc]]
+                cols += [jj[cc], ii[r]]
+                vals += [gam[keep], gam[keep]]
+        if rows:
+            G = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                      np.concatenate(cols))), shape=(l, l))
+            Q = Q + spec.w_g * _normalised_laplacian(G, l, -1.0)
+    Q = sp.csc_matrix(Q)
+    Q = (Q + Q.T) * 0.5  # exact symmetry after the float round-off of D^-1/2 S D^-1/2
+    return BlockQP(c, sp.csc_matrix(Q), block_ptr)
