@@ -1,15 +1,23 @@
-"""Pictures of simulations: trajectories over the scene's walls (matplotlib, PNG)."""
+"""Figures as PNG: one plain figure helper for every plot, and trajectories over the walls.
+
+Figures are made with matplotlib's object API (:func:`new_figure`), never through pyplot, so
+importing or calling this module selects no backend and leaves a notebook user's matplotlib
+state alone.
+"""
 
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from crowdsim.atomic import atomic_path
-from crowdsim.trajectories import Trajectories
+
+if TYPE_CHECKING:
+    from crowdsim.trajectories import Trajectories
 
 
 def plot_trajectories(traj: Trajectories, walls: np.ndarray, path: str | os.PathLike[str],
@@ -22,15 +30,10 @@ def plot_trajectories(traj: Trajectories, walls: np.ndarray, path: str | os.Path
     walls : (m, 5) wall segments ``x0, y0, x1, y1, half_thickness`` in m
     path : output ``.png`` (written to a temporary file, then renamed)
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"plot file must end in .png, got {str(path)!r}")
-    fig, ax = plt.subplots(figsize=(8, 6))
+    fig, ax = new_figure(figsize=(8, 6))
     for x0, y0, x1, y1, _ in np.asarray(walls).reshape(-1, 5):
         ax.plot([x0, x1], [y0, y1], "k-", lw=1.5)
     pos = traj.positions
@@ -46,14 +49,26 @@ def plot_trajectories(traj: Trajectories, walls: np.ndarray, path: str | os.Path
     return save_figure(fig, path, dpi=110)
 
 
-def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 120) -> Path:
-    """Lay out, write atomically and close a matplotlib figure; returns the path."""
-    import matplotlib.pyplot as plt
+def new_figure(figsize: tuple[float, float] = (5.0, 3.6), dpi: int = 120,
+               ncols: int = 1) -> tuple[Any, Any]:
+    """A matplotlib ``Figure`` and its axes (``ncols`` of them), made without pyplot."""
+    from matplotlib.figure import Figure
 
+    fig = Figure(figsize=figsize, dpi=dpi)
+    return fig, fig.subplots(1, ncols)
+
+
+def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 120) -> Path:
+    """Lay out and write a matplotlib figure atomically; returns the path.
+
+    A figure made through pyplot is closed afterwards (one made by :func:`new_figure` has no
+    pyplot state to close).
+    """
     fig.tight_layout()
     try:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=dpi)
+            fig.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip(".") or "png")
     finally:
-        plt.close(fig)
+        if "matplotlib.pyplot" in sys.modules:
+            sys.modules["matplotlib.pyplot"].close(fig)
     return Path(path)

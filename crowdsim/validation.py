@@ -134,9 +134,9 @@ def fundamental_diagram(densities: list[float], length: float = 20.0, width: flo
     points = []
     it = densities
     if progress:
-        from tqdm import tqdm
+        from crowdsim.progress import progress_bar
 
-        it = tqdm(densities, desc="fundamental diagram", unit="density")
+        it = progress_bar(densities, desc="fundamental diagram", unit="density", leave=True)
     for rho in it:
         sim = periodic_corridor(rho, length, width, seed=seed, params=params)
         period = sim.world.period

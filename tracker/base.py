@@ -6,10 +6,23 @@ A tracker follows head points of known identity through a sequence of frames:
 * :meth:`Tracker.step` -- one more frame, optionally with *births* (targets that enter the
   scene in this frame, given with their position in it); returns the active targets;
 * :meth:`Tracker.track` -- the whole sequence, returning a :class:`TrackResult` with
-  ``(T, N, 2)`` pixel tracks.
+  ``(T, N, 2)`` pixel tracks;
+* :meth:`Tracker.set_params` -- new parameters between frames (what the tuning environments
+  and adaptive policies do); every changed field takes effect from the next frame, and fields
+  listed in :attr:`Tracker.fixed_params` are refused once a sequence has started.
 
-Targets whose predicted position leaves the image are terminated. One contract test suite
-(``tests/tracker/test_tracker_contract.py``) runs over every implementation.
+Tracks end in two ways (people leave the view, and real annotated trajectories also end
+inside it):
+
+* **leaving**: the target's next-frame prediction lies outside the image;
+* **lost evidence**: the tracker's confidence in the target (``confidence``, set by each
+  tracker's ``_step``: the appearance score of the chosen location) stayed below
+  ``params.lost_confidence`` for ``params.max_lost`` frames in a row (``max_lost = 0``: never).
+  Without this, a track runs on where its person vanished and every such frame counts as a
+  false positive in MOTA, IDF1 and HOTA (the papers' accuracy metric is unaffected).
+
+One contract check (:func:`tracker.testing.check_tracker_contract`) runs over every
+registered implementation.
 """
 
 from __future__ import annotations
@@ -17,7 +30,8 @@ from __future__ import annotations
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -89,15 +103,26 @@ class Tracker(ABC):
         Active target ids.
     points : (n, 2) float64
         Their current positions, pixels.
+    confidence : (n,) float64
+        Confidence of the last update of each target (tracker-specific scale; 1 at birth).
+    lost : (n,) int64
+        Frames in a row each target's confidence has been below ``params.lost_confidence``.
     timings : dict[str, float]
         Seconds spent per stage since :meth:`init`.
     """
 
     name: str = "tracker"
+    params_class: ClassVar[type | None] = None
+    """The frozen parameter dataclass of this tracker (``None``: it has no parameters)."""
+    fixed_params: ClassVar[frozenset[str]] = frozenset()
+    """Fields of :attr:`params_class` that cannot change once a sequence has started."""
 
     def __init__(self) -> None:
+        self.params: Any = None
         self.ids = np.zeros(0, np.int64)
         self.points = np.zeros((0, 2))
+        self.confidence = np.zeros(0)
+        self.lost = np.zeros(0, np.int64)
         self.template_size = 0
         self.frame_shape: tuple[int, ...] | None = None
         self.frame_index = 0
@@ -117,6 +142,8 @@ class Tracker(ABC):
         self._seen = set()
         self.ids = np.zeros(0, np.int64)
         self.points = np.zeros((0, 2))
+        self.confidence = np.zeros(0)
+        self.lost = np.zeros(0, np.int64)
         self._init(frame)
         self._add_targets(frame, ids, points)
 
@@ -137,7 +164,7 @@ class Tracker(ABC):
         t0 = time.perf_counter()
         if len(self.ids):
             self.points = self._step(frame)
-            self._terminate_leaving()
+            self._terminate()
         if births is not None and len(b_ids):
             self._add_targets(frame, b_ids, b_pts)
         self._tick("total", t0)
@@ -168,9 +195,9 @@ class Tracker(ABC):
         it = iter(frames)
         bar = None
         if progress:
-            from tqdm import tqdm
+            from crowdsim.progress import progress_bar
 
-            bar = tqdm(total=n_frames, unit="frame", desc=self.name, leave=False)
+            bar = progress_bar(total=n_frames, unit="frame", desc=self.name)
         try:
             first = next(it)
         except StopIteration:
@@ -198,7 +225,44 @@ class Tracker(ABC):
         result.timings = dict(self.timings)
         return result
 
+    def set_params(self, params: Any) -> None:
+        """Replace the tracker's parameters; changes take effect from the next frame.
+
+        Before :meth:`init` any change is accepted. During a sequence, a change of a field in
+        :attr:`fixed_params` raises ``ValueError`` naming the fields; every other changed
+        field is applied through :meth:`_apply_params`.
+
+        Parameters
+        ----------
+        params : instance of :attr:`params_class`
+        """
+        cls = self.params_class
+        if cls is None:
+            raise ValueError(f"tracker {self.name!r} has no parameters to set")
+        if not isinstance(params, cls):
+            raise ValueError(f"tracker {self.name!r} takes {cls.__name__}, got "
+                             f"{type(params).__name__}")
+        old = self.params
+        changed = [f.name for f in fields(params)
+                   if getattr(params, f.name) != getattr(old, f.name)]
+        if self.frame_shape is None or not changed:
+            self.params = params
+            return
+        fixed = [n for n in changed if n in self.fixed_params]
+        if fixed:
+            raise ValueError(f"tracker {self.name!r}: {', '.join(fixed)} cannot change in the "
+                             "middle of a sequence (set it before init())")
+        self.params = params
+        self._apply_params(old, frozenset(changed))
+
     # ------------------------------------------------------------------ subclass hooks
+    def _apply_params(self, old: Any, changed: frozenset[str]) -> None:  # noqa: B027
+        """Make the ``changed`` fields of ``self.params`` (was ``old``) take effect.
+
+        The default does nothing: right for trackers that read ``self.params`` every frame.
+        Trackers that copied a parameter into their state at :meth:`init` override this.
+        """
+
     @abstractmethod
     def _init(self, frame: np.ndarray) -> None:
         """Reset the tracker's state for a new sequence (no targets yet)."""
@@ -256,17 +320,27 @@ class Tracker(ABC):
         self._add(frame, points)
         self.ids = np.concatenate([self.ids, ids])
         self.points = np.concatenate([self.points, points])
+        self.confidence = np.concatenate([self.confidence, np.ones(len(ids))])
+        self.lost = np.concatenate([self.lost, np.zeros(len(ids), np.int64)])
 
-    def _terminate_leaving(self) -> None:
+    def _terminate(self) -> None:
+        """End the tracks that leave the image or whose evidence is gone (module docstring)."""
         h, w = self.frame_shape[:2]
         p = self._predicted()
-        inside = (p[:, 0] >= 0) & (p[:, 0] <= w - 1) & (p[:, 1] >= 0) & (p[:, 1] <= h - 1)
-        if inside.all():
+        keep = (p[:, 0] >= 0) & (p[:, 0] <= w - 1) & (p[:, 1] >= 0) & (p[:, 1] <= h - 1)
+        max_lost = int(getattr(self.params, "max_lost", 0) or 0)
+        if max_lost > 0:
+            low = np.asarray(self.confidence, np.float64) < self.params.lost_confidence
+            self.lost = np.where(low, self.lost + 1, 0)
+            keep &= self.lost < max_lost
+        if keep.all():
             return
-        keep = np.flatnonzero(inside)
+        keep = np.flatnonzero(keep)
         self._remove(keep)
         self.ids = self.ids[keep]
         self.points = self.points[keep]
+        self.confidence = self.confidence[keep]
+        self.lost = self.lost[keep]
 
     @staticmethod
     def _assemble(rows: list[tuple[np.ndarray, np.ndarray]]) -> TrackResult:

@@ -2,7 +2,8 @@
 
 * :func:`make_scene` -- tiny hand-built scenes with exact ground truth;
 * :func:`synthetic_frame_qp` -- relaxed QPs shaped like a BQP tracking frame (solver tests and
-  ``crowdsim bench solver``).
+  ``crowdsim bench solver``);
+* :func:`check_set_params` -- the ``set_params`` part of the tracker contract, for any tracker.
 
 Scenes:
 
@@ -12,7 +13,9 @@ texture; positions are integer pixels, so a correct tracker recovers them exactl
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, fields, replace
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -35,8 +38,12 @@ class Scene:
 
 
 def make_scene(starts, velocities, n_frames: int = 12, shape=(96, 128), size: int = 8,
-               seed: int = 0, colours=None, birth_frames=None) -> Scene:
-    """Two-tone blobs of ``size - 2`` px (dark 2x2 centre) at ``start + t * velocity`` (px)."""
+               seed: int = 0, colours=None, birth_frames=None, death_frames=None) -> Scene:
+    """Two-tone blobs of ``size - 2`` px (dark 2x2 centre) at ``start + t * velocity`` (px).
+
+    Target ``i`` is drawn from frame ``birth_frames[i]`` (default 0) up to, not including,
+    frame ``death_frames[i]`` (default: never ends): a person who vanishes inside the view.
+    """
     rng = np.random.default_rng(seed)
     starts = np.asarray(starts, dtype=np.int64).reshape(-1, 2)
     vel = np.asarray(velocities, dtype=np.int64).reshape(-1, 2)
@@ -45,13 +52,14 @@ def make_scene(starts, velocities, n_frames: int = 12, shape=(96, 128), size: in
     bg = rng.integers(70, 130, (h, w, 3)).astype(np.uint8)
     cols = PALETTE[np.arange(n) % len(PALETTE)] if colours is None else np.asarray(colours)
     birth = np.zeros(n, np.int64) if birth_frames is None else np.asarray(birth_frames)
+    death = np.full(n, n_frames) if death_frames is None else np.asarray(death_frames)
     pts = np.full((n_frames, n, 2), np.nan)
     frames = []
     half = (size - 2) // 2
     for t in range(n_frames):
         f = bg.copy()
         for i in range(n):
-            if t < birth[i]:
+            if t < birth[i] or t >= death[i]:
                 continue
             x, y = starts[i] + (t - birth[i]) * vel[i]
             if not (0 <= x < w and 0 <= y < h):
@@ -236,3 +244,104 @@ def synthetic_frame_qp(spec: FrameSpec, rng: np.random.Generator) -> BlockQP:
     Q = sp.csc_matrix(Q)
     Q = (Q + Q.T) * 0.5  # exact symmetry after the float round-off of D^-1/2 S D^-1/2
     return BlockQP(c, sp.csc_matrix(Q), block_ptr)
+
+
+# ------------------------------------------------------------------ the tracker contract
+def _choices(cls: type, name: str) -> tuple[Any, ...]:
+    """The valid values of a choice field, read from the dataclass's own validation."""
+    import ast
+    import re
+
+    try:
+        cls(**{name: "\x00not-a-choice"})
+    except ValueError as exc:
+        m = re.search(r"must be one of (\(.*\)), got", str(exc))
+        if m:
+            return tuple(ast.literal_eval(m.group(1)))
+    return ()
+
+
+def perturbations(params: Any) -> dict[str, Any]:
+    """One valid changed value per field of a parameter dataclass (for contract checks).
+
+    Numbers are scaled up (or down when that is out of range), booleans flipped, choices
+    moved to another valid choice. Fields with no valid other value are left out.
+    """
+    cls = type(params)
+    out: dict[str, Any] = {}
+    for f in fields(cls):
+        v = getattr(params, f.name)
+        if isinstance(v, bool):
+            tries: list[Any] = [not v]
+        elif isinstance(v, int):
+            tries = [v + 1, v - 1]
+        elif isinstance(v, float):
+            tries = [v * 1.5 + 0.05, v * 0.5, v - 0.05]
+        elif isinstance(v, str):
+            tries = [c for c in _choices(cls, f.name) if c != v]
+        else:
+            continue
+        for t in tries:
+            try:
+                replace(params, **{f.name: t})
+            except ValueError:
+                continue
+            out[f.name] = t
+            break
+    return out
+
+
+def check_set_params(make_tracker: Callable[[Any], Any],
+                     scene: Scene | None = None) -> list[str]:
+    """Every parameter given through ``set_params`` after ``init`` acts as if given at start.
+
+    For each field of the tracker's parameters, tracker X starts with the changed value and
+    tracker Y starts with the default, then receives the changed value by ``set_params``
+    right after ``init``. Both must give identical tracks on the rest of the scene: a value
+    copied into the tracker's state at ``init`` and silently ignored afterwards shows up here.
+    Fields in ``fixed_params`` must be refused with a ``ValueError`` naming them.
+
+    Parameters
+    ----------
+    make_tracker : callable
+        ``make_tracker(params_or_None) -> Tracker``.
+
+    Returns
+    -------
+    The field names checked.
+    """
+    # 16 frames (past the default template refresh of 10), one target faster than the
+    # default search radius, textured ground inside the templates: so that search, update
+    # and refresh parameters all change the tracks or the confidences
+    sc = scene or make_scene([[12, 20], [60, 30], [100, 70], [30, 70]],
+                             [[5, 1], [0, 2], [-1, 0], [2, -2]], n_frames=16)
+    base = make_tracker(None)
+    checked = []
+    for name, value in perturbations(base.params).items():
+        new = replace(base.params, **{name: value})
+        y = make_tracker(None)
+        y.init(sc.frames[0], sc.ids, sc.points[0], sc.template_size)
+        if name in type(y).fixed_params:
+            try:
+                y.set_params(new)
+            except ValueError as exc:
+                if name not in str(exc):
+                    raise AssertionError(f"refusal of {name} does not name it: {exc}") from exc
+                checked.append(name)
+                continue
+            raise AssertionError(f"fixed parameter {name} was accepted mid-sequence")
+        y.set_params(new)
+        if y.params is not new:
+            raise AssertionError(f"set_params({name}={value!r}) did not replace params")
+        x = make_tracker(new)
+        x.init(sc.frames[0], sc.ids, sc.points[0], sc.template_size)
+        for t, frame in enumerate(sc.frames[1:], 1):
+            xi, xp = x.step(frame)
+            yi, yp = y.step(frame)
+            if not (np.array_equal(xi, yi) and np.array_equal(xp, yp)
+                    and np.array_equal(x.confidence, y.confidence)):
+                raise AssertionError(f"{type(y).__name__}: {name}={value!r} given by "
+                                     f"set_params after init differs at frame {t} from the "
+                                     "same value given at start")
+        checked.append(name)
+    return checked

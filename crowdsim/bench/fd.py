@@ -85,17 +85,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _plot(report: dict[str, Any], out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
 
-    from crowdsim.plotting import save_figure
+    from crowdsim.plotting import new_figure, save_figure
     from crowdsim.scenarios import weidmann_speed
 
     rows = report["fundamental_diagram"]
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = new_figure(figsize=(6, 4))
     rho = np.linspace(0.3, 5.3, 200)
     w = weidmann_speed(rho)
     ax.plot(rho, w, "k-", label="Weidmann (1993)")
@@ -109,7 +105,7 @@ def _plot(report: dict[str, Any], out: Path) -> None:
     save_figure(fig, out / "fd.png")
 
     lanes = report["lanes"]
-    fig, ax = plt.subplots(figsize=(6, 3.5))
+    fig, ax = new_figure(figsize=(6, 3.5))
     ax.plot(lanes["time"], lanes["lane_order"], "-o", ms=3, label="counterflow")
     ax.plot(lanes["time"], lanes["random_mix"], "--", label="random mix, same positions")
     ax.set_xlabel("time (s)")

@@ -256,7 +256,7 @@ def run(args: argparse.Namespace) -> int:
     unknown = peers - {"jupedsim", "pysocialforce"}
     if unknown:
         raise ValueError(f"--peers: unknown peer(s) {', '.join(sorted(unknown))}")
-    from tqdm import tqdm
+    from crowdsim.progress import progress_bar
 
     counts = sorted(set(sizes) | ({args.psf_max} if "pysocialforce" in peers else set()))
     results: list[dict[str, Any]] = []
@@ -271,7 +271,7 @@ def run(args: argparse.Namespace) -> int:
             jobs.append(("pysocialforce", n))
             if n not in sizes:
                 jobs.append(("crowdsim", n))
-    for name, n in tqdm(jobs, desc="bench sim", unit="run"):
+    for name, n in progress_bar(jobs, desc="bench sim", unit="run", leave=True):
         layout = corridor_layout(n)
         try:
             if name == "crowdsim":

@@ -152,12 +152,9 @@ def _order_txt(order: bool | None) -> str:
 
 
 def _plot(path: str, label: str, runs: dict, f_ref: float) -> None:
-    import matplotlib
+    from crowdsim.plotting import new_figure, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, (ax1, ax2) = new_figure(figsize=(11, 4.2), ncols=2)
     for v, res in runs.items():
         it = np.arange(res.history.shape[0])
         ax1.loglog(it + 1, np.maximum(res.history - f_ref, 1e-12), label=f"FW-{v}")
@@ -170,9 +167,7 @@ def _plot(path: str, label: str, runs: dict, f_ref: float) -> None:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend()
     fig.suptitle(f"Frank-Wolfe variants on {label}")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def run(args: argparse.Namespace) -> int:

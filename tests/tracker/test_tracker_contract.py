@@ -1,8 +1,10 @@
-"""One contract suite over every tracker implementation (STYLE habit 8).
+"""One contract suite over every registered tracker (STYLE habit 8).
 
-Tiny hand-built scenes with exact expected positions, edge cases (zero targets, empty frames,
-image border, leaving targets, births), bad inputs, and plant-and-recover on a rendered crowd
-with a stored accuracy floor (``accuracy_floor.json``).
+Every name in :mod:`tracker.registry` runs through: tiny hand-built scenes with exact expected
+positions, edge cases (zero targets, empty frames, image border, leaving targets, people who
+vanish inside the view, births), bad inputs, ``set_params`` (every parameter takes effect;
+fixed ones are refused by name), and plant-and-recover on a rendered crowd with a stored
+accuracy floor (``accuracy_floor.json``).
 """
 
 from __future__ import annotations
@@ -13,25 +15,54 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tracker import registry
 from tracker.base import Tracker, TrackResult
-from tracker.baselines.ncc import NCCTracker
-from tracker.bqp.params import BQPParams
-from tracker.bqp.tracker import BQPTracker
 from tracker.metrics import accuracy_curve
-from tracker.testing import make_scene
+from tracker.testing import check_set_params, make_scene
 
-FACTORIES = {
-    "bqp": lambda: BQPTracker(),  # speed-up sampling (the default)
-    "bqp-dense": lambda: BQPTracker(BQPParams(speedup=False)),
-    "bqp-ncc": lambda: BQPTracker(BQPParams(appearance="ncc")),
-    "ncc": lambda: NCCTracker(),
-}
 FLOOR = json.loads((Path(__file__).parent / "accuracy_floor.json").read_text())
 
 
-@pytest.fixture(params=list(FACTORIES))
+@pytest.fixture(params=registry.names())
 def make(request):
-    return FACTORIES[request.param], request.param
+    entry = registry.get(request.param)
+    return entry.create, request.param
+
+
+def test_every_registered_tracker_has_a_floor():
+    assert set(FLOOR) - {"_comment"} == set(registry.names())
+
+
+def test_set_params_takes_effect_for_every_parameter(make):
+    factory, name = make
+    checked = check_set_params(factory)
+    assert checked, name
+    tr = factory()
+    assert isinstance(tr.params, type(tr).params_class)
+    with pytest.raises(ValueError, match="takes"):
+        tr.set_params(object())
+
+
+def test_tracks_end_where_people_vanish_in_view(make):
+    factory, _ = make
+    sc = make_scene([[20, 20], [110, 20], [100, 70], [30, 70]],
+                    [[2, 1], [0, 1], [-1, 0], [1, -1]], n_frames=20, death_frames=[20, 8, 20, 20])
+    tr = factory()
+    res = _track(tr, sc)
+    max_lost = tr.params.max_lost
+    assert max_lost > 0
+    # id 2 vanishes at frame 8 on textured ground: its track ends max_lost frames later
+    assert np.isnan(res.positions[8 + max_lost:, 1]).all()
+    np.testing.assert_array_equal(res.positions[:8, 1], sc.points[:8, 1])
+    for j in (0, 2, 3):
+        np.testing.assert_array_equal(res.positions[:, j], sc.points[:, j])
+
+
+def test_unknown_tracker_name_lists_the_valid_ones():
+    with pytest.raises(ValueError, match="valid trackers: bqp"):
+        registry.make_tracker("kalman")
+    with pytest.raises(ValueError, match="no parameter"):
+        registry.make_tracker("bqp", zetaa=1.0)
 
 
 def _track(tracker: Tracker, sc, births=None) -> TrackResult:

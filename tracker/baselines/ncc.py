@@ -14,12 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from crowdsim.checks import require_number
 from tracker.appearance import NCCAppearance
 from tracker.base import Tracker
 from tracker.candidates import grid_offsets, search_radius
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class NCCParams:
     """Parameters of the independent NCC tracker.
 
@@ -31,27 +32,31 @@ class NCCParams:
         Templates are refreshed only when the NCC score of the match is at least this.
     update_every : int
         Frames between template refreshes (paper: 10).
+    lost_confidence, max_lost : float, int
+        The track ends when the NCC score of its match stays below ``lost_confidence`` for
+        ``max_lost`` frames in a row (0 = only when it leaves the image); as
+        :class:`tracker.bqp.params.BQPParams`.
     """
 
     search_factor: float = 2.0
     update_threshold: float = 0.6
     update_every: int = 10
+    lost_confidence: float = 0.3
+    max_lost: int = 5
 
     def __post_init__(self) -> None:
-        if not self.search_factor > 1.0:
-            raise ValueError(f"NCCParams.search_factor must be > 1, got {self.search_factor!r}")
-        if not 0.0 <= self.update_threshold <= 1.0:
-            raise ValueError("NCCParams.update_threshold must be in [0, 1], "
-                             f"got {self.update_threshold!r}")
-        if not isinstance(self.update_every, int) or self.update_every < 1:
-            raise ValueError(f"NCCParams.update_every must be an integer >= 1, "
-                             f"got {self.update_every!r}")
+        require_number("NCCParams", "search_factor", self.search_factor, lo=1, lo_open=True)
+        require_number("NCCParams", "update_threshold", self.update_threshold, lo=0, hi=1)
+        require_number("NCCParams", "update_every", self.update_every, lo=1, integer=True)
+        require_number("NCCParams", "lost_confidence", self.lost_confidence, lo=-1, hi=1)
+        require_number("NCCParams", "max_lost", self.max_lost, lo=0, integer=True)
 
 
 class NCCTracker(Tracker):
     """Independent template tracker (argmax of NCC per target)."""
 
     name = "ncc"
+    params_class = NCCParams
 
     def __init__(self, params: NCCParams | None = None):
         super().__init__()
@@ -59,10 +64,20 @@ class NCCTracker(Tracker):
 
     def _init(self, frame: np.ndarray) -> None:
         p = self.params
-        self.radius = search_radius(self.template_size, p.search_factor)
-        self.model = NCCAppearance(self.template_size, self.radius, p.update_threshold,
+        self.model = NCCAppearance(self.template_size, 1, p.update_threshold,
                                    update_every=p.update_every)
+        self._set_radius()
+
+    def _set_radius(self) -> None:
+        self.radius = search_radius(self.template_size, self.params.search_factor)
+        self.model.radius = self.radius
+        self.model.window = self.template_size + 2 * self.radius
         self._offsets = grid_offsets(self.radius)
+
+    def _apply_params(self, old: NCCParams, changed: frozenset[str]) -> None:
+        self.model.update_threshold = float(self.params.update_threshold)
+        self.model.update_every = int(self.params.update_every)
+        self._set_radius()
 
     def _add(self, frame: np.ndarray, points: np.ndarray) -> None:
         self.model.add(frame, np.rint(points).astype(np.int64))
@@ -84,6 +99,7 @@ class NCCTracker(Tracker):
         best = np.where(outside, -np.inf, flat).argmax(1)
         new = pos[np.arange(n), best].astype(np.float64)
         conf = flat[np.arange(n), best]
+        self.confidence = conf.astype(np.float64)
         self.model.update(frame, np.rint(new).astype(np.int64), conf)
         self._last_motion = new - self.points
         self._tick("appearance", t0)

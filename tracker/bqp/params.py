@@ -16,7 +16,7 @@ from tracker.bqp.frank_wolfe import VARIANTS as FW_VARIANTS
 APPEARANCE_MODELS: tuple[str, ...] = ("kcf", "ncc")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class BQPParams:
     """Every tunable constant of the BQP tracker.
 
@@ -129,6 +129,17 @@ class BQPParams:
         Cost added to candidates whose centre lies outside the image.
     seed : int
         Seed of the random generator of the speed-up sampling.
+    lost_confidence : float
+        A target whose appearance confidence stays below this for ``max_lost`` frames in a
+        row has lost its evidence and its track ends (people also vanish inside the view).
+        On the demo marathon, 99.5 % of correctly tracked points score above 0.43 (KCF)
+        and 0.45 (NCC appearance); spots where a person vanished score 0.25-0.48. On ucf9
+        seq8 (people leave through doors in view) 0.3 / 5 frames raised BQP's MOTA from 96.4
+        to 98.1 % and IDF1 from 98.2 to 99.1 % with acc@15 unchanged (98.3 %); 0.4 cut a
+        real track on the demo marathon.
+    max_lost : int
+        Frames in a row below ``lost_confidence`` that end a track; 0 = tracks end only when
+        they leave the image.
     """
 
     zeta: float = 0.3
@@ -170,6 +181,8 @@ class BQPParams:
     fw_max_iter: int = 50
     border_penalty: float = 10.0
     seed: int = 0
+    lost_confidence: float = 0.3
+    max_lost: int = 5
 
     def __post_init__(self) -> None:
         own = "BQPParams"
@@ -188,6 +201,8 @@ class BQPParams:
             require_number(own, name, getattr(self, name), lo=1, integer=True)
         require_number(own, "history", self.history, lo=2, integer=True)
         require_number(own, "seed", self.seed, lo=0, integer=True)
+        require_number(own, "max_lost", self.max_lost, lo=0, integer=True)
+        require_number(own, "lost_confidence", self.lost_confidence, lo=-1, hi=1)
         require_number(own, "update_threshold", self.update_threshold, lo=0, hi=1)
         require_number(own, "kcf_learning_rate", self.kcf_learning_rate, lo=0, hi=1,
                        lo_open=True)

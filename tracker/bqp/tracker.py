@@ -79,6 +79,16 @@ class BQPTracker(Tracker):
     """
 
     name = "bqp"
+    params_class = BQPParams
+    fixed_params = frozenset({"history"})
+    """The position history is an array of ``history`` frames; its length is set at init."""
+
+    _REBUILD_APPEARANCE = frozenset({"appearance", "search_factor", "kcf_label_sigma",
+                                     "kcf_kernel", "kcf_target_window", "kcf_lambda",
+                                     "kcf_kernel_sigma"})
+    """Fields that change the shape, the kind or the training of the appearance models:
+    changing one of them mid-sequence re-learns every target's model from the last frame at
+    its current position (so a change right after init acts as if given at start)."""
 
     def __init__(self, params: BQPParams | None = None, record_qps: bool = False):
         super().__init__()
@@ -92,14 +102,35 @@ class BQPTracker(Tracker):
         return float(value) * self.template_size
 
     # ------------------------------------------------------------------ hooks
-    def _init(self, frame: np.ndarray) -> None:
+    def _make_appearance(self):
         p = self.params
         self.radius = search_radius(self.template_size, p.search_factor)
-        self.appearance = make_appearance(
+        return make_appearance(
             p.appearance, self.template_size, self.radius, update_threshold=p.update_threshold,
             lam=p.kcf_lambda, learning_rate=p.kcf_learning_rate, label_sigma=p.kcf_label_sigma,
             kernel=p.kcf_kernel, kernel_sigma=p.kcf_kernel_sigma,
             target_window=p.kcf_target_window, update_every=p.ncc_update_every)
+
+    def _apply_params(self, old: BQPParams, changed: frozenset[str]) -> None:
+        p = self.params
+        if changed & self._REBUILD_APPEARANCE:
+            self.appearance = self._make_appearance()
+            self.appearance.add(self._frame, np.rint(self.points).astype(np.int64))
+        else:
+            # the appearance model copied these at init; every other field is read per frame
+            app = self.appearance
+            app.update_threshold = float(p.update_threshold)
+            if hasattr(app, "learning_rate"):
+                app.learning_rate = float(p.kcf_learning_rate)
+            if hasattr(app, "update_every"):
+                app.update_every = int(p.ncc_update_every)
+        if "seed" in changed:
+            self.rng = np.random.default_rng(p.seed)
+
+    def _init(self, frame: np.ndarray) -> None:
+        p = self.params
+        self.appearance = self._make_appearance()
+        self._frame = frame
         self.velocities = np.zeros((0, 2))
         self.history = np.zeros((p.history, 0, 2))
         self.groups = np.zeros(0, np.int64)
@@ -114,6 +145,7 @@ class BQPTracker(Tracker):
     def _add(self, frame: np.ndarray, points: np.ndarray) -> None:
         t0 = time.perf_counter()
         self.appearance.add(frame, np.rint(points).astype(np.int64))
+        self._frame = frame
         m = len(points)
         self.velocities = np.concatenate([self.velocities, np.zeros((m, 2))])
         col = np.full((self.params.history, m, 2), np.nan)
@@ -202,9 +234,11 @@ class BQPTracker(Tracker):
         rows = np.arange(n)
         new = cands.positions[rows, res.choice]
         conf = cands.appearance[rows, res.choice]
+        self.confidence = conf.astype(np.float64)
         t0 = self._tick("solve", t0)
 
         self.appearance.update(frame, np.rint(new).astype(np.int64), conf)
+        self._frame = frame
         t0 = self._tick("appearance", t0)
 
         a = p.velocity_smoothing
