@@ -21,7 +21,8 @@ $(BENCH_STAMP): $(STAMP)
 demo: $(STAMP)
 	$(BIN)/crowdsim demo
 
-test: $(STAMP)
+# make test = the linter and the formatter check, then the suite (CI's .ci/run calls only this)
+test: lint
 	$(BIN)/python -m pytest -q -n 2
 
 bench: $(BENCH_STAMP)
@@ -29,6 +30,7 @@ bench: $(BENCH_STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check crowdsim tracker envs synth_data tests benchmarks
+	$(BIN)/ruff format --check crowdsim tracker envs synth_data tests benchmarks
 
 clean:
 	rm -rf $(VENV) build *.egg-info
