@@ -1,0 +1,27 @@
+"""``crowdsim ablation``: paper 1's Table 3, the BQP tracker's terms switched on one by one.
+
+``crowdsim ablation --suite ucf9 [--only SEQ ...] [--frames N] [--workers N] --out DIR``
+
+Rows: B, B+Mo, B+Mo+SP, B+Mo+Gr, B+Mo+Gr+NMo and the full objective, each with NCC and with
+KCF appearance (:mod:`tracker.bqp.ablation`); the paper's Table 3 figures beside ours.
+Resumable like ``crowdsim compare``.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from crowdsim.commands._table_args import add_table_arguments, run_table_command
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("ablation", help="BQP term ablation on a suite (paper 1, Table 3)",
+                       description=__doc__.splitlines()[0].replace("``", ""))
+    add_table_arguments(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from crowdsim.experiments import ablation_rows
+
+    return run_table_command(args, ablation_rows(), f"ablation on {args.suite}", "ablation@15")

@@ -1,0 +1,219 @@
+"""The papers' tables on a suite: tracker comparison and term ablation, resumable and parallel.
+
+:func:`compare` runs every row of :data:`COMPARE_ROWS` (NCC, mean-shift, PNMC, BQP with KCF and
+with NCC appearance, ByteTrack and OC-SORT at two detector miss rates) on every sequence of a
+suite; :func:`ablation` runs paper 1's Table 3 rows (:mod:`tracker.bqp.ablation`). Both:
+
+1. generate the suite's sequences into ``OUT/sequences`` (:func:`synth_data.generate.generate`,
+   resumable, checksummed; ``frames`` truncates every spec);
+2. run one *cell* (row x sequence) per job on :func:`crowdsim.jobs.run_jobs` (local pool or
+   Ray), recording each finished cell in ``OUT/cells.json`` -- a killed run loses no finished
+   cell and a rerun resumes;
+3. write ``table.md`` and ``table.csv`` (our figures beside the papers' where they report
+   one), one accuracy-versus-threshold PNG per sequence, and return the table text.
+
+A cell tracks with :func:`tracker.runner.run_tracker` and scores with every metric
+(acc@15, acc@5, MOTA, IDF1, HOTA) plus frames/s.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from crowdsim.atomic import write_text_atomic
+
+
+@dataclass(frozen=True)
+class Row:
+    """One method of a table: a registered tracker with parameter overrides.
+
+    ``paper`` names the column of the papers' tables it corresponds to (``None``: none).
+    """
+
+    label: str
+    tracker: str
+    overrides: dict[str, Any] = field(default_factory=dict)
+    paper: str | None = None
+
+
+COMPARE_ROWS: tuple[Row, ...] = (
+    Row("NCC", "ncc", paper="NCC"),
+    Row("mean-shift", "meanshift", paper="MS"),
+    Row("PNMC", "pnmc", paper="PNMC"),
+    Row("BQP (KCF)", "bqp", paper="BQP"),
+    Row("BQP (NCC)", "bqp-ncc"),
+    Row("ByteTrack miss 0.1", "bytetrack", {"miss_rate": 0.1}),
+    Row("ByteTrack miss 0.3", "bytetrack", {"miss_rate": 0.3}),
+    Row("OC-SORT miss 0.1", "ocsort", {"miss_rate": 0.1}),
+    Row("OC-SORT miss 0.3", "ocsort", {"miss_rate": 0.3}),
+)
+"""Rows of ``crowdsim compare``: the papers' methods we have, and detection-based references."""
+
+METRICS: tuple[tuple[str, str, str], ...] = (
+    ("acc@15", "acc@15", "%"), ("acc@5", "acc@5", "%"), ("mota", "MOTA", "%"),
+    ("idf1", "IDF1", "%"), ("hota", "HOTA", "%"), ("fps", "frames/s", ""),
+)
+"""``(key, heading, unit)`` of every table section."""
+
+
+def ablation_rows() -> tuple[Row, ...]:
+    """Paper 1's Table 3: every term combination with NCC and with KCF appearance."""
+    from tracker.bqp.ablation import ablation_rows as rows
+
+    return tuple(Row(label, "bqp", over, paper=label) for label, over in rows())
+
+
+def paper_numbers(suite: str) -> dict[str, dict[str, dict[str, float]]]:
+    """The papers' figures for ``suite`` (``{table: {column: {sequence: %}}}``), or ``{}``."""
+    from synth_data.suites import suite_dir
+
+    path = suite_dir(suite) / "paper.json"
+    if not path.is_file():
+        return {}
+    return {k: v for k, v in json.loads(path.read_text()).items() if not k.startswith("_")}
+
+
+def run_cell(seq_dir: str, tracker: str, overrides: dict[str, Any],
+             frames: int | None) -> dict[str, Any]:
+    """Track one sequence with one row; JSON-ready figures and the accuracy curve."""
+    from synth_data.sequence import open_sequence
+    from tracker.registry import make_tracker
+    from tracker.runner import run_tracker
+
+    source = open_sequence(seq_dir)
+    run = run_tracker(make_tracker(tracker, **overrides), source, frames=frames)
+    out = run.summary()
+    out["curve"] = [c["acc"] for c in run.report.get("curve", [])]
+    return out
+
+
+def _cell_key(seq: str, row: Row, frames: int | None) -> str:
+    over = ",".join(f"{k}={v}" for k, v in sorted(row.overrides.items()))
+    return f"{seq}|{row.tracker}|{over}|frames={frames or 'all'}"
+
+
+def run_table(rows: Sequence[Row], suite: str, out: str | os.PathLike[str], *,
+              only: list[str] | None = None, frames: int | None = None, workers: int = 1,
+              backend: str = "local", address: str | None = None, progress: bool = True,
+              title: str = "comparison", paper_table: str = "acc@15",
+              log: Callable[[str], None] = print) -> str:
+    """Generate the suite, run every row on every sequence, write the table; returns its text.
+
+    Parameters
+    ----------
+    rows : sequence of Row
+    suite : str
+        A suite name (:data:`synth_data.suites.SUITE_NAMES`).
+    out : path
+        Output folder: ``sequences/``, ``cells.json``, ``table.md``, ``table.csv``,
+        ``curves/<sequence>.png``.
+    only : list of str, optional
+        Sequence names to run.
+    frames : int, optional
+        Truncate every sequence to its first ``frames`` frames (quick runs).
+    workers, backend, address
+        The jobs runner (:func:`crowdsim.jobs.run_jobs`).
+    paper_table : str
+        The section of the suite's ``paper.json`` holding the 15 px figures of these rows.
+    """
+    from crowdsim.checks import require_number
+    from crowdsim.jobs import Job, run_jobs
+    from synth_data.generate import generate
+    from synth_data.suites import suite_specs
+    from tracker.registry import get
+
+    if frames is not None:
+        require_number("", "--frames", frames, lo=2, integer=True)
+    for row in rows:
+        get(row.tracker).make_params(**row.overrides)  # unknown names fail before any work
+    out = Path(out)
+    specs = suite_specs(suite, only)
+    if frames is not None:
+        specs = [replace(s, frames=min(s.frames, frames)) for s in specs]
+    seq_root = out / "sequences"
+    log(f"{title}: {len(rows)} rows x {len(specs)} sequences of {suite} -> {out}")
+    generate(specs, seq_root, workers=workers, backend=backend, address=address,
+             progress=progress, log=log)
+    jobs = [Job(_cell_key(s.name, r, frames), run_cell,
+                (str(seq_root / s.name), r.tracker, dict(r.overrides), frames), size=s.frames)
+            for s in specs for r in rows]
+    results = run_jobs(jobs, out / "cells.json", workers=workers, backend=backend,
+                       address=address, progress=progress, desc=title, unit="frame",
+                       section="cells")
+    cells = {(s.name, r.label): results[_cell_key(s.name, r, frames)]
+             for s in specs for r in rows}
+    paper = paper_numbers(suite)
+    names = [s.name for s in specs]
+    text = format_table(rows, names, cells, paper, paper_table, title)
+    write_text_atomic(out / "table.md", text)
+    write_text_atomic(out / "table.csv", table_csv(rows, names, cells, paper, paper_table))
+    _plot_curves(rows, names, cells, out / "curves")
+    return text
+
+
+def _paper(paper: dict, table: str, row: Row, seq: str) -> float | None:
+    if row.paper is None:
+        return None
+    return paper.get(table, {}).get(row.paper, {}).get(seq)
+
+
+def format_table(rows: Sequence[Row], seqs: Sequence[str], cells: dict, paper: dict,
+                 paper_table: str = "acc@15", title: str = "comparison") -> str:
+    """Markdown: one section per metric, rows = methods, columns = sequences and the mean.
+
+    Accuracy cells read ``ours (paper)`` where the papers report the figure.
+    """
+    lines = [f"# {title}", ""]
+    for key, heading, unit in METRICS:
+        lines += [f"## {heading}", "", "| method | " + " | ".join(seqs) + " | mean |",
+                  "|---" * (len(seqs) + 2) + "|"]
+        for row in rows:
+            vals, texts = [], []
+            for s in seqs:
+                v = cells[(s, row.label)].get(key)
+                vals.append(v)
+                table = paper_table if key == "acc@15" else ("acc@5" if key == "acc@5" else "")
+                ref = _paper(paper, table, row, s) if table else None
+                t = "n/a" if v is None else f"{v:.1f}{unit}"
+                texts.append(t if ref is None else f"{t} ({ref:g})")
+            good = [v for v in vals if v is not None]
+            mean = f"{sum(good) / len(good):.1f}{unit}" if good else "n/a"
+            lines.append(f"| {row.label} | " + " | ".join(texts) + f" | {mean} |")
+        lines.append("")
+    lines.append("Figures in brackets: the papers' (paper 1 Tables 1-3, paper 2 Table 1).")
+    return "\n".join(lines) + "\n"
+
+
+def table_csv(rows: Sequence[Row], seqs: Sequence[str], cells: dict, paper: dict,
+              paper_table: str = "acc@15") -> str:
+    """Long format: one line per method and sequence, ours and the papers' figures."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    keys = [k for k, _, _ in METRICS]
+    w.writerow(["method", "tracker", "sequence", *keys, "paper_acc@15", "paper_acc@5"])
+    for row in rows:
+        for s in seqs:
+            c = cells[(s, row.label)]
+            p15 = _paper(paper, paper_table, row, s)
+            p5 = _paper(paper, "acc@5", row, s)
+            w.writerow([row.label, row.tracker, s,
+                        *[("" if c.get(k) is None else f"{c[k]:.3f}") for k in keys],
+                        "" if p15 is None else p15, "" if p5 is None else p5])
+    return buf.getvalue()
+
+
+def _plot_curves(rows: Sequence[Row], seqs: Sequence[str], cells: dict, folder: Path) -> None:
+    from tracker.metrics import plot_accuracy
+
+    for s in seqs:
+        curves = {r.label: cells[(s, r.label)]["curve"] for r in rows
+                  if cells[(s, r.label)].get("curve")}
+        if curves:
+            plot_accuracy(curves, folder / f"{s}.png", title=f"{s}: accuracy vs threshold")
