@@ -83,12 +83,14 @@ def paper_numbers(suite: str) -> dict[str, dict[str, dict[str, float]]]:
 def run_cell(seq_dir: str, tracker: str, overrides: dict[str, Any],
              frames: int | None) -> dict[str, Any]:
     """Track one sequence with one row; JSON-ready figures and the accuracy curve."""
+    from synth_data.detections import attach_detections
     from synth_data.sequence import open_sequence
     from tracker.registry import make_tracker
     from tracker.runner import run_tracker
 
     source = open_sequence(seq_dir)
-    run = run_tracker(make_tracker(tracker, **overrides), source, frames=frames)
+    run = run_tracker(make_tracker(tracker, **overrides), source, frames=frames,
+                      prepare=attach_detections)
     out = run.summary()
     out["curve"] = [c["acc"] for c in run.report.get("curve", [])]
     return out

@@ -8,6 +8,21 @@
   tracked point of a frame. TrackEval matches at similarity >= 0.5 for CLEAR and IDF1, i.e.
   within ``T_sim / 2`` px; HOTA averages over its thresholds ``alpha = 0.05 .. 0.95``.
 
+Which metrics need the track ids to be the ground-truth ids
+    MOTA, IDF1 and HOTA match tracks to ground truth themselves: they take **any** track ids
+    (a tracking-by-detection tracker creates its own). Only the papers' acc@T compares "the
+    tracked point of the same id", so it needs a correspondence, chosen by ``id_mapping``:
+
+    * ``"same"``: the track ids are ground-truth ids (the point trackers: they are given the
+      people's ids at birth);
+    * ``"majority"``: each track stands for the ground-truth person it lies within
+      ``similarity_scale`` px of (nearest one) in most of its frames (:func:`map_track_ids`);
+      a person followed by several tracks in turn takes, in each frame, the position of the
+      track with most votes that is present (:func:`mapped_positions`);
+    * ``"auto"`` (:func:`evaluate`'s default): ``"same"`` when every track id is a
+      ground-truth id, else ``"majority"``. Trackers whose own ids may collide with
+      ground-truth ids declare ``id_mapping = "majority"`` and the runner passes it.
+
 Tracks are ``ids (N,)`` and ``positions (T, N, 2)`` pixels, NaN where absent; frames are
 aligned by index (frame 0 = the first frame of the sequence).
 """
@@ -19,7 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from crowdsim.plotting import save_figure
+from crowdsim.checks import require_choice
+from crowdsim.plotting import new_figure, save_figure
 
 THRESHOLDS: np.ndarray = np.arange(26)
 """Pixel thresholds ``T = 0 .. 25`` of the papers' accuracy curve."""
@@ -33,8 +49,9 @@ def _align(gt_ids, gt_points, tr_ids, tr_points, strict: bool):
     gt_points = np.asarray(gt_points, dtype=np.float64)
     tr_points = np.asarray(tr_points, dtype=np.float64)
     if gt_points.ndim != 3 or gt_points.shape[1:] != (len(gt_ids), 2):
-        raise ValueError(f"ground truth must have shape (T, {len(gt_ids)}, 2), got "
-                         f"{gt_points.shape}")
+        raise ValueError(
+            f"ground truth must have shape (T, {len(gt_ids)}, 2), got {gt_points.shape}"
+        )
     if tr_points.ndim != 3 or tr_points.shape[1:] != (len(tr_ids), 2):
         raise ValueError(f"tracks must have shape (T, {len(tr_ids)}, 2), got {tr_points.shape}")
     t = gt_points.shape[0]
@@ -45,8 +62,10 @@ def _align(gt_ids, gt_points, tr_ids, tr_points, strict: bool):
         tr_points = np.concatenate([tr_points, pad])
     unknown = np.setdiff1d(tr_ids, gt_ids)
     if strict and len(unknown):
-        raise ValueError(f"the tracks hold {len(unknown)} ids unknown to the ground truth "
-                         f"(e.g. {unknown[:5].tolist()})")
+        raise ValueError(
+            f"the tracks hold {len(unknown)} ids unknown to the ground truth "
+            f"(e.g. {unknown[:5].tolist()})"
+        )
     return gt_ids, gt_points, tr_ids, tr_points
 
 
@@ -69,17 +88,116 @@ def point_errors(gt_ids, gt_points, tr_ids, tr_points, strict: bool = False) -> 
     return err
 
 
-def accuracy_curve(gt_ids, gt_points, tr_ids, tr_points, thresholds=THRESHOLDS,
-                   strict: bool = False) -> np.ndarray:
+ID_MAPPINGS = ("auto", "same", "majority")
+"""Ways to relate track ids to ground-truth ids for acc@T (module docstring)."""
+
+
+def map_track_ids(
+    gt_ids, gt_points, tr_ids, tr_points, radius: float = SIMILARITY_SCALE
+) -> tuple[np.ndarray, np.ndarray]:
+    """Majority vote: the ground-truth id each track stands for.
+
+    In every frame each tracked point votes for the nearest ground-truth point within
+    ``radius`` px; a track takes the id with most votes (ties: the earlier gt column).
+
+    Returns
+    -------
+    gt_of_track : (N_tr,) int64
+        Ground-truth id per track, ``-1`` for a track never within ``radius`` of anyone.
+    votes : (N_tr,) int64
+        Frames supporting that id.
+
+    >>> gt = np.array([[[0.0, 0.0], [50.0, 0.0]]] * 3)
+    >>> ids, votes = map_track_ids([7, 8], gt, [0, 1, 2], gt[:, [1, 0, 0]] + [0.0, 200.0])
+    >>> ids.tolist(), votes.tolist()
+    ([-1, -1, -1], [0, 0, 0])
+    >>> map_track_ids([7, 8], gt, [0, 1], gt[:, [1, 0]] + 2.0)[0].tolist()
+    [8, 7]
+    """
+    from scipy.spatial import cKDTree
+
+    gt_ids, gt_points, tr_ids, tr_points = _align(gt_ids, gt_points, tr_ids, tr_points, False)
+    if not radius > 0:
+        raise ValueError(f"radius must be > 0 px, got {radius!r}")
+    n_gt, n_tr = len(gt_ids), len(tr_ids)
+    gt_ok = np.isfinite(gt_points).all(-1)
+    tr_ok = np.isfinite(tr_points).all(-1)
+    tr_col, gt_col = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for t in np.flatnonzero(gt_ok.any(1) & tr_ok.any(1)):
+        g = np.flatnonzero(gt_ok[t])
+        r = np.flatnonzero(tr_ok[t])
+        d, j = cKDTree(gt_points[t, g]).query(tr_points[t, r], distance_upper_bound=radius)
+        hit = np.isfinite(d)
+        tr_col.append(r[hit])
+        gt_col.append(g[j[hit]])
+    best = np.full(n_tr, -1, np.int64)
+    votes = np.zeros(n_tr, np.int64)
+    key = np.concatenate(tr_col) * max(n_gt, 1) + np.concatenate(gt_col)
+    if key.size:
+        uniq, counts = np.unique(key, return_counts=True)
+        tr_u, gt_u = uniq // n_gt, uniq % n_gt
+        order = np.lexsort((gt_u, -counts, tr_u))
+        tr_s = tr_u[order]
+        first = np.r_[True, tr_s[1:] != tr_s[:-1]]
+        best[tr_s[first]] = gt_ids[gt_u[order][first]]
+        votes[tr_s[first]] = counts[order][first]
+    return best, votes
+
+
+def mapped_positions(
+    gt_ids, gt_points, tr_ids, tr_points, radius: float = SIMILARITY_SCALE
+) -> np.ndarray:
+    """``(T, N_gt, 2)`` tracked position of each ground-truth person under the majority map.
+
+    In each frame, a person's position is that of the present track mapped to them
+    (:func:`map_track_ids`) with most votes; NaN where none is present.
+    """
+    gt_ids, gt_points, tr_ids, tr_points = _align(gt_ids, gt_points, tr_ids, tr_points, False)
+    best, votes = map_track_ids(gt_ids, gt_points, tr_ids, tr_points, radius)
+    out = np.full(gt_points.shape, np.nan)
+    k = np.flatnonzero(best >= 0)
+    if k.size == 0:
+        return out
+    g = np.searchsorted(np.sort(gt_ids), best[k])
+    g = np.argsort(gt_ids)[g]  # gt column of each mapped track
+    order = np.lexsort((k, -votes[k], g))  # by person, then priority
+    k, g = k[order], g[order]
+    starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    present = np.isfinite(tr_points[:, k]).all(-1)
+    rank = np.arange(len(k), 0, -1)  # unique and larger for higher priority
+    top = np.maximum.reduceat(present * rank, starts, axis=1)  # (T, persons)
+    pick = k[len(k) - np.maximum(top, 1)]
+    pts = tr_points[np.arange(len(tr_points))[:, None], pick]
+    out[:, g[starts]] = np.where((top > 0)[..., None], pts, np.nan)
+    return out
+
+
+def accuracy_curve(
+    gt_ids,
+    gt_points,
+    tr_ids,
+    tr_points,
+    thresholds=THRESHOLDS,
+    strict: bool = False,
+    id_mapping: str = "same",
+    radius: float = SIMILARITY_SCALE,
+) -> np.ndarray:
     """The papers' metric: % of ground-truth points tracked within ``T`` px, per threshold.
 
     Returns ``(len(thresholds),)`` float64 percentages (0 when there is no gt point).
+    ``id_mapping`` (``"same"``, ``"majority"``, ``"auto"``; module docstring) relates track
+    ids to ground-truth ids; ``strict`` refuses unknown ids under ``"same"``; ``radius`` is the
+    majority-vote radius (px).
 
     >>> gt = np.array([[[0.0, 0.0], [10.0, 0.0]]])
     >>> tr = np.array([[[3.0, 4.0], [10.0, 0.0]]])
     >>> accuracy_curve([1, 2], gt, [1, 2], tr, thresholds=[0, 5]).tolist()
     [50.0, 100.0]
     """
+    mode = resolve_id_mapping(gt_ids, tr_ids, id_mapping)
+    if mode == "majority":
+        tr_points = mapped_positions(gt_ids, gt_points, tr_ids, tr_points, radius)
+        tr_ids = gt_ids
     err = point_errors(gt_ids, gt_points, tr_ids, tr_points, strict)
     e = err[~np.isnan(err)]
     th = np.asarray(thresholds, dtype=np.float64)
@@ -89,8 +207,9 @@ def accuracy_curve(gt_ids, gt_points, tr_ids, tr_points, thresholds=THRESHOLDS,
     return 100.0 * np.searchsorted(e, th, side="right") / e.size
 
 
-def trackeval_data(gt_ids, gt_points, tr_ids, tr_points,
-                   similarity_scale: float = SIMILARITY_SCALE) -> dict[str, Any]:
+def trackeval_data(
+    gt_ids, gt_points, tr_ids, tr_points, similarity_scale: float = SIMILARITY_SCALE
+) -> dict[str, Any]:
     """TrackEval's per-sequence ``data`` dict with point similarities ``max(0, 1 - d/T)``."""
     gt_ids, gt_points, tr_ids, tr_points = _align(gt_ids, gt_points, tr_ids, tr_points, False)
     if not similarity_scale > 0:
@@ -103,8 +222,12 @@ def trackeval_data(gt_ids, gt_points, tr_ids, tr_points,
     gt_map[gt_used] = np.arange(len(gt_used))
     tr_map = np.full(len(tr_ids), -1, np.int64)
     tr_map[tr_used] = np.arange(len(tr_used))
-    data: dict[str, Any] = {"gt_ids": [], "tracker_ids": [], "similarity_scores": [],
-                            "num_timesteps": gt_points.shape[0]}
+    data: dict[str, Any] = {
+        "gt_ids": [],
+        "tracker_ids": [],
+        "similarity_scores": [],
+        "num_timesteps": gt_points.shape[0],
+    }
     for t in range(gt_points.shape[0]):
         g = np.flatnonzero(gt_present[t])
         r = np.flatnonzero(tr_present[t])
@@ -119,8 +242,9 @@ def trackeval_data(gt_ids, gt_points, tr_ids, tr_points,
     return data
 
 
-def trackeval_metrics(gt_ids, gt_points, tr_ids, tr_points,
-                      similarity_scale: float = SIMILARITY_SCALE) -> dict[str, float]:
+def trackeval_metrics(
+    gt_ids, gt_points, tr_ids, tr_points, similarity_scale: float = SIMILARITY_SCALE
+) -> dict[str, float]:
     """CLEAR MOT, IDF1 and HOTA from TrackEval (percentages; IDSW etc. as counts)."""
     from trackeval.metrics import CLEAR, HOTA, Identity
 
@@ -143,23 +267,51 @@ def trackeval_metrics(gt_ids, gt_points, tr_ids, tr_points,
     }
 
 
-def evaluate(gt_ids, gt_points, tr_ids, tr_points, similarity_scale: float = SIMILARITY_SCALE,
-             strict: bool = True) -> dict[str, Any]:
+def resolve_id_mapping(gt_ids, tr_ids, id_mapping: str) -> str:
+    """``"same"`` or ``"majority"``: ``id_mapping`` with ``"auto"`` decided (module docstring).
+
+    >>> resolve_id_mapping([1, 2], [2], "auto"), resolve_id_mapping([1, 2], [3], "auto")
+    ('same', 'majority')
+    """
+    require_choice("", "id_mapping", id_mapping, ID_MAPPINGS)
+    if id_mapping != "auto":
+        return id_mapping
+    return "same" if np.isin(np.asarray(tr_ids), np.asarray(gt_ids)).all() else "majority"
+
+
+def evaluate(
+    gt_ids,
+    gt_points,
+    tr_ids,
+    tr_points,
+    similarity_scale: float = SIMILARITY_SCALE,
+    strict: bool = True,
+    id_mapping: str = "auto",
+) -> dict[str, Any]:
     """Every metric of one sequence as a JSON-ready dict.
 
     Keys: ``acc@5``, ``acc@15`` (the papers' metric, %), ``mota``, ``motp``, ``idf1``, ``hota``,
     ``deta``, ``assa`` (%), ``idsw``, ``mt``, ``ml``, ``frag`` (counts), ``curve`` (list of
-    ``{"T": px, "acc": %}`` for ``T = 0..25``), ``gt_points``, ``gt_ids``, ``similarity_px``.
+    ``{"T": px, "acc": %}`` for ``T = 0..25``), ``gt_points``, ``gt_ids``, ``similarity_px``,
+    ``id_mapping`` (how acc@T related track ids to ground-truth ids: ``"same"`` or
+    ``"majority"``).
+
+    MOTA, IDF1 and HOTA are computed for any track ids. ``id_mapping`` (default ``"auto"``)
+    only concerns acc@T (module docstring); ``strict`` refuses track ids unknown to the ground
+    truth when the mapping is ``"same"``.
     """
-    curve = accuracy_curve(gt_ids, gt_points, tr_ids, tr_points, THRESHOLDS, strict)
+    mode = resolve_id_mapping(gt_ids, tr_ids, id_mapping)
+    curve = accuracy_curve(
+        gt_ids, gt_points, tr_ids, tr_points, THRESHOLDS, strict, mode, similarity_scale
+    )
     out: dict[str, Any] = {"acc@5": float(curve[5]), "acc@15": float(curve[15])}
     out.update(trackeval_metrics(gt_ids, gt_points, tr_ids, tr_points, similarity_scale))
-    out["curve"] = [{"T": int(t), "acc": float(a)} for t, a in zip(THRESHOLDS, curve,
-                                                                   strict=True)]
+    out["curve"] = [{"T": int(t), "acc": float(a)} for t, a in zip(THRESHOLDS, curve, strict=True)]
     gp = np.asarray(gt_points)
     out["gt_points"] = int(np.isfinite(gp).all(-1).sum())
     out["gt_ids"] = int(len(gt_ids))
     out["similarity_px"] = float(similarity_scale)
+    out["id_mapping"] = mode
     return out
 
 
@@ -168,23 +320,21 @@ def format_table(results: dict[str, dict[str, Any]]) -> str:
     head = f"{'method':<12}{'acc@5':>8}{'acc@15':>8}{'MOTA':>8}{'IDF1':>8}{'HOTA':>8}{'IDSW':>7}"
     lines = [head, "-" * len(head)]
     for name, r in results.items():
-        lines.append(f"{name:<12}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%{r['mota']:>7.1f}%"
-                     f"{r['idf1']:>7.1f}%{r['hota']:>7.1f}%{r['idsw']:>7d}")
+        lines.append(
+            f"{name:<12}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%{r['mota']:>7.1f}%"
+            f"{r['idf1']:>7.1f}%{r['hota']:>7.1f}%{r['idsw']:>7d}"
+        )
     return "\n".join(lines)
 
 
-def plot_accuracy(curves: dict[str, np.ndarray], path: str | os.PathLike[str],
-                  title: str = "") -> None:
+def plot_accuracy(
+    curves: dict[str, np.ndarray], path: str | os.PathLike[str], title: str = ""
+) -> None:
     """Accuracy vs pixel threshold, one line per method (the papers' Fig. 9-10), as PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5, 3.6), dpi=120)
+    fig, ax = new_figure(figsize=(5, 3.6), dpi=120)
     for name, curve in curves.items():
         curve = np.asarray(curve, dtype=np.float64)
-        ax.plot(THRESHOLDS[:len(curve)], curve, marker="o", markersize=3, label=name)
+        ax.plot(THRESHOLDS[: len(curve)], curve, marker="o", markersize=3, label=name)
     ax.set_xlabel("pixel threshold T (px)")
     ax.set_ylabel("tracking accuracy (%)")
     ax.set_xlim(0, THRESHOLDS[-1])

@@ -93,6 +93,14 @@ TRACKERS: Mapping[str, TrackerEntry] = MappingProxyType({e.name: e for e in (
     _entry("bqp-dense", *_BQP, "BQP with dense candidates (no speed-up sampling)",
            speedup=False),
     _entry("ncc", *_NCC, "independent NCC template tracker (baseline of both papers)"),
+    _entry("pnmc", "tracker.pnmc.tracker:PNMCTracker", "tracker.pnmc.params:PNMCParams",
+           "prominence + neighbourhood motion concurrence, hierarchical update (paper 2)"),
+    _entry("meanshift", "tracker.baselines.meanshift:MeanShiftTracker", "tracker.baselines."
+           "meanshift:MeanShiftParams", "OpenCV mean-shift on colour histograms (paper 2's MS)"),
+    _entry("bytetrack", "tracker.baselines.detection:ByteTrackTracker", "tracker.baselines."
+           "detection:ByteTrackParams", "ByteTrack on simulated head detections", miss_rate=0.1),
+    _entry("ocsort", "tracker.baselines.detection:OCSORTTracker", "tracker.baselines."
+           "detection:OCSORTParams", "OC-SORT on simulated head detections", miss_rate=0.1),
 )})
 """Registry name -> :class:`TrackerEntry`, in the order tables list them."""
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
@@ -81,7 +82,8 @@ class TrackRun:
 
 def run_tracker(tracker: str | Tracker, source: SequenceLike, *, frames: int | None = None,
                 params: Any = None, metrics: Metrics = "full", strict: bool = False,
-                progress: bool = False) -> TrackRun:
+                progress: bool = False,
+                prepare: Callable[[Tracker, Any], Any] | None = None) -> TrackRun:
     """Track ``source`` with ``tracker`` (a registry name or a :class:`Tracker`) and score it.
 
     Parameters
@@ -101,8 +103,15 @@ def run_tracker(tracker: str | Tracker, source: SequenceLike, *, frames: int | N
         Refuse track ids unknown to the ground truth (they score as false positives otherwise).
     progress : bool
         Show a progress bar with frames/s.
+    prepare : callable, optional
+        ``prepare(tracker, source)`` before tracking: how the application layer hands a
+        tracking-by-detection tracker its detections
+        (:func:`synth_data.detections.attach_detections`) without this library importing
+        the data layer.
     """
     trk = make_tracker(tracker, params)
+    if prepare is not None:
+        prepare(trk, source)
     if frames is not None and frames < 1:
         raise ValueError(f"frames must be >= 1, got {frames}")
     n = source.length if frames is None else min(frames, source.length or frames)
@@ -124,9 +133,11 @@ def run_tracker(tracker: str | Tracker, source: SequenceLike, *, frames: int | N
         return run
     gt_pts = gt_pts[:res.n_frames]
     if metrics == "full":
-        run.report = evaluate(gt_ids, gt_pts, res.ids, res.positions, strict=strict)
+        run.report = evaluate(gt_ids, gt_pts, res.ids, res.positions, strict=strict,
+                              id_mapping=getattr(trk, "id_mapping", "same"))
     elif metrics == "accuracy":
-        curve = accuracy_curve(gt_ids, gt_pts, res.ids, res.positions, strict=strict)
+        curve = accuracy_curve(gt_ids, gt_pts, res.ids, res.positions, strict=strict,
+                               id_mapping=getattr(trk, "id_mapping", "same"))
         run.report = {"acc@5": float(curve[5]), "acc@15": float(curve[15]),
                       "curve": [{"T": t, "acc": float(a)} for t, a in enumerate(curve)]}
     else:

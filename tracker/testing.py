@@ -291,6 +291,18 @@ def perturbations(params: Any) -> dict[str, Any]:
     return out
 
 
+def scene_detections(scene: Scene, first: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Perfect detections of a scene: per frame ``(xyxy (m, 4), confidence (m,))`` head boxes
+    of the template size around every present target (confidence 0.9), none before frame
+    ``first``."""
+    half = scene.template_size / 2.0
+    out = []
+    for t, pts in enumerate(scene.points):
+        p = pts[np.isfinite(pts).all(1) & (t >= first)]
+        out.append((np.concatenate([p - half, p + half], axis=1), np.full(len(p), 0.9)))
+    return out
+
+
 def check_set_params(make_tracker: Callable[[Any], Any],
                      scene: Scene | None = None) -> list[str]:
     """Every parameter given through ``set_params`` after ``init`` acts as if given at start.
@@ -315,11 +327,19 @@ def check_set_params(make_tracker: Callable[[Any], Any],
     # and refresh parameters all change the tracks or the confidences
     sc = scene or make_scene([[12, 20], [60, 30], [100, 70], [30, 70]],
                              [[5, 1], [0, 2], [-1, 0], [2, -2]], n_frames=16)
-    base = make_tracker(None)
+    def make(params: Any) -> Any:
+        tr = make_tracker(params)
+        if hasattr(tr, "use_detections"):
+            # tracking-by-detection: perfect head boxes from frame 1 on, so that init (which
+            # associates frame 0's detections with the parameters of that moment) sees none
+            tr.use_detections(scene_detections(sc, first=1))
+        return tr
+
+    base = make(None)
     checked = []
     for name, value in perturbations(base.params).items():
         new = replace(base.params, **{name: value})
-        y = make_tracker(None)
+        y = make(None)
         y.init(sc.frames[0], sc.ids, sc.points[0], sc.template_size)
         if name in type(y).fixed_params:
             try:
@@ -333,7 +353,7 @@ def check_set_params(make_tracker: Callable[[Any], Any],
         y.set_params(new)
         if y.params is not new:
             raise AssertionError(f"set_params({name}={value!r}) did not replace params")
-        x = make_tracker(new)
+        x = make(new)
         x.init(sc.frames[0], sc.ids, sc.points[0], sc.template_size)
         for t, frame in enumerate(sc.frames[1:], 1):
             xi, xp = x.step(frame)

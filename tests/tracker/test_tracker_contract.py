@@ -23,18 +23,29 @@ from tracker.testing import check_set_params, make_scene
 FLOOR = json.loads((Path(__file__).parent / "accuracy_floor.json").read_text())
 
 
-@pytest.fixture(params=registry.names())
+def _keeps_ids(name: str) -> bool:
+    return getattr(registry.get(name).tracker_class(), "id_mapping", "same") == "same"
+
+
+KEEPS_IDS = [n for n in registry.names() if _keeps_ids(n)]
+"""Trackers that follow the given targets (point trackers). Tracking-by-detection trackers
+(``id_mapping = "majority"``) find people in detections and name them themselves: they are
+checked by ``test_detection_trackers.py`` and by the registry-wide tests below."""
+
+
+@pytest.fixture(params=KEEPS_IDS)
 def make(request):
     entry = registry.get(request.param)
     return entry.create, request.param
 
 
-def test_every_registered_tracker_has_a_floor():
-    assert set(FLOOR) - {"_comment"} == set(registry.names())
+def test_every_point_tracker_has_a_floor():
+    assert set(FLOOR) - {"_comment"} == set(KEEPS_IDS)
 
 
-def test_set_params_takes_effect_for_every_parameter(make):
-    factory, name = make
+@pytest.mark.parametrize("name", registry.names())
+def test_set_params_takes_effect_for_every_parameter(name):
+    factory = registry.get(name).create
     checked = check_set_params(factory)
     assert checked, name
     tr = factory()
@@ -153,19 +164,18 @@ def test_deterministic(make):
 
 @pytest.fixture(scope="module")
 def crowd():
-    from crowdsim.bench.track import synthetic_crowd
+    from synth_data.sequence import synthetic_crowd
 
     return synthetic_crowd(150, 20, seed=3, template_px=10, size=(320, 240), contrast=0.2,
                            noise_sigma=10, speed=2.6)
 
 
 def test_plant_and_recover_accuracy_floor(make, crowd):
-    from tracker.mot_io import births_from_ground_truth
-
     factory, name = make
-    (ids, pts), births = births_from_ground_truth(crowd.ids, crowd.points)
-    res = factory().track(crowd.frames, ids, pts, crowd.template_size, births=births)
-    curve = accuracy_curve(crowd.ids, crowd.points, res.ids, res.positions, strict=True)
+    (ids, pts), births = crowd.births()
+    gt_ids, gt_pts = crowd.gt_points()
+    res = factory().track(crowd.frames(), ids, pts, crowd.template_size, births=births)
+    curve = accuracy_curve(gt_ids, gt_pts, res.ids, res.positions, strict=True)
     assert np.isfinite(res.positions[np.isfinite(res.positions)]).all()
     assert curve[5] >= FLOOR[name]["acc@5"], (name, curve[5])
     assert curve[15] >= FLOOR[name]["acc@15"], (name, curve[15])
