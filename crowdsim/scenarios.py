@@ -347,7 +347,7 @@ class Anomalies(Scenario):
         route[anomaly == ANOMALY_KINDS.index("against")] = 1
         route[anomaly == ANOMALY_KINDS.index("leave")] = 2
         agents = AgentBatch.create(pos, self._radii(rng, n), v0, route, rng,
-                                   self.prominent_fraction, wp=wp, anomaly=anomaly)
+                                   self.prominent_fraction, waypoint=wp, anomaly=anomaly)
         # Crossers: a personal route to the opposite side 4 m ahead, then on to the end.
         crossers = np.flatnonzero(anomaly == ANOMALY_KINDS.index("cross"))
         for i in crossers:
@@ -543,7 +543,7 @@ class Circulation(Scenario):
         speeds = SpeedDistribution(self.speed_mean, 0.2 * self.speed_mean, 0.3 * self.speed_mean,
                                    2.0 * self.speed_mean)
         agents = AgentBatch.create(pos, self._radii(rng, n), speeds.sample(rng, n), 0, rng,
-                                   self.prominent_fraction, wp=wp)
+                                   self.prominent_fraction, waypoint=wp)
         routes = [Route(gates, loop=True, reach=0.3)]
         return Setup(world, routes, agents, [], {"inner_radius": r_in, "outer_radius": r_out})
 

@@ -4,10 +4,18 @@ One step:
 
 1. routes give each agent its desired direction ``e_i``; agents past their last gate leave;
 2. sources add agents (Poisson, only where they do not overlap anybody);
-3. :func:`crowdsim.forces.social_force` computes every agent's acceleration at once;
-4. the forces go to pymunk with ``pymunk.batch.set_space_bodies`` and pymunk integrates one
+3. agents under control (the hook below) get ``v0_i e_i`` replaced by a given velocity;
+4. :func:`crowdsim.forces.social_force` computes every agent's acceleration at once;
+5. the forces go to pymunk with ``pymunk.batch.set_space_bodies`` and pymunk integrates one
    step, resolving body contacts (one circle per agent, walls as static segments);
-5. positions and velocities come back with ``pymunk.batch.get_space_bodies``.
+6. positions and velocities come back with ``pymunk.batch.get_space_bodies``.
+
+Control and life cycle (what an environment that drives some agents needs, after JuPedSim):
+``step(desired_velocity, controlled)`` drives chosen agents for one step,
+:meth:`Simulation.set_desired` / :meth:`Simulation.clear_desired` hold a desired velocity
+over steps; :meth:`Simulation.add_agents`, :meth:`Simulation.remove_agents`,
+:meth:`Simulation.agents_in_range` and :meth:`Simulation.index_of` work on stable agent ids
+(never reused; :attr:`CrowdState.ids` stays sorted).
 
 No Python loop runs over the agents in a step (only over the few that enter or leave).
 Everything random comes from the seed: the same scenario, parameters and seed give
@@ -22,7 +30,6 @@ bit-identical trajectories however the steps are split across :meth:`Simulation.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,11 +37,12 @@ import numpy as np
 import pymunk
 import pymunk.batch as pb
 
+from crowdsim.checks import require_number
 from crowdsim.forces import WallGrid, social_force
 from crowdsim.params import SocialForceParams
 from crowdsim.scenarios import Scenario
 from crowdsim.trajectories import Trajectories, TrajectoryRecorder
-from crowdsim.world import AgentBatch, RouteTable
+from crowdsim.world import WALKERS, AgentBatch, RouteTable
 
 _BODY = pb.BodyFields
 
@@ -72,18 +80,15 @@ class CrowdState:
     def active(self) -> np.ndarray:
         return np.ones(self.n, dtype=bool)
 
-    _FROM_BATCH = {"pos": "pos", "vel": "vel", "radius": "radius", "desired_speed": "v0",
-                   "route": "route", "waypoint": "wp", "group": "group",
-                   "prominent": "prominent", "anomaly": "anomaly", "stop_start": "stop_start",
-                   "stop_end": "stop_end"}
-
     def keep(self, mask: np.ndarray) -> None:
-        for name in (*self._FROM_BATCH, "ids"):
+        """Keep the rows where ``mask`` ``(n,)`` is True."""
+        for name in (*AgentBatch.FIELDS, "ids"):
             setattr(self, name, getattr(self, name)[mask])
 
     def append(self, batch: AgentBatch, ids: np.ndarray) -> None:
-        for name, src in self._FROM_BATCH.items():
-            setattr(self, name, np.concatenate([getattr(self, name), getattr(batch, src)]))
+        """Append the agents of ``batch`` with their new ``ids`` ``(len(batch),)``."""
+        for name in AgentBatch.FIELDS:
+            setattr(self, name, np.concatenate([getattr(self, name), getattr(batch, name)]))
         self.ids = np.concatenate([self.ids, ids])
 
     @classmethod
@@ -153,20 +158,41 @@ class Simulation:
         self._row_of_agent = np.zeros(0, np.int64)
         self._n_rows = 0
         self._recorder = TrajectoryRecorder() if record else None
+        # Desired velocities held by set_desired: ids (m,) sorted and velocities (m, 2).
+        self._held_ids = np.zeros(0, np.int64)
+        self._held_vel = np.zeros((0, 2))
         self._add_agents(setup.agents)
         self._refresh_desired()
         self._sync_order()
         self._record()
 
     # ------------------------------------------------------------------ public API
-    def step(self) -> None:
-        """Advance the simulation by one time step ``params.dt``."""
+    def step(self, desired_velocity: np.ndarray | None = None,
+             controlled: np.ndarray | None = None) -> None:
+        """Advance the simulation by one time step ``params.dt``.
+
+        Parameters
+        ----------
+        desired_velocity : (m, 2) float, m/s, optional
+            Desired velocities ``u`` of the ``controlled`` agents for this step only (the
+            control hook). In the driving term ``(v0_i e_i - v_i) / tau`` [HM95 Eq. 2] the
+            agent's ``v0_i e_i`` becomes ``u_i``: its desired speed is ``|u_i|`` and its
+            desired direction ``u_i / |u_i|`` (zero for ``u_i = 0``), which also set its
+            field of view, headway and speed cap (``1.3 max(|u_i|, 0.5 m/s)``), as if the
+            agent had chosen that goal. Everybody else follows the social force as before
+            (they see the controlled agents as usual). Overrides :meth:`set_desired` for
+            those agents.
+        controlled : (m,) int ids or (n,) bool mask over :attr:`state`, optional
+            Which agents ``desired_velocity`` drives (ids must be present). ``None`` with a
+            ``desired_velocity`` means every present agent, in :attr:`state` order.
+        """
+        command = self._command(desired_velocity, controlled)
         p = self.params
         self._refresh_desired()
         self._spawn()
         if self._order_dirty:
             self._sync_order()
-        e, v0 = self._desired_cache
+        e, v0 = self._controlled_desired(*self._desired_cache, command)
         st = self.state
         if self.world.period > 0 and st.n:
             self._place_ghosts()
@@ -190,6 +216,133 @@ class Simulation:
             self._read_back()
             self._wrap_and_cull()
         self._record()
+
+    # ------------------------------------------------------------------ control hook
+    def set_desired(self, ids: np.ndarray, velocity: np.ndarray) -> None:
+        """Hold the desired velocity of agents ``ids`` ``(m,)`` at ``velocity`` ``(m, 2)``
+        or ``(2,)`` m/s from the next step on, until :meth:`clear_desired` (or until they
+        leave); see :meth:`step` for what a desired velocity replaces."""
+        ids = self._present_ids(ids, "set_desired")
+        vel = _velocities(velocity, len(ids), "set_desired.velocity")
+        ids, first = np.unique(ids[::-1], return_index=True)  # the last entry of an id wins
+        vel = vel[::-1][first]
+        keep = ~np.isin(self._held_ids, ids)
+        held_ids = np.concatenate([self._held_ids[keep], ids])
+        order = np.argsort(held_ids, kind="stable")
+        self._held_ids = held_ids[order]
+        self._held_vel = np.concatenate([self._held_vel[keep], vel])[order]
+
+    def clear_desired(self, ids: np.ndarray | None = None) -> None:
+        """Let agents ``ids`` ``(m,)`` (all held ones when ``None``) follow the social force
+        again."""
+        if ids is None:
+            keep = np.zeros(len(self._held_ids), dtype=bool)
+        else:
+            keep = ~np.isin(self._held_ids, _ids_array(ids, "clear_desired.ids"))
+        self._held_ids, self._held_vel = self._held_ids[keep], self._held_vel[keep]
+
+    @property
+    def held_desired(self) -> tuple[np.ndarray, np.ndarray]:
+        """Agents under :meth:`set_desired`: ``(ids (m,) int64 sorted, velocities (m, 2))``;
+        agents that left are dropped at the next step."""
+        return self._held_ids.copy(), self._held_vel.copy()
+
+    def route_directions(self) -> np.ndarray:
+        """Unit directions ``(n, 2)`` each present agent's route points to now (towards the
+        nearest point of its current gate), in :attr:`state` order; no side effect."""
+        st = self.state
+        return self.routes.desired(st.pos, st.route, st.waypoint)[0]
+
+    # ------------------------------------------------------------------ life cycle
+    def add_agents(self, pos: np.ndarray, *, radius: np.ndarray | float | None = None,
+                   desired_speed: np.ndarray | float = WALKERS.mean,
+                   route: np.ndarray | int = 0, group: np.ndarray | int = -1,
+                   vel: np.ndarray | None = None,
+                   prominent: np.ndarray | bool = False) -> np.ndarray:
+        """Add agents at once (between steps); return their new ids ``(m,)`` int64.
+
+        Ids continue from :attr:`n_total` and are never reused. Nothing checks that the
+        new bodies are clear of others (pymunk pushes overlapping bodies apart).
+
+        Parameters
+        ----------
+        pos : (m, 2) float, m
+        radius : (m,) or scalar, m; default the middle of the scenario's radius range
+        desired_speed : (m,) or scalar, m/s
+        route : (m,) or scalar int, index into the scene's routes (starting at its first gate)
+        group : (m,) or scalar int, -1 = none
+        vel : (m, 2) float, m/s, default zero
+        prominent : (m,) or scalar bool, drawn in a distinct colour by the renderer
+        """
+        pos = np.array(pos, dtype=np.float64)
+        if pos.ndim != 2 or pos.shape[1] != 2 or not np.isfinite(pos).all():
+            raise ValueError(f"add_agents.pos must be finite with shape (m, 2), "
+                             f"got shape {pos.shape}")
+        m = len(pos)
+        if radius is None:
+            radius = 0.5 * (self.scenario.radius[0] + self.scenario.radius[1])
+        radius = _per_agent(radius, m, np.float64, "radius")
+        speed = _per_agent(desired_speed, m, np.float64, "desired_speed")
+        routes = _per_agent(route, m, np.int64, "route")
+        if m and not ((radius > 0).all() and np.isfinite(radius).all()):
+            raise ValueError(f"add_agents.radius must be finite and > 0, got {radius}")
+        if m and not ((speed >= 0).all() and np.isfinite(speed).all()):
+            raise ValueError(f"add_agents.desired_speed must be finite and >= 0, got {speed}")
+        n_routes = len(self.routes.length)
+        if m and not ((routes >= 0).all() and (routes < n_routes).all()):
+            raise ValueError(f"add_agents.route must be in [0, {n_routes}), got {routes}")
+        batch = AgentBatch(
+            pos=pos,
+            vel=np.zeros((m, 2)) if vel is None else _velocities(vel, m, "add_agents.vel"),
+            radius=radius, desired_speed=speed, route=routes,
+            waypoint=np.zeros(m, np.int64),
+            group=_per_agent(group, m, np.int64, "group"),
+            prominent=_per_agent(prominent, m, bool, "prominent"),
+            anomaly=np.zeros(m, np.int8), stop_start=np.full(m, np.inf),
+            stop_end=np.full(m, np.inf))
+        if self.world.period > 0:
+            batch.pos[:, 0] %= self.world.period
+        batch.waypoint = self.routes.desired(batch.pos, batch.route, batch.waypoint)[1]
+        first = self._n_total
+        self._add_agents(batch)
+        return np.arange(first, self._n_total, dtype=np.int64)
+
+    def remove_agents(self, ids: np.ndarray) -> None:
+        """Remove the present agents ``ids`` ``(m,)`` at once (between steps: from the next
+        step on they are gone, as after JuPedSim's ``mark_agent_for_removal``)."""
+        ids = self._present_ids(ids, "remove_agents")
+        if len(ids):
+            self._remove(np.isin(self.state.ids, ids))
+
+    def index_of(self, ids: np.ndarray, strict: bool = True) -> np.ndarray:
+        """Rows ``(m,)`` int64 of agents ``ids`` ``(m,)`` in :attr:`state`.
+
+        Absent ids raise ``ValueError`` (naming them) when ``strict``, else give -1.
+        :attr:`state` keeps its ids sorted, so this is a binary search.
+        """
+        ids = _ids_array(ids, "index_of.ids")
+        present = self.state.ids
+        rows = np.minimum(np.searchsorted(present, ids), max(len(present) - 1, 0))
+        found = (present[rows] == ids) if len(present) else np.zeros(len(ids), dtype=bool)
+        if strict and not found.all():
+            raise ValueError(f"agent id(s) not present: {ids[~found][:10].tolist()}")
+        return np.where(found, rows, -1).astype(np.int64)
+
+    def agents_in_range(self, point: np.ndarray, radius: float) -> np.ndarray:
+        """Ids ``(k,)`` int64, sorted, of the present agents whose centre lies within
+        ``radius`` metres of ``point`` ``(2,)`` (across the seam of a periodic world).
+
+        One vectorised pass over the agents, O(n): cheaper than building a k-d tree for
+        a single query.
+        """
+        point = np.asarray(point, dtype=np.float64)
+        if point.shape != (2,) or not np.isfinite(point).all():
+            raise ValueError(f"agents_in_range.point must be two finite numbers, got {point}")
+        require_number("agents_in_range", "radius", radius, lo=0)
+        d = self.state.pos - point
+        if self.world.period > 0:
+            d[:, 0] -= self.world.period * np.round(d[:, 0] / self.world.period)
+        return self.state.ids[np.hypot(d[:, 0], d[:, 1]) <= radius]
 
     def set_state(self, pos: np.ndarray | None = None, vel: np.ndarray | None = None) -> None:
         """Overwrite positions ``(n, 2)`` m and/or velocities ``(n, 2)`` m/s of the present
@@ -245,17 +398,70 @@ class Simulation:
         return self._recorder.finish(self._n_total, self.params.dt, attrs, self.meta())
 
     def meta(self) -> dict[str, Any]:
-        import pymunk as _pm
-
+        """Scenario, seed, parameters, steps, versions and scenario info (JSON-ready)."""
         from crowdsim import __version__
 
         return {"scenario": self.scenario.to_dict(), "seed": self.seed,
                 "params": self.params.to_dict(), "steps": self.steps,
-                "versions": {"crowdsim": __version__, "pymunk": _pm.version,
+                "versions": {"crowdsim": __version__, "pymunk": pymunk.version,
                              "numpy": np.__version__},
                 "info": _jsonable(self.info)}
 
     # ------------------------------------------------------------------ internals
+    def _present_ids(self, ids: np.ndarray, where: str) -> np.ndarray:
+        ids = _ids_array(ids, f"{where}.ids")
+        self.index_of(ids)  # raises on absent ids
+        return ids
+
+    def _command(self, desired_velocity: np.ndarray | None,
+                 controlled: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
+        """The one-step command as ``(ids (m,), velocities (m, 2))``, resolved against the
+        agents present before the step (some may leave at its start)."""
+        if desired_velocity is None:
+            if controlled is not None:
+                raise ValueError("step: controlled was given without desired_velocity")
+            return None
+        st = self.state
+        if controlled is None:
+            ids = st.ids
+        else:
+            c = np.asarray(controlled)
+            if c.dtype == bool:
+                if c.shape != (st.n,):
+                    raise ValueError(f"step.controlled as a mask must have shape ({st.n},), "
+                                     f"got {c.shape}")
+                ids = st.ids[c]
+            else:
+                ids = self._present_ids(c, "step.controlled")
+        vel = _velocities(desired_velocity, len(ids), "step.desired_velocity")
+        if len(ids) > 1 and not (ids[1:] > ids[:-1]).all() and len(np.unique(ids)) != len(ids):
+            raise ValueError("step.controlled lists an agent more than once")
+        return ids, vel
+
+    def _controlled_desired(self, e: np.ndarray, v0: np.ndarray,
+                            command: tuple[np.ndarray, np.ndarray] | None) -> tuple[
+                                np.ndarray, np.ndarray]:
+        """``(e, v0)`` with the rows of held and commanded agents set to ``u / |u|, |u|``."""
+        if len(self._held_ids):  # forget agents that have left
+            live = self.index_of(self._held_ids, strict=False) >= 0
+            self._held_ids, self._held_vel = self._held_ids[live], self._held_vel[live]
+        ids, vel = self._held_ids, self._held_vel
+        if command is not None:
+            free = ~np.isin(ids, command[0])
+            ids = np.concatenate([ids[free], command[0]])
+            vel = np.concatenate([vel[free], command[1]])
+        if len(ids) == 0:
+            return e, v0
+        rows = self.index_of(ids, strict=False)
+        live = rows >= 0
+        rows, vel = rows[live], vel[live]
+        speed = np.hypot(vel[:, 0], vel[:, 1])
+        e, v0 = e.copy(), v0.copy()
+        e[rows] = np.divide(vel, speed[:, None], out=np.zeros_like(vel),
+                            where=speed[:, None] > 0)
+        v0[rows] = speed
+        return e, v0
+
     def _make_space(self) -> pymunk.Space:
         p = self.params
         space = pymunk.Space()
@@ -306,7 +512,7 @@ class Simulation:
         self._attrs["prominent"].append(batch.prominent)
         self._attrs["anomaly"].append(batch.anomaly)
         self._attrs["radius"].append(batch.radius)
-        self._attrs["desired_speed"].append(batch.v0)
+        self._attrs["desired_speed"].append(batch.desired_speed)
         self._order_dirty = True
 
     def _remove(self, mask: np.ndarray) -> None:
@@ -375,7 +581,7 @@ class Simulation:
         out.set_float_buf(rows.ravel())
         pb.set_space_bodies(self._space, _BODY.POSITION | _BODY.VELOCITY, out)
 
-    def _refresh_desired(self) -> tuple[np.ndarray, np.ndarray]:
+    def _refresh_desired(self) -> None:
         """Desired directions and speeds; agents past their final gate leave here."""
         st = self.state
         e, wp, done = self.routes.desired(st.pos, st.route, st.waypoint)
@@ -387,7 +593,6 @@ class Simulation:
         standing = (self.time >= st.stop_start) & (self.time < st.stop_end)
         v0 = np.where(standing, 0.0, st.desired_speed)
         self._desired_cache = (e, v0)
-        return e, v0
 
     def _spawn(self) -> None:
         if not self.sources:
@@ -415,10 +620,11 @@ class Simulation:
         if new:
             batch = AgentBatch.concat(new)
             self._add_agents(batch)
-            e_new, wp, _ = self.routes.desired(batch.pos, batch.route, batch.wp)
+            e_new, wp, _ = self.routes.desired(batch.pos, batch.route, batch.waypoint)
             self.state.waypoint[-len(batch):] = wp
             e, v0 = self._desired_cache
-            self._desired_cache = (np.vstack([e, e_new]), np.concatenate([v0, batch.v0]))
+            self._desired_cache = (np.vstack([e, e_new]),
+                                   np.concatenate([v0, batch.desired_speed]))
 
     def _free(self, pos: np.ndarray, radius: np.ndarray, pending: list[AgentBatch]) -> np.ndarray:
         """True where a candidate overlaps nobody (present, pending, or an earlier candidate)."""
@@ -454,12 +660,34 @@ def _jsonable(obj: Any) -> Any:
     return obj
 
 
-def simulate(scenario: Scenario, steps: int, seed: int = 0,
-             params: SocialForceParams | None = None, progress: bool = False) -> tuple[
-                 Trajectories, float]:
-    """Run a scenario for ``steps`` steps; return its trajectories and the wall time (s)."""
-    sim = Simulation(scenario, seed=seed, params=params)
-    t0 = time.perf_counter()
-    traj = sim.run(steps, progress=progress)
-    assert traj is not None
-    return traj, time.perf_counter() - t0
+
+def _ids_array(ids: Any, where: str) -> np.ndarray:
+    ids = np.asarray(ids)
+    if ids.ndim == 0:
+        ids = ids.reshape(1)
+    if ids.ndim != 1 or (len(ids) and not np.issubdtype(ids.dtype, np.integer)):
+        raise ValueError(f"{where} must be a 1-d array of integer agent ids, got {ids!r}")
+    return ids.astype(np.int64)
+
+
+def _velocities(value: Any, m: int, where: str) -> np.ndarray:
+    """``(m, 2)`` float64 finite velocities from ``(m, 2)`` or one ``(2,)`` row."""
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape == (2,):
+        v = np.broadcast_to(v, (m, 2))
+    if v.shape != (m, 2):
+        raise ValueError(f"{where} must have shape ({m}, 2) or (2,), got {v.shape}")
+    if not np.isfinite(v).all():
+        raise ValueError(f"{where} must be finite")
+    return np.array(v)
+
+
+def _per_agent(value: Any, m: int, dtype: Any, name: str) -> np.ndarray:
+    """A scalar or ``(m,)`` value as an ``(m,)`` array of ``dtype``."""
+    v = np.asarray(value)
+    if v.ndim == 0:
+        v = np.broadcast_to(v, (m,))
+    if v.shape != (m,):
+        raise ValueError(f"add_agents.{name} must be a scalar or have shape ({m},), "
+                         f"got {v.shape}")
+    return np.array(v, dtype=dtype)

@@ -61,11 +61,6 @@ class World:
         walls = np.asarray(self.walls, dtype=np.float64).reshape(-1, 5)
         object.__setattr__(self, "walls", walls)
 
-    @property
-    def area(self) -> float:
-        xmin, ymin, xmax, ymax = self.bounds
-        return (xmax - xmin) * (ymax - ymin)
-
 
 @dataclass(frozen=True)
 class Route:
@@ -194,8 +189,11 @@ def _route_kernel(pos, route, wp, gates, length, loop, direction, reach, e, done
 class AgentBatch:
     """Agents to add to a simulation (struct of arrays, ``n`` rows).
 
-    pos, vel : (n, 2) m, m/s; radius, v0 : (n,) m, m/s; route, wp : (n,) int route and
-    starting gate; group : (n,) int, -1 = none (group ids are scene-global);
+    The field names are those of :class:`crowdsim.simulation.CrowdState`, which stores the
+    present agents the same way (plus their ids).
+
+    pos, vel : (n, 2) m, m/s; radius, desired_speed : (n,) m, m/s; route, waypoint : (n,) int
+    route and starting gate; group : (n,) int, -1 = none (group ids are scene-global);
     prominent : (n,) bool; anomaly : (n,) int8 (see ``ANOMALY_KINDS``);
     stop_start, stop_end : (n,) s, an interval in which the agent wants to stand still
     (``inf`` for never).
@@ -204,31 +202,32 @@ class AgentBatch:
     pos: np.ndarray
     vel: np.ndarray
     radius: np.ndarray
-    v0: np.ndarray
+    desired_speed: np.ndarray
     route: np.ndarray
-    wp: np.ndarray
+    waypoint: np.ndarray
     group: np.ndarray
     prominent: np.ndarray
     anomaly: np.ndarray
     stop_start: np.ndarray
     stop_end: np.ndarray
 
-    FIELDS = ("pos", "vel", "radius", "v0", "route", "wp", "group", "prominent", "anomaly",
-              "stop_start", "stop_end")
+    FIELDS = ("pos", "vel", "radius", "desired_speed", "route", "waypoint", "group",
+              "prominent", "anomaly", "stop_start", "stop_end")
 
     @classmethod
-    def create(cls, pos: np.ndarray, radius: np.ndarray, v0: np.ndarray, route: np.ndarray | int,
-               rng: np.random.Generator, prominent_fraction: float, wp: np.ndarray | int = 0,
-               group: np.ndarray | None = None, anomaly: np.ndarray | None = None) -> AgentBatch:
+    def create(cls, pos: np.ndarray, radius: np.ndarray, desired_speed: np.ndarray,
+               route: np.ndarray | int, rng: np.random.Generator, prominent_fraction: float,
+               waypoint: np.ndarray | int = 0, group: np.ndarray | None = None,
+               anomaly: np.ndarray | None = None) -> AgentBatch:
         pos = np.asarray(pos, dtype=np.float64).reshape(-1, 2)
         n = len(pos)
         return cls(
             pos=pos,
             vel=np.zeros((n, 2)),
             radius=np.asarray(radius, dtype=np.float64),
-            v0=np.asarray(v0, dtype=np.float64),
+            desired_speed=np.asarray(desired_speed, dtype=np.float64),
             route=np.broadcast_to(np.asarray(route, dtype=np.int64), (n,)).copy(),
-            wp=np.broadcast_to(np.asarray(wp, dtype=np.int64), (n,)).copy(),
+            waypoint=np.broadcast_to(np.asarray(waypoint, dtype=np.int64), (n,)).copy(),
             group=np.full(n, -1, np.int64) if group is None else np.asarray(group, np.int64),
             prominent=rng.random(n) < prominent_fraction,
             anomaly=np.zeros(n, np.int8) if anomaly is None else np.asarray(anomaly, np.int8),
@@ -238,9 +237,6 @@ class AgentBatch:
 
     def __len__(self) -> int:
         return len(self.pos)
-
-    def select(self, mask: np.ndarray) -> AgentBatch:
-        return AgentBatch(**{f: getattr(self, f)[mask] for f in self.FIELDS})
 
     @classmethod
     def concat(cls, batches: list[AgentBatch]) -> AgentBatch:

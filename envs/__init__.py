@@ -13,13 +13,38 @@ Module map:
 * :mod:`envs.param_space` -- Box[-1, 1]^d <-> tracker parameters (env, Optuna, Ray Tune);
 * :mod:`envs.episodes` -- seeded scenario distribution -> in-memory sequences, or a suite;
 * :mod:`envs.tracker_tuning` -- the two Gymnasium environments;
-* :mod:`envs.crowd_v0` -- the PettingZoo crowd (``env``, ``parallel_env``, ``raw_env``);
+* :mod:`envs.crowd` -- :class:`CrowdParallelEnv`, the PettingZoo crowd (one agent per
+  pedestrian), its array API and the shared-policy recipe;
+* :mod:`envs.crowd_v0` -- the versioned face (``env``, ``parallel_env``, ``raw_env``);
 * :mod:`envs.tuners` -- Optuna / Ray Tune / stable-baselines3 drivers.
+
+The names below are imported lazily (the crowd pulls in pymunk and numba, the tuning
+environments the tracker), so ``import envs`` only registers the ids.
 """
 
 from __future__ import annotations
 
+import importlib
+from typing import Any
+
 from gymnasium.envs.registration import register, registry
+
+_EXPORTS = {
+    "CrowdParallelEnv": "envs.crowd",
+    "CrowdEnvParams": "envs.crowd",
+    "shared_policy_vec_env": "envs.crowd",
+    "train_shared_policy": "envs.crowd",
+    "TrackerTuningEnv": "envs.tracker_tuning",
+    "TrackerTuningBanditEnv": "envs.tracker_tuning",
+    "ParamSpace": "envs.param_space",
+}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'envs' has no attribute {name!r}")
 
 _ENVS = {
     "crowdsim/TrackerTuning-v0": "envs.tracker_tuning:TrackerTuningEnv",

@@ -19,6 +19,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "render": ("crowdsim.bench.render", "renderer frames/s, 1280x720/1k and 1920x1080/10k agents"),
     "track": ("crowdsim.bench.track",
               "BQP tracking frames/s at 100/1000 targets, per stage; speed-up vs dense candidates"),
+    "envs": ("crowdsim.bench.envs", "environment steps/s (crowd_v0 at 1,000 agents: arrays, dict)"),
 }
 """Benchmark name -> (module, one-line help)."""
 

@@ -1,0 +1,347 @@
+"""``crowdsim bench envs``: speed of the environments in :mod:`envs` (issue 9, "Speed").
+
+One function per section, each returning a JSON-ready dict; ``--only`` picks sections
+(default: all). The output is a table per section and one JSON object (last line).
+
+Sections
+--------
+``crowd``
+    ``envs.crowd_v0`` with ``--agents`` pedestrians (default 1,000), all of them agents, in
+    a periodic counterflow corridor at 1 /m² (nobody leaves, so the count stays fixed):
+    env steps per second through the array API (:meth:`~envs.crowd.CrowdParallelEnv.
+    step_arrays`, seeded uniform actions in ``[-vmax, vmax]^2``) and through the
+    per-agent dict API (:meth:`~envs.crowd.CrowdParallelEnv.step` with a prepared action
+    dict), beside the bare simulation step under the same control (what the env adds is
+    observations, rewards and book-keeping). ``--warmup`` untimed steps, then ``--steps``
+    timed ones, each API from the same seed; ``--repeat`` rounds, the best counts. Target:
+    >= 200 steps/s through the array API at 1,000 agents (issue 9).
+``tuning``
+    ``crowdsim/TrackerTuning-v0`` (the real BQP tracker, ``--k`` frames per step) on an
+    in-memory counterflow crowd of ``--targets`` people (default 100 and 300; frames up to
+    1280x720, 12 px heads): env steps/s and tracked frames/s after ``--tuning-warmup``
+    untimed steps (a step renders its frames in memory and tracks them; the episode's
+    simulation happens in ``reset`` and is not timed). Then the speed-up of ``--workers``
+    asynchronous envs (Gymnasium ``AsyncVectorEnv``, ``spawn`` context, 100 targets): total
+    env steps/s over the vector against one env.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Callable
+from statistics import median
+from typing import Any
+
+import numpy as np
+
+CROWD_TARGET_STEPS_PER_S = 200.0
+
+
+def _timed(step: Callable[[int], Any], warmup: int, steps: int) -> float:
+    """Wall seconds of ``steps`` calls ``step(k)`` after ``warmup`` untimed ones."""
+    for k in range(warmup):
+        step(k)
+    t0 = time.perf_counter()
+    for k in range(steps):
+        step(warmup + k)
+    return time.perf_counter() - t0
+
+
+# ------------------------------------------------------------------------------ crowd_v0
+
+
+def bench_crowd(
+    agents: int = 1000, steps: int = 200, warmup: int = 20, seed: int = 0, repeat: int = 3
+) -> dict[str, Any]:
+    """crowd_v0 steps/s through the array API, the dict API and the bare simulation.
+
+    Each of ``repeat`` rounds times the three in turn, each on a fresh env reset from
+    ``seed``; the best round counts (timeit's rule: on a shared machine the fastest run is
+    the least disturbed one), the median is reported beside it.
+    """
+    from envs.crowd import CrowdParallelEnv
+
+    kwargs = {
+        "n_agents": agents,
+        "max_cycles": steps + warmup + 1,
+        "scenario_params": {"periodic": True, "inflow": False},
+    }
+    rng = np.random.default_rng(seed)
+    env = CrowdParallelEnv(**kwargs)
+    actions = rng.uniform(-env.params.vmax, env.params.vmax, (steps + warmup, agents, 2))
+    names = [f"ped_{i}" for i in range(agents)]
+    # The agent set stays fixed in the periodic corridor; dicts are built before timing.
+    act_dicts = [
+        dict(zip(names, actions[k].astype(np.float32), strict=True)) for k in range(steps + warmup)
+    ]
+
+    def arrays() -> float:
+        env.reset_arrays(seed)
+        return _timed(lambda k: env.step_arrays(actions[k]), warmup, steps)
+
+    def per_agent() -> float:
+        env.reset(seed=seed)
+        return _timed(lambda k: env.step(act_dicts[k]), warmup, steps)
+
+    def simulation() -> float:
+        env.reset_arrays(seed)
+        sim, ids = env.sim, env.agent_ids
+        return _timed(
+            lambda k: sim.step(desired_velocity=actions[k], controlled=ids), warmup, steps
+        )
+
+    walls: dict[str, list[float]] = {"arrays": [], "dict": [], "simulation": []}
+    for _ in range(repeat):
+        for api, fn in (("arrays", arrays), ("dict", per_agent), ("simulation", simulation)):
+            walls[api].append(fn())
+            if env.sim.state.n != agents:
+                raise RuntimeError(
+                    "agents left the periodic corridor; the benchmark needs a fixed count"
+                )
+    rows = []
+    for api, times in walls.items():
+        best = min(times)
+        rows.append(
+            {
+                "api": api,
+                "agents": agents,
+                "steps": steps,
+                "wall_s": best,
+                "steps_per_s": steps / best,
+                "median_steps_per_s": steps / median(times),
+                "agent_steps_per_s": steps * agents / best,
+            }
+        )
+    return {
+        "scenario": "counterflow periodic, 1 /m2, 6 m wide",
+        "warmup_steps": warmup,
+        "repeat": repeat,
+        "obs_size": env.params.obs_size,
+        "results": rows,
+        "target_steps_per_s": CROWD_TARGET_STEPS_PER_S,
+        "meets_target": rows[0]["steps_per_s"] >= CROWD_TARGET_STEPS_PER_S,
+    }
+
+
+def _print_crowd(report: dict[str, Any]) -> None:
+    print(f"crowd_v0 ({report['scenario']}, obs size {report['obs_size']})")
+    head = (
+        f"{'api':<12} {'agents':>7} {'steps':>6} {'steps/s':>9} {'median':>8} {'agent-steps/s':>14}"
+    )
+    print(head)
+    print("-" * len(head))
+    for r in report["results"]:
+        print(
+            f"{r['api']:<12} {r['agents']:>7} {r['steps']:>6} {r['steps_per_s']:>9.1f} "
+            f"{r['median_steps_per_s']:>8.1f} {r['agent_steps_per_s']:>14,.0f}"
+        )
+    print(f"(best of {report['repeat']} rounds; median beside it)")
+    verdict = "met" if report["meets_target"] else "NOT met"
+    print(f"target >= {report['target_steps_per_s']:.0f} steps/s through the array API: {verdict}")
+
+
+# ------------------------------------------------------------------------------ tuning
+
+
+def _tuning_kwargs(targets: int, frames: int, k: int) -> dict[str, Any]:
+    return {
+        "scenarios": {
+            "scenarios": ["counterflow"],
+            "agents": [targets, targets],
+            "frames": frames,
+            "warmup_steps": 25,
+            "template_px": [12],
+            "density_scale": [1.0, 1.0],
+            "max_width": 1280,
+            "max_height": 720,
+        },
+        "k_frames": k,
+    }
+
+
+def bench_tuning(
+    targets: tuple[int, ...] = (100, 300),
+    workers: tuple[int, ...] = (1, 2),
+    steps: int = 4,
+    warmup: int = 1,
+    k: int = 25,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """TrackerTuning-v0 env steps/s per crowd size, and the async vector-env speed-up."""
+    from gymnasium.vector import AsyncVectorEnv
+
+    from envs.tracker_tuning import TrackerTuningEnv
+
+    frames = (steps + warmup) * k + 1
+    sizes = []
+    for n in targets:
+        env = TrackerTuningEnv(**_tuning_kwargs(n, frames, k))
+        env.reset(seed=seed)
+        action = np.zeros(env.action_space.shape, np.float32)
+        counts: list[int] = []
+
+        def one(_: int) -> None:
+            counts.append(env.step(action)[4]["targets"])  # noqa: B023
+
+        wall = _timed(one, warmup, steps)
+        sizes.append(
+            {
+                "people": n,
+                "mean_targets": float(np.mean(counts[warmup:])),
+                "frame": f"{env._ep.seq.width}x{env._ep.seq.height}",
+                "k": k,
+                "steps": steps,
+                "wall_s": wall,
+                "steps_per_s": steps / wall,
+                "frames_per_s": steps * k / wall,
+            }
+        )
+        env.close()
+    vec_rows = []
+    for w in workers:
+        kw = _tuning_kwargs(targets[0], frames, k)
+        vec = AsyncVectorEnv(
+            [lambda kw=kw: TrackerTuningEnv(**kw) for _ in range(w)], context="spawn"
+        )
+        try:
+            vec.reset(seed=[seed + i for i in range(w)])
+            actions = np.zeros((w,) + vec.single_action_space.shape, np.float32)
+            wall = _timed(lambda _k: vec.step(actions), warmup, steps)  # noqa: B023
+        finally:
+            vec.close()
+        vec_rows.append(
+            {"workers": w, "env_steps": w * steps, "wall_s": wall, "steps_per_s": w * steps / wall}
+        )
+    base = next((r["steps_per_s"] for r in vec_rows if r["workers"] == 1), None)
+    for r in vec_rows:
+        r["speedup"] = r["steps_per_s"] / base if base else None
+    import os
+
+    return {
+        "env": "crowdsim/TrackerTuning-v0",
+        "tracker": "bqp (paper defaults)",
+        "cpus": os.cpu_count(),
+        "sizes": sizes,
+        "vector": vec_rows,
+        "vector_people": targets[0],
+    }
+
+
+def _print_tuning(report: dict[str, Any]) -> None:
+    print(f"TrackerTuning-v0 ({report['tracker']}), {report['cpus']} CPUs")
+    head = f"{'people':>7} {'targets':>8} {'frame':>9} {'K':>3} {'steps/s':>8} {'frames/s':>9}"
+    print(head)
+    print("-" * len(head))
+    for r in report["sizes"]:
+        print(
+            f"{r['people']:>7} {r['mean_targets']:>8.0f} {r['frame']:>9} {r['k']:>3} "
+            f"{r['steps_per_s']:>8.2f} {r['frames_per_s']:>9.1f}"
+        )
+    print(f"async vector env, {report['vector_people']} people per env")
+    head = f"{'workers':>7} {'env steps':>10} {'steps/s':>8} {'speed-up':>9}"
+    print(head)
+    print("-" * len(head))
+    for r in report["vector"]:
+        sp = "" if r["speedup"] is None else f"{r['speedup']:.2f}x"
+        print(f"{r['workers']:>7} {r['env_steps']:>10} {r['steps_per_s']:>8.2f} {sp:>9}")
+
+
+# ------------------------------------------------------------------------------ CLI
+
+SECTIONS: dict[
+    str, tuple[Callable[[argparse.Namespace], dict[str, Any]], Callable[[dict[str, Any]], None]]
+] = {
+    "crowd": (lambda a: bench_crowd(a.agents, a.steps, a.warmup, a.seed, a.repeat), _print_crowd),
+    "tuning": (
+        lambda a: bench_tuning(
+            tuple(a.targets), tuple(a.workers), a.tuning_steps, a.tuning_warmup, a.k, a.seed
+        ),
+        _print_tuning,
+    ),
+}
+"""Section name -> (run it from the parsed arguments, print its table)."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--only",
+        default=",".join(SECTIONS),
+        help=f"comma-separated sections to run: {', '.join(SECTIONS)} (default: all)",
+    )
+    parser.add_argument(
+        "--agents", type=int, default=1000, help="crowd: pedestrians, all agents (default 1000)"
+    )
+    parser.add_argument(
+        "--steps", type=int, default=200, help="crowd: timed steps per API (default 200)"
+    )
+    parser.add_argument(
+        "--warmup", type=int, default=20, help="crowd: untimed steps first (default 20)"
+    )
+    parser.add_argument(
+        "--repeat", type=int, default=3, help="crowd: timing rounds, the best counts (default 3)"
+    )
+    parser.add_argument(
+        "--targets",
+        type=int,
+        nargs="+",
+        default=[100, 300],
+        help="tuning: people per crowd (default 100 300)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        nargs="+",
+        default=[1, 2],
+        help="tuning: async env counts, e.g. 1 2 4 8 16 (default 1 2)",
+    )
+    parser.add_argument(
+        "--tuning-steps",
+        type=int,
+        default=4,
+        help="tuning: timed env steps per measurement (default 4)",
+    )
+    parser.add_argument(
+        "--tuning-warmup", type=int, default=1, help="tuning: untimed env steps first (default 1)"
+    )
+    parser.add_argument("--k", type=int, default=25, help="tuning: frames per env step (25)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of scenes and actions")
+    parser.add_argument(
+        "--json-out", default=None, metavar="FILE", help="also write the JSON to FILE"
+    )
+
+
+def _sections(text: str) -> list[str]:
+    chosen = [s.strip() for s in text.split(",") if s.strip()]
+    unknown = sorted(set(chosen) - set(SECTIONS))
+    if unknown or not chosen:
+        raise ValueError(
+            f"--only: unknown or no section(s) {', '.join(unknown) or text!r}; "
+            f"choose from {', '.join(SECTIONS)}"
+        )
+    return chosen
+
+
+def run(args: argparse.Namespace) -> int:
+    chosen = _sections(args.only)
+    for name in ("agents", "steps", "repeat", "tuning_steps", "k"):
+        if getattr(args, name, 1) < 1:
+            raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
+    if min(getattr(args, "targets", [1]) + getattr(args, "workers", [1])) < 1:
+        raise ValueError("--targets and --workers must be >= 1")
+    if getattr(args, "warmup", 0) < 0 or getattr(args, "tuning_warmup", 0) < 0:
+        raise ValueError(f"--warmup must be >= 0, got {args.warmup}")
+    report: dict[str, Any] = {"benchmark": "envs", "sections": {}}
+    for name in chosen:
+        bench, show = SECTIONS[name]
+        report["sections"][name] = result = bench(args)
+        show(result)
+        print()
+    text = json.dumps(report)
+    print(text)
+    if args.json_out:
+        from crowdsim.atomic import write_text_atomic
+
+        write_text_atomic(args.json_out, text + "\n")
+    return 0

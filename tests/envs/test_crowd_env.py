@@ -1,0 +1,220 @@
+"""envs.crowd_v0: PettingZoo conformance, the array API, control, observations, rendering."""
+
+from __future__ import annotations
+
+import importlib.util
+import warnings
+
+import numpy as np
+import pytest
+from pettingzoo.test import parallel_api_test, parallel_seed_test, seed_test
+from pettingzoo.utils.conversions import parallel_to_aec
+
+from crowdsim.simulation import Simulation
+from envs import crowd_v0
+from envs.crowd import CrowdParallelEnv
+
+SPARSE = {"density": 0.05, "width": 30.0, "right_fraction": 1.0, "periodic": True, "inflow": False}
+"""A wide periodic corridor in which a handful of agents feel no wall and nobody else."""
+
+
+def sparse_env(n: int, **kwargs) -> CrowdParallelEnv:
+    return crowd_v0.parallel_env(n_agents=n, scenario_params=SPARSE, **kwargs)
+
+
+def test_parallel_api_test():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # pettingzoo reports key mismatches as warnings
+        parallel_api_test(crowd_v0.parallel_env(n_agents=10, max_cycles=40), num_cycles=40)
+
+
+def test_parallel_api_test_with_arrivals_and_background_walkers():
+    env = crowd_v0.parallel_env(
+        n_agents=10,
+        max_agents=30,
+        controlled_fraction=0.5,
+        max_cycles=200,
+        scenario_params={"inflow": True},
+    )
+    assert len(env.possible_agents) == 15
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        parallel_api_test(env, num_cycles=200)
+
+
+def test_seed_tests():
+    kw = {"n_agents": 8, "max_cycles": 15}
+    seed_test(lambda: parallel_to_aec(crowd_v0.parallel_env(**kw)), num_cycles=15)
+    seed_test(lambda: crowd_v0.env(**kw), num_cycles=15)
+    parallel_seed_test(lambda: crowd_v0.parallel_env(**kw), num_cycles=15)
+
+
+def test_same_seed_same_episode_other_seed_another():
+    runs = []
+    for seed in (4, 4, 5):
+        env = crowd_v0.parallel_env(n_agents=12)
+        obs = [env.reset_arrays(seed)]
+        rng = np.random.default_rng(0)
+        for _ in range(5):
+            obs.append(env.step_arrays(rng.uniform(-1, 1, (len(env.agent_ids), 2)))[0])
+        runs.append(np.stack(obs))
+    np.testing.assert_array_equal(runs[0], runs[1])
+    assert not np.array_equal(runs[0], runs[2])
+
+
+def test_all_agents_share_one_space_object():
+    env = crowd_v0.parallel_env(n_agents=6)
+    env.reset(seed=0)
+    a, b = env.agents[:2]
+    assert env.observation_space(a) is env.observation_space(b)
+    assert env.action_space(a) is env.action_space(b)
+    assert env.observation_space(a).shape == (7 + 5 * 6,)
+    assert env.observation_space(a).dtype == np.float32
+    with pytest.raises(ValueError, match="unknown agent"):
+        env.action_space("ped_99")
+
+
+def test_array_api_equals_dict_api():
+    kw = {"n_agents": 15, "max_cycles": 30, "scenario_params": {"inflow": True}, "max_agents": 25}
+    d_env, a_env = crowd_v0.parallel_env(**kw), crowd_v0.parallel_env(**kw)
+    obs, _ = d_env.reset(seed=9)
+    a_obs = a_env.reset_arrays(9)
+    np.testing.assert_array_equal(np.stack([obs[a] for a in d_env.agents]), a_obs)
+    rng = np.random.default_rng(1)
+    while d_env.agents:
+        names, ids = list(d_env.agents), a_env.agent_ids
+        assert names == [f"ped_{i}" for i in ids]
+        acts = rng.uniform(-2.5, 2.5, (len(ids), 2))  # some out of the box: clipped alike
+        obs, rew, term, trunc, _ = d_env.step(dict(zip(names, acts, strict=True)))
+        a_obs, a_rew, a_term, a_trunc = a_env.step_arrays(acts)
+        np.testing.assert_array_equal(np.stack([obs[a] for a in names]), a_obs)
+        assert [rew[a] for a in names] == a_rew.tolist()
+        assert all(isinstance(rew[a], float) for a in rew)
+        assert [term[a] for a in names] == a_term.tolist()
+        assert [trunc[a] for a in names] == a_trunc.tolist()
+        for name, o in zip(a_env.agents, a_env.observe_arrays(), strict=True):
+            np.testing.assert_array_equal(obs[name], o)  # newcomers too
+    assert a_trunc.all() and not a_env.agent_ids.size
+    assert d_env.n_clipped == a_env.n_clipped > 0
+
+
+def test_controlled_agent_moves_as_commanded_and_is_rewarded_for_progress():
+    env = sparse_env(1)
+    env.reset(seed=0)
+    sim = env.sim
+    sim.set_state(pos=[[sim.world.period / 2, 15.0]])
+    u = np.array([0.9, -0.6], np.float32)
+    dt, tau = sim.params.dt, sim.params.tau
+    for k in range(1, 21):
+        before = sim.state.pos[0].copy()
+        _, rew, term, trunc, _ = env.step({"ped_0": u})
+        expected = u.astype(np.float64) * (1.0 - (1.0 - dt / tau) ** k)
+        np.testing.assert_allclose(sim.state.vel[0], expected, rtol=1e-9, atol=1e-12)
+        progress = (sim.state.pos[0, 0] - before[0]) / dt  # goal direction is +x
+        assert rew["ped_0"] == pytest.approx(progress, rel=1e-12)
+        assert not term["ped_0"] and not trunc["ped_0"]
+
+
+def test_agents_without_actions_follow_the_social_force():
+    env = crowd_v0.parallel_env(n_agents=30, controlled_fraction=0.4)
+    env.reset(seed=2)
+    plain = Simulation(env.scenario, seed=env.sim.seed, record=False)
+    rng = np.random.default_rng(0)
+    for step in range(15):
+        if step < 10:  # no policy at all: the plain social-force simulation
+            env.step({})
+            plain.step()
+            np.testing.assert_array_equal(env.sim.state.pos, plain.state.pos)
+        else:  # the policy drives its agents only; the others get no command
+            ids = env.agent_ids
+            env.step_arrays(rng.uniform(-1, 1, (len(ids), 2)))
+            assert set(ids.tolist()) < set(env.sim.state.ids.tolist())
+
+
+def test_observation_of_a_planted_scene():
+    env = sparse_env(3, k_neighbours=2, neighbour_radius=3.0)
+    env.reset(seed=0)
+    sim = env.sim
+    period = sim.world.period
+    # Agent 0 near the seam sees agent 1 across it (0.5 m away); agent 2 is 12 m off.
+    sim.set_state(
+        pos=[[0.2, 15.0], [period - 0.3, 15.2], [6.0, 3.0]],
+        vel=[[0.5, 0.0], [-0.2, 0.1], [0.0, 0.0]],
+    )
+    obs, *_ = env.step_arrays(np.zeros((3, 2)))
+    pos, vel = sim.state.pos, sim.state.vel
+    rel = pos[1] - pos[0]
+    rel[0] -= period * np.round(rel[0] / period)
+    assert rel[0] == pytest.approx(-0.5, abs=0.05)
+    want0 = np.concatenate(
+        [[1.0, 0.0], vel[0], [0.0, 0.0, 0.0], rel, vel[1] - vel[0], [1.0], np.zeros(5)]
+    ).astype(np.float32)
+    np.testing.assert_array_equal(obs[0], want0)
+    # Agent 2 is 3 m - its clearance from the wall at y = 0 (within 3 m), alone otherwise.
+    assert obs[2, 4:6].tolist() == [0.0, -1.0]
+    assert 0 < obs[2, 6] < 1 and not obs[2, 7:].any()
+
+
+def test_agents_leave_and_terminate_then_truncation_ends_the_rest():
+    env = crowd_v0.parallel_env(n_agents=12, max_cycles=1000)
+    env.reset(seed=1)
+    gone: set[str] = set()
+    for _ in range(600):
+        _, _, term, trunc, _ = env.step({})  # social force walks everybody to the exits
+        gone |= {a for a, t in term.items() if t}
+        assert not any(trunc.values())
+        assert not gone & set(env.agents)
+        if not env.agents:
+            break
+    assert gone == set(env.possible_agents)
+    env = crowd_v0.parallel_env(n_agents=12, max_cycles=3)
+    env.reset(seed=1)
+    for _ in range(3):
+        _, _, term, trunc, _ = env.step({})
+    assert all(trunc.values()) and not any(term.values()) and env.agents == []
+
+
+def test_render_rgb_array():
+    env = crowd_v0.parallel_env(n_agents=20, render_mode="rgb_array", render_size=(320, 180))
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (180, 320, 3) and frame.dtype == np.uint8
+    assert frame.std() > 5  # people and walls on the ground, not a blank image
+    assert crowd_v0.parallel_env(n_agents=4).render() is None
+
+
+def test_bad_arguments_are_refused():
+    with pytest.raises(ValueError, match="k_neighbours"):
+        crowd_v0.parallel_env(k_neighbours=-1)
+    with pytest.raises(ValueError, match="render_mode"):
+        crowd_v0.parallel_env(render_mode="human")
+    with pytest.raises(ValueError, match="unknown scenario"):
+        crowd_v0.parallel_env(scenario="nowhere")
+    with pytest.raises(ValueError, match="controlled_ids"):
+        crowd_v0.parallel_env(n_agents=5, controlled_ids=[7])
+    env = crowd_v0.parallel_env(n_agents=5)
+    env.reset_arrays(0)
+    with pytest.raises(ValueError, match="shape"):
+        env.step_arrays(np.zeros((4, 2)))
+
+
+@pytest.mark.skipif(
+    importlib.util.find_spec("stable_baselines3") is None
+    or importlib.util.find_spec("torch") is None,
+    reason="the shared-policy recipe needs the rl extra (torch, stable-baselines3)",
+)
+def test_shared_policy_recipe_runs():
+    from envs.crowd import shared_policy_vec_env, train_shared_policy
+
+    venv = shared_policy_vec_env(sparse_env(4, max_cycles=3), seed=0)
+    obs = venv.reset()
+    assert obs.shape == (4, 37)
+    for _ in range(3):
+        obs, rew, done, infos = venv.step(np.zeros((4, 2), np.float32))
+    assert done.all() and all(i["TimeLimit.truncated"] for i in infos)
+    _, curve = train_shared_policy(
+        64,
+        env_kwargs={"n_agents": 4, "max_cycles": 16},
+        ppo_kwargs={"batch_size": 32, "n_epochs": 1},
+    )
+    assert len(curve) >= 1 and np.isfinite(curve).all()
