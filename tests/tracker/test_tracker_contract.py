@@ -33,10 +33,23 @@ KEEPS_IDS = [n for n in registry.names() if _keeps_ids(n)]
 checked by ``test_detection_trackers.py`` and by the registry-wide tests below."""
 
 
+TOLERANCE_PX = {"meanshift": 3.0}
+"""Position tolerance of the exact-scene checks: 0 except for mean-shift, whose integer
+search window (cv2.meanShift) stops 1-2 px short of a blob's centre by design and so lags a
+moving one by up to 3 px. The same lag keeps its window inside the image when a person
+walks out, so its track ends on lost evidence (``max_lost`` frames later), not at once."""
+
+
 @pytest.fixture(params=KEEPS_IDS)
 def make(request):
     entry = registry.get(request.param)
     return entry.create, request.param
+
+
+def assert_positions(name: str, got: np.ndarray, want: np.ndarray) -> None:
+    """Equal NaN pattern; positions equal within the tracker's tolerance (exact for most)."""
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    np.testing.assert_allclose(got, want, rtol=0, atol=TOLERANCE_PX.get(name, 0.0))
 
 
 def test_every_point_tracker_has_a_floor():
@@ -55,7 +68,7 @@ def test_set_params_takes_effect_for_every_parameter(name):
 
 
 def test_tracks_end_where_people_vanish_in_view(make):
-    factory, _ = make
+    factory, name = make
     sc = make_scene([[20, 20], [110, 20], [100, 70], [30, 70]],
                     [[2, 1], [0, 1], [-1, 0], [1, -1]], n_frames=20, death_frames=[20, 8, 20, 20])
     tr = factory()
@@ -64,9 +77,9 @@ def test_tracks_end_where_people_vanish_in_view(make):
     assert max_lost > 0
     # id 2 vanishes at frame 8 on textured ground: its track ends max_lost frames later
     assert np.isnan(res.positions[8 + max_lost:, 1]).all()
-    np.testing.assert_array_equal(res.positions[:8, 1], sc.points[:8, 1])
+    assert_positions(name, res.positions[:8, 1], sc.points[:8, 1])
     for j in (0, 2, 3):
-        np.testing.assert_array_equal(res.positions[:, j], sc.points[:, j])
+        assert_positions(name, res.positions[:, j], sc.points[:, j])
 
 
 def test_unknown_tracker_name_lists_the_valid_ones():
@@ -83,14 +96,14 @@ def _track(tracker: Tracker, sc, births=None) -> TrackResult:
 
 
 def test_exact_positions_on_hand_built_scene(make):
-    factory, _ = make
+    factory, name = make
     sc = make_scene([[20, 20], [90, 20], [100, 75], [25, 75]],
                     [[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=12)
     res = _track(factory(), sc)
     assert isinstance(res, TrackResult)
     assert res.positions.shape == (12, 4, 2)
     np.testing.assert_array_equal(res.ids, sc.ids)
-    np.testing.assert_array_equal(res.positions, sc.points)
+    assert_positions(name, res.positions, sc.points)
     assert res.timings["total"] > 0
 
 
@@ -118,17 +131,19 @@ def test_targets_at_the_border(make):
 
 
 def test_leaving_targets_are_terminated_and_births_added(make):
-    factory, _ = make
+    factory, name = make
     sc = make_scene([[110, 30], [30, 60], [60, 20]], [[3, 0], [1, 0], [0, 2]], n_frames=14,
                     shape=(96, 128), birth_frames=[0, 0, 5])
     births = {5: (sc.ids[2:], sc.points[5, 2:])}
-    res = _track(factory(), sc, births=births)
+    tr = factory()
+    res = _track(tr, sc, births=births)
     np.testing.assert_array_equal(res.ids, sc.ids)
     gone = np.flatnonzero(np.isnan(sc.points[:, 0, 0]))[0]  # id 1 leaves on the right
-    assert np.isnan(res.positions[gone + 1:, 0]).all()
+    lag = tr.params.max_lost if name in TOLERANCE_PX else 0
+    assert np.isnan(res.positions[gone + 1 + lag:, 0]).all()
     assert np.isnan(res.positions[:5, 2]).all()
-    np.testing.assert_array_equal(res.positions[5:, 2], sc.points[5:, 2])
-    np.testing.assert_array_equal(res.positions[:, 1], sc.points[:, 1])
+    assert_positions(name, res.positions[5:, 2], sc.points[5:, 2])
+    assert_positions(name, res.positions[:, 1], sc.points[:, 1])
 
 
 def test_bad_inputs(make):

@@ -1,0 +1,107 @@
+"""Mean-shift baseline (paper 2's MS): OpenCV mean-shift on colour-histogram back-projection."""
+
+from __future__ import annotations
+
+from dataclasses import fields, replace
+
+import numpy as np
+import pytest
+
+from tracker.baselines.meanshift import (
+    COLOR_SPACES,
+    MeanShiftParams,
+    MeanShiftTracker,
+    bin_index,
+    histograms,
+)
+from tracker.registry import make_tracker
+from tracker.testing import make_scene
+
+SCENE = dict(starts=[[20, 20], [90, 20], [100, 75], [25, 75]],
+             velocities=[[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=12)
+
+
+def _scene():
+    return make_scene(**SCENE)
+
+
+@pytest.mark.parametrize("space", COLOR_SPACES)
+def test_follows_coloured_blobs(space):
+    sc = _scene()
+    t = MeanShiftTracker(MeanShiftParams(color_space=space))
+    res = t.track(sc.frames, sc.ids, sc.points[0], sc.template_size)
+    # the mode of a two-tone blob's back-projection sits within 2 px of its centre
+    assert np.abs(res.positions - sc.points).max() <= 2
+    assert t.confidence.shape == (4,) and (t.confidence > 0.5).all()
+
+
+def test_histograms_and_bins():
+    img = np.array([[[0, 0, 0], [255, 255, 255], [0, 128, 255]]], np.uint8)
+    assert bin_index(img, "bgr", 2).tolist() == [[0, 7, 3]]
+    hsv = np.array([[[179, 255, 0], [90, 0, 255]]], np.uint8)  # already converted
+    assert bin_index(hsv, "hue", 4).tolist() == [[3, 2]]
+    assert bin_index(hsv, "hsv", 2).tolist() == [[3, 2]]
+    h = histograms(np.array([[0, 0, 1, 3]]), 4)
+    np.testing.assert_allclose(h, [[0.5, 0.25, 0.0, 0.25]])
+    np.testing.assert_allclose(np.sqrt(h * h).sum(1), 1.0)  # Bhattacharyya of itself
+
+
+def test_registry_determinism_and_edge_cases():
+    sc = _scene()
+    a, b = (make_tracker("meanshift").track(sc.frames, sc.ids, sc.points[0], 8)
+            for _ in range(2))
+    np.testing.assert_array_equal(a.positions, b.positions)
+    res = MeanShiftTracker().track(sc.frames[:3], [], np.zeros((0, 2)), 8)
+    assert res.positions.shape == (3, 0, 2)
+    one = make_scene([[40, 40]], [[1, 2]], n_frames=6)
+    res = MeanShiftTracker().track(one.frames, one.ids, one.points[0], 8)
+    assert np.abs(res.positions - one.points).max() <= 2
+    flat = [np.full((60, 80, 3), 100, np.uint8)] * 5
+    res = MeanShiftTracker().track(flat, [1, 2], np.array([[20.0, 20.0], [60.0, 40.0]]), 8)
+    np.testing.assert_array_equal(res.positions, np.broadcast_to(res.positions[0],
+                                                                 res.positions.shape))
+
+
+CHANGES = {"color_space": "hsv", "bins": 4, "search_factor": 3.0, "max_iter": 1,
+           "epsilon": 5.0, "update_every": 1, "update_threshold": 0.99,
+           "lost_confidence": 0.99, "max_lost": 1}
+
+
+def _snapshot(t: MeanShiftTracker) -> tuple:
+    return (t.points.tobytes(), t.confidence.tobytes(), t.hists.tobytes(), t.radius,
+            t.templates.tobytes(), t.age.tobytes())
+
+
+def _run(params, switch_to, frames, p0):
+    t = MeanShiftTracker(params)
+    t.init(frames[0], np.arange(1, len(p0) + 1), p0, 8)
+    if switch_to is not None:
+        t.set_params(switch_to)
+    out = []
+    for f in frames[1:]:
+        t.step(f)
+        out.append(_snapshot(t))
+    return out
+
+
+def test_every_parameter_takes_effect_mid_sequence():
+    assert set(CHANGES) == {f.name for f in fields(MeanShiftParams)}
+    # 12 frames: the histograms are refreshed once (update_every = 10)
+    sc = make_scene(SCENE["starts"], [[2, 2], [-2, 2], [-3, 0], [2, -2]], n_frames=12)
+    p0 = sc.points[0]
+    base = _run(MeanShiftParams(), None, sc.frames, p0)
+    for name, value in CHANGES.items():
+        new = replace(MeanShiftParams(), **{name: value})
+        switched = _run(MeanShiftParams(), new, sc.frames, p0)
+        assert switched == _run(new, None, sc.frames, p0), name  # as if set from the start
+        if name != "max_lost":  # (no track is lost on this scene)
+            assert switched != base, name  # and it changes what the tracker does
+
+
+@pytest.mark.parametrize("field,value", [
+    ("color_space", "lab"), ("bins", 1), ("bins", 300), ("bins", 8.5), ("search_factor", 1.0),
+    ("max_iter", 0), ("epsilon", 0.0), ("update_every", 0), ("update_threshold", 1.5),
+])
+def test_bad_params_name_field_and_value(field, value):
+    with pytest.raises(ValueError, match=rf"MeanShiftParams\.{field} .*got {value!r}"):
+        MeanShiftParams(**{field: value})

@@ -1,0 +1,341 @@
+"""PNMC tracker (paper 2): queens, NMC prior, instantaneous flow, hierarchical update.
+
+Tiny hand-built scenes with exact ground truth; planted queens; a low-evidence (occluded)
+target inside a coherently moving group; every parameter applied mid-sequence.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import fields, replace
+
+import numpy as np
+import pytest
+
+from tracker.pnmc import PNMCParams, PNMCTracker
+from tracker.pnmc.flow import InstantaneousFlow, batched_ncc, ncc_argmax
+from tracker.pnmc.queens import back_assign, fit_gmm, select_queens
+from tracker.registry import make_tracker
+from tracker.testing import PALETTE, make_scene
+
+SIZE = 8
+
+
+def draw(paths: np.ndarray, colours: np.ndarray, shape=(112, 144), seed: int = 0,
+         occlude: dict[int, int] | None = None, occluder: int = 21,
+         textured: bool = False) -> list[np.ndarray]:
+    """Frames of ``make_scene``-style blobs at ``paths`` ``(T, n, 2)`` int px.
+
+    ``occlude[i] = t0``: from frame ``t0`` target ``i`` is covered by a square of side
+    ``occluder`` centred on it, flat grey (no appearance evidence at all) or ``textured``
+    (a fixed random texture that moves with the target: evidence for the flow only).
+    """
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    bg = rng.integers(70, 130, (h, w, 3)).astype(np.uint8)
+    cover = rng.integers(0, 255, (occluder, occluder, 3)).astype(np.uint8) if textured \
+        else np.full((occluder, occluder, 3), 100, np.uint8)
+    half = (SIZE - 2) // 2
+    frames = []
+    for t in range(paths.shape[0]):
+        f = bg.copy()
+        for i, (x, y) in enumerate(paths[t]):
+            if occlude and i in occlude and t >= occlude[i]:
+                o = occluder // 2
+                f[y - o:y + o + 1, x - o:x + o + 1] = cover
+                continue
+            f[y - half:y + half + 1, x - half:x + half + 1] = colours[i]
+            f[y - 1:y + 1, x - 1:x + 1] = colours[i] // 4
+        frames.append(f)
+    return frames
+
+
+def turning_group(n_frames: int = 14, turn: int = 6) -> np.ndarray:
+    """``(T, 7, 2)`` int: a centre and a hexagonal ring (radius 18 px) moving right at 2
+    px/frame, then (from frame ``turn``) down at 2 px/frame."""
+    ring = 18 * np.stack([np.cos(np.arange(6) * np.pi / 3), np.sin(np.arange(6) * np.pi / 3)],
+                         1)
+    start = np.rint(np.concatenate([[[0.0, 0.0]], ring]) + [50, 40]).astype(np.int64)
+    step = np.array([[2, 0] if t < turn else [0, 2] for t in range(n_frames - 1)])
+    offset = np.concatenate([[[0, 0]], np.cumsum(step, 0)])
+    return start[None] + offset[:, None]
+
+
+GROUP_COLOURS = np.array([[60, 60, 70]] * 7, np.uint8)
+GROUP_COLOURS[2] = PALETTE[0]  # one prominent person on the ring: the queen
+
+
+def track(tracker, frames, points0, births=None):
+    ids = np.arange(1, len(points0) + 1)
+    return tracker.track(frames, ids, points0, SIZE, births=births)
+
+
+# ---------------------------------------------------------------------------- exact scenes
+def test_exact_recovery_on_tiny_scenes():
+    sc = make_scene([[20, 20], [90, 20], [100, 75], [25, 75]],
+                    [[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=12)
+    res = PNMCTracker().track(sc.frames, sc.ids, sc.points[0], sc.template_size)
+    np.testing.assert_array_equal(res.positions, sc.points)
+    # a packed group (neighbours 12 px apart, inside each other's neighbourhoods)
+    starts = [[30 + 12 * (i % 3), 30 + 12 * (i // 3)] for i in range(6)]
+    sc = make_scene(starts, [[2, 1]] * 6, n_frames=10)
+    t = PNMCTracker()
+    res = t.track(sc.frames, sc.ids, sc.points[0], sc.template_size)
+    np.testing.assert_array_equal(res.positions, sc.points)
+    assert len(t.update_order) == 6 and sorted(t.update_order) == list(range(6))
+    assert t.confidence.min() > 0.95  # (gamma + 1) / 2; the background in a template moves
+
+
+def test_registry_and_determinism():
+    sc = make_scene([[20, 20], [40, 22], [60, 24], [30, 60]], [[1, 1], [1, 1], [1, 1], [-1, 0]],
+                    n_frames=8)
+    runs = [make_tracker("pnmc", queen_mode="random", seed=3).track(
+        sc.frames, sc.ids, sc.points[0], SIZE) for _ in range(2)]
+    np.testing.assert_array_equal(runs[0].positions, runs[1].positions)
+    assert isinstance(make_tracker("pnmc"), PNMCTracker)
+
+
+# ---------------------------------------------------------------------------- queens
+def test_planted_queens_are_found():
+    # 16 look-alikes (one clothing colour) and two distinctly coloured people
+    starts = [[14 + 16 * (i % 6), 14 + 20 * (i // 6)] for i in range(18)]
+    colours = np.tile(np.array([[60, 60, 70]], np.uint8), (18, 1))
+    colours[4] = (30, 30, 240)
+    colours[13] = (40, 230, 40)
+    sc = make_scene(starts, np.zeros((18, 2)), n_frames=2, colours=colours)
+    for seed in (0, 1, 2):
+        t = PNMCTracker(PNMCParams(seed=seed))
+        t.init(sc.frames[0], sc.ids, sc.points[0], SIZE)
+        assert np.flatnonzero(t.queens).tolist() == [4, 13]
+    # random queens: as many (ceil of 10 %), not the prominent ones for this seed
+    t = PNMCTracker(PNMCParams(queen_mode="random", seed=0))
+    t.init(sc.frames[0], sc.ids, sc.points[0], SIZE)
+    assert t.queens.sum() == 2
+
+
+def test_select_queens_on_templates():
+    rng = np.random.default_rng(0)
+    base = np.array([80, 70, 60])
+    templates = np.clip(base + rng.normal(0, 4, (20, 8, 8, 3)), 0, 255).astype(np.uint8)
+    # the two prominent people wear colours of their own (with the same camera noise)
+    for i, colour in ((7, (230, 40, 40)), (17, (40, 220, 230))):
+        templates[i, 1:7, 1:7] = np.clip(colour + rng.normal(0, 4, (6, 6, 3)), 0, 255)
+    q = select_queens(templates, np.random.default_rng(1), n_clusters=100)
+    assert np.flatnonzero(q).tolist() == [7, 17]  # ceil(10 % of 20) = 2
+    assert select_queens(templates[:0], rng).shape == (0,)
+    assert select_queens(templates[:1], rng).tolist() == [True]
+
+
+def test_fit_gmm_recovers_separated_clusters():
+    rng = np.random.default_rng(0)
+    x = np.concatenate([rng.normal([20, 20, 20], 3, (400, 3)),
+                        rng.normal([200, 100, 50], 3, (100, 3))])
+    gm = fit_gmm(x, 2, np.random.default_rng(0), iterations=50, reg=1e-3)
+    order = np.argsort(gm.means[:, 0])
+    np.testing.assert_allclose(gm.means[order], [[20, 20, 20], [200, 100, 50]], atol=1.0)
+    np.testing.assert_allclose(gm.weights[order], [0.8, 0.2], atol=0.01)
+    np.testing.assert_allclose(np.sqrt(np.diagonal(gm.covariances[order], axis1=1, axis2=2)),
+                               3.0, rtol=0.3)
+    labels = gm.predict(x)
+    assert (labels[:400] == order[0]).all() and (labels[400:] == order[1]).all()
+
+
+def test_back_assignment_stops_at_the_first_fill():
+    # cluster 2 (rank 0) fills templates 0 and 1 at once: both are queens (> 10 %)
+    owner = np.repeat(np.arange(4), 3)
+    labels = np.array([2, 2, 2, 2, 2, 0, 0, 0, 1, 1, 1, 1])
+    q = back_assign(labels, owner, np.array([1, 2, 0]), 4, 3, 0.1, 2 / 3)
+    assert q.tolist() == [True, True, False, False]
+
+
+# ---------------------------------------------------------------------------- NMC prior
+def test_nmc_prior_moves_occluded_target_with_its_neighbours():
+    paths = turning_group()
+    frames = draw(paths, GROUP_COLOURS, occlude={0: 6})
+    errs = {}
+    for use in (True, False):
+        t = PNMCTracker(PNMCParams(use_flow=False, use_neighbours=use, max_lost=0))
+        res = track(t, frames, paths[0].astype(float))
+        errs[use] = np.abs(res.positions[-1] - paths[-1]).max(1)
+        np.testing.assert_array_equal(res.positions[:6], paths[:6])  # before the occlusion
+        assert errs[use][1:].max() <= 1  # the visible ring turns with its evidence
+    # the occluded centre follows its neighbours' turn with NMC, runs straight on without
+    assert errs[True][0] <= 3 < 8 <= errs[False][0]
+
+
+def test_delayed_update_puts_low_confidence_last():
+    paths = turning_group()
+    frames = draw(paths, GROUP_COLOURS, occlude={0: 6})
+    t = PNMCTracker(PNMCParams(use_flow=False, max_lost=0))
+    track(t, frames[:9], paths[0].astype(float))
+    q = np.flatnonzero(t.queens)
+    assert 0 not in q and len(q) >= 1
+    np.testing.assert_array_equal(np.sort(t.update_order[:len(q)]), q)  # queens first
+    # the occluded centre went to the back of the queue: updated after most of its ring
+    assert t.delayed[0] >= 1 and list(t.update_order).index(0) >= 4
+    assert t.confidence[0] < 0.9 <= t.confidence[1:].min()
+
+
+def test_flow_prior_moves_a_target_against_the_crowd():
+    # alone (no neighbours) and covered from frame 1 by a texture moving with it: its
+    # template matches nothing, only the instantaneous flow knows where it goes
+    n = 12
+    path = (np.array([40, 30]) + np.arange(n)[:, None] * np.array([1, 3]))[:, None, :]
+    frames = draw(path, GROUP_COLOURS[:1], occlude={0: 1}, textured=True)
+    err = {}
+    for use in (True, False):
+        t = PNMCTracker(PNMCParams(use_flow=use, flow_frames=2, max_lost=0))
+        res = track(t, frames, path[0].astype(float))
+        err[use] = np.abs(res.positions[-1, 0] - path[-1, 0]).max()
+    assert err[True] <= 4 < 10 <= err[False]
+
+
+def test_flow_prior_is_tried_when_confidence_is_low():
+    paths = turning_group()
+    frames = draw(paths, GROUP_COLOURS, occlude={0: 6})
+    t = PNMCTracker(PNMCParams(tau=0.999))
+    track(t, frames[:8], paths[0].astype(float))
+    assert t.flow.pairs and t.flow._done.any()  # the flow was computed this frame
+    t = PNMCTracker(PNMCParams(use_flow=False, tau=0.999))
+    track(t, frames[:8], paths[0].astype(float))
+    assert not t.flow._done.any() and not t.used_flow.any()
+
+
+# ---------------------------------------------------------------------------- flow
+def test_flow_recovers_a_translation():
+    rng = np.random.default_rng(0)
+    tex = rng.integers(0, 255, (80, 100, 3)).astype(np.uint8)
+    flow = InstantaneousFlow(patch=4, spacing=4, frames=5, search=3, min_ncc=0.5)
+    for k in range(6):
+        flow.push(np.ascontiguousarray(np.roll(tex, (k, 2 * k), axis=(0, 1))))
+    pos, vel = flow.near(np.array([50.0, 40.0]), 8.0)
+    assert len(vel) >= 10
+    np.testing.assert_array_equal(vel, np.tile([2.0, 1.0], (len(vel), 1)))
+    # flat frames: no valid patch
+    flat = InstantaneousFlow()
+    for _ in range(3):
+        flat.push(np.full((40, 40, 3), 90, np.uint8))
+    assert len(flat.near(np.array([20.0, 20.0]), 8.0)[0]) == 0
+
+
+def test_batched_ncc_matches_the_definition():
+    rng = np.random.default_rng(0)
+    win = rng.random((2, 1, 8, 8)).astype(np.float32)
+    templ = win[:, :, 2:6, 3:7].copy()
+    score = batched_ncc(templ, win)
+    assert score.shape == (2, 5, 5)
+    assert np.all(score.reshape(2, -1).argmax(1) == 2 * 5 + 3)
+    np.testing.assert_allclose(score[:, 2, 3], 1.0, atol=1e-5)
+    # the fused numba kernel agrees with the numpy reference, flat cases included
+    win = rng.integers(0, 255, (50, 1, 10, 10)).astype(np.float32)
+    templ = rng.integers(0, 255, (50, 1, 4, 4)).astype(np.float32)
+    win[0] = 7.0
+    templ[1] = 3.0
+    ref = batched_ncc(templ, win).reshape(50, -1)
+    best, top = ncc_argmax(templ, win)
+    np.testing.assert_array_equal(best, ref.argmax(1))
+    np.testing.assert_allclose(top, ref.max(1), atol=1e-5)
+    assert top[0] == 0.0 and top[1] == 0.0
+
+
+# ---------------------------------------------------------------------------- parameters
+CHANGES = {
+    "search_factor": 3.0, "tau": 0.5, "prior_sigma": 0.2, "weight_scale": 20.0,
+    "neighbour_radius": 1.0, "use_neighbours": False, "use_flow": False, "n_clusters": 3,
+    "min_cluster_pixels": 200, "queen_fraction": 0.5, "fill_fraction": 0.3,
+    "queen_order": "mass", "queen_mode": "random", "queen_every": 2, "gmm_iterations": 2,
+    "gmm_samples": 50, "gmm_reg": 400.0, "flow_patch": 6, "flow_spacing": 3,
+    "flow_frames": 3, "flow_search": 0.25, "flow_radius": 2.0, "flow_min_ncc": 0.95,
+    "update_every": 2, "update_threshold": 0.95, "seed": 5, "lost_confidence": 0.99,
+    "max_lost": 0,
+}
+# fields whose change must alter what the tracker does on the occlusion scene below
+MATTERS = {"search_factor", "tau", "prior_sigma", "use_neighbours",
+           "queen_fraction", "queen_mode", "flow_patch", "flow_spacing", "flow_frames",
+           "flow_search", "flow_min_ncc", "update_every", "update_threshold",
+           "lost_confidence"}
+
+
+def _snapshot(t: PNMCTracker) -> tuple:
+    f = t.flow
+    return (t.points.tobytes(), t.confidence.tobytes(), t.queens.tobytes(),
+            t.velocity.tobytes(), t.update_order.tobytes(), t.delayed.tobytes(),
+            t.used_flow.tobytes(), t.radius, t.model.update_every, t.model.update_threshold,
+            t.model.templates.tobytes(), f.patch, f.spacing, f.search, f.min_ncc,
+            f.buffer.maxlen)
+
+
+def _run(params: PNMCParams, switch_to: PNMCParams | None, frames, p0) -> list[tuple]:
+    t = PNMCTracker(params)
+    t.init(frames[0], np.arange(1, len(p0) + 1), p0, SIZE)
+    if switch_to is not None:
+        t.set_params(switch_to)
+    out = []
+    for f in frames[1:]:
+        t.step(f)
+        out.append(_snapshot(t))
+    return out
+
+
+def test_every_parameter_takes_effect_mid_sequence():
+    assert set(CHANGES) == {f.name for f in fields(PNMCParams)}
+    paths = turning_group(n_frames=12)
+    frames = draw(paths, GROUP_COLOURS, occlude={0: 6})
+    p0 = paths[0].astype(float)
+    default = PNMCParams(use_flow=True)
+    base = _run(default, None, frames, p0)
+    differs = set()
+    for name, value in CHANGES.items():
+        new = replace(default, **{name: value})
+        switched = _run(default, new, frames, p0)
+        # changing a field after init == having had it from the start
+        assert switched == _run(new, None, frames, p0), name
+        if switched != base:
+            differs.add(name)
+    assert MATTERS <= differs, MATTERS - differs
+
+
+def test_set_params_refuses_other_types():
+    t = PNMCTracker()
+    with pytest.raises(ValueError, match="PNMCParams"):
+        t.set_params(object())
+
+
+# ---------------------------------------------------------------------------- edge cases
+def test_zero_one_and_flat():
+    sc = make_scene(np.zeros((0, 2)), np.zeros((0, 2)), n_frames=3)
+    res = PNMCTracker().track(sc.frames, [], np.zeros((0, 2)), SIZE)
+    assert res.positions.shape == (3, 0, 2)
+    sc = make_scene([[40, 40]], [[2, -1]], n_frames=8)
+    t = PNMCTracker()
+    res = t.track(sc.frames, sc.ids, sc.points[0], SIZE)
+    np.testing.assert_array_equal(res.positions, sc.points)
+    assert t.queens.tolist() == [True]
+    flat = [np.full((60, 80, 3), 100, np.uint8)] * 5
+    res = PNMCTracker().track(flat, [1, 2], np.array([[20.0, 20.0], [60.0, 40.0]]), SIZE)
+    assert np.isfinite(res.positions).all()
+    assert np.abs(res.positions - res.positions[0]).max() <= 4 * 5
+
+
+def test_births_reselect_queens_and_copy_is_independent():
+    sc = make_scene([[20, 20], [60, 30], [100, 40]], [[1, 0], [1, 0], [-1, 0]], n_frames=6,
+                    birth_frames=[0, 0, 3])
+    t = PNMCTracker(PNMCParams(queen_every=1))
+    births = {3: (np.array([3]), sc.points[3, 2:3])}
+    res = track(t, sc.frames, sc.points[0, :2], births=births)
+    np.testing.assert_array_equal(res.positions[3:], sc.points[3:])
+    assert len(t.queens) == 3 and t._queens_at == 3  # selected again after the birth
+    clone = copy.deepcopy(t)
+    clone.step(sc.frames[-1])
+    assert t.frame_index == 5
+
+
+@pytest.mark.parametrize("field,value", [
+    ("tau", 1.0), ("tau", -0.1), ("prior_sigma", 0.0), ("search_factor", 1.0),
+    ("n_clusters", 0), ("n_clusters", 2.5), ("queen_fraction", 0.0), ("fill_fraction", 1.5),
+    ("queen_order", "size"), ("queen_mode", "all"), ("use_flow", "yes"), ("flow_patch", 1),
+    ("flow_frames", 1), ("weight_scale", float("nan")), ("update_every", 0), ("seed", -1),
+])
+def test_bad_params_name_field_and_value(field, value):
+    with pytest.raises(ValueError, match=rf"PNMCParams\.{field} .*got {value!r}"):
+        PNMCParams(**{field: value})

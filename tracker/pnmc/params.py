@@ -1,0 +1,156 @@
+"""Parameters of the PNMC tracker (paper 2: prominence + neighbourhood motion concurrence).
+
+Lengths given "in template sizes" are multiplied by the sequence's template size ``s`` (px),
+so one parameter set serves the 8-16 px templates of the benchmark sequences.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from crowdsim.checks import require_choice, require_number
+from tracker.pnmc.queens import QUEEN_ORDERS
+
+QUEEN_MODES: tuple[str, ...] = ("prominence", "random")
+"""How queens are chosen: Algorithm 1, or at random in the same number (the paper's Fig. 13
+ablation "NMC with randomly initialised queens")."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class PNMCParams:
+    """Parameters of :class:`tracker.pnmc.tracker.PNMCTracker`.
+
+    Attributes
+    ----------
+    search_factor : float
+        Side of the search region of ``x_i^t`` in Eq. 8, template sizes (as the NCC baseline:
+        2); the region is centred on the constant-velocity prediction ``A x_i^{t-1}``.
+    tau : float
+        ``tau``, threshold on the update confidence ``p(z^t | x_hat^t) = (gamma + 1) / 2``
+        (Eq. 6, Algorithm 2, Sec. 4: 0.90). Below it the flow prior is tried, then the target
+        goes to the back of the queue with its threshold lowered (delayed update).
+    prior_sigma : float
+        Standard deviation of every Gaussian of the NMC prior, ``A Sigma A^T = sigma^2 I``
+        (Eq. 1-2), template sizes. The paper does not give a value.
+    weight_scale : float
+        Length unit of the neighbour weights ``w_j ~ exp(-||x_j - x_i|| / weight_scale)``
+        (Eq. 3), px. The paper writes ``exp(-||x_j - x_i||)`` with positions in pixels: 1.
+    neighbour_radius : float
+        Radius of the neighbour graph ``G = (V, E)`` (Sec. 3.4, "neighbours within a fixed
+        radius"), template sizes.
+    use_neighbours : bool
+        Use ``p_N`` (Eq. 2, 5). ``False``: every target is predicted by ``p_S`` alone (the
+        paper's Fig. 13 "self component only").
+    use_flow : bool
+        Use the instantaneous-flow prior (Sec. 3.3) for low-confidence updates.
+    n_clusters : int
+        ``k``, components of the colour mixture (Sec. 4: 100).
+    min_cluster_pixels : int
+        Fewer pixels, fewer clusters: ``k <= (template pixels) / min_cluster_pixels``.
+    queen_fraction : float
+        Back-assignment stops once this fraction of templates is filled (Sec. 3.1: 10 %).
+    fill_fraction : float
+        Fraction of a template's pixels that makes it filled (Sec. 3.1: two thirds).
+    queen_order : str
+        Cluster sort criterion, ascending (Sec. 3.1: density ``m / v``); one of
+        :data:`tracker.pnmc.queens.QUEEN_ORDERS`.
+    queen_mode : str
+        ``"prominence"`` (Algorithm 1) or ``"random"`` (same number, drawn at random).
+    queen_every : int
+        Queens are selected at the first frame and re-selected after targets were added, at
+        most once every ``queen_every`` frames (Sec. 4: queens are selected "only when new
+        initializations took place, which typically occurred after every fifty frames");
+        targets added in between are not queens until the next selection.
+    gmm_iterations : int
+        Maximum EM iterations of the colour mixture.
+    gmm_samples : int
+        At most this many template pixels, drawn at random, fit the mixture (every pixel is
+        then assigned to a component); bounds the cost of a selection.
+    gmm_reg : float
+        Covariance floor added to each ``Sigma`` of the mixture, (RGB units)^2.
+    flow_patch : int
+        Side of the instantaneous-flow patches, px (Sec. 3.3: 4).
+    flow_spacing : int
+        Grid spacing of the flow patches, px (Sec. 3.3: 4).
+    flow_frames : int
+        Frames over which each patch is tracked (Sec. 3.3: five); the velocity is the mean
+        over the ``flow_frames - 1`` steps.
+    flow_search : float
+        Search radius of a flow patch per frame, template sizes.
+    flow_radius : float
+        Patches whose start lies within this distance of ``x_i^{t-1}`` are the target's
+        neighbours in the flow form of Eq. 2-3, template sizes.
+    flow_min_ncc : float
+        A patch whose NCC falls below this in any of its steps (or that is flat) is dropped.
+    update_every : int
+        Frames between template refreshes (Sec. 4: 10).
+    update_threshold : float
+        A template is refreshed only when its update confidence ``(gamma + 1) / 2`` is at
+        least this.
+    seed : int
+        Seed of the mixture initialisation and of random queens.
+    lost_confidence, max_lost : float, int
+        The track ends when its update confidence ``(gamma + 1) / 2`` stays below
+        ``lost_confidence`` for ``max_lost`` frames in a row (0 = only when it leaves the
+        image); 0.65 is the NCC baseline's ``gamma < 0.3`` on this scale.
+    """
+
+    search_factor: float = 2.0
+    tau: float = 0.9
+    prior_sigma: float = 0.5
+    weight_scale: float = 1.0
+    neighbour_radius: float = 2.5
+    use_neighbours: bool = True
+    use_flow: bool = True
+    n_clusters: int = 100
+    min_cluster_pixels: int = 20
+    queen_fraction: float = 0.1
+    fill_fraction: float = 2.0 / 3.0
+    queen_order: str = "density"
+    queen_mode: str = "prominence"
+    queen_every: int = 50
+    gmm_iterations: int = 20
+    gmm_samples: int = 5000
+    gmm_reg: float = 1.0
+    flow_patch: int = 4
+    flow_spacing: int = 4
+    flow_frames: int = 5
+    flow_search: float = 0.5
+    flow_radius: float = 0.75
+    flow_min_ncc: float = 0.5
+    update_every: int = 10
+    update_threshold: float = 0.8
+    seed: int = 0
+    lost_confidence: float = 0.65
+    max_lost: int = 5
+
+    def __post_init__(self) -> None:
+        o = "PNMCParams"
+        require_number(o, "search_factor", self.search_factor, lo=1, lo_open=True)
+        require_number(o, "tau", self.tau, lo=0, hi=1, hi_open=True)
+        require_number(o, "prior_sigma", self.prior_sigma, lo=0, lo_open=True)
+        require_number(o, "weight_scale", self.weight_scale, lo=0, lo_open=True)
+        require_number(o, "neighbour_radius", self.neighbour_radius, lo=0)
+        require_choice(o, "use_neighbours", self.use_neighbours, (True, False))
+        require_choice(o, "use_flow", self.use_flow, (True, False))
+        require_number(o, "n_clusters", self.n_clusters, lo=1, integer=True)
+        require_number(o, "min_cluster_pixels", self.min_cluster_pixels, lo=1, integer=True)
+        require_number(o, "queen_fraction", self.queen_fraction, lo=0, hi=1, lo_open=True)
+        require_number(o, "fill_fraction", self.fill_fraction, lo=0, hi=1, lo_open=True)
+        require_choice(o, "queen_order", self.queen_order, QUEEN_ORDERS)
+        require_choice(o, "queen_mode", self.queen_mode, QUEEN_MODES)
+        require_number(o, "queen_every", self.queen_every, lo=1, integer=True)
+        require_number(o, "gmm_iterations", self.gmm_iterations, lo=1, integer=True)
+        require_number(o, "gmm_samples", self.gmm_samples, lo=1, integer=True)
+        require_number(o, "gmm_reg", self.gmm_reg, lo=0, lo_open=True)
+        require_number(o, "flow_patch", self.flow_patch, lo=2, integer=True)
+        require_number(o, "flow_spacing", self.flow_spacing, lo=1, integer=True)
+        require_number(o, "flow_frames", self.flow_frames, lo=2, integer=True)
+        require_number(o, "flow_search", self.flow_search, lo=0, lo_open=True)
+        require_number(o, "flow_radius", self.flow_radius, lo=0, lo_open=True)
+        require_number(o, "flow_min_ncc", self.flow_min_ncc, lo=-1, hi=1)
+        require_number(o, "update_every", self.update_every, lo=1, integer=True)
+        require_number(o, "update_threshold", self.update_threshold, lo=0, hi=1)
+        require_number(o, "seed", self.seed, lo=0, integer=True)
+        require_number(o, "lost_confidence", self.lost_confidence, lo=0, hi=1)
+        require_number(o, "max_lost", self.max_lost, lo=0, integer=True)
