@@ -5,11 +5,23 @@ crescent on the walking side, over a shoulder ellipse turned across the walking 
 Clothing colours come from a few dense colour clusters (most people look alike); a fraction
 of people, the "prominent" ones, wear distinct colours.
 
-Every combination ``(appearance, orientation bin, sub-pixel phase)`` is drawn once, anti-aliased
-by supersampling, into a :class:`SpriteBank`; the renderer then only stamps sprites. Sprite
-geometry: a sprite is ``Z x Z`` pixels with ``Z = template_px + 2``; for sub-pixel phase
-``(py, px)`` the head centre lies at ``((Z - 1) / 2 + py / P, (Z - 1) / 2 + px / P)`` inside the
-sprite, where ``P = subpixel``.
+Every combination ``(pose, orientation bin, sub-pixel phase)`` is drawn once, anti-aliased by
+supersampling, into a :class:`SpriteBank` of *coverages*: per pixel, the visible coverage of the
+clothing, the hair and the face, the total coverage (shadow included), the solid (person)
+coverage and the head disc. A person's colour is linear in these coverages (anti-aliased
+drawing over black is), so one geometry serves every appearance: the renderer mixes the three
+colours of an appearance with the coverages while it stamps. A pose is a gait phase (arm swing,
+body bob) and a head turn; there is one pose unless those knobs are on. Sprite geometry: a
+sprite is ``Z x Z`` pixels; for sub-pixel phase ``(py, px)`` the head centre lies at
+``((Z - 1) / 2 + py / P, (Z - 1) / 2 + px / P)`` inside the sprite, where ``P = subpixel``.
+
+Realistic-difficulty knobs (issue 8) all default to off or to the earlier look, so specs that
+do not set them render as before: look-alike heads (``dark_hair_fraction``, ``hair_spread``),
+tight clothing clusters (``cluster_spread``, ``cluster_decay``), packing (``body_scale``),
+occlusion order (``heads_on_top``),
+appearance change over time (``arm_swing``, ``gait_bob``, ``head_turn_deg``), clutter
+(``distractor_density``, ``moving_shadow_density``) and the camera's image formation
+(``defocus_px``, ``flicker``, ``video_kbps``, ``video_codec``).
 """
 
 from __future__ import annotations
@@ -56,11 +68,29 @@ ALPHA_EPS: float = 0.004
 """Coverage below this is treated as empty (not composited)."""
 FACE_OFFSET: float = 0.14
 """Distance of the face crescent's centre ahead of the head centre, fraction of the template."""
+SHOULDER_HALF_WIDTH: float = 0.49
+"""Half width of the shoulder ellipse (across the walking direction), fraction of the template."""
+GAIT_PHASES: int = 4
+"""Gait phases drawn when ``arm_swing`` or ``gait_bob`` is on (0, 90, 180, 270 degrees)."""
+HEAD_TURNS: int = 3
+"""Head-turn poses drawn when ``head_turn_deg`` is on (left, straight, right)."""
+ARM_OFFSET: float = 0.40
+"""Distance of an arm's centre from the body axis, fraction of the template (times body_scale)."""
+ARM_AXES: tuple[float, float] = (0.17, 0.08)
+"""Half length (along the walking direction) and half width of an arm, fraction of template."""
+SOLID_COVERAGE: float = 0.5
+"""A person owns a pixel (for occlusion and visibility) where its coverage is at least this."""
+VIDEO_CODECS: tuple[str, ...] = ("h264", "mpeg4")
+"""Codecs of ``video_kbps``: H.264 (libx264 through PyAV) and MPEG-4 part 2 (mp4v)."""
 
 
 @dataclass(frozen=True)
 class AppearanceParams:
-    """Appearance and image-noise knobs of one sequence (the calibration knobs of SPEC §4).
+    """Appearance and image-formation knobs of one sequence (the calibration knobs of SPEC §4).
+
+    Every knob added for realistic difficulty (issue 8) defaults to off or to the earlier look,
+    so a spec that does not set it renders exactly as before; the calibration turns them on
+    per sequence.
 
     Attributes
     ----------
@@ -69,17 +99,37 @@ class AppearanceParams:
     palette : str
         Clothing palette name, see :data:`PALETTES`.
     n_clusters : int
-        How many palette clusters are used (the first ones; cluster k has weight ~ 0.5^k).
+        How many palette clusters are used (the first ones).
     variants_per_cluster : int
         Colour variants drawn around each cluster centre.
     cluster_spread : float
-        Standard deviation (grey levels) of the variants around their cluster centre.
+        Standard deviation (grey levels) of the variants around their cluster centre; small
+        values give tight clothing clusters (look-alike people).
+    cluster_decay : float
+        Weight ratio of successive clothing clusters: cluster ``k`` is worn with probability
+        ``~ cluster_decay ** k`` (default 0.5; smaller = one denser dominant cluster).
     prominent_fraction : float
         Fraction of people drawn with a distinct colour when the trajectories carry no
-        ``prominent`` attribute.
+        ``prominent`` attribute (paper 2's "queens").
+    dark_hair_fraction : float
+        Fraction of looks whose hair is the common dark hair colour ``HAIR_COLOURS[0]`` plus
+        Gaussian noise of ``hair_spread`` grey levels (default 0: hair drawn uniformly from
+        :data:`HAIR_COLOURS`). At 1 every head is near-identical dark hair from above.
+    hair_spread : float
+        Standard deviation (grey levels) of the dark hair colour (default 4).
     contrast : float
         Scales the clothing colours' difference from the ground colour (``< 1`` = people
         blend into the ground, as in low-contrast outdoor scenes).
+    body_scale : float
+        Size of the shoulders, arms and shadow relative to the template (default 1: the
+        shoulders span the template). Above 1 bodies touch at marathon density, where heads
+        sit about one template apart; the head and the ground-truth box keep their size.
+    heads_on_top : bool
+        Draw every head after all bodies (default False: each person is drawn whole, in
+        depth order, so a nearer person's shoulders can cover a farther head). Seen from
+        above, the head is a person's highest point and no neighbour's shoulders hide it;
+        heads still cover each other in depth order. Changes what the gt visibility counts
+        as hidden.
     ground_bgr : (int, int, int)
         Mean ground colour.
     ground_texture : float
@@ -90,14 +140,46 @@ class AppearanceParams:
         Darkening of the ground under a shadow, in [0, 1].
     sway_deg : float
         Amplitude of the shoulder sway around the walking direction, degrees.
+    arm_swing : float
+        Forward/backward swing of the arms over a stride, fraction of the template (default
+        0: no arms drawn). Arms swing in opposition, driven by the walked distance.
+    gait_bob : float
+        Side-to-side bob of the body under the head over a stride, fraction of the template
+        (default 0).
+    head_turn_deg : float
+        Amplitude of slow head turns (the face crescent turns away from the walking
+        direction), degrees (default 0).
+    head_turn_period_s : float
+        Mean period of the head turns, seconds (each person's period is drawn in
+        ``[0.5, 1.5]`` times this).
+    distractor_density : float
+        Static head-like distractors (dark bollards, litter, road-marking dashes) baked into
+        the ground, per square metre at the look-at scale (default 0).
+    moving_shadow_density : float
+        Soft, head-sized moving shadows (of people and objects outside the view) per square
+        metre (default 0). They drift at walking speed and darken everything below them.
+    moving_shadow_m : float
+        Diameter of a moving shadow, metres (default 0.6).
     illumination_drift : float
         Relative amplitude of the slow global illumination change.
     illumination_period_s : float
         Period of the illumination change, seconds.
+    flicker : float
+        Standard deviation of an independent per-frame relative gain (illumination flicker,
+        e.g. 50 Hz lights against the shutter; default 0).
     noise_sigma : float
         Sensor noise standard deviation, grey levels.
+    defocus_px : float
+        Gaussian defocus blur sigma in pixels (default 0 = sharp).
     jpeg_quality : int
         JPEG quality of the written frames (1–100).
+    video_kbps : float
+        Video-codec compression: frames pass through ``video_codec`` at this bit rate
+        (kbit/s) before they are written, so the ``img1/`` JPEGs and ``video.mp4`` both carry
+        the codec's artefacts (default 0 = no video codec; real CCTV at 720p runs at roughly
+        1000–4000 kbit/s).
+    video_codec : str
+        ``"h264"`` (libx264 through PyAV, the default) or ``"mpeg4"`` (MPEG-4 part 2, 'mp4v').
     motion_blur_px : float
         Length of a horizontal-ish camera motion blur kernel, pixels (0 = off).
     orientation_bins : int
@@ -111,17 +193,33 @@ class AppearanceParams:
     n_clusters: int = 3
     variants_per_cluster: int = 4
     cluster_spread: float = 10.0
+    cluster_decay: float = 0.5
     prominent_fraction: float = 0.05
+    dark_hair_fraction: float = 0.0
+    hair_spread: float = 4.0
     contrast: float = 1.0
+    body_scale: float = 1.0
+    heads_on_top: bool = False
     ground_bgr: tuple[int, int, int] = (115, 125, 130)
     ground_texture: float = 10.0
     paving_m: float = 0.0
     shadow: float = 0.35
     sway_deg: float = 8.0
+    arm_swing: float = 0.0
+    gait_bob: float = 0.0
+    head_turn_deg: float = 0.0
+    head_turn_period_s: float = 4.0
+    distractor_density: float = 0.0
+    moving_shadow_density: float = 0.0
+    moving_shadow_m: float = 0.6
     illumination_drift: float = 0.06
     illumination_period_s: float = 30.0
+    flicker: float = 0.0
     noise_sigma: float = 3.0
+    defocus_px: float = 0.0
     jpeg_quality: int = 90
+    video_kbps: float = 0.0
+    video_codec: str = "h264"
     motion_blur_px: float = 0.0
     orientation_bins: int = 32
     subpixel: int = 2
@@ -129,24 +227,34 @@ class AppearanceParams:
     def __post_init__(self) -> None:
         own = "appearance"
         require_choice(own, "palette", self.palette, tuple(sorted(PALETTES)))
+        require_choice(own, "video_codec", self.video_codec, VIDEO_CODECS)
         for name, lo, hi in (("template_px", 4, 64), ("n_clusters", 1, len(PALETTES[self.palette])),
                              ("variants_per_cluster", 1, 16), ("jpeg_quality", 1, 100),
                              ("orientation_bins", 4, 128), ("subpixel", 1, 4)):
             require_number(own, name, getattr(self, name), lo=lo, hi=hi, integer=True)
         for name, lo, hi in (("cluster_spread", 0, 100), ("prominent_fraction", 0, 1),
-                             ("contrast", 0.05, 2), ("ground_texture", 0, 80),
-                             ("paving_m", 0, 100), ("shadow", 0, 1), ("sway_deg", 0, 45),
-                             ("illumination_drift", 0, 0.5), ("noise_sigma", 0, 50),
-                             ("motion_blur_px", 0, 30)):
+                             ("dark_hair_fraction", 0, 1), ("hair_spread", 0, 100),
+                             ("contrast", 0.05, 2), ("body_scale", 0.5, 2),
+                             ("ground_texture", 0, 80), ("paving_m", 0, 100), ("shadow", 0, 1),
+                             ("sway_deg", 0, 45), ("arm_swing", 0, 0.5), ("gait_bob", 0, 0.5),
+                             ("head_turn_deg", 0, 90), ("distractor_density", 0, 10),
+                             ("moving_shadow_density", 0, 10), ("illumination_drift", 0, 0.5),
+                             ("flicker", 0, 0.5), ("noise_sigma", 0, 50), ("defocus_px", 0, 20),
+                             ("video_kbps", 0, 1_000_000), ("motion_blur_px", 0, 30)):
             require_number(own, name, getattr(self, name), lo=lo, hi=hi)
-        require_number(own, "illumination_period_s", self.illumination_period_s, lo=0,
-                       lo_open=True)
+        for name in ("cluster_decay", "illumination_period_s", "head_turn_period_s",
+                     "moving_shadow_m"):
+            require_number(own, name, getattr(self, name), lo=0, lo_open=True)
+        require_number(own, "cluster_decay", self.cluster_decay, lo=0, hi=1, lo_open=True)
         if len(self.ground_bgr) != 3:
             raise ValueError(f"appearance.ground_bgr must be three numbers in [0, 255], "
                              f"got {self.ground_bgr!r}")
         for c in self.ground_bgr:
             require_number(own, "ground_bgr", c, lo=0, hi=255)
         object.__setattr__(self, "ground_bgr", tuple(int(c) for c in self.ground_bgr))
+        if not isinstance(self.heads_on_top, (bool, np.bool_)):
+            raise ValueError(f"appearance.heads_on_top must be true or false, "
+                             f"got {self.heads_on_top!r}")
 
     @classmethod
     def from_dict(cls, values: dict) -> AppearanceParams:
@@ -170,40 +278,71 @@ class AppearanceParams:
         """Number of distinct looks: palette variants plus prominent colours."""
         return self.n_clusters * self.variants_per_cluster + len(PROMINENT_COLOURS)
 
+    @property
+    def gait_phases(self) -> int:
+        """Gait phases of the sprite bank (1 unless arm swing or body bob is on)."""
+        return GAIT_PHASES if (self.arm_swing > 0 or self.gait_bob > 0) else 1
+
+    @property
+    def head_turns(self) -> int:
+        """Head-turn poses of the sprite bank (1 unless head turns are on)."""
+        return HEAD_TURNS if self.head_turn_deg > 0 else 1
+
+    @property
+    def n_poses(self) -> int:
+        """Poses per orientation: ``gait_phases * head_turns``; pose = ``g * head_turns + h``."""
+        return self.gait_phases * self.head_turns
+
 
 @dataclass(frozen=True)
 class SpriteBank:
-    """Pre-rendered people with their shadows baked in.
+    """Pre-rendered person geometry (shadow included) and the colours of every appearance.
 
-    Sprite ``k = index(a, b, py, px)`` is appearance ``a`` facing orientation bin ``b`` with
+    Sprite ``k = index(pose, b, py, px)`` is pose ``pose`` facing orientation bin ``b`` with
     sub-pixel phase ``(py, px)``; its head centre lies at
-    ``((Z - 1) / 2 + py / P, (Z - 1) / 2 + px / P)`` inside the ``Z x Z`` sprite.
+    ``((Z - 1) / 2 + py / P, (Z - 1) / 2 + px / P)`` inside the ``Z x Z`` sprite. The
+    premultiplied colour of appearance ``a`` drawn with sprite ``k`` is
+    ``cover[k] @ colours[a]`` (see :meth:`premultiplied`).
 
     Attributes
     ----------
-    color : (K, Z, Z, 3) float32
-        Premultiplied BGR (grey levels times coverage).
+    cover : (K, Z, Z, 3) float32
+        Visible coverage of the clothing (arms included), the hair and the face, in [0, 1].
     alpha : (K, Z, Z) float32
-        Coverage in [0, 1]; a shadow is a black, partly transparent part of the sprite.
+        Total coverage in [0, 1]; a shadow is a black, partly transparent part of the sprite.
+    solid : (K, Z, Z) bool
+        Pixels the person itself (not its shadow) covers at least :data:`SOLID_COVERAGE`.
+    head : (K, Z, Z) float32
+        Coverage of the head disc (what the ground-truth visibility measures).
     spans : (K, Z, 2) int32
         Per sprite row, the half-open column range ``[lo, hi)`` where alpha is not negligible
         (``lo == hi`` for an empty row); lets the compositing loop skip empty pixels.
-    n_bins, subpixel, size : int
-        ``B``, ``P`` and ``Z``.
+    colours : (A, 3, 3) float32
+        Per appearance, the BGR colour of the clothing, the hair and the face.
+    n_bins, n_poses, subpixel, size : int
+        ``B``, the number of poses, ``P`` and ``Z``.
     """
 
-    color: np.ndarray
+    cover: np.ndarray
     alpha: np.ndarray
+    solid: np.ndarray
+    head: np.ndarray
     spans: np.ndarray
+    colours: np.ndarray
     n_bins: int
+    n_poses: int
     subpixel: int
     size: int
 
-    def index(self, appearance: np.ndarray, bins: np.ndarray, py: np.ndarray,
+    def index(self, pose: np.ndarray, bins: np.ndarray, py: np.ndarray,
               px: np.ndarray) -> np.ndarray:
-        """Flat sprite index of ``(appearance, orientation bin, phase y, phase x)`` arrays."""
+        """Flat sprite index of ``(pose, orientation bin, phase y, phase x)`` arrays."""
         p = self.subpixel
-        return ((appearance * self.n_bins + bins) * p + py) * p + px
+        return ((pose * self.n_bins + bins) * p + py) * p + px
+
+    def premultiplied(self, appearance: int, k: int) -> np.ndarray:
+        """``(Z, Z, 3)`` float32 premultiplied BGR of appearance ``appearance`` on sprite ``k``."""
+        return self.cover[k] @ self.colours[appearance]
 
 
 def appearance_colours(params: AppearanceParams, rng: np.random.Generator) -> np.ndarray:
@@ -221,111 +360,183 @@ def appearance_colours(params: AppearanceParams, rng: np.random.Generator) -> np
 
 
 def cluster_weights(params: AppearanceParams) -> np.ndarray:
-    """``(n_clusters,)`` probabilities of the clothing clusters (dense first cluster)."""
-    w = 0.5 ** np.arange(params.n_clusters)
+    """``(n_clusters,)`` probabilities of the clothing clusters: ``~ cluster_decay ** k``."""
+    w = params.cluster_decay ** np.arange(params.n_clusters, dtype=np.float64)
     return w / w.sum()
 
 
-def _draw_person(size_hi: int, centre: float, scale: float, angle: float, cloth: np.ndarray,
-                 hair: np.ndarray, skin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Draw one person at supersampled resolution; returns (premultiplied bgr, alpha)."""
+def look_colours(params: AppearanceParams, rng: np.random.Generator) -> np.ndarray:
+    """``(A, 3, 3)`` float32 BGR of (clothing, hair, face) per appearance, contrast applied.
+
+    Draw order (clothing, hair, skin, then the dark hair only when ``dark_hair_fraction > 0``)
+    keeps the looks of specs that leave the new knobs at their defaults.
+    """
+    n_app = params.n_appearances
+    cloth = appearance_colours(params, rng)
+    hair = np.array(HAIR_COLOURS, np.float64)[rng.integers(0, len(HAIR_COLOURS), n_app)]
+    skin = np.array(SKIN_COLOURS, np.float64)[rng.integers(0, len(SKIN_COLOURS), n_app)]
+    if params.dark_hair_fraction > 0:
+        dark = rng.random(n_app) < params.dark_hair_fraction
+        noise = rng.normal(0.0, params.hair_spread, (n_app, 3))
+        hair[dark] = np.array(HAIR_COLOURS[0], np.float64) + noise[dark]
+        hair = np.clip(hair, 0, 255)
+    ground = np.array(params.ground_bgr, np.float64)
+    hair = ground + params.contrast * (hair - ground)
+    skin = ground + params.contrast * (skin - ground)
+    return np.stack([cloth, hair, skin], axis=1).astype(np.float32)
+
+
+def _pt(x: float, y: float, one: int) -> tuple[int, int]:
+    return int(round(x * one)), int(round(y * one))
+
+
+def _draw_person(size_hi: int, centre: float, scale: float, angle: float,
+                 params: AppearanceParams, gait: float,
+                 turn: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Draw one person at supersampled resolution in unit colours.
+
+    Returns ``(cover (S, S, 3), mask (S, S), head (S, S))``: the visible coverage of the
+    clothing, hair and face (anti-aliased drawing over black in the unit colours, so a real
+    colour is the coverages' linear mix), the person's coverage and the head disc's.
+    ``gait`` is the gait phase (radians), ``turn`` the head turn (radians).
+    """
     shift = 4
     one = 1 << shift
     img = np.zeros((size_hi, size_hi, 3), np.float32)
     mask = np.zeros((size_hi, size_hi), np.float32)
-    c = (int(round(centre * one)), int(round(centre * one)))
+    head = np.zeros((size_hi, size_hi), np.float32)
+    cloth, hair, skin = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
+    c = _pt(centre, centre, one)
     deg = math.degrees(angle)
+    ca, sa = math.cos(angle), math.sin(angle)
+    bs = params.body_scale
+    # Gait bob: the body sways sideways under the head (perpendicular to the walking direction).
+    bob = params.gait_bob * scale * math.sin(gait)
+    bx, by = centre - bob * sa, centre + bob * ca
+    if params.arm_swing > 0:
+        # Arms at the shoulder ends, swinging in opposition along the walking direction.
+        swing = params.arm_swing * scale * math.sin(gait)
+        axes_arm = _pt(ARM_AXES[0] * scale, ARM_AXES[1] * scale * bs, one)
+        for side in (-1.0, 1.0):
+            off = side * ARM_OFFSET * scale * bs
+            fwd = side * swing
+            ac = _pt(bx - off * sa + fwd * ca, by + off * ca + fwd * sa, one)
+            cv2.ellipse(img, ac, axes_arm, deg, 0, 360, cloth, -1, cv2.LINE_AA, shift)
+            cv2.ellipse(mask, ac, axes_arm, deg, 0, 360, 1.0, -1, cv2.LINE_AA, shift)
     # Shoulders: long axis across the walking direction, slightly behind the head.
     back = 0.05 * scale
-    sc = (int(round((centre - back * math.cos(angle)) * one)),
-          int(round((centre - back * math.sin(angle)) * one)))
-    axes = (int(round(SHOULDER_DEPTH * scale * one)), int(round(0.49 * scale * one)))
-    cv2.ellipse(img, sc, axes, deg, 0, 360, tuple(float(v) for v in cloth), -1, cv2.LINE_AA, shift)
+    sc = _pt(bx - back * ca, by - back * sa, one)
+    axes = _pt(SHOULDER_DEPTH * scale * bs, SHOULDER_HALF_WIDTH * scale * bs, one)
+    cv2.ellipse(img, sc, axes, deg, 0, 360, cloth, -1, cv2.LINE_AA, shift)
     cv2.ellipse(mask, sc, axes, deg, 0, 360, 1.0, -1, cv2.LINE_AA, shift)
     r = int(round(HEAD_RADIUS * scale * one))
-    cv2.circle(img, c, r, tuple(float(v) for v in hair), -1, cv2.LINE_AA, shift)
+    cv2.circle(img, c, r, hair, -1, cv2.LINE_AA, shift)
     cv2.circle(mask, c, r, 1.0, -1, cv2.LINE_AA, shift)
-    # Face: a skin crescent on the walking side of the head.
-    # From above mostly hair is seen; the face is a thin crescent at the front of the head,
-    # so the head centre (the ground-truth point) stays hair-coloured.
+    cv2.circle(head, c, r, 1.0, -1, cv2.LINE_AA, shift)
+    # Face: a skin crescent on the looking side of the head. From above mostly hair is seen;
+    # the face is a thin crescent at the front of the head, so the head centre (the
+    # ground-truth point) stays hair-coloured.
+    look = angle + turn
     fwd = FACE_OFFSET * scale
-    fc = (int(round((centre + fwd * math.cos(angle)) * one)),
-          int(round((centre + fwd * math.sin(angle)) * one)))
-    face_axes = (int(round(0.07 * scale * one)), int(round(0.13 * scale * one)))
-    cv2.ellipse(img, fc, face_axes, deg, 0, 360, tuple(float(v) for v in skin), -1, cv2.LINE_AA,
-                shift)
-    return img, mask
+    fc = _pt(centre + fwd * math.cos(look), centre + fwd * math.sin(look), one)
+    face_axes = _pt(0.07 * scale, 0.13 * scale, one)
+    cv2.ellipse(img, fc, face_axes, math.degrees(look), 0, 360, skin, -1, cv2.LINE_AA, shift)
+    return img, mask, head
 
 
 def _shadow_hi(size_hi: int, centre: float, scale: float, angle: float,
-               blur_hi: float) -> np.ndarray:
+               blur_hi: float, body_scale: float = 1.0) -> np.ndarray:
     """Soft shadow coverage at supersampled resolution, offset towards the lower right."""
     hi = np.zeros((size_hi, size_hi), np.float32)
     one = 16
     cx = centre + SHADOW_OFFSET[0] * scale
     cy = centre + SHADOW_OFFSET[1] * scale
     cv2.ellipse(hi, (int(round(cx * one)), int(round(cy * one))),
-                (int(round(0.33 * scale * one)), int(round(0.5 * scale * one))),
+                (int(round(0.33 * scale * body_scale * one)),
+                 int(round(0.5 * scale * body_scale * one))),
                 math.degrees(angle), 0, 360, 1.0, -1, cv2.LINE_AA, 4)
     return cv2.GaussianBlur(hi, (0, 0), blur_hi)
 
 
+def sprite_size(params: AppearanceParams) -> int:
+    """Sprite side ``Z`` in pixels: the template plus room for the body, arms and shadow."""
+    s = params.template_px
+    grow = max(params.body_scale, 1.0)
+    # Reach beyond the body's half width (s * grow / 2), in templates: the shadow's offset
+    # and blur (its size grows with the body), the bobbing shoulders, the swinging arms.
+    reach = 0.0
+    if params.shadow > 0:
+        reach = SHADOW_REACH
+    if params.gait_bob > 0:
+        reach = max(reach, params.gait_bob + 0.05)
+    if params.arm_swing > 0:
+        reach = max(reach, params.arm_swing + ARM_AXES[0] + params.gait_bob - 0.3)
+    pad = int(math.ceil(reach * s)) + 1 if reach > 0 else 0
+    return int(math.ceil(s * grow)) + 2 + 2 * pad
+
+
 def build_sprite_bank(params: AppearanceParams, rng: np.random.Generator) -> SpriteBank:
-    """Render every ``(appearance, orientation, sub-pixel phase)`` sprite, shadow included.
+    """Render every ``(pose, orientation, sub-pixel phase)`` sprite, shadow included.
 
     Orientation bin ``b`` faces the image direction ``angle = 2 pi b / B`` (``u`` right,
-    ``v`` down).
+    ``v`` down). Pose ``g * H + h`` is gait phase ``2 pi g / G`` and head turn
+    ``(h - (H - 1) / 2) * head_turn_deg`` with ``G = params.gait_phases`` and
+    ``H = params.head_turns``.
     """
     s = params.template_px
-    pad = int(math.ceil(SHADOW_REACH * s)) + 1 if params.shadow > 0 else 0
-    z = s + 2 + 2 * pad
+    z = sprite_size(params)
     p = params.subpixel
     ss = SUPERSAMPLE
     if ss % p:
         raise ValueError(f"appearance.subpixel must divide {ss}, got {p}")
     step = ss // p
-    n_app = params.n_appearances
     nb = params.orientation_bins
-    colours = appearance_colours(params, rng)
-    hair = np.array(HAIR_COLOURS, np.float64)[rng.integers(0, len(HAIR_COLOURS), n_app)]
-    skin = np.array(SKIN_COLOURS, np.float64)[rng.integers(0, len(SKIN_COLOURS), n_app)]
-    ground = np.array(params.ground_bgr, np.float64)
-    hair = ground + params.contrast * (hair - ground)
-    skin = ground + params.contrast * (skin - ground)
+    n_g, n_h = params.gait_phases, params.head_turns
+    n_pose = n_g * n_h
+    colours = look_colours(params, rng)
     size_hi = z * ss
     pad_hi = ss  # one low-res pixel of room for the sub-pixel shifts
     # Hi-res coordinate of the low-res pixel centre (Z - 1) / 2, inside the padded canvas.
     centre_hi = ((z - 1) / 2.0 + 0.5) * ss - 0.5 + pad_hi
-    color = np.zeros((n_app, nb, p, p, z, z, 3), np.float32)
-    alpha = np.zeros((n_app, nb, p, p, z, z), np.float32)
+    cover = np.zeros((n_pose, nb, p, p, z, z, 3), np.float32)
+    alpha = np.zeros((n_pose, nb, p, p, z, z), np.float32)
+    solid = np.zeros((n_pose, nb, p, p, z, z), np.float32)
+    head = np.zeros((n_pose, nb, p, p, z, z), np.float32)
     for b in range(nb):
         angle = 2.0 * math.pi * b / nb
         shadow = None
         if params.shadow > 0:
             shadow = params.shadow * _shadow_hi(size_hi + 2 * pad_hi, centre_hi, s * ss, angle,
-                                                max(0.6, SHADOW_BLUR * s) * ss)
-        for a in range(n_app):
-            # Anti-aliased drawing over black is already premultiplied by the coverage.
-            img, mask = _draw_person(size_hi + 2 * pad_hi, centre_hi, s * ss, angle,
-                                     colours[a], hair[a], skin[a])
-            if shadow is not None:  # person over a black, partly transparent shadow
-                mask = mask + shadow * (1.0 - mask)
-            for py in range(p):
-                for px in range(p):
-                    # Shift the drawing by (py, px) / P low-res pixels = step * (py, px) hi-res.
-                    y0 = pad_hi - py * step
-                    x0 = pad_hi - px * step
-                    color[a, b, py, px] = cv2.resize(img[y0:y0 + size_hi, x0:x0 + size_hi],
-                                                     (z, z), interpolation=cv2.INTER_AREA)
-                    alpha[a, b, py, px] = cv2.resize(mask[y0:y0 + size_hi, x0:x0 + size_hi],
-                                                     (z, z), interpolation=cv2.INTER_AREA)
+                                                max(0.6, SHADOW_BLUR * s) * ss,
+                                                params.body_scale)
+        for g in range(n_g):
+            for h in range(n_h):
+                pose = g * n_h + h
+                turn = math.radians((h - (n_h - 1) / 2.0) * params.head_turn_deg)
+                img, mask, hd = _draw_person(size_hi + 2 * pad_hi, centre_hi, s * ss, angle,
+                                             params, 2.0 * math.pi * g / n_g, turn)
+                full = mask if shadow is None else mask + shadow * (1.0 - mask)
+                for py in range(p):
+                    for px in range(p):
+                        # Shift the drawing by (py, px) / P low-res pixels = step * (py, px).
+                        y0 = pad_hi - py * step
+                        x0 = pad_hi - px * step
+                        win = (slice(y0, y0 + size_hi), slice(x0, x0 + size_hi))
+                        for src, dst in ((img, cover), (full, alpha), (mask, solid),
+                                         (hd, head)):
+                            dst[pose, b, py, px] = cv2.resize(src[win], (z, z),
+                                                              interpolation=cv2.INTER_AREA)
     alpha = alpha.reshape(-1, z, z)
     visible = alpha > ALPHA_EPS
     any_row = visible.any(axis=2)
     lo = np.where(any_row, np.argmax(visible, axis=2), 0)
     hi = np.where(any_row, z - np.argmax(visible[:, :, ::-1], axis=2), 0)
     alpha[~visible] = 0.0
-    color = color.reshape(-1, z, z, 3)
-    color[~visible] = 0.0
-    return SpriteBank(color=color, alpha=alpha, spans=np.stack([lo, hi], -1).astype(np.int32),
-                      n_bins=nb, subpixel=p, size=z)
+    cover = cover.reshape(-1, z, z, 3)
+    cover[~visible] = 0.0
+    head = head.reshape(-1, z, z)
+    head[~visible] = 0.0
+    return SpriteBank(cover=cover, alpha=alpha,
+                      solid=(solid.reshape(-1, z, z) >= SOLID_COVERAGE) & visible, head=head,
+                      spans=np.stack([lo, hi], -1).astype(np.int32), colours=colours,
+                      n_bins=nb, n_poses=n_pose, subpixel=p, size=z)

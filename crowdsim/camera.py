@@ -15,6 +15,9 @@ trajectories to the same pixels.
   the homography ``H = K R [e1 e2 -C]``.
 * ``jitter_px``: standard deviation (pixels) of a smooth, seeded per-frame image translation
   (hand-held or wind-shaken camera). ``0`` disables it.
+* ``jitter_frames``: correlation time of that shake in frames (default
+  :data:`JITTER_CORRELATION_FRAMES`: a slow sway); small values give a fast shake, 1 is
+  nearly independent from frame to frame.
 
 Examples
 --------
@@ -31,7 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 
 JITTER_CORRELATION_FRAMES: float = 12.0
-"""Time constant (frames) of the camera shake: an AR(1) process with this correlation time."""
+"""Default time constant (frames) of the camera shake: an AR(1) process with this correlation
+time (``Camera.jitter_frames``)."""
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,8 @@ class Camera:
         Camera distance from the look-at point in metres (only matters when tilted).
     jitter_px : float
         Standard deviation of the per-frame translation in pixels (``>= 0``).
+    jitter_frames : float
+        Correlation time of the translation in frames (``> 0``; default 12).
     seed : int
         Seed of the jitter process.
     """
@@ -64,6 +70,7 @@ class Camera:
     distance_m: float = 60.0
     jitter_px: float = 0.0
     seed: int = 0
+    jitter_frames: float = JITTER_CORRELATION_FRAMES
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.px_per_m) and self.px_per_m > 0):
@@ -78,6 +85,8 @@ class Camera:
             raise ValueError(f"camera.distance_m must be > 0, got {self.distance_m!r}")
         if not (math.isfinite(self.jitter_px) and self.jitter_px >= 0):
             raise ValueError(f"camera.jitter_px must be >= 0, got {self.jitter_px!r}")
+        if not (math.isfinite(self.jitter_frames) and self.jitter_frames > 0):
+            raise ValueError(f"camera.jitter_frames must be > 0, got {self.jitter_frames!r}")
         if len(self.center) != 2 or not all(math.isfinite(c) for c in self.center):
             raise ValueError(f"camera.center must be two finite numbers, got {self.center!r}")
         object.__setattr__(self, "center", (float(self.center[0]), float(self.center[1])))
@@ -136,8 +145,9 @@ class Camera:
     def jitter(self, n_frames: int) -> np.ndarray:
         """``(n_frames, 2)`` pixel offsets added to every projected point of a frame.
 
-        A seeded AR(1) process with stationary standard deviation ``jitter_px`` (zeros when
-        ``jitter_px == 0``). Frame ``t``'s offset does not depend on ``n_frames``.
+        A seeded AR(1) process with stationary standard deviation ``jitter_px`` and correlation
+        time ``jitter_frames`` (zeros when ``jitter_px == 0``). Frame ``t``'s offset does not
+        depend on ``n_frames``.
         """
         if n_frames < 0:
             raise ValueError(f"n_frames must be >= 0, got {n_frames}")
@@ -145,7 +155,7 @@ class Camera:
         if self.jitter_px == 0.0 or n_frames == 0:
             return out
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, 0x4A17]))
-        a = math.exp(-1.0 / JITTER_CORRELATION_FRAMES)
+        a = math.exp(-1.0 / self.jitter_frames)
         # Draw in frame order so that frame t's offset does not depend on n_frames.
         out[0] = rng.standard_normal(2) * self.jitter_px
         innov = rng.standard_normal((n_frames, 2)) * self.jitter_px * math.sqrt(1.0 - a * a)

@@ -4,15 +4,27 @@ The renderer consumes state; it never simulates (STYLE habit 6). Two steps:
 
 1. :func:`prepare_agents` turns :class:`~crowdsim.trajectories.Trajectories` and a
    :class:`~crowdsim.camera.Camera` into an :class:`AgentTracks` struct of arrays: head
-   centres in pixels ``(T, N, 2)``, headings ``(T, N)`` (with sway), one appearance per agent.
-2. :class:`SceneRenderer` draws frame ``t`` in two compiled passes (no per-pixel Python):
-   the pre-built textured ground (cropped to follow the camera jitter) with illumination
-   drift and sensor noise straight to ``uint8``, then every person stamped from a
-   :class:`~crowdsim.appearance_model.SpriteBank` (per-orientation, per-sub-pixel-phase
-   sprites with the shadow baked in), lit and noised the same way. People are composited
-   top to bottom in horizontal bands processed in parallel; a pixel belongs to one band, so
-   the result does not depend on the thread count. JPEG compression happens when the frame
-   is written (:func:`encode_jpeg`); optional camera motion blur is a final filter.
+   centres in pixels ``(T, N, 2)``, headings ``(T, N)`` (with sway), poses ``(T, N)`` (gait
+   phase and head turn), one appearance per agent.
+2. :class:`SceneRenderer` draws frame ``t`` in compiled passes (no per-pixel Python): the
+   pre-built textured ground (static clutter baked in, cropped to follow the camera jitter)
+   with illumination drift, flicker and sensor noise straight to ``uint8``; then every person
+   stamped from a :class:`~crowdsim.appearance_model.SpriteBank` (per-pose, per-orientation,
+   per-sub-pixel-phase coverages with the shadow baked in, mixed with the person's colours),
+   lit and noised the same way; then moving shadows, defocus and motion blur. People are
+   composited in depth order in horizontal bands processed in parallel; a pixel belongs to
+   one band, so the result does not depend on the thread count. Video-codec and JPEG
+   compression happen when the frame is written (:mod:`synth_data.writer`).
+
+Depth order: the camera tilts about the image ``u`` axis with its far side at the top, so on
+the ground plane depth falls as ``v`` grows; people are drawn top to bottom and a nearer
+person covers the people behind it (exactly the painter's order; for an untilted camera the
+order is arbitrary but fixed). With ``appearance.heads_on_top`` the heads are drawn again, in
+the same order, after all bodies: seen from above only heads can hide heads. With
+``visibility=`` the renderer also reports, per person, the
+visible fraction of its head disc in that drawing: a per-pixel owner buffer records the last
+person whose body covers the pixel (shadows do not occlude), and the head's coverage owned by
+its own person, inside the frame, over its whole coverage is the visible fraction.
 
 Sprites keep their template size over the whole frame, also under a tilted camera (the
 ground-truth box is the template, SPEC §2); the tilt moves people through the homography.
@@ -22,26 +34,26 @@ All randomness derives from the ``seed`` given to the functions, split with
 ``(trajectories, camera, appearance, seed, t)``.
 
 Ground truth: the head centre of agent ``n`` in frame ``t`` is ``AgentTracks.pixels[t, n]``,
-drawn to within ``1 / (2 * subpixel)`` pixels.
+drawn to within ``1 / (2 * subpixel)`` pixels. The MOT rows are built by
+:func:`synth_data.writer.gt_rows`, not here.
 """
 
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
-
-# numba's OpenMP threading layer busy-waits between parallel regions by default; on a shared
-# 2-core machine that spinning steals the cores from the other thread and from other jobs
-# (measured: 1280x720/1k frames/s 65 -> 255 with PASSIVE). A user's own setting wins.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import cv2
 import numpy as np
 from numba import njit, prange
 
 from crowdsim.appearance_model import (
+    ALPHA_EPS,
+    HAIR_COLOURS,
+    HEAD_RADIUS,
+    PALETTES,
     PROMINENT_COLOURS,
+    SOLID_COVERAGE,
     AppearanceParams,
     SpriteBank,
     build_sprite_bank,
@@ -57,13 +69,19 @@ HEADING_MIN_SPEED: float = 0.15
 HEADING_WINDOW: int = 2
 """Half window (rows) of the central difference used for headings."""
 SWAY_STRIDE_M: float = 1.4
-"""Distance walked per full shoulder-sway period (two steps), metres."""
+"""Distance walked per full gait period (two steps), metres: drives sway, arms and bob."""
 NOISE_POOL_MARGIN: int = 61
 """Extra rows/columns of the sensor-noise pool; each frame reads it at a random offset."""
 STAMP_BANDS: int = 16
 """Horizontal bands composited in parallel (the result does not depend on this number)."""
 NOISE_POOL_SCALE: float = 16.0
 """Standard normal noise is stored as int8 times this factor."""
+MOVING_SHADOW_DARKNESS: float = 0.4
+"""Relative darkening at the centre of a moving shadow."""
+MOVING_SHADOW_SPEED: tuple[float, float] = (0.5, 1.5)
+"""Range of the moving shadows' speeds, m/s."""
+DISTRACTOR_KINDS: tuple[str, ...] = ("bollard", "litter", "marking")
+"""Static clutter baked into the ground, drawn in equal proportions."""
 
 
 @dataclass
@@ -82,6 +100,9 @@ class AgentTracks:
         Index of each agent's look (see :func:`assign_appearance`).
     prominent : (N,) bool
         Agents drawn with a distinct colour.
+    pose : (T, N) int64, optional
+        Sprite pose (gait phase and head turn, see
+        :func:`crowdsim.appearance_model.build_sprite_bank`); zeros when omitted.
     """
 
     ids: np.ndarray
@@ -89,6 +110,11 @@ class AgentTracks:
     heading: np.ndarray
     appearance: np.ndarray
     prominent: np.ndarray
+    pose: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.pose is None:
+            self.pose = np.zeros(self.pixels.shape[:2], np.int64)
 
     @property
     def n_frames(self) -> int:
@@ -142,10 +168,26 @@ def _headings(pixels: np.ndarray, speed_ok: np.ndarray, rng: np.random.Generator
     return out
 
 
+def _poses(gait: np.ndarray, t_len: int, dt: float, params: AppearanceParams,
+           rng: np.random.Generator) -> np.ndarray:
+    """``(T, N)`` sprite poses ``g * H + h`` from gait phases and seeded head turns."""
+    n_g, n_h = params.gait_phases, params.head_turns
+    pose = np.zeros(gait.shape, np.int64)
+    if n_g > 1:
+        pose += np.mod(np.rint(gait * (n_g / (2 * math.pi))), n_g).astype(np.int64) * n_h
+    if n_h > 1:
+        n = gait.shape[1]
+        period = params.head_turn_period_s * rng.uniform(0.5, 1.5, n)
+        phase = rng.uniform(0, 2 * math.pi, n)
+        turn = np.sin(2 * math.pi * (np.arange(t_len) * dt)[:, None] / period + phase)
+        pose += np.rint(turn * ((n_h - 1) / 2.0)).astype(np.int64) + (n_h - 1) // 2
+    return pose
+
+
 def prepare_agents(traj: Trajectories, camera: Camera, params: AppearanceParams,
                    seed: int) -> AgentTracks:
-    """Project trajectories and derive headings, sway and appearances (all seeded)."""
-    s_app, s_head, s_sway = _seeds(seed, 3)
+    """Project trajectories and derive headings, sway, poses and appearances (all seeded)."""
+    s_app, s_head, s_sway, s_turn = _seeds(seed, 4)
     pixels = camera.project_trajectories(traj.positions)
     n = traj.n_agents
     app, prominent = assign_appearance(traj.attributes.get("prominent"), n, params,
@@ -160,25 +202,31 @@ def prepare_agents(traj: Trajectories, camera: Camera, params: AppearanceParams,
         speed = np.linalg.norm(pos[hi] - pos[lo], axis=-1) / span
         speed_ok = speed > HEADING_MIN_SPEED
     heading = _headings(pixels, speed_ok, np.random.default_rng(s_head))
-    if params.sway_deg > 0 and t_len > 1:
+    gait = np.zeros((t_len, n))
+    if (params.sway_deg > 0 or params.gait_phases > 1) and t_len > 1:
+        # One gait phase per agent, advanced by the distance walked: sway, arms and bob
+        # move in step, and a standing person keeps its pose.
         step = np.zeros((t_len, n))
         with np.errstate(invalid="ignore"):
             step[1:] = np.nan_to_num(np.linalg.norm(pos[1:] - pos[:-1], axis=-1))
         walked = np.cumsum(step, axis=0)
         phase0 = np.random.default_rng(s_sway).uniform(0, 2 * math.pi, n)
-        heading = heading + math.radians(params.sway_deg) * np.sin(
-            2 * math.pi * walked / SWAY_STRIDE_M + phase0)
+        gait = 2 * math.pi * walked / SWAY_STRIDE_M + phase0
+        if params.sway_deg > 0:
+            heading = heading + math.radians(params.sway_deg) * np.sin(gait)
+    pose = _poses(gait, t_len, traj.dt, params, np.random.default_rng(s_turn))
     return AgentTracks(ids=traj.ids.copy(), pixels=pixels, heading=heading, appearance=app,
-                       prominent=prominent)
+                       prominent=prominent, pose=pose)
 
 
 # ---------------------------------------------------------------------------- kernels
 # Frame = ground * illumination + noise, computed straight into uint8 (one parallel pass);
 # people are then composited onto it with the same illumination and noise at their pixels:
 #   out = out * (1 - alpha) + gain * premultiplied_colour + alpha * noise
-# which equals rendering the people first and lighting/noising the result afterwards.
-# Images are passed as (rows, columns * 3) views so the inner loops run over contiguous
-# memory and LLVM can vectorise them.
+# which equals rendering the people first and lighting/noising the result afterwards. The
+# premultiplied colour is mixed on the fly from the sprite's part coverages (clothing, hair,
+# face) and the person's three colours. Images are passed as (rows, columns * 3) views so the
+# inner loops run over contiguous memory and LLVM can vectorise them.
 @njit(cache=True, nogil=True, parallel=True)
 def _ground_pass(ground, oy, ox3, noise, ny, nx3, noise_scale, g0, gain_x, gy,
                  out):  # pragma: no cover - numba
@@ -196,10 +244,13 @@ def _ground_pass(ground, oy, ox3, noise, ny, nx3, noise_scale, g0, gain_x, gy,
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _stamp(out, color, alpha, spans, idx, x0, y0, noise, ny, nx3, noise_scale, g0, gx, gy,
-           band_rows, band_first, band_last):  # pragma: no cover - numba
+def _stamp(out, cover, alpha, solid, spans, tiles, idx, app, x0, y0, noise, ny, nx3,
+           noise_scale, g0, gx, gy, band_rows, band_first, band_last, owner, owner_base,
+           use_owner):  # pragma: no cover - numba
     # Horizontal bands are composited in parallel; a pixel belongs to exactly one band and
-    # within a band agents are drawn in the given order, so the result equals a serial pass.
+    # within a band agents are drawn in the given (depth) order, so the result equals a
+    # serial pass. The owner buffer gets owner_base + the rank of the last person whose body
+    # covers a pixel (values below owner_base are left over from earlier frames).
     h, w3 = out.shape
     w = w3 // 3
     z = spans.shape[1]
@@ -209,11 +260,16 @@ def _stamp(out, color, alpha, spans, idx, x0, y0, noise, ny, nx3, noise_scale, g
         yhi = band_rows[b + 1]
         for k in range(band_first[b], band_last[b]):
             s = idx[k]
+            a_k = app[k]
             oy = y0[k]
-            ox3 = 3 * x0[k]
+            ox = x0[k]
+            ox3 = 3 * ox
             # Illumination is smooth: one gain per sprite (its centre) is exact to ~1e-4.
-            g = (g0 + gx * ((x0[k] + half) / np.float32(w) - np.float32(0.5))
+            g = (g0 + gx * ((ox + half) / np.float32(w) - np.float32(0.5))
                  + gy * ((oy + half) / np.float32(h) - np.float32(0.5)))
+            tc = tiles[a_k, 0]
+            th = tiles[a_k, 1]
+            ts = tiles[a_k, 2]
             for i in range(max(0, ylo - oy), min(z, yhi - oy)):
                 y = oy + i
                 lo = spans[s, i, 0]
@@ -224,18 +280,111 @@ def _stamp(out, color, alpha, spans, idx, x0, y0, noise, ny, nx3, noise_scale, g
                     hi = w3 - ox3
                 orow = out[y]
                 nrow = noise[ny + y]
-                crow = color[s, i]
+                cc = cover[s, i, 0]
+                ch = cover[s, i, 1]
+                cs = cover[s, i, 2]
                 arow = alpha[s, i]
                 for q in range(lo, hi):
                     a = arow[q]
-                    v = (np.float32(orow[ox3 + q]) * (np.float32(1.0) - a) + crow[q] * g
+                    col = cc[q] * tc[q] + ch[q] * th[q] + cs[q] * ts[q]
+                    v = (np.float32(orow[ox3 + q]) * (np.float32(1.0) - a) + col * g
                          + a * noise_scale * np.float32(nrow[nx3 + q]) + np.float32(0.5))
                     orow[ox3 + q] = np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
+                if use_owner:
+                    srow = solid[s, i]
+                    wrow = owner[y]
+                    for j in range(lo // 3, hi // 3):
+                        if srow[j]:
+                            wrow[ox + j] = owner_base + k
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _head_visibility(head, solid, idx, x0, y0, owner, owner_base, r0, r1, c0, c1,
+                     vis):  # pragma: no cover - numba
+    # Visible fraction of each person's head: over the head-disc pixels the person owns when
+    # drawn alone (solid), the coverage-weighted share that is inside the frame and still
+    # owned by the person after everyone is drawn (frame clipping counts as hidden).
+    h, w = owner.shape
+    for k in prange(idx.shape[0]):
+        s = idx[k]
+        tot = np.float32(0.0)
+        own = np.float32(0.0)
+        for i in range(r0, r1):
+            y = y0[k] + i
+            for j in range(c0, c1):
+                c = head[s, i, j]
+                if c > 0 and solid[s, i, j]:
+                    tot += c
+                    x = x0[k] + j
+                    if 0 <= y < h and 0 <= x < w and owner[y, x] == owner_base + k:
+                        own += c
+        vis[k] = own / tot if tot > 0 else 0.0
+
+
+@njit(cache=True, nogil=True)
+def _shade(out, masks, x0, y0):  # pragma: no cover - numba
+    # Multiply the frame by (1 - mask) under every moving shadow (masks: (n, S, 3S)).
+    h, w3 = out.shape
+    sz = masks.shape[1]
+    for k in range(masks.shape[0]):
+        ox3 = 3 * x0[k]
+        for i in range(max(0, -y0[k]), min(sz, h - y0[k])):
+            orow = out[y0[k] + i]
+            mrow = masks[k, i]
+            for q in range(max(0, -ox3), min(3 * sz, w3 - ox3)):
+                v = np.float32(orow[ox3 + q]) * (np.float32(1.0) - mrow[q]) + np.float32(0.5)
+                orow[ox3 + q] = np.uint8(min(v, np.float32(255.0)))
+
+
+def _draw_distractors(base: np.ndarray, params: AppearanceParams, px_per_m: float,
+                      rng: np.random.Generator) -> None:
+    """Bake static head-like clutter (bollards, litter, road-marking dashes) into ``base``.
+
+    ``base`` is the ``(H, W, 3)`` float32 ground; ``params.distractor_density`` items per
+    square metre at scale ``px_per_m``, a third of each kind on average.
+    """
+    height, width = base.shape[:2]
+    area_m2 = height * width / (px_per_m * px_per_m)
+    n = int(rng.poisson(params.distractor_density * area_m2))
+    if n == 0:
+        return
+    s = float(params.template_px)
+    ss = 16  # cv2 fixed-point sub-pixel drawing
+    kinds = rng.integers(0, len(DISTRACTOR_KINDS), n)
+    centres = rng.uniform((0.0, 0.0), (width, height), (n, 2))
+    sizes = rng.uniform(0.8, 1.3, n)
+    angles = rng.uniform(0.0, 180.0, n)
+    shades = rng.uniform(-12.0, 12.0, n)
+    palette = np.array(PALETTES[params.palette] + PROMINENT_COLOURS[:4], np.float64)
+    picks = rng.integers(0, len(palette), n)
+    ground = np.array(params.ground_bgr, np.float64)
+    for k in range(n):  # scene setup, once per sequence
+        c = (int(round(centres[k, 0] * ss)), int(round(centres[k, 1] * ss)))
+        r = HEAD_RADIUS * s * sizes[k]
+        kind = DISTRACTOR_KINDS[kinds[k]]
+        if kind == "bollard":  # a dark disc the size of a head, with a shadow
+            shadow = (int(round((centres[k, 0] + 0.3 * s) * ss)),
+                      int(round((centres[k, 1] + 0.2 * s) * ss)))
+            cv2.circle(base, shadow, int(round(1.1 * r * ss)),
+                       tuple(float(v) for v in 0.7 * ground), -1, cv2.LINE_AA, 4)
+            colour = np.array(HAIR_COLOURS[0], np.float64) + 20.0 + shades[k]
+            cv2.circle(base, c, int(round(r * ss)), tuple(float(v) for v in colour), -1,
+                       cv2.LINE_AA, 4)
+        elif kind == "litter":  # a small blob of clothing-like colour
+            axes = (int(round(0.8 * r * ss)), int(round(0.5 * r * ss)))
+            colour = palette[picks[k]] + shades[k]
+            cv2.ellipse(base, c, axes, float(angles[k]), 0, 360,
+                        tuple(float(v) for v in colour), -1, cv2.LINE_AA, 4)
+        else:  # a painted dash
+            axes = (int(round(0.45 * s * sizes[k] * ss)), int(round(0.08 * s * ss)))
+            colour = np.full(3, 225.0 + shades[k])
+            cv2.ellipse(base, c, axes, float(angles[k]), 0, 360,
+                        tuple(float(v) for v in colour), -1, cv2.LINE_AA, 4)
 
 
 def make_ground(height: int, width: int, params: AppearanceParams, px_per_m: float,
                 rng: np.random.Generator) -> np.ndarray:
-    """``(height, width, 3)`` uint8 textured ground: multi-scale noise, optional paving."""
+    """``(height, width, 3)`` uint8 ground: multi-scale noise, paving, static clutter."""
     base = np.empty((height, width, 3), np.float32)
     base[:] = np.array(params.ground_bgr, np.float32)
     if params.ground_texture > 0:
@@ -256,6 +405,8 @@ def make_ground(height: int, width: int, params: AppearanceParams, px_per_m: flo
             yy, xx = np.mgrid[0:height, 0:width]
             joint = ((np.mod(xx, step) < 1.0) | (np.mod(yy, step) < 1.0)).astype(np.float32)
             base -= joint[..., None] * (0.25 * np.array(params.ground_bgr, np.float32))
+    if params.distractor_density > 0:
+        _draw_distractors(base, params, px_per_m, rng)
     return np.clip(np.rint(base), 0, 255).astype(np.uint8)
 
 
@@ -269,9 +420,9 @@ class SceneRenderer:
     params : AppearanceParams
         Look of people and scene.
     seed : int
-        Seed of the ground, sprite colours, illumination and noise.
+        Seed of the ground, sprite colours, illumination, flicker, shadows and noise.
     fps : float
-        Frames per second (only sets the illumination drift speed).
+        Frames per second (sets the illumination drift and the moving shadows' speed).
     """
 
     def __init__(self, camera: Camera, params: AppearanceParams, seed: int, fps: float) -> None:
@@ -281,7 +432,8 @@ class SceneRenderer:
         self.params = params
         self.fps = float(fps)
         self.seed = int(seed)
-        s_bank, s_ground, s_noise, s_light = np.random.SeedSequence([int(seed), 0x5CE4E]).spawn(4)
+        s_bank, s_ground, s_noise, s_light, s_shadow = np.random.SeedSequence(
+            [int(seed), 0x5CE4E]).spawn(5)
         self.bank: SpriteBank = build_sprite_bank(params, np.random.default_rng(s_bank))
         self.margin = int(math.ceil(4 * camera.jitter_px)) + 1 if camera.jitter_px > 0 else 0
         h, w = camera.height, camera.width
@@ -292,14 +444,32 @@ class SceneRenderer:
         self.noise = np.clip(rng.standard_normal((h + NOISE_POOL_MARGIN, w + NOISE_POOL_MARGIN, 3),
                                                  dtype=np.float32) * NOISE_POOL_SCALE,
                              -127, 127).astype(np.int8)
-        # Flat (rows, columns * 3) layouts for the kernels; alpha repeated per channel.
+        # Flat (rows, columns * 3) layouts for the kernels; coverages repeated per channel.
         b = self.bank
         k, z = b.alpha.shape[:2]
         self._ground2 = self.ground.reshape(self.ground.shape[0], -1)
         self._noise2 = self.noise.reshape(self.noise.shape[0], -1)
-        self._color3 = np.ascontiguousarray(b.color.reshape(k, z, 3 * z))
+        self._cover3 = np.ascontiguousarray(np.repeat(b.cover.transpose(0, 1, 3, 2), 3, axis=3))
         self._alpha3 = np.ascontiguousarray(np.repeat(b.alpha, 3, axis=2))
+        self._tiles = np.ascontiguousarray(np.tile(b.colours, (1, 1, z)))
         self._spans3 = (3 * b.spans).astype(np.int64)
+        rows = np.flatnonzero(b.head.any(axis=(0, 2)))
+        cols = np.flatnonzero(b.head.any(axis=(0, 1)))
+        self._head_box = (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1)
+        self._head_solid = b.head >= SOLID_COVERAGE
+        if params.heads_on_top:
+            # Head layer: the head disc's hair and face over everything drawn.
+            head_vis = b.head > ALPHA_EPS
+            any_row = head_vis.any(axis=2)
+            hlo = np.where(any_row, np.argmax(head_vis, axis=2), 0)
+            hhi = np.where(any_row, z - np.argmax(head_vis[:, :, ::-1], axis=2), 0)
+            self._head_spans3 = (3 * np.stack([hlo, hhi], -1)).astype(np.int64)
+            self._head_alpha3 = np.ascontiguousarray(np.repeat(b.head, 3, axis=2))
+            self._head_tiles = self._tiles.copy()
+            self._head_tiles[:, 0] = 0.0  # no clothing inside the head layer
+        self._owner = np.full((h, w), -1, np.int32)
+        self._owner_next = 0  # owner ids of a frame start here: no clearing between frames
+        self._no_owner = np.zeros((1, 1), np.int32)
         light = np.random.default_rng(s_light)
         self._phases = light.uniform(0, 2 * math.pi, 3)
         self._jitter = np.zeros((0, 2))
@@ -312,6 +482,32 @@ class SceneRenderer:
                                           float(light.uniform(-30, 30)), 1.0)
             kern = cv2.warpAffine(kern, rot, kern.shape[::-1])
             self._blur = kern / kern.sum()
+        self._init_moving_shadows(np.random.default_rng(s_shadow))
+
+    def _init_moving_shadows(self, rng: np.random.Generator) -> None:
+        """Seeded start points, velocities (px/frame) and ``(n, S, 3S)`` darkening masks."""
+        p = self.params
+        cam = self.camera
+        h, w = cam.height, cam.width
+        n = 0
+        if p.moving_shadow_density > 0:
+            n = int(rng.poisson(p.moving_shadow_density * h * w / cam.px_per_m ** 2))
+        d = p.moving_shadow_m * cam.px_per_m
+        sz = int(math.ceil(2.0 * d)) + 3
+        self._shadow_size = sz
+        self._shadow_start = rng.uniform((0.0, 0.0), (w + sz, h + sz), (n, 2))
+        ang = rng.uniform(0, 2 * math.pi, n)
+        speed = rng.uniform(*MOVING_SHADOW_SPEED, n) * cam.px_per_m / self.fps
+        self._shadow_vel = speed[:, None] * np.column_stack([np.cos(ang), np.sin(ang)])
+        masks = np.zeros((n, sz, sz), np.float32)
+        c = (sz - 1) / 2.0
+        for k in range(n):  # scene setup, once per sequence
+            axes = (int(round(0.5 * d * 16)), int(round(0.5 * d * rng.uniform(0.6, 1.0) * 16)))
+            cv2.ellipse(masks[k], (int(round(c * 16)), int(round(c * 16))), axes,
+                        float(np.degrees(ang[k])), 0, 360, 1.0, -1, cv2.LINE_AA, 4)
+            masks[k] = cv2.GaussianBlur(masks[k], (0, 0), max(0.6, 0.15 * d))
+        self._shadow_masks = np.ascontiguousarray(
+            np.repeat(masks * np.float32(MOVING_SHADOW_DARKNESS), 3, axis=2))
 
     # ------------------------------------------------------------------ per frame
     def _frame_jitter(self, t: int) -> np.ndarray:
@@ -322,21 +518,43 @@ class SceneRenderer:
         return self._jitter[t]
 
     def illumination(self, t: int) -> tuple[float, float, float]:
-        """``(gain, x gradient, y gradient)`` of frame ``t``."""
-        a = self.params.illumination_drift
-        w = 2 * math.pi * t / (self.params.illumination_period_s * self.fps)
-        p = self._phases
-        return (1.0 + a * math.sin(w + p[0]), a * math.sin(0.61 * w + p[1]),
-                a * math.sin(0.37 * w + p[2]))
+        """``(gain, x gradient, y gradient)`` of frame ``t``, flicker included."""
+        p = self.params
+        a = p.illumination_drift
+        w = 2 * math.pi * t / (p.illumination_period_s * self.fps)
+        ph = self._phases
+        gain = (1.0 + a * math.sin(w + ph[0]), a * math.sin(0.61 * w + ph[1]),
+                a * math.sin(0.37 * w + ph[2]))
+        if p.flicker > 0:
+            f = 1.0 + p.flicker * float(
+                np.random.default_rng([self.seed, 0xF11C, int(t)]).standard_normal())
+            f = max(f, 0.0)
+            gain = (gain[0] * f, gain[1] * f, gain[2] * f)
+        return gain
+
+    def moving_shadow_corners(self, t: int) -> np.ndarray:
+        """``(n, 2)`` int64 top-left pixel corners of the moving shadows' masks in frame ``t``.
+
+        Shadows drift at constant velocity and wrap around the frame (plus one mask size),
+        so their number in view stays constant.
+        """
+        sz = self._shadow_size
+        cam = self.camera
+        period = np.array([cam.width + sz, cam.height + sz], np.float64)
+        pos = np.mod(self._shadow_start + self._shadow_vel * t, period) - sz
+        return np.floor(pos).astype(np.int64)
 
     def render(self, t: int, pixels: np.ndarray, heading: np.ndarray,
-               appearance: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+               appearance: np.ndarray, out: np.ndarray | None = None,
+               pose: np.ndarray | None = None,
+               visibility: np.ndarray | None = None) -> np.ndarray:
         """Frame ``t`` as ``(H, W, 3)`` uint8 BGR.
 
         Parameters
         ----------
         t : int
-            0-based frame index (drives jitter of the ground, illumination and noise).
+            0-based frame index (drives jitter of the ground, illumination, flicker, moving
+            shadows and noise).
         pixels : (n, 2) float
             Head centres in pixels (NaN rows are skipped).
         heading : (n,) float
@@ -345,6 +563,13 @@ class SceneRenderer:
             Appearance index per agent.
         out : (H, W, 3) uint8, optional
             Buffer to draw into.
+        pose : (n,) int, optional
+            Sprite pose per agent (default 0).
+        visibility : (n,) float64, optional
+            Filled with the visible fraction of each agent's head disc in this drawing (after
+            occlusion by people drawn in front and clipping by the frame): NaN for NaN rows,
+            0 for agents entirely outside. Computed before the moving shadows and blurs,
+            which do not hide a head.
         """
         cam = self.camera
         h, w = cam.height, cam.width
@@ -364,9 +589,15 @@ class SceneRenderer:
         _ground_pass(self._ground2, oy, 3 * ox, self._noise2, ny, 3 * nx, nscale, g0,
                      np.repeat(gain_x, 3), gy, out2)
         pixels = np.asarray(pixels, np.float64)
+        n_all = len(pixels)
+        if visibility is not None:
+            if visibility.shape != (n_all,):
+                raise ValueError(f"visibility must have shape ({n_all},), "
+                                 f"got {visibility.shape}")
+            visibility[:] = np.where(np.isfinite(pixels).all(axis=1), 0.0, np.nan)
         bank = self.bank
         z = bank.size
-        if len(pixels):
+        if n_all:
             ok = np.isfinite(pixels[:, 0]) & np.isfinite(pixels[:, 1])
             # Cull agents whose sprite cannot touch the frame.
             with np.errstate(invalid="ignore"):
@@ -376,6 +607,11 @@ class SceneRenderer:
             pts = pixels[sel]
             hd = np.asarray(heading, np.float64)[sel]
             ap = np.asarray(appearance, np.int64)[sel]
+            ps = np.zeros(len(sel), np.int64) if pose is None else \
+                np.asarray(pose, np.int64)[sel]
+            if len(ps) and (ps.min() < 0 or ps.max() >= bank.n_poses):
+                raise ValueError(f"pose must be in [0, {bank.n_poses}), got {ps.min()}.."
+                                 f"{ps.max()}")
             p = bank.subpixel
             f = pts - (z - 1) / 2.0
             base = np.floor(f)
@@ -385,26 +621,56 @@ class SceneRenderer:
             phase[carry] = 0
             nb = bank.n_bins
             bins = np.mod(np.rint(hd * (nb / (2 * math.pi))), nb).astype(np.int64)
-            idx = bank.index(ap, bins, phase[:, 1], phase[:, 0])
+            idx = bank.index(ps, bins, phase[:, 1], phase[:, 0])
             x0 = base[:, 0].astype(np.int64)
             y0 = base[:, 1].astype(np.int64)
-            # Draw top to bottom: people lower in the frame overlap those above (right for a
-            # tilted camera), and row-ordered writes keep the frame and noise rows in cache.
+            # Depth order = top to bottom (see the module docstring); row-ordered writes also
+            # keep the frame and noise rows in cache.
             order = np.argsort(y0, kind="stable")
             y0 = y0[order]
+            x0 = x0[order]
+            idx = idx[order]
             rows = np.linspace(0, h, STAMP_BANDS + 1).astype(np.int64)
             first = np.searchsorted(y0, rows[:-1] - z + 1, side="left")
             last = np.searchsorted(y0, rows[1:], side="left")
-            _stamp(out2, self._color3, self._alpha3, self._spans3, idx[order], x0[order], y0,
-                   self._noise2, ny, 3 * nx, nscale, g0, gx, gy, rows, first, last)
+            use_owner = visibility is not None
+            owner = self._owner if use_owner else self._no_owner
+            base_id = 0
+            if use_owner:
+                if self._owner_next + len(sel) >= np.iinfo(np.int32).max:
+                    owner.fill(-1)
+                    self._owner_next = 0
+                base_id = self._owner_next
+                self._owner_next += len(sel)
+            on_top = self.params.heads_on_top
+            _stamp(out2, self._cover3, self._alpha3, bank.solid, self._spans3, self._tiles,
+                   idx, ap[order], x0, y0, self._noise2, ny, 3 * nx, nscale, g0, gx, gy, rows,
+                   first, last, owner, base_id, use_owner and not on_top)
+            if on_top:  # heads are the highest point: only other heads can hide them
+                _stamp(out2, self._cover3, self._head_alpha3, self._head_solid,
+                       self._head_spans3, self._head_tiles, idx, ap[order], x0, y0,
+                       self._noise2, ny, 3 * nx, nscale, g0, gx, gy, rows, first, last, owner,
+                       base_id, use_owner)
+            if use_owner and len(sel):
+                vis = np.empty(len(sel), np.float32)
+                _head_visibility(bank.head, self._head_solid if on_top else bank.solid, idx,
+                                 x0, y0, owner, base_id, *self._head_box, vis)
+                visibility[sel[order]] = vis
+        if len(self._shadow_masks):
+            corners = self.moving_shadow_corners(t)
+            _shade(out2, self._shadow_masks, corners[:, 0].copy(), corners[:, 1].copy())
+        if self.params.defocus_px > 0:
+            cv2.GaussianBlur(out, (0, 0), self.params.defocus_px, dst=out,
+                             borderType=cv2.BORDER_REFLECT)
         if self._blur is not None:
             cv2.filter2D(out, -1, self._blur, dst=out, borderType=cv2.BORDER_REFLECT)
         return out
 
-    def render_tracks(self, tracks: AgentTracks, t: int,
-                      out: np.ndarray | None = None) -> np.ndarray:
-        """Frame ``t`` of prepared :class:`AgentTracks`."""
-        return self.render(t, tracks.pixels[t], tracks.heading[t], tracks.appearance, out=out)
+    def render_tracks(self, tracks: AgentTracks, t: int, out: np.ndarray | None = None,
+                      visibility: np.ndarray | None = None) -> np.ndarray:
+        """Frame ``t`` of prepared :class:`AgentTracks` (see :meth:`render`)."""
+        return self.render(t, tracks.pixels[t], tracks.heading[t], tracks.appearance, out=out,
+                           pose=tracks.pose[t], visibility=visibility)
 
 
 def encode_jpeg(frame: np.ndarray, quality: int) -> bytes:
@@ -413,28 +679,3 @@ def encode_jpeg(frame: np.ndarray, quality: int) -> bytes:
     if not ok:  # pragma: no cover - OpenCV failure
         raise RuntimeError("JPEG encoding failed")
     return buf.tobytes()
-
-
-def gt_rows(tracks: AgentTracks, camera: Camera, template_px: int,
-            mot_ids: np.ndarray) -> np.ndarray:
-    """MOT ground-truth rows ``(K, 9)``: one head box per visible agent and frame.
-
-    A row is written when the head centre lies inside the frame. Columns: frame (1-based),
-    id, bb_left, bb_top, bb_width, bb_height, conf (1), class (1 = pedestrian), visibility
-    (fraction of the box inside the frame). Rows are sorted by frame, then id.
-    """
-    pix = tracks.pixels
-    vis = camera.visible(pix)
-    t_idx, n_idx = np.nonzero(vis)
-    order = np.lexsort((mot_ids[n_idx], t_idx))
-    t_idx, n_idx = t_idx[order], n_idx[order]
-    centre = pix[t_idx, n_idx]
-    s = float(template_px)
-    left = centre[:, 0] - s / 2.0
-    top = centre[:, 1] - s / 2.0
-    ix = np.clip(np.minimum(left + s, camera.width) - np.maximum(left, 0.0), 0, s)
-    iy = np.clip(np.minimum(top + s, camera.height) - np.maximum(top, 0.0), 0, s)
-    visibility = ix * iy / (s * s)
-    k = len(t_idx)
-    return np.column_stack([t_idx + 1, mot_ids[n_idx], left, top, np.full(k, s), np.full(k, s),
-                            np.ones(k), np.ones(k), visibility]).astype(np.float64)

@@ -16,7 +16,8 @@ A spec describes one sequence. Example (TOML)::
 
     [camera]                 # crowdsim.camera.Camera; omitted size/scale fit the crowd
     tilt_deg = 0.0
-    jitter_px = 0.0
+    jitter_px = 0.0          # camera shake, pixels (standard deviation)
+    # jitter_frames = 12.0   shake correlation time in frames (small = fast shake)
     # px_per_m = 28.0        default: appearance.template_px / 0.5 m
     # width = 1280           default: the trajectories' extent, at most max_width
     # height = 720
@@ -27,6 +28,22 @@ A spec describes one sequence. Example (TOML)::
     [appearance]             # crowdsim.appearance_model.AppearanceParams (calibration knobs)
     template_px = 14
     noise_sigma = 3.0
+    # Realistic-difficulty knobs (issue 8); each defaults to off / the earlier look:
+    # dark_hair_fraction = 0.0   look-alike heads: share of dark hair (1 = all near-identical)
+    # hair_spread = 4.0          grey-level spread of that dark hair
+    # cluster_spread = 10.0      clothing variants around their cluster centre (grey levels)
+    # cluster_decay = 0.5        weight ratio of successive clothing clusters
+    # body_scale = 1.0           shoulders/arms/shadow size vs the template (packing)
+    # heads_on_top = false       draw heads after all bodies (only heads hide heads)
+    # arm_swing = 0.0            arm swing over a stride, fraction of the template
+    # gait_bob = 0.0             body bob under the head, fraction of the template
+    # head_turn_deg = 0.0        head-turn amplitude; head_turn_period_s = 4.0
+    # distractor_density = 0.0   static head-like clutter per m^2 (bollards, litter, marks)
+    # moving_shadow_density = 0.0  moving head-sized shadows per m^2; moving_shadow_m = 0.6
+    # flicker = 0.0              per-frame relative gain noise
+    # defocus_px = 0.0           Gaussian defocus sigma, pixels
+    # video_kbps = 0.0           pass frames through a video codec at this bit rate
+    # video_codec = "h264"       or "mpeg4"
 
     [output]
     images = true            # img1/*.jpg
@@ -67,7 +84,7 @@ SECTIONS: tuple[str, ...] = ("scenario", "camera", "appearance", "output", "cali
 CAMERA_FIELDS: dict[str, type | tuple[type, ...]] = {
     "px_per_m": (int, float), "width": int, "height": int, "center": list,
     "tilt_deg": (int, float), "distance_m": (int, float), "jitter_px": (int, float),
-    "max_width": int, "max_height": int, "margin_m": (int, float),
+    "jitter_frames": (int, float), "max_width": int, "max_height": int, "margin_m": (int, float),
 }
 OUTPUT_FIELDS: dict[str, type] = {"images": bool, "video": bool}
 MAX_FRAMES: int = 1_000_000
@@ -220,7 +237,7 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
     if "margin_m" in camera and not (0 <= camera["margin_m"] <= 1000):
         raise ValueError(f"{where}: camera.margin_m must be in [0, 1000], "
                          f"got {camera['margin_m']!r}")
-    from crowdsim.camera import Camera
+    from crowdsim.camera import JITTER_CORRELATION_FRAMES, Camera
 
     try:  # range checks of the camera itself, with placeholders for the fitted fields
         Camera(px_per_m=float(camera.get("px_per_m", 10.0)), width=camera.get("width", 64),
@@ -228,7 +245,8 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
                center=tuple(camera.get("center", (0.0, 0.0))),
                tilt_deg=float(camera.get("tilt_deg", 0.0)),
                distance_m=float(camera.get("distance_m", 60.0)),
-               jitter_px=float(camera.get("jitter_px", 0.0)))
+               jitter_px=float(camera.get("jitter_px", 0.0)),
+               jitter_frames=float(camera.get("jitter_frames", JITTER_CORRELATION_FRAMES)))
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
 

@@ -1,20 +1,35 @@
 """Render trajectories into a MOTChallenge sequence folder, atomically.
 
 :func:`write_sequence` renders every frame, writes ``img1/`` JPEGs (and optionally
-``video.mp4``), ``gt/gt.txt``, ``gt/agents.csv``, ``seqinfo.ini``, ``meta.json`` and
+``video.mp4``), ``gt/gt.txt`` (rows built here by :func:`gt_rows`, with the visibility column
+measured from the drawing), ``gt/agents.csv``, ``seqinfo.ini``, ``meta.json`` and
 ``checksums.json`` (SHA-256 of every other file) into a temporary sibling folder
-``.tmp-<name>-<pid>``, then renames it to its final name. A folder with the final name is
-therefore always complete; ``checksums.json`` lets a later run verify it.
+``.crowdsim-tmp-<name>-<pid>-<token>``, then renames it to its final name. A folder with the
+final name is therefore always complete; ``checksums.json`` lets a later run verify it.
+
+Video: with ``appearance.video_kbps > 0`` the frames first go through a video codec at that bit
+rate (:mod:`synth_data.video`: H.264 or MPEG-4 part 2 through PyAV) into ``video.mp4``; the
+``img1/`` JPEGs are then made from the *decoded* frames, so a tracker reading either carries
+the codec's artefacts (``video.mp4`` is dropped again when ``video`` is false). With
+``video_kbps == 0`` the JPEGs come straight from the renderer and ``video=True`` writes an
+OpenCV ``mp4v`` file at OpenCV's default quality, as before.
+
+Temporary folders are unmistakably the project's own: the name carries the
+:data:`TMP_PREFIX`, and the first thing written inside is the marker :data:`TMP_MARKER`
+(JSON: pid, host, target, creation time). :func:`clean_stale_tmp` deletes only folders that
+carry a readable marker of this host whose process is dead; a user folder that merely looks
+similar (``.tmp-notes-2024``) is never touched.
 """
 
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import os
 import platform
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +38,12 @@ import numpy as np
 from synth_data.mot import write_agents_csv, write_mot, write_seqinfo
 
 CHECKSUMS_FILE = "checksums.json"
-TMP_PREFIX = ".tmp-"
+TMP_PREFIX = ".crowdsim-tmp-"
+"""Name prefix of the folders a write in progress uses (then ``<name>-<pid>-<token>``)."""
+OLD_PREFIX = ".crowdsim-old-"
+"""Name prefix of a replaced sequence while ``--overwrite`` swaps in the new one."""
+TMP_MARKER = ".crowdsim-tmp-owner.json"
+"""Marker file written first inside every temporary folder; proves it is ours to delete."""
 
 
 def package_versions() -> dict[str, str]:
@@ -31,7 +51,7 @@ def package_versions() -> dict[str, str]:
     from importlib import metadata
 
     out = {"python": platform.python_version()}
-    for dist in ("crowdsim", "numpy", "scipy", "pymunk", "numba", "opencv-python-headless"):
+    for dist in ("crowdsim", "numpy", "scipy", "pymunk", "numba", "opencv-python-headless", "av"):
         try:
             out[dist] = metadata.version(dist)
         except metadata.PackageNotFoundError:
@@ -50,6 +70,56 @@ def mot_ids(ids: np.ndarray) -> np.ndarray:
     return np.argsort(np.argsort(ids)) + 1
 
 
+def gt_rows(pixels: np.ndarray, camera: Any, template_px: int, mot_ids: np.ndarray,
+            visibility: np.ndarray | None = None) -> np.ndarray:
+    """MOT ground-truth rows ``(K, 9)``: one head box per agent and frame.
+
+    Parameters
+    ----------
+    pixels : (T, N, 2) float
+        Head centres in pixels (``AgentTracks.pixels``), NaN where absent.
+    camera : crowdsim.camera.Camera
+        Frame size (a row is written when the head centre lies inside the frame).
+    template_px : int
+        Box side in pixels, centred on the head.
+    mot_ids : (N,) int
+        MOT ids of the agents (see :func:`mot_ids`).
+    visibility : (T, N) float, optional
+        Visible fraction of each head as drawn (``SceneRenderer.render(visibility=...)``:
+        occlusion by people in front and clipping by the frame). Without it the column is the
+        fraction of the box inside the frame.
+
+    Returns
+    -------
+    (K, 9) float64
+        Columns frame (1-based), id, bb_left, bb_top, bb_width, bb_height, conf (1),
+        class (1 = pedestrian), visibility in [0, 1]; sorted by frame, then id.
+    """
+    pix = np.asarray(pixels, np.float64)
+    vis = camera.visible(pix)
+    t_idx, n_idx = np.nonzero(vis)
+    mot_ids = np.asarray(mot_ids, np.int64)
+    order = np.lexsort((mot_ids[n_idx], t_idx))
+    t_idx, n_idx = t_idx[order], n_idx[order]
+    centre = pix[t_idx, n_idx]
+    s = float(template_px)
+    left = centre[:, 0] - s / 2.0
+    top = centre[:, 1] - s / 2.0
+    if visibility is None:
+        ix = np.clip(np.minimum(left + s, camera.width) - np.maximum(left, 0.0), 0, s)
+        iy = np.clip(np.minimum(top + s, camera.height) - np.maximum(top, 0.0), 0, s)
+        column = ix * iy / (s * s)
+    else:
+        visibility = np.asarray(visibility, np.float64)
+        if visibility.shape != pix.shape[:2]:
+            raise ValueError(f"visibility must have shape {pix.shape[:2]}, "
+                             f"got {visibility.shape}")
+        column = np.clip(np.nan_to_num(visibility[t_idx, n_idx]), 0.0, 1.0)
+    k = len(t_idx)
+    return np.column_stack([t_idx + 1, mot_ids[n_idx], left, top, np.full(k, s), np.full(k, s),
+                            np.ones(k), np.ones(k), column]).astype(np.float64)
+
+
 def sha256_file(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as fh:
@@ -59,8 +129,118 @@ def sha256_file(path: Path) -> str:
 
 
 def tmp_dir_for(out_dir: Path) -> Path:
-    """The temporary folder this process uses while writing ``out_dir``."""
-    return out_dir.parent / f"{TMP_PREFIX}{out_dir.name}-{os.getpid()}"
+    """A fresh temporary folder name for writing ``out_dir``: a sibling
+    ``.crowdsim-tmp-<name>-<pid>-<token>`` (``token``: 8 random hex digits)."""
+    import secrets
+
+    out_dir = Path(out_dir)
+    return out_dir.parent / f"{TMP_PREFIX}{out_dir.name}-{os.getpid()}-{secrets.token_hex(4)}"
+
+
+def make_tmp_dir(out_dir: str | os.PathLike[str]) -> Path:
+    """Create the temporary folder for ``out_dir`` and write its marker first; returns it."""
+    import socket
+    import time
+
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = tmp_dir_for(out_dir)
+    tmp.mkdir()
+    try:
+        marker = {"pid": os.getpid(), "host": socket.gethostname(), "target": out_dir.name,
+                  "created": time.time()}
+        with open(tmp / TMP_MARKER, "w") as fh:
+            fh.write(json.dumps(marker) + "\n")
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return tmp
+
+
+def read_tmp_marker(folder: str | os.PathLike[str]) -> dict[str, Any] | None:
+    """The marker of a temporary folder, or None when it has none (not ours) or it is bad."""
+    try:
+        data = json.loads((Path(folder) / TMP_MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or not isinstance(data.get("pid"), int):
+        return None
+    return data
+
+
+def _pid_alive(pid: int, since: float | None = None) -> bool:
+    """Whether process ``pid`` runs (a zombie does not; on Linux, a process started after
+    ``since`` (epoch seconds) is another one that reuses the pid)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's live process
+        pass
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+        fields = text[text.rindex(")") + 2:].split()
+        if fields[0] in ("Z", "X"):
+            return False
+        if since is not None:
+            boot = next(float(line.split()[1]) for line in
+                        Path("/proc/stat").read_text().splitlines() if line.startswith("btime"))
+            started = boot + int(fields[19]) / os.sysconf("SC_CLK_TCK")
+            if started > since + 2.0:  # btime has 1 s resolution
+                return False
+    except (OSError, ValueError, IndexError, StopIteration):  # not Linux: trust kill(0)
+        pass
+    return True
+
+
+def clean_stale_tmp(parent: str | os.PathLike[str]) -> list[Path]:
+    """Delete the leftover temporary folders of dead processes directly under ``parent``.
+
+    A folder is deleted only when its name starts with :data:`TMP_PREFIX`, it holds a
+    readable :data:`TMP_MARKER` written on this host, and the marker's process is no longer
+    running. Anything else (live writers, other hosts on a shared file system, user folders)
+    is left alone. Returns the deleted folders.
+    """
+    import socket
+
+    parent = Path(parent)
+    removed: list[Path] = []
+    try:
+        candidates = sorted(parent.glob(f"{TMP_PREFIX}*"))
+    except OSError:
+        return removed
+    host = socket.gethostname()
+    for p in candidates:
+        if not p.is_dir() or p.is_symlink():
+            continue
+        marker = read_tmp_marker(p)
+        if marker is None:
+            continue
+        created = marker.get("created")
+        since = float(created) if isinstance(created, (int, float)) else None
+        if marker.get("host") != host or _pid_alive(marker["pid"], since):
+            continue
+        shutil.rmtree(p, ignore_errors=True)
+        if not p.exists():
+            removed.append(p)
+    return removed
+
+
+def publish_tmp_dir(tmp: Path, out_dir: Path) -> None:
+    """Rename the complete ``tmp`` to ``out_dir`` (replacing an existing one), then drop the
+    marker: until the rename the folder is a cleanable leftover, afterwards a sequence."""
+    if out_dir.exists():
+        import secrets
+
+        old = out_dir.parent / f"{OLD_PREFIX}{out_dir.name}-{os.getpid()}-{secrets.token_hex(4)}"
+        os.replace(out_dir, old)
+        os.replace(tmp, out_dir)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, out_dir)
+    (out_dir / TMP_MARKER).unlink(missing_ok=True)
 
 
 def write_sequence(out_dir: str | os.PathLike[str], traj: Any, *, camera: Any, appearance: Any,
@@ -95,9 +275,7 @@ def write_sequence(out_dir: str | os.PathLike[str], traj: Any, *, camera: Any, a
     dict
         ``{"name", "frames", "files": {relative path: sha256}, "bytes"}``.
     """
-    import cv2
-
-    from crowdsim.render import SceneRenderer, encode_jpeg, gt_rows, prepare_agents
+    from crowdsim.render import SceneRenderer, prepare_agents
 
     out_dir = Path(out_dir)
     name = name or out_dir.name
@@ -106,44 +284,36 @@ def write_sequence(out_dir: str | os.PathLike[str], traj: Any, *, camera: Any, a
     if out_dir.exists() and not overwrite:
         raise FileExistsError(f"{out_dir} already exists; pass --overwrite to replace it")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = tmp_dir_for(out_dir)
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    (tmp / "gt").mkdir(parents=True)
+    tmp = make_tmp_dir(out_dir)
+    (tmp / "gt").mkdir()
     checksums: dict[str, str] = {}
     total = 0
     try:
         tracks = prepare_agents(traj, camera, appearance, seed)
         renderer = SceneRenderer(camera, appearance, seed=seed, fps=traj.fps)
         n_frames = tracks.n_frames
-        frame = np.empty((camera.height, camera.width, 3), np.uint8)
-        writer = None
-        if video:
-            writer = cv2.VideoWriter(str(tmp / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
-                                     float(traj.fps), (camera.width, camera.height))
-            if not writer.isOpened():
-                raise RuntimeError("OpenCV cannot write mp4v video on this machine")
+        visibility = np.full(tracks.pixels.shape[:2], np.nan)
         if images:
             (tmp / "img1").mkdir()
-        try:
-            for t in range(n_frames):
-                renderer.render_tracks(tracks, t, out=frame)
-                if images:
-                    data = encode_jpeg(frame, appearance.jpeg_quality)
-                    rel = f"img1/{t + 1:06d}.jpg"
-                    with open(tmp / rel, "wb") as fh:
-                        fh.write(data)
-                    checksums[rel] = hashlib.sha256(data).hexdigest()
-                    total += len(data)
-                if writer is not None:
-                    writer.write(frame)
-                if progress is not None:
-                    progress(1)
-        finally:
-            if writer is not None:
-                writer.release()
+        frames = _render_frames(renderer, tracks, visibility, progress)
+        if appearance.video_kbps > 0:
+            # Codec first; the JPEGs are made from the decoded frames (codec artefacts).
+            from synth_data.video import VideoEncoder, decode_frames
+
+            with VideoEncoder(tmp / "video.mp4", camera.width, camera.height, traj.fps,
+                              appearance.video_kbps, appearance.video_codec) as enc:
+                for frame in frames:
+                    enc.write(frame)
+            if images:
+                total += _write_jpegs(tmp, decode_frames(tmp / "video.mp4", n_frames),
+                                      appearance.jpeg_quality, checksums)
+            if not video:
+                (tmp / "video.mp4").unlink()
+        else:
+            total += _write_jpegs(tmp, frames, appearance.jpeg_quality, checksums,
+                                  images=images, video=video, fps=traj.fps)
         mids = mot_ids(tracks.ids)
-        rows = gt_rows(tracks, camera, appearance.template_px, mids)
+        rows = gt_rows(tracks.pixels, camera, appearance.template_px, mids, visibility)
         write_mot(tmp / "gt" / "gt.txt", rows)
         seen = np.isin(mids, np.unique(rows[:, 1]).astype(np.int64)) if len(rows) else \
             np.zeros(len(mids), bool)
@@ -158,7 +328,8 @@ def write_sequence(out_dir: str | os.PathLike[str], traj: Any, *, camera: Any, a
         meta_out["camera"] = {"px_per_m": camera.px_per_m, "width": camera.width,
                               "height": camera.height, "center": list(camera.center),
                               "tilt_deg": camera.tilt_deg, "distance_m": camera.distance_m,
-                              "jitter_px": camera.jitter_px, "seed": camera.seed}
+                              "jitter_px": camera.jitter_px, "seed": camera.seed,
+                              "jitter_frames": camera.jitter_frames}
         meta_out["appearance"] = appearance.to_dict()
         meta_out["frames"] = n_frames
         meta_out["versions"] = package_versions()
@@ -170,17 +341,61 @@ def write_sequence(out_dir: str | os.PathLike[str], traj: Any, *, camera: Any, a
         checksums = dict(sorted(checksums.items()))
         (tmp / CHECKSUMS_FILE).write_text(json.dumps(checksums, indent=0) + "\n")
         _fsync_dir(tmp)
-        if out_dir.exists():
-            old = out_dir.parent / f"{TMP_PREFIX}old-{out_dir.name}-{os.getpid()}"
-            os.replace(out_dir, old)
-            os.replace(tmp, out_dir)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out_dir)
+        publish_tmp_dir(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return {"name": name, "frames": n_frames, "files": checksums, "bytes": total}
+
+
+def _render_frames(renderer: Any, tracks: Any, visibility: np.ndarray,
+                   progress: Callable[[int], None] | None) -> Iterator[np.ndarray]:
+    """Yield every frame (one reused buffer), filling ``visibility[t]`` as it goes."""
+    cam = renderer.camera
+    frame = np.empty((cam.height, cam.width, 3), np.uint8)
+    for t in range(tracks.n_frames):
+        renderer.render_tracks(tracks, t, out=frame, visibility=visibility[t])
+        yield frame
+        if progress is not None:
+            progress(1)
+
+
+def _write_jpegs(tmp: Path, frames: Iterable[np.ndarray], quality: int,
+                 checksums: dict[str, str], *, images: bool = True, video: bool = False,
+                 fps: float = 25.0) -> int:
+    """Write ``img1/*.jpg`` (and an OpenCV mp4v ``video.mp4``) of ``frames``; bytes written."""
+    import cv2
+
+    from crowdsim.render import encode_jpeg
+
+    writer = None
+    total = 0
+    if video:
+        h, w = None, None
+        frames = iter(frames)
+        first = next(frames, None)
+        if first is not None:
+            h, w = first.shape[:2]
+            frames = itertools.chain([first], frames)
+            writer = cv2.VideoWriter(str(tmp / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
+                                     float(fps), (w, h))
+            if not writer.isOpened():
+                raise RuntimeError("OpenCV cannot write mp4v video on this machine")
+    try:
+        for t, frame in enumerate(frames):
+            if images:
+                data = encode_jpeg(frame, quality)
+                rel = f"img1/{t + 1:06d}.jpg"
+                with open(tmp / rel, "wb") as fh:
+                    fh.write(data)
+                checksums[rel] = hashlib.sha256(data).hexdigest()
+                total += len(data)
+            if writer is not None:
+                writer.write(frame)
+    finally:
+        if writer is not None:
+            writer.release()
+    return total
 
 
 def _fsync_dir(path: Path) -> None:

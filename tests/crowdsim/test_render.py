@@ -9,10 +9,10 @@ import pytest
 
 from crowdsim.appearance_model import AppearanceParams, build_sprite_bank
 from crowdsim.camera import Camera
-from crowdsim.render import SceneRenderer, gt_rows, prepare_agents
+from crowdsim.render import SceneRenderer, prepare_agents
 from crowdsim.trajectories import Trajectories
 from synth_data.mot import read_sequence
-from synth_data.writer import mot_ids, write_sequence
+from synth_data.writer import gt_rows, mot_ids, write_sequence
 
 
 def walkers(n_frames: int = 12, dt: float = 0.04) -> Trajectories:
@@ -137,7 +137,7 @@ def test_gt_rows_are_head_boxes_inside_the_frame():
     tracks = prepare_agents(traj, CAMERA, PARAMS, seed=0)
     tracks.pixels[0, 0] = (-1.0, 10.0)  # head outside: no row
     tracks.pixels[0, 1] = (2.0, 10.0)  # head inside, box partly outside
-    rows = gt_rows(tracks, CAMERA, 12, mot_ids(tracks.ids))
+    rows = gt_rows(tracks.pixels, CAMERA, 12, mot_ids(tracks.ids))
     assert rows.shape[1] == 9
     assert not ((rows[:, 0] == 1) & (rows[:, 1] == 11)).any()
     r = rows[(rows[:, 0] == 1) & (rows[:, 1] == 12)][0]
@@ -150,7 +150,9 @@ def test_sprite_bank_is_anti_aliased_and_centred():
     p = AppearanceParams(template_px=12, subpixel=2, orientation_bins=8, shadow=0.0)
     bank = build_sprite_bank(p, np.random.default_rng(0))
     z = bank.size
-    assert bank.alpha.shape == (p.n_appearances * 8 * 4, z, z)
+    assert bank.alpha.shape == (p.n_poses * 8 * 4, z, z)
+    assert bank.cover.shape == (p.n_poses * 8 * 4, z, z, 3)
+    assert bank.colours.shape == (p.n_appearances, 3, 3)
     lo, hi = bank.spans[..., 0], bank.spans[..., 1]
     cols = np.arange(z)
     inside = (cols >= lo[..., None]) & (cols < hi[..., None])

@@ -63,3 +63,16 @@ def test_bad_camera_values_name_the_field(kwargs, field):
     base.update(kwargs)
     with pytest.raises(ValueError, match=f"camera.{field}"):
         Camera(**base)
+
+
+def test_jitter_frames_sets_how_fast_the_camera_shakes():
+    def lag1(frames):
+        a = Camera(px_per_m=10.0, width=64, height=64, jitter_px=2.0, seed=5,
+                   jitter_frames=frames).jitter(4000)[:, 0]
+        assert 1.5 < a.std() < 2.5  # same size of shake
+        return np.corrcoef(a[:-1], a[1:])[0, 1]
+
+    assert lag1(12.0) > 0.85  # slow sway (the default)
+    assert lag1(1.0) < 0.5  # fast shake
+    with pytest.raises(ValueError, match="camera.jitter_frames"):
+        Camera(px_per_m=10.0, width=64, height=64, jitter_frames=0.0)
