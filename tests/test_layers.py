@@ -144,17 +144,28 @@ def test_checker_sees_each_rule(tmp_path):
     assert "rule 5 (a command re-enters the CLI): crowdsim/commands/demo.py:1" in found
 
 
+THIRD_PARTY = "gymnasium, pettingzoo, cv2, numba, pymunk, scipy.sparse, matplotlib"
+"""Imported before the snapshot: some set variables at import themselves (gymnasium and
+pettingzoo: PYGAME_HIDE_SUPPORT_PROMPT; OpenCV's wheel: QT_QPA_* and LD_LIBRARY_PATH)."""
+
+
 @pytest.mark.parametrize("module", ["envs", "tracker", "crowdsim", "synth_data", "crowdsim.render",
                                     "crowdsim.simulation", "tracker.bqp.tracker",
-                                    "synth_data.generate", "envs.crowd", "tracker.metrics"])
+                                    "synth_data.generate", "envs.crowd", "tracker.metrics",
+                                    "crowdsim.plotting", "crowdsim.experiments"])
 def test_import_sets_no_process_state(module):
-    # third-party packages may set variables at import (gymnasium and pettingzoo set
-    # PYGAME_HIDE_SUPPORT_PROMPT): import them first, so the check sees only ours
-    code = ("import os, sys, gymnasium; "
+    code = (f"import os, sys, {THIRD_PARTY}; import matplotlib as mpl; "
+            "backend = mpl.rcParams._get_backend_or_none(); "
             f"before = dict(os.environ); import {module}; "
             "assert dict(os.environ) == before, set(os.environ.items()) ^ set(before.items()); "
             "assert 'matplotlib.pyplot' not in sys.modules; "
-            "heavy = {'torch', 'ray', 'optuna', 'stable_baselines3', 'pymunk', 'cv2'} & "
-            "set(sys.modules); "
-            f"assert not ('{module}' == 'envs' and heavy), heavy")
+            "assert mpl.rcParams._get_backend_or_none() == backend")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
+
+
+def test_importing_envs_registers_and_imports_nothing_heavy():
+    code = ("import sys, gymnasium, envs; "
+            "assert 'crowdsim/TrackerTuning-v0' in gymnasium.registry; "
+            "heavy = {'torch', 'ray', 'optuna', 'stable_baselines3', 'pymunk', 'cv2', "
+            "'tracker', 'synth_data'} & set(sys.modules); assert not heavy, heavy")
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
