@@ -22,7 +22,10 @@ TAIL = 8
 """Frames of trajectory drawn behind each point."""
 
 
-def _draw(frame: np.ndarray, points: np.ndarray, t: int, size: int, colour, tail: int) -> None:
+def draw_points(frame: np.ndarray, points: np.ndarray, t: int, size: int, colour,
+                tail: int = TAIL) -> None:
+    """Draw, in place on ``frame`` (H, W, 3) uint8 BGR, a ``size`` px box around each point of
+    frame ``t`` of ``points`` (T, N, 2) px (NaN = absent) and its last ``tail`` frames."""
     cur = points[t]
     ok = np.isfinite(cur).all(1)
     half = size / 2.0
@@ -71,9 +74,9 @@ def write_overlay(path: str | os.PathLike[str], frames: Iterable[np.ndarray],
                         raise ValueError(f"{path}: OpenCV cannot write an MP4 video here")
                 img = np.ascontiguousarray(frame).copy()
                 if ground_truth is not None and t < len(ground_truth):
-                    _draw(img, ground_truth, t, template_size, GREEN, tail)
+                    draw_points(img, ground_truth, t, template_size, GREEN, tail)
                 if tracks is not None and t < len(tracks):
-                    _draw(img, tracks, t, template_size, YELLOW, tail)
+                    draw_points(img, tracks, t, template_size, YELLOW, tail)
                 writer.write(img)
         finally:
             if writer is not None:

@@ -1,0 +1,94 @@
+"""``crowdsim train``: learn an adaptive parameter policy with stable-baselines3.
+
+``crowdsim train --algo ppo|sac [--envs N] [--steps N] (--scenarios DIST | --suite NAME)
+--out DIR``
+
+Trains on ``crowdsim/TrackerTuning-v0`` (the policy sets the BQP tracker's parameters every
+``--k`` frames) over ``--envs`` asynchronous environments (subprocesses). Writes
+``DIR/model.zip`` (for ``crowdsim track --policy``), ``DIR/learning_curve.png`` and
+``DIR/learning_curve.json``. Needs the ``rl`` extra (torch, stable-baselines3).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "train",
+        help="train an adaptive parameter policy (PPO / SAC)",
+        description=__doc__.splitlines()[0].replace("``", ""),
+    )
+    p.add_argument("--algo", choices=("ppo", "sac"), required=True)
+    p.add_argument(
+        "--envs",
+        type=int,
+        default=1,
+        metavar="N",
+        help="asynchronous environments (subprocesses; default 1)",
+    )
+    p.add_argument(
+        "--steps",
+        type=int,
+        default=2048,
+        metavar="N",
+        help="environment steps in total (each tracks --k frames)",
+    )
+    src = p.add_mutually_exclusive_group()
+    src.add_argument(
+        "--scenarios",
+        metavar="DIST",
+        default=None,
+        help="scenario distribution (default 'all'; see crowdsim tune)",
+    )
+    src.add_argument("--suite", metavar="NAME", help="built-in suite or folder of sequences")
+    p.add_argument("--only", nargs="+", metavar="SEQ", help="with --suite: these sequences")
+    p.add_argument("--frames", type=int, metavar="N", help="frames per sequence")
+    p.add_argument("--k", type=int, default=25, metavar="K", help="frames per step (25)")
+    p.add_argument(
+        "--threshold",
+        type=float,
+        default=5.0,
+        metavar="PX",
+        help="reward threshold T in px (default 5)",
+    )
+    p.add_argument("--extended", action="store_true", help="8 tuned parameters instead of 5")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from envs.tuners import train
+
+    if args.only and not args.suite:
+        raise ValueError("--only needs --suite")
+    kwargs = {"k_frames": args.k, "threshold_px": args.threshold, "extended": args.extended}
+    if args.suite:
+        kwargs.update(suite=args.suite, only=args.only)
+    else:
+        kwargs["scenarios"] = args.scenarios or "all"
+    if args.frames is not None:
+        kwargs["frames"] = args.frames
+    doc = train(
+        args.algo,
+        out=args.out,
+        n_envs=args.envs,
+        steps=args.steps,
+        env_kwargs=kwargs,
+        seed=args.seed,
+        progress=not args.no_progress,
+    )
+    eps = doc["episodes"]
+    if eps:
+        k = max(1, len(eps) // 4)
+        first = sum(e["reward_per_step"] for e in eps[:k]) / k
+        last = sum(e["reward_per_step"] for e in eps[-k:]) / k
+        print(
+            f"{len(eps)} episodes; mean step reward {first:.2f} % (first {k}) -> "
+            f"{last:.2f} % (last {k})"
+        )
+    print(f"-> {args.out}/model.zip, learning_curve.png")
+    return 0

@@ -1,0 +1,157 @@
+"""``crowdsim tune``: tune the BQP tracker's parameters with Optuna (or Ray Tune).
+
+``crowdsim tune (--suite NAME | --scenarios DIST) [--only SEQ ...] [--frames N] --trials N
+[--sampler tpe|cmaes] [--study URL] [--workers N] [--backend local|ray] [--address ADDR]
+--out DIR``
+
+Every trial tracks the tuning sequences with one parameter set (the bandit environment
+``crowdsim/TrackerTuningBandit-v0``) and scores the mean accuracy at ``--threshold`` px. The
+study lives in ``DIR/study.db`` (SQLite) unless ``--study`` names a shared one (a
+``postgresql://`` URL or a journal file, for several machines); rerunning the same command
+resumes it: ``--trials`` is the total of finished trials wanted. Writes ``DIR/best_params.json``
+(for ``crowdsim track --params``), ``DIR/history.png``, ``DIR/importance.png`` and
+``DIR/heldout.json``: the best parameters against the paper defaults on held-out sequences
+(other seeds than the tuning ones). See :mod:`envs.tuners`.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "tune",
+        help="tune the BQP tracker's parameters (Optuna / Ray Tune)",
+        description=__doc__.splitlines()[0].replace("``", ""),
+    )
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument(
+        "--suite",
+        metavar="NAME",
+        help="built-in suite (ucf9, galleria) or a folder of MOT sequences",
+    )
+    src.add_argument(
+        "--scenarios",
+        metavar="DIST",
+        help="scenario distribution: 'all', a comma list (marathon,crossing) or a "
+        "JSON/TOML file of ScenarioDistribution fields",
+    )
+    p.add_argument("--only", nargs="+", metavar="SEQ", help="with --suite: tune on these")
+    p.add_argument(
+        "--heldout-only",
+        nargs="+",
+        metavar="SEQ",
+        help="with a suite folder: score on these (built-in suites and scenarios use other seeds)",
+    )
+    p.add_argument("--frames", type=int, metavar="N", help="frames per sequence")
+    p.add_argument(
+        "--trials",
+        type=int,
+        required=True,
+        metavar="N",
+        help="finished trials wanted in the study (a rerun resumes)",
+    )
+    p.add_argument("--sampler", choices=("tpe", "cmaes"), default="tpe")
+    p.add_argument(
+        "--study",
+        metavar="URL",
+        help="shared study: postgresql://..., sqlite:///file.db or a journal file "
+        "(*.log); default DIR/study.db",
+    )
+    p.add_argument("--study-name", default="crowdsim-tune", metavar="NAME")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        metavar="N",
+        help="parallel trials (processes, or concurrent Ray trials)",
+    )
+    p.add_argument("--backend", choices=("local", "ray"), default="local")
+    p.add_argument("--address", metavar="ADDR", help="Ray cluster address (--backend ray)")
+    p.add_argument(
+        "--train-episodes",
+        type=int,
+        default=3,
+        metavar="N",
+        help="scenario sequences each trial is scored on (default 3)",
+    )
+    p.add_argument(
+        "--heldout",
+        type=int,
+        default=3,
+        metavar="N",
+        help="held-out sequences to score best vs defaults on (0: skip)",
+    )
+    p.add_argument(
+        "--threshold",
+        type=float,
+        default=5.0,
+        metavar="PX",
+        help="accuracy threshold T in px (default 5)",
+    )
+    p.add_argument(
+        "--extended",
+        action="store_true",
+        help="also tune search factor, motion sigma and KCF learning rate",
+    )
+    p.add_argument("--tracker", default="bqp", help="BQP variant from the tracker registry")
+    p.add_argument("--seed", type=int, default=0, help="sampler seed")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from envs.tuners import Objective, tune
+
+    if args.only and not args.suite:
+        raise ValueError("--only needs --suite (name scenarios in --scenarios)")
+    if args.address and args.backend != "ray":
+        raise ValueError(f"--address needs --backend ray, got --address {args.address!r}")
+    if args.frames is not None and args.frames < 2:
+        raise ValueError(f"--frames must be >= 2, got {args.frames}")
+    objective = Objective(
+        suite=args.suite,
+        scenarios=args.scenarios,
+        only=args.only or (),
+        heldout_only=args.heldout_only or (),
+        frames=args.frames,
+        train_episodes=args.train_episodes,
+        threshold_px=args.threshold,
+        extended=args.extended,
+        tracker=args.tracker,
+    )
+    res = tune(
+        objective,
+        trials=args.trials,
+        out=args.out,
+        sampler=args.sampler,
+        study=args.study,
+        study_name=args.study_name,
+        workers=args.workers,
+        backend=args.backend,
+        address=args.address,
+        seed=args.seed,
+        heldout=args.heldout,
+        progress=not args.no_progress,
+    )
+    t = args.threshold
+    default = "n/a" if res.default_value is None else f"{res.default_value:.2f} %"
+    print(
+        f"{res.trials} trials; best acc@{t:g} on the tuning sequences {res.best_value:.2f} % "
+        f"(paper defaults {default})"
+    )
+    print("best: " + ", ".join(f"{k}={v:.4g}" for k, v in res.best_params.items()))
+    summ = res.heldout.get("summary", {})
+    if summ:
+        print(f"held-out ({len(res.heldout['sequences'])} sequences, mean +- std):")
+        keys = [k for k in ("acc@5", "acc@15", "hota") if k in summ.get("defaults", {})]
+        print(f"{'':10}" + "".join(f"{k:>18}" for k in keys))
+        for label in ("defaults", "tuned"):
+            cells = "".join(
+                f"{summ[label][k]['mean']:>11.2f} +- {summ[label][k]['std']:<4.1f}" for k in keys
+            )
+            print(f"{label:10}{cells}")
+    print(f"-> {res.files['best_params']}")
+    return 0

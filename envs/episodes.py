@@ -1,0 +1,510 @@
+"""Where the tuning environments' episodes come from: one episode is one sequence.
+
+Two sources, one face (:class:`EpisodeSource`):
+
+* :class:`ScenarioEpisodes` -- a seeded **scenario distribution**
+  (:class:`ScenarioDistribution`): each episode draws a scenario (marathon, counterflow,
+  crossing, ...), a crowd size, a density, a template size and the appearance difficulty knobs
+  (contrast, noise, colour clusters), builds a :class:`synth_data.spec.SequenceSpec` and
+  simulates and renders it **in memory** (no disk);
+* :class:`SuiteEpisodes` -- the sequences of a **suite**: a built-in suite name
+  (``ucf9``, ``galleria``: specs rendered in memory, optionally re-seeded) or a folder of MOT
+  sequences written by ``crowdsim generate`` (each sub-folder one episode), ``only`` some of
+  them.
+
+``source.sample(rng)`` draws a random episode with the caller's generator (the environment's
+``np_random``: every random choice comes from it); ``source.episode(i)`` is the ``i``-th
+episode of a fixed, seeded list (what tuners score every trial on, and what held-out
+evaluation uses with another ``seed``).
+
+Sequences have the sequence face the tracker runner reads (``name, frame_rate, width, height,
+length, template_size, frames(), gt_points(), births()``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from abc import ABC, abstractmethod
+from collections import OrderedDict
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from crowdsim.checks import require_number
+
+DEFAULT_SCENARIOS: tuple[str, ...] = (
+    "marathon",
+    "counterflow",
+    "crossing",
+    "commuters",
+    "groups",
+    "circulation",
+    "station",
+    "anomalies",
+)
+"""Scenario families of the default distribution (every scenario of :mod:`crowdsim.scenarios`)."""
+
+
+def _pair(
+    owner: str, name: str, value: Any, *, lo: float, hi: float | None = None, integer: bool = False
+) -> tuple[Any, Any]:
+    if not (isinstance(value, (tuple, list)) and len(value) == 2):
+        raise ValueError(f"{owner}.{name} must be a (low, high) pair, got {value!r}")
+    for v in value:
+        require_number(owner, name, v, lo=lo, hi=hi, integer=integer)
+    if value[0] > value[1]:
+        raise ValueError(f"{owner}.{name} must have low <= high, got {tuple(value)!r}")
+    return (value[0], value[1])
+
+
+@dataclass(frozen=True, kw_only=True)
+class ScenarioDistribution:
+    """A seeded distribution of small synthetic sequences (one per episode).
+
+    Attributes
+    ----------
+    scenarios : tuple of str
+        Scenario families drawn uniformly (names of :data:`crowdsim.scenarios.SCENARIOS`).
+    agents : (int, int)
+        Number of simulated people, uniform integer in ``[low, high]``.
+    density_scale : (float, float)
+        Factor (uniform) on the scenario's own default density (each family has a typical
+        density: marathon 2.5 /m^2, station 0.5 /m^2).
+    template_px : tuple of int
+        Head sizes drawn uniformly, px (the papers' sequences: 8-16).
+    frames : int
+        Frames per sequence (one simulation step of ``1 / fps`` s each).
+    warmup_steps : int
+        Simulated steps dropped before the first frame (the crowd gets moving).
+    fps : float
+        Frame rate.
+    contrast : (float, float)
+        Renderer contrast of the people against the ground (lower = harder), uniform.
+    noise_sigma : (float, float)
+        Sensor noise, grey levels, uniform.
+    n_clusters : (int, int)
+        Number of clothing colour clusters (fewer = more people look alike), uniform integer.
+    cluster_spread : (float, float)
+        Colour spread inside a cluster (smaller = more alike), uniform.
+    max_width, max_height : int
+        Largest frame, px: the camera frames the crowd at the template's scale up to this size
+        (small frames keep episodes fast).
+
+    The default appearance knobs are harder than the renderer's defaults (low contrast, strong
+    noise, few colour clusters): on the renderer's defaults every parameter setting tracks
+    nearly 100 % of the points at 5 px and there is nothing to tune.
+    """
+
+    scenarios: tuple[str, ...] = DEFAULT_SCENARIOS
+    agents: tuple[int, int] = (40, 100)
+    density_scale: tuple[float, float] = (0.9, 1.4)
+    template_px: tuple[int, ...] = (10, 12, 14)
+    frames: int = 100
+    warmup_steps: int = 25
+    fps: float = 25.0
+    contrast: tuple[float, float] = (0.25, 0.6)
+    noise_sigma: tuple[float, float] = (4.0, 10.0)
+    n_clusters: tuple[int, int] = (1, 3)
+    cluster_spread: tuple[float, float] = (2.0, 8.0)
+    max_width: int = 640
+    max_height: int = 480
+
+    def __post_init__(self) -> None:
+        from crowdsim.scenarios import SCENARIOS
+
+        own = "ScenarioDistribution"
+        scen = tuple(self.scenarios)
+        if not scen:
+            raise ValueError(f"{own}.scenarios must name at least one scenario")
+        for s in scen:
+            if s not in SCENARIOS:
+                raise ValueError(f"unknown scenario {s!r}; valid scenarios: {', '.join(SCENARIOS)}")
+        object.__setattr__(self, "scenarios", scen)
+        object.__setattr__(self, "agents", _pair(own, "agents", self.agents, lo=1, integer=True))
+        object.__setattr__(
+            self, "density_scale", _pair(own, "density_scale", self.density_scale, lo=0.05, hi=5)
+        )
+        object.__setattr__(self, "contrast", _pair(own, "contrast", self.contrast, lo=0.05, hi=1.0))
+        object.__setattr__(
+            self, "noise_sigma", _pair(own, "noise_sigma", self.noise_sigma, lo=0, hi=50)
+        )
+        object.__setattr__(
+            self, "n_clusters", _pair(own, "n_clusters", self.n_clusters, lo=1, hi=12, integer=True)
+        )
+        object.__setattr__(
+            self, "cluster_spread", _pair(own, "cluster_spread", self.cluster_spread, lo=0, hi=60)
+        )
+        tp = tuple(self.template_px)
+        if not tp:
+            raise ValueError(f"{own}.template_px must list at least one size")
+        for v in tp:
+            require_number(own, "template_px", v, lo=4, hi=64, integer=True)
+        object.__setattr__(self, "template_px", tp)
+        require_number(own, "frames", self.frames, lo=2, integer=True)
+        require_number(own, "warmup_steps", self.warmup_steps, lo=0, integer=True)
+        require_number(own, "fps", self.fps, lo=1, hi=240)
+        require_number(own, "max_width", self.max_width, lo=32, integer=True)
+        require_number(own, "max_height", self.max_height, lo=32, integer=True)
+
+    @classmethod
+    def from_arg(cls, text: str, **overrides: Any) -> ScenarioDistribution:
+        """From a CLI value: ``all``, a comma list of scenario names (``marathon,crossing``)
+        or a JSON/TOML file of fields; ``overrides`` (e.g. ``frames``) on top."""
+        text = str(text).strip()
+        p = Path(text)
+        if p.suffix.lower() in (".json", ".toml") or p.is_file():
+            if not p.is_file():
+                raise ValueError(f"--scenarios: no such file {text!r}")
+            raw = p.read_text()
+            try:
+                if p.suffix.lower() == ".toml":
+                    import tomllib
+
+                    data = tomllib.loads(raw)
+                else:
+                    data = json.loads(raw)
+            except (ValueError, json.JSONDecodeError) as exc:
+                raise ValueError(f"{p}: not valid {p.suffix[1:].upper()} ({exc})") from None
+            if not isinstance(data, dict):
+                raise ValueError(f"{p}: expected a table of distribution fields")
+            valid = {f for f in cls.__dataclass_fields__}
+            unknown = sorted(set(data) - valid)
+            if unknown:
+                raise ValueError(
+                    f"{p}: unknown field(s) {', '.join(unknown)}; valid: {', '.join(sorted(valid))}"
+                )
+            for k in (
+                "scenarios",
+                "agents",
+                "density_scale",
+                "template_px",
+                "contrast",
+                "noise_sigma",
+                "n_clusters",
+                "cluster_spread",
+            ):
+                if k in data and isinstance(data[k], list):
+                    data[k] = tuple(data[k])
+            return cls(**{**data, **overrides})
+        if text in ("", "all"):
+            return cls(**overrides)
+        return cls(scenarios=tuple(s.strip() for s in text.split(",") if s.strip()), **overrides)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+
+    def sample_spec(self, rng: np.random.Generator, name: str = "episode") -> Any:
+        """Draw one :class:`~synth_data.spec.SequenceSpec` (all choices from ``rng``)."""
+        from crowdsim.appearance_model import AppearanceParams
+        from crowdsim.scenarios import SCENARIOS
+        from synth_data.spec import SequenceSpec
+
+        scen = self.scenarios[int(rng.integers(len(self.scenarios)))]
+        n = int(rng.integers(self.agents[0], self.agents[1] + 1))
+        base_density = float(SCENARIOS[scen].density)
+        density = float(np.clip(base_density * rng.uniform(*self.density_scale), 0.05, 5.5))
+        template = int(self.template_px[int(rng.integers(len(self.template_px)))])
+        appearance = AppearanceParams(
+            template_px=template,
+            contrast=round(float(rng.uniform(*self.contrast)), 3),
+            noise_sigma=round(float(rng.uniform(*self.noise_sigma)), 3),
+            n_clusters=int(rng.integers(self.n_clusters[0], self.n_clusters[1] + 1)),
+            cluster_spread=round(float(rng.uniform(*self.cluster_spread)), 3),
+        )
+        seed = int(rng.integers(2**31 - 1))
+        return SequenceSpec(
+            name=name,
+            seed=seed,
+            frames=self.frames,
+            fps=float(self.fps),
+            warmup_steps=self.warmup_steps,
+            scenario={"name": scen, "n_agents": n, "density": round(density, 3)},
+            camera={"max_width": self.max_width, "max_height": self.max_height},
+            appearance=appearance,
+            output={"images": True, "video": False},
+            description=f"{scen}, {n} people at {density:.2f}/m^2, {template} px",
+        )
+
+
+# ---------------------------------------------------------------------------- sequences
+def spec_sequence(spec: Any, cache_frames: bool = False) -> Any:
+    """``spec`` simulated and rendered in memory (:class:`synth_data.sequence.InMemorySequence`;
+    frames drawn on demand, or all rendered now and kept with ``cache_frames``)."""
+    from synth_data.sequence import InMemorySequence
+
+    seq = InMemorySequence.from_spec(spec)
+    return seq.materialize() if cache_frames else seq
+
+
+def folder_sequence(path: str | os.PathLike[str], frames: int | None = None) -> Any:
+    """A MOT sequence folder with the sequence face (first ``frames`` frames only)."""
+    from synth_data.sequence import open_sequence
+
+    seq = open_sequence(path)
+    if frames is not None and frames < seq.length:
+        seq = _Truncated(seq, frames)
+    return seq
+
+
+class _Cache:
+    """A small LRU of built sequences (index -> sequence)."""
+
+    def __init__(self, size: int) -> None:
+        self.size = int(size)
+        self.items: OrderedDict[Any, Any] = OrderedDict()
+
+    def get(self, key: Any, build: Any) -> Any:
+        if self.size <= 0:
+            return build()
+        if key in self.items:
+            self.items.move_to_end(key)
+            return self.items[key]
+        value = build()
+        self.items[key] = value
+        while len(self.items) > self.size:
+            self.items.popitem(last=False)
+        return value
+
+
+# ---------------------------------------------------------------------------- sources
+class EpisodeSource(ABC):
+    """Where episodes come from: ``sample(rng)`` (random) or ``episode(i)`` (fixed list)."""
+
+    @abstractmethod
+    def spec(self, index: int) -> Any:
+        """What episode ``index`` is (a spec, or a folder path)."""
+
+    @abstractmethod
+    def _build(self, index: int) -> Any:
+        """Build episode ``index``'s sequence."""
+
+    @abstractmethod
+    def __len__(self) -> int:
+        """Number of distinct episodes (a large number for a distribution)."""
+
+    def __init__(self, cache: int = 0) -> None:
+        self._cache = _Cache(cache)
+
+    def episode(self, index: int) -> Any:
+        """Episode ``index`` (deterministic; the same sequence on every call)."""
+        require_number(type(self).__name__, "index", index, lo=0, integer=True)
+        return self._cache.get(int(index), lambda: self._build(int(index)))
+
+    def sample(self, rng: np.random.Generator) -> Any:
+        """A random episode drawn with ``rng``."""
+        return self.episode(int(rng.integers(len(self))))
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": type(self).__name__}
+
+
+class ScenarioEpisodes(EpisodeSource):
+    """Episodes from a :class:`ScenarioDistribution`; episode ``i`` of stream ``seed`` is
+    drawn with ``default_rng(SeedSequence([seed, i]))``: different ``seed`` values give
+    disjoint sequences (train on ``seed=0``, score on ``seed=1``)."""
+
+    def __init__(
+        self,
+        dist: ScenarioDistribution | None = None,
+        seed: int = 0,
+        cache: int = 0,
+        cache_frames: bool = False,
+    ) -> None:
+        super().__init__(cache)
+        require_number("ScenarioEpisodes", "seed", seed, lo=0, integer=True)
+        self.dist = dist if dist is not None else ScenarioDistribution()
+        self.seed = int(seed)
+        self.cache_frames = bool(cache_frames)
+
+    def __len__(self) -> int:
+        return 2**31 - 1
+
+    def spec(self, index: int) -> Any:
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, int(index)]))
+        return self.dist.sample_spec(rng, name=f"s{self.seed}-e{int(index)}")
+
+    def _build(self, index: int) -> Any:
+        return spec_sequence(self.spec(index), cache_frames=self.cache_frames)
+
+    def sample(self, rng: np.random.Generator) -> Any:
+        # drawn straight from the caller's generator (not via an index), so that every
+        # choice of a random episode is the environment's np_random
+        return spec_sequence(self.dist.sample_spec(rng, name="episode"))
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": "scenarios", "seed": self.seed, "distribution": self.dist.to_dict()}
+
+
+class SuiteEpisodes(EpisodeSource):
+    """Episodes from a suite: a built-in suite name or a folder of MOT sequence folders.
+
+    Parameters
+    ----------
+    suite : str or path
+        ``ucf9`` / ``galleria`` / ``stress`` (specs simulated and rendered in memory), or a
+        folder whose sub-folders are MOT sequences (``crowdsim generate`` output), or one MOT
+        sequence folder.
+    only : sequence of str, optional
+        Keep only these sequence names.
+    frames : int, optional
+        Use only the first ``frames`` frames of each sequence.
+    reseed : int
+        Built-in suites only: add ``reseed`` to every spec's seed (another crowd and rendering
+        of the same scene type: held-out scoring never sees a tuning seed).
+    """
+
+    def __init__(
+        self,
+        suite: str | os.PathLike[str],
+        only: Sequence[str] | None = None,
+        frames: int | None = None,
+        reseed: int = 0,
+        cache: int = 0,
+        cache_frames: bool = False,
+    ) -> None:
+        super().__init__(cache)
+        from synth_data.suites import SUITE_NAMES, suite_specs
+
+        if frames is not None:
+            require_number("SuiteEpisodes", "frames", frames, lo=2, integer=True)
+        require_number("SuiteEpisodes", "reseed", reseed, lo=0, integer=True)
+        self.suite = str(suite)
+        self.frames = frames
+        self.reseed = int(reseed)
+        self.cache_frames = bool(cache_frames)
+        only = list(only) if only else None
+        if self.suite in SUITE_NAMES:
+            specs = [s.truncated(frames) for s in suite_specs(self.suite, only)]
+            self.items: list[Any] = [replace(s, seed=s.seed + self.reseed) for s in specs]
+            self.on_disk = False
+            return
+        path = Path(self.suite)
+        if not path.is_dir():
+            raise ValueError(
+                f"unknown suite {self.suite!r}: neither a built-in suite "
+                f"({', '.join(SUITE_NAMES)}) nor a folder of sequences"
+            )
+        if reseed:
+            raise ValueError(
+                "reseed applies to built-in suites only (a folder on disk has fixed sequences)"
+            )
+        if (path / "seqinfo.ini").is_file():
+            folders = [path]
+        else:
+            folders = sorted(p for p in path.iterdir() if (p / "seqinfo.ini").is_file())
+        if not folders:
+            raise ValueError(f"{path}: no MOT sequence folders (sub-folders with seqinfo.ini)")
+        if only:
+            known = [p.name for p in folders]
+            unknown = [o for o in only if o not in known]
+            if unknown:
+                raise ValueError(
+                    f"--only: no sequence {unknown[0]!r} in {path}; choose from {', '.join(known)}"
+                )
+            folders = [p for p in folders if p.name in only]
+        self.items = folders
+        self.on_disk = True
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def spec(self, index: int) -> Any:
+        return self.items[int(index) % len(self.items)]
+
+    def _build(self, index: int) -> Any:
+        item = self.spec(index)
+        if not self.on_disk:
+            return spec_sequence(item, cache_frames=self.cache_frames)
+        seq = folder_sequence(item, self.frames)
+        if self.cache_frames:
+            from synth_data.sequence import InMemorySequence
+
+            seq = InMemorySequence.from_source(seq)
+        return seq
+
+    def names(self) -> list[str]:
+        return [p.name for p in self.items]
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "kind": "suite",
+            "suite": self.suite,
+            "sequences": self.names(),
+            "frames": self.frames,
+            "reseed": self.reseed,
+        }
+
+
+class _Truncated:
+    """The first ``n`` frames of a sequence (same face)."""
+
+    def __init__(self, seq: Any, n: int) -> None:
+        self._seq = seq
+        self.length = int(n)
+        for k in ("name", "frame_rate", "width", "height", "template_size"):
+            setattr(self, k, getattr(seq, k))
+
+    def frames(self) -> Iterator[np.ndarray]:
+        import itertools
+
+        return itertools.islice(self._seq.frames(), self.length)
+
+    def gt_points(self) -> tuple[np.ndarray, np.ndarray]:
+        ids, pts = self._seq.gt_points()
+        return ids, pts[: self.length]
+
+    def births(self) -> Any:
+        init, births = self._seq.births()
+        return init, {t: b for t, b in births.items() if t < self.length}
+
+
+def make_episodes(
+    suite: str | None = None,
+    scenarios: str | ScenarioDistribution | None = None,
+    *,
+    only: Sequence[str] | None = None,
+    frames: int | None = None,
+    seed: int = 0,
+    cache: int = 0,
+    cache_frames: bool = False,
+    overrides: Mapping[str, Any] | None = None,
+) -> EpisodeSource:
+    """One source from the CLI's ``--suite NAME | --scenarios DIST [--only] [--frames]``.
+
+    ``seed`` selects the scenario stream (or, for a built-in suite, the ``reseed`` offset),
+    so that tuning and held-out scoring draw disjoint sequences.
+    """
+    if (suite is None) == (scenarios is None):
+        raise ValueError("give exactly one of --suite NAME and --scenarios DIST")
+    if suite is not None:
+        from synth_data.suites import SUITE_NAMES
+
+        reseed = seed if str(suite) in SUITE_NAMES else 0
+        if seed and str(suite) not in SUITE_NAMES:
+            raise ValueError(
+                f"{suite}: a folder of sequences cannot be re-seeded for held-out "
+                "scoring; give held-out sequences with --only or another folder"
+            )
+        return SuiteEpisodes(
+            suite, only=only, frames=frames, reseed=reseed, cache=cache, cache_frames=cache_frames
+        )
+    if only:
+        raise ValueError(
+            "--only selects sequences of a --suite, not scenarios "
+            "(name the scenarios in --scenarios)"
+        )
+    extra = dict(overrides or {})
+    if frames is not None:
+        extra["frames"] = int(frames)
+    dist = (
+        scenarios
+        if isinstance(scenarios, ScenarioDistribution)
+        else ScenarioDistribution.from_arg(str(scenarios), **extra)
+    )
+    if isinstance(scenarios, ScenarioDistribution) and extra:
+        dist = replace(dist, **extra)
+    return ScenarioEpisodes(dist, seed=seed, cache=cache, cache_frames=cache_frames)

@@ -1,0 +1,607 @@
+"""Gymnasium environments in which an agent sets the BQP tracker's parameters as it tracks.
+
+``crowdsim/TrackerTuning-v0`` (:class:`TrackerTuningEnv`): every step applies new parameters
+through :meth:`tracker.base.Tracker.set_params` and tracks the next ``K`` frames with the
+real BQP tracker; ``crowdsim/TrackerTuningBandit-v0`` (:class:`TrackerTuningBanditEnv`): one
+action scores a whole sequence (for black-box tuners). :func:`register_envs` registers both
+(idempotent; ``envs/__init__.py`` calls it).
+
+The observation (:data:`OBS_FIELDS`) is computed from the tracker's own state only, never
+from the ground truth, so an adaptive policy runs on real video too (:func:`run_adaptive`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from crowdsim.checks import require_number
+from envs.episodes import EpisodeSource, ScenarioDistribution, make_episodes
+from envs.param_space import ParamSpace
+from tracker.bqp.tracker import BQPTracker
+from tracker.metrics import point_errors
+
+ENV_ID = "crowdsim/TrackerTuning-v0"
+BANDIT_ENV_ID = "crowdsim/TrackerTuningBandit-v0"
+
+OBS_FIELDS: tuple[tuple[str, float, float, str], ...] = (
+    ("targets_log10", 0.0, 6.0, "log10(1 + active targets)"),
+    ("density", 0.0, 1.0, "fraction of the image covered by head boxes: n s^2 / (W H)"),
+    ("nn_distance", 0.0, 10.0, "median nearest-neighbour distance, template sizes (10 if < 2)"),
+    ("speed_mean", 0.0, 5.0, "mean tracker speed |p_dot|, template sizes per frame"),
+    ("speed_std", 0.0, 5.0, "standard deviation of the speeds, template sizes per frame"),
+    ("flow_order", 0.0, 1.0, "|mean unit velocity| of moving targets (1 one flow, 0 mixed)"),
+    ("conf_mean", -1.0, 2.0, "mean appearance confidence of the chosen candidates"),
+    ("conf_std", 0.0, 2.0, "standard deviation of that confidence"),
+    ("conf_p10", -1.0, 2.0, "10th percentile of that confidence"),
+    ("low_conf_fraction", 0.0, 1.0, "fraction of target-frames below update_threshold"),
+    ("solver_iterations", 0.0, 100.0, "Frank-Wolfe iterations per target and frame"),
+    ("group_fraction", 0.0, 1.0, "fraction of targets in a coherent-motion group"),
+    ("progress", 0.0, 1.0, "frames tracked / (sequence length - 1)"),
+)
+"""``(name, low, high, meaning)`` of the observation's first entries; the current parameters
+(as the ``[-1, 1]`` action, :class:`envs.param_space.ParamSpace` order) follow. Confidence
+entries cover the frames of the last step (0 before the first step); speeds and groups are the
+tracker's state after the step. Every entry is clipped into its range."""
+
+
+class ObservedBQPTracker(BQPTracker):
+    """The BQP tracker, recording the appearance confidence of every target's chosen candidate
+    in each frame (``confidence``, what its model update sees) for the environment's
+    observation. Tracking is unchanged."""
+
+    def _init(self, frame: np.ndarray) -> None:
+        self.confidences: list[np.ndarray] = []
+        super()._init(frame)
+
+    def _step(self, frame: np.ndarray) -> np.ndarray:
+        new = super()._step(frame)
+        self.confidences.append(self.confidence.copy())
+        return new
+
+
+def make_observed_tracker(tracker: str, params: Any) -> ObservedBQPTracker:
+    """An :class:`ObservedBQPTracker` for a registry name whose class is the BQP tracker."""
+    from tracker.registry import get
+
+    entry = get(tracker)
+    if not issubclass(entry.tracker_class(), BQPTracker):
+        raise ValueError(
+            f"the tuning environments tune the BQP tracker; {tracker!r} is "
+            f"{entry.tracker_class().__name__}"
+        )
+    return ObservedBQPTracker(params)
+
+
+@dataclass
+class _Episode:
+    """State of the sequence being tracked."""
+
+    seq: Any
+    frames: Iterator[np.ndarray]
+    births: dict[int, tuple[np.ndarray, np.ndarray]]
+    gt_ids: np.ndarray
+    gt_points: np.ndarray
+    tracks: np.ndarray
+    """(T, N_gt, 2) tracked positions in ground-truth column order, NaN where not tracked."""
+    t: int = 0
+    frame: np.ndarray | None = None
+
+
+def observe(
+    trk: BQPTracker,
+    space: ParamSpace,
+    action: np.ndarray,
+    progress: float,
+    confidences: list[np.ndarray],
+    iterations: int,
+    frames: int,
+) -> np.ndarray:
+    """The observation vector (:data:`OBS_FIELDS` + the action) of a tracker's state.
+
+    Parameters
+    ----------
+    trk : BQPTracker
+        After ``frames`` frames of the last step (its ``points``, ``velocities``, ``groups``).
+    action : (d,) float
+        The parameters in force, as the ``[-1, 1]`` action.
+    progress : float
+        Fraction of the sequence tracked.
+    confidences : list of (n_t,) float
+        Chosen-candidate confidences of each frame of the step.
+    iterations : int
+        Frank-Wolfe iterations spent over the step.
+    frames : int
+        Frames tracked in the step.
+    """
+    from scipy.spatial import cKDTree
+
+    s = float(max(trk.template_size, 1))
+    n = len(trk.points)
+    out = np.zeros(len(OBS_FIELDS) + space.dim)
+    out[0] = np.log10(1.0 + n)
+    if trk.frame_shape is not None:
+        h, w = trk.frame_shape[:2]
+        out[1] = n * s * s / float(w * h)
+    out[2] = 10.0
+    if n >= 2:
+        d, _ = cKDTree(trk.points).query(trk.points, k=2)
+        out[2] = float(np.median(d[:, 1])) / s
+    vel = getattr(trk, "velocities", np.zeros((0, 2)))
+    if len(vel):
+        speed = np.sqrt((vel**2).sum(1)) / s
+        out[3] = speed.mean()
+        out[4] = speed.std()
+        moving = speed > 0.05
+        if moving.any():
+            unit = vel[moving] / (speed[moving, None] * s)
+            out[5] = float(np.sqrt((unit.mean(0) ** 2).sum()))
+    conf = np.concatenate(confidences) if confidences else np.zeros(0)
+    conf = conf[np.isfinite(conf)]
+    if conf.size:
+        out[6] = conf.mean()
+        out[7] = conf.std()
+        out[8] = np.percentile(conf, 10)
+        out[9] = float((conf < trk.params.update_threshold).mean())
+    if frames > 0 and n > 0:
+        out[10] = iterations / float(frames * n)
+    groups = getattr(trk, "groups", np.zeros(0))
+    if len(groups):
+        out[11] = float((groups >= 0).mean())
+    out[12] = progress
+    out[len(OBS_FIELDS) :] = action
+    lo, hi = obs_bounds(space)
+    return np.clip(out, lo, hi).astype(np.float32)
+
+
+def obs_bounds(space: ParamSpace) -> tuple[np.ndarray, np.ndarray]:
+    """``(low, high)`` float32 arrays of the observation."""
+    lo = np.array([f[1] for f in OBS_FIELDS] + [-1.0] * space.dim, np.float32)
+    hi = np.array([f[2] for f in OBS_FIELDS] + [1.0] * space.dim, np.float32)
+    return lo, hi
+
+
+class TrackerTuningEnv(gym.Env):
+    """Set the BQP tracker's term weights and update threshold while it tracks a crowd.
+
+    ## Description
+
+    The real BQP tracker (paper 1: one binary quadratic program per frame, solved by
+    Frank-Wolfe with SWAP steps) follows every person of a synthetic dense-crowd sequence. At
+    each step the agent chooses the tracker's parameters -- the weights ``zeta`` (motion),
+    ``eta`` (neighbourhood motion), ``w_sp`` (spatial proximity), ``w_g`` (grouping) and the
+    appearance-update threshold -- which the tracker applies through ``set_params`` from the
+    next frame on; the tracker then tracks the next ``K`` frames and the reward is its accuracy
+    on them. A policy can thus adapt the parameters to the crowd (dense, fast, counterflow,
+    low contrast) as it changes.
+
+    ## Action Space
+
+    ``Box(-1, 1, (5,), float32)`` (8 with ``extended=True``: also search factor, motion sigma,
+    KCF learning rate), mapped to parameter ranges by :class:`envs.param_space.ParamSpace`:
+    piecewise linear with ``-1`` the low end, ``0`` **the paper defaults exactly** and ``+1``
+    the high end (zeta 0 / 0.3 / 1.5, eta 0 / 0.2 / 1, w_sp 0 / 0.3 / 1.5, w_g 0 / 1 / 3,
+    update_threshold 0 / 0.6 / 1). Out-of-range actions are clipped; ``info["clipped"]``
+    counts the clipped coordinates of the step, ``info["clipped_total"]`` of the episode.
+
+    ## Observation Space
+
+    ``Box(low, high, (13 + d,), float32)``, each entry clipped into its range:
+
+    ==  ====================  ==========  ======================================================
+    i   name                  range       meaning
+    ==  ====================  ==========  ======================================================
+    0   targets_log10         [0, 6]      log10(1 + active targets)
+    1   density               [0, 1]      image fraction covered by heads, ``n s^2 / (W H)``
+    2   nn_distance           [0, 10]     median nearest-neighbour distance, template sizes
+    3   speed_mean            [0, 5]      mean speed of the tracker's velocities, templates/frame
+    4   speed_std             [0, 5]      their standard deviation
+    5   flow_order            [0, 1]      ``|mean unit velocity|`` (1: one flow; 0: counterflow)
+    6   conf_mean             [-1, 2]     mean appearance confidence of the chosen candidates
+    7   conf_std              [0, 2]      its standard deviation
+    8   conf_p10              [-1, 2]     its 10th percentile
+    9   low_conf_fraction     [0, 1]      fraction below the update threshold (not updated)
+    10  solver_iterations     [0, 100]    Frank-Wolfe iterations per target and frame
+    11  group_fraction        [0, 1]      fraction of targets in a coherent-motion group
+    12  progress              [0, 1]      frames tracked / (length - 1)
+    13+ parameters            [-1, 1]     the parameters in force, as the action
+    ==  ====================  ==========  ======================================================
+
+    Entries 6-10 describe the frames of the last step (0 after ``reset``). Nothing in the
+    observation comes from the ground truth.
+
+    ## Rewards
+
+    A Python float in ``[0, 1]``: the fraction of the step's ground-truth points (people
+    present in the frame) whose tracked point of the same id lies within ``threshold_px``
+    (default 5) pixels -- the papers' accuracy at T px divided by 100, computed with
+    :func:`tracker.metrics.point_errors`. A person the tracker lost counts as a miss. A step
+    with no ground-truth point scores 0 (``info["gt_points"] == 0``).
+
+    ## Starting State
+
+    ``reset`` draws a sequence -- from the scenario distribution with ``np_random`` (seeded by
+    ``reset(seed=...)``), or episode ``options["episode"]`` of the source's fixed list -- and
+    initialises the tracker on frame 0 at the ground-truth positions with ``start_params``
+    (default: the paper defaults, action 0). People entering later are born at their
+    ground-truth position in their first frame, as in the papers.
+
+    ## Episode End
+
+    One episode is one sequence: ``terminated`` is true once its last frame is tracked (the
+    last step may hold fewer than ``K`` frames). There is no truncation; wrap the env in
+    ``TimeLimit`` if needed.
+
+    ## Arguments
+
+    ``gymnasium.make("crowdsim/TrackerTuning-v0", **kwargs)``:
+
+    * ``scenarios`` -- a :class:`envs.episodes.ScenarioDistribution`, a mapping of its
+      fields, or a string (``"all"``, ``"marathon,crossing"``, a JSON/TOML file); default the
+      full distribution (40-100 people, 100 frames, frames up to 640x480);
+    * ``suite``, ``only``, ``frames`` -- episodes from a suite instead (built-in name or a
+      folder of MOT sequences); ``frames`` also truncates scenario sequences;
+    * ``episodes`` -- a ready :class:`envs.episodes.EpisodeSource` (overrides the above);
+    * ``episode_seed`` -- the fixed-list stream (0 tuning, another value held-out);
+    * ``k_frames`` (25) -- frames tracked per step; ``threshold_px`` (5) -- reward threshold;
+    * ``extended`` (False) -- tune 8 parameters instead of 5;
+    * ``tracker`` (``"bqp"``) -- registry name of a BQP variant (``"bqp-ncc"``);
+    * ``start_params`` -- ``BQPParams`` at reset (default: the paper defaults);
+    * ``render_mode`` -- ``None`` or ``"rgb_array"`` (the current frame with ground truth in
+      green and tracks in yellow, RGB).
+
+    ## Version History
+
+    * v0: initial version.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
+
+    def __init__(
+        self,
+        scenarios: Any = None,
+        suite: str | None = None,
+        only: list[str] | None = None,
+        frames: int | None = None,
+        episodes: EpisodeSource | None = None,
+        episode_seed: int = 0,
+        k_frames: int = 25,
+        threshold_px: float = 5.0,
+        extended: bool = False,
+        tracker: str = "bqp",
+        start_params: Any = None,
+        render_mode: str | None = None,
+    ) -> None:
+        require_number("TrackerTuningEnv", "k_frames", k_frames, lo=1, integer=True)
+        require_number("TrackerTuningEnv", "threshold_px", threshold_px, lo=0)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if episodes is None:
+            if isinstance(scenarios, Mapping):
+                scenarios = ScenarioDistribution(
+                    **{k: tuple(v) if isinstance(v, list) else v for k, v in scenarios.items()}
+                )
+            if suite is None and scenarios is None:
+                scenarios = ScenarioDistribution()
+            episodes = make_episodes(
+                suite=suite, scenarios=scenarios, only=only, frames=frames, seed=episode_seed
+            )
+        self.episodes = episodes
+        self.k_frames = int(k_frames)
+        self.threshold_px = float(threshold_px)
+        self.tracker_name = tracker
+        from tracker.registry import get
+
+        entry = get(tracker)
+        if not issubclass(entry.tracker_class(), BQPTracker):
+            raise ValueError(
+                f"the tuning environments tune the BQP tracker; {tracker!r} is "
+                f"{entry.tracker_class().__name__}"
+            )
+        base = entry.make_params() if start_params is None else start_params
+        self.space = ParamSpace(extended=extended, base=base)
+        self.start_action = self.space.to_action(base)
+        self.action_space = spaces.Box(-1.0, 1.0, (self.space.dim,), np.float32)
+        lo, hi = obs_bounds(self.space)
+        self.observation_space = spaces.Box(lo, hi, dtype=np.float32)
+        self.render_mode = render_mode
+        self._ep: _Episode | None = None
+        self._trk: ObservedBQPTracker | None = None
+        self._action = self.start_action.copy()
+        self._clipped_total = 0
+
+    # ------------------------------------------------------------------ episode
+    def _pick(self, options: dict | None) -> Any:
+        if options and "episode" in options:
+            return self.episodes.episode(int(options["episode"]))
+        return self.episodes.sample(self.np_random)
+
+    def _start(self, seq: Any) -> np.ndarray:
+        gt_ids, gt_pts = seq.gt_points()
+        if len(gt_ids) == 0:
+            raise ValueError(f"sequence {seq.name!r} has no ground truth to score against")
+        (ids0, pts0), births = seq.births()
+        frames = iter(seq.frames())
+        first = next(frames)
+        gt_ids = np.asarray(gt_ids, np.int64)
+        order = np.argsort(gt_ids)
+        self._gt_sorted = gt_ids[order]
+        self._gt_order = order
+        tracks = np.full((seq.length, len(gt_ids), 2), np.nan)
+        self._ep = _Episode(
+            seq=seq,
+            frames=frames,
+            births=dict(births),
+            gt_ids=gt_ids,
+            gt_points=np.asarray(gt_pts, np.float64),
+            tracks=tracks,
+            frame=first,
+        )
+        self._action = self.start_action.copy()
+        self._trk = make_observed_tracker(self.tracker_name, self.space.to_params(self._action))
+        self._trk.init(first, ids0, pts0, int(seq.template_size))
+        self._record(0, self._trk.ids, self._trk.points)
+        self._clipped_total = 0
+        return observe(self._trk, self.space, self._action, 0.0, [], 0, 0)
+
+    def _record(self, t: int, ids: np.ndarray, pts: np.ndarray) -> None:
+        if len(ids) == 0:
+            return
+        pos = np.searchsorted(self._gt_sorted, ids)
+        pos = np.minimum(pos, len(self._gt_sorted) - 1)
+        ok = self._gt_sorted[pos] == ids
+        self._ep.tracks[t, self._gt_order[pos[ok]]] = pts[ok]
+
+    def _advance(self, n: int) -> tuple[int, int]:
+        """Track up to ``n`` more frames; returns ``(first frame index, frames tracked)``."""
+        ep, trk = self._ep, self._trk
+        start = ep.t + 1
+        done = 0
+        while done < n and ep.t + 1 < ep.seq.length:
+            frame = next(ep.frames)
+            ep.t += 1
+            ids, pts = trk.step(frame, ep.births.get(ep.t))
+            self._record(ep.t, ids, pts)
+            ep.frame = frame
+            done += 1
+        return start, done
+
+    def _score(self, start: int, count: int) -> tuple[float, int]:
+        """``(fraction within threshold, gt points)`` over frames ``start .. start+count-1``."""
+        ep = self._ep
+        if count == 0:
+            return 0.0, 0
+        sl = slice(start, start + count)
+        err = point_errors(ep.gt_ids, ep.gt_points[sl], ep.gt_ids, ep.tracks[sl])
+        valid = ~np.isnan(err)
+        n = int(valid.sum())
+        if n == 0:
+            return 0.0, 0
+        return float((err[valid] <= self.threshold_px).sum() / n), n
+
+    # ------------------------------------------------------------------ gym API
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        seq = self._pick(options)
+        obs = self._start(seq)
+        return obs, self._info(0.0, 0, 0, 0)
+
+    def _info(self, acc: float, gt_n: int, clipped: int, frames: int) -> dict[str, Any]:
+        ep = self._ep
+        return {
+            "sequence": ep.seq.name,
+            "frame": int(ep.t),
+            "length": int(ep.seq.length),
+            "frames": int(frames),
+            "accuracy": 100.0 * acc,
+            "gt_points": int(gt_n),
+            "targets": int(len(self._trk.ids)),
+            "clipped": int(clipped),
+            "clipped_total": int(self._clipped_total),
+            "params": self.space.values(self._action),
+        }
+
+    def _apply(self, action: Any) -> int:
+        if self._ep is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        a, clipped = self.space.clip(action)
+        self._clipped_total += clipped
+        self._action = a
+        self._trk.set_params(self.space.to_params(a))
+        return clipped
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        clipped = self._apply(action)
+        trk = self._trk
+        trk.confidences = []
+        it0 = trk.solver_iterations
+        start, count = self._advance(self.k_frames)
+        acc, gt_n = self._score(start, count)
+        ep = self._ep
+        progress = ep.t / max(ep.seq.length - 1, 1)
+        obs = observe(
+            trk,
+            self.space,
+            self._action,
+            progress,
+            trk.confidences,
+            trk.solver_iterations - it0,
+            count,
+        )
+        terminated = ep.t + 1 >= ep.seq.length
+        return obs, float(acc), bool(terminated), False, self._info(acc, gt_n, clipped, count)
+
+    def render(self) -> np.ndarray | None:
+        """The current frame (RGB) with ground truth in green and tracks in yellow."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without render_mode='rgb_array'")
+            return None
+        if self._ep is None:
+            raise gym.error.ResetNeeded("call reset() before render()")
+        import cv2
+
+        from tracker.overlay import GREEN, TAIL, YELLOW, draw_points
+
+        ep = self._ep
+        img = np.ascontiguousarray(ep.frame).copy()
+        s = int(ep.seq.template_size)
+        draw_points(img, ep.gt_points, ep.t, s, GREEN, TAIL)
+        draw_points(img, ep.tracks, ep.t, s, YELLOW, TAIL)
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+    def close(self) -> None:
+        self._ep = None
+        self._trk = None
+
+
+class TrackerTuningBanditEnv(TrackerTuningEnv):
+    """One action scores a whole sequence: the black-box version of TrackerTuning-v0.
+
+    ## Description
+
+    The same tracker and sequences as :class:`TrackerTuningEnv`, as a one-step episode for
+    black-box tuners (Optuna, Ray Tune): the action is the static parameter set, the step
+    tracks the whole sequence with it.
+
+    ## Action Space
+
+    As ``TrackerTuning-v0``: ``Box(-1, 1, (5,), float32)`` (8 with ``extended``), action 0 =
+    the paper defaults; clipped, counted in ``info["clipped"]``.
+
+    ## Observation Space
+
+    As ``TrackerTuning-v0`` (13 + d entries). After ``reset`` it describes frame 0 (crowd
+    size, density, spacing; no velocities or confidences yet), after the step the end of the
+    sequence and the whole run's confidence and solver statistics.
+
+    ## Rewards
+
+    A Python float in ``[0, 1]``: the fraction of ground-truth points of frames ``1 .. T-1``
+    (frame 0 is the initialisation, exact by construction) tracked within ``threshold_px``
+    px. ``info["accuracy"]`` is the same in percent.
+
+    ## Starting State
+
+    As ``TrackerTuning-v0``: a sequence drawn with ``np_random`` or
+    ``options["episode"]``; the tracker is initialised when the action arrives.
+
+    ## Episode End
+
+    After the one step (``terminated`` is true).
+
+    ## Arguments
+
+    As ``TrackerTuning-v0`` (``k_frames`` is unused).
+
+    ## Version History
+
+    * v0: initial version.
+    """
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._ep is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        if self._ep.t > 0:
+            raise gym.error.ResetNeeded("the bandit episode is over; call reset()")
+        clipped = self._apply(action)
+        trk = self._trk
+        trk.confidences = []
+        it0 = trk.solver_iterations
+        start, count = self._advance(self._ep.seq.length)
+        acc, gt_n = self._score(start, count)
+        obs = observe(
+            trk, self.space, self._action, 1.0, trk.confidences, trk.solver_iterations - it0, count
+        )
+        return obs, float(acc), True, False, self._info(acc, gt_n, clipped, count)
+
+
+def register_envs() -> None:
+    """Register both environment ids with Gymnasium (idempotent; string entry points)."""
+    for env_id, entry in (
+        (ENV_ID, "envs.tracker_tuning:TrackerTuningEnv"),
+        (BANDIT_ENV_ID, "envs.tracker_tuning:TrackerTuningBanditEnv"),
+    ):
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=entry)
+
+
+# ---------------------------------------------------------------------------- adaptive runs
+class PolicyControlled:
+    """``source`` with a policy setting the tracker's parameters every ``k_frames`` frames.
+
+    Same sequence face as ``source``; its :meth:`frames` generator lets ``policy`` observe
+    the tracker (:func:`observe`) and call ``set_params`` before each block of ``k_frames``
+    frames, so any driver that feeds frames to ``tracker`` one by one (``Tracker.track``,
+    :func:`tracker.runner.run_tracker`) tracks adaptively. ``actions`` collects the
+    ``(d,)`` actions taken.
+
+    Parameters
+    ----------
+    source : sequence source
+    tracker : ObservedBQPTracker
+        The tracker that will consume the frames (see :func:`make_observed_tracker`).
+    policy : object with ``predict(obs, deterministic=...) -> (action, state)``
+        A stable-baselines3 model trained on ``TrackerTuning-v0`` with the same ``space``.
+    space : ParamSpace
+    k_frames : int
+    """
+
+    def __init__(
+        self,
+        source: Any,
+        tracker: ObservedBQPTracker,
+        policy: Any,
+        space: ParamSpace,
+        k_frames: int = 25,
+        deterministic: bool = True,
+    ) -> None:
+        require_number("PolicyControlled", "k_frames", k_frames, lo=1, integer=True)
+        self.source = source
+        self.tracker = tracker
+        self.policy = policy
+        self.space = space
+        self.k_frames = int(k_frames)
+        self.deterministic = bool(deterministic)
+        self.actions: list[np.ndarray] = []
+        for k in ("name", "frame_rate", "width", "height", "length", "template_size"):
+            setattr(self, k, getattr(source, k, None))
+
+    def births(self) -> Any:
+        return self.source.births()
+
+    def gt_points(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.source.gt_points()
+
+    def frames(self) -> Iterator[np.ndarray]:
+        trk, space = self.tracker, self.space
+        action = space.to_action(trk.params)
+        n = max(int(self.length or 0), 2)
+        it0, since = 0, 0
+        for t, frame in enumerate(self.source.frames()):
+            if t >= 1 and (t - 1) % self.k_frames == 0:
+                # frames 0 .. t-1 are tracked: observe them and choose the next block's params
+                obs = observe(
+                    trk,
+                    space,
+                    action,
+                    (t - 1) / (n - 1),
+                    trk.confidences,
+                    trk.solver_iterations - it0,
+                    since,
+                )
+                act, _ = self.policy.predict(obs, deterministic=self.deterministic)
+                action, _ = space.clip(act)
+                self.actions.append(action)
+                trk.set_params(space.to_params(action))
+                trk.confidences = []
+                it0, since = trk.solver_iterations, 0
+            if t >= 1:
+                since += 1
+            yield frame

@@ -1,0 +1,1074 @@
+"""Tuners of the BQP tracker's parameters: Optuna, Ray Tune and stable-baselines3 drivers.
+
+* :func:`tune` -- black-box search of the static parameters on the bandit environment
+  (``crowdsim/TrackerTuningBandit-v0``): Optuna (TPE or CMA-ES) with its study in SQLite by
+  default, so a killed run resumes without losing a finished trial; a PostgreSQL URL or a
+  journal file serve several machines; ``backend="ray"`` runs Ray Tune with ``OptunaSearch``
+  on a Ray cluster. Writes ``best_params.json``, the optimisation history and the parameter
+  importances as PNGs, and scores the best parameters against the paper defaults on
+  **held-out** sequences (other seeds than the ones tuned on).
+* :func:`train` -- PPO or SAC (stable-baselines3) on ``crowdsim/TrackerTuning-v0`` over N
+  asynchronous environments; saves ``model.zip`` (with the environment's settings inside) and
+  a learning-curve PNG.
+* :func:`load_params` / :func:`load_policy` -- read those files back for ``crowdsim track``.
+
+Heavy stacks (optuna, ray, torch, stable-baselines3) are imported on use; a missing one raises
+:class:`DependencyNotInstalled` naming the extra to install.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sqlite3
+import sys
+import time
+import zipfile
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from crowdsim.atomic import atomic_path, write_text_atomic
+from crowdsim.checks import require_choice, require_number
+from envs.episodes import EpisodeSource, make_episodes
+from envs.param_space import ParamSpace
+
+STUDY_FILE = "study.db"
+DEFAULT_STUDY_NAME = "crowdsim-tune"
+SAMPLERS: tuple[str, ...] = ("tpe", "cmaes")
+BACKENDS: tuple[str, ...] = ("local", "ray")
+ALGOS: tuple[str, ...] = ("ppo", "sac")
+HELDOUT_SEED = 1
+"""Episode stream (or suite re-seed offset) of the held-out sequences; tuning uses stream 0."""
+POLICY_META = "crowdsim.json"
+"""Entry added to ``model.zip``: the algorithm and the environment settings it was trained on."""
+
+
+class DependencyNotInstalled(gym.error.DependencyNotInstalled, ValueError):
+    """An optional stack is missing; the message gives the ``pip install`` line.
+
+    A ``ValueError`` too, so the ``crowdsim`` command reports it in one line."""
+
+
+def require(module: str, extra: str, what: str) -> Any:
+    """Import ``module`` or raise :class:`DependencyNotInstalled` naming ``extra``."""
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise DependencyNotInstalled(
+            f"{what} needs {module.split('.')[0]}, which is not installed ({exc}); install it "
+            f"with: pip install 'crowdsim[{extra}]'"
+        ) from None
+
+
+# ---------------------------------------------------------------------------- objective
+@dataclass(frozen=True, kw_only=True)
+class Objective:
+    """What one tuning trial scores: mean accuracy at ``threshold_px`` over fixed episodes.
+
+    Attributes
+    ----------
+    suite : str, optional
+        Built-in suite name or folder of MOT sequences (exclusive with ``scenarios``).
+    scenarios : str or dict, optional
+        ``"all"``, a comma list of scenarios, a distribution file, or the fields of
+        :class:`envs.episodes.ScenarioDistribution`.
+    only : tuple of str
+        Suite sequences to tune on.
+    heldout_only : tuple of str
+        Suite-folder sequences to score on (a folder cannot be re-seeded; built-in suites and
+        scenarios use other seeds of the same sequences instead).
+    frames : int, optional
+        Frames per sequence.
+    train_episodes : int
+        Episodes every trial is scored on (the first ones of stream 0; all of a suite's).
+    threshold_px : float
+        Accuracy threshold T, px.
+    extended : bool
+        Tune 8 parameters instead of 5.
+    tracker : str
+        Registry name of the BQP variant.
+    """
+
+    suite: str | None = None
+    scenarios: Any = None
+    only: tuple[str, ...] = ()
+    heldout_only: tuple[str, ...] = ()
+    frames: int | None = None
+    train_episodes: int = 3
+    threshold_px: float = 5.0
+    extended: bool = False
+    tracker: str = "bqp"
+
+    def __post_init__(self) -> None:
+        require_number("Objective", "train_episodes", self.train_episodes, lo=1, integer=True)
+        require_number("Objective", "threshold_px", self.threshold_px, lo=0)
+        object.__setattr__(self, "only", tuple(self.only))
+        object.__setattr__(self, "heldout_only", tuple(self.heldout_only))
+        if isinstance(self.scenarios, dict):
+            object.__setattr__(self, "scenarios", _dist_from_dict(self.scenarios))
+
+    def episodes(self, heldout: bool = False, cache: int = 0) -> EpisodeSource:
+        """Training (stream 0) or held-out episodes."""
+        from synth_data.suites import SUITE_NAMES
+
+        folder = self.suite is not None and str(self.suite) not in SUITE_NAMES
+        if heldout and folder:
+            if not self.heldout_only:
+                raise ValueError(
+                    f"{self.suite}: a folder of sequences cannot be re-seeded; "
+                    "name held-out sequences with --heldout-only"
+                )
+            return make_episodes(
+                suite=self.suite,
+                only=self.heldout_only,
+                frames=self.frames,
+                cache=cache,
+                cache_frames=cache > 0,
+            )
+        return make_episodes(
+            suite=self.suite,
+            scenarios=self.scenarios,
+            only=self.only or None,
+            frames=self.frames,
+            seed=HELDOUT_SEED if heldout else 0,
+            cache=cache,
+            cache_frames=cache > 0,
+        )
+
+    def n_train(self, source: EpisodeSource) -> int:
+        return (
+            min(self.train_episodes, len(source)) if self.suite is not None else self.train_episodes
+        )
+
+    def space(self) -> ParamSpace:
+        from tracker.registry import get
+
+        return ParamSpace(extended=self.extended, base=get(self.tracker).make_params())
+
+    def describe(self) -> dict[str, Any]:
+        d = asdict(self)
+        sc = self.scenarios
+        if sc is not None and not isinstance(sc, str):
+            d["scenarios"] = sc.to_dict()
+        d["only"] = list(self.only)
+        d["heldout_only"] = list(self.heldout_only)
+        return d
+
+
+def _dist_from_dict(d: dict[str, Any]) -> Any:
+    from envs.episodes import ScenarioDistribution
+
+    return ScenarioDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+class Scorer:
+    """Scores parameter sets on an objective's training episodes through the bandit env.
+
+    The episodes are built once and their frames kept in memory, so that every trial after
+    the first one costs only the tracking.
+    """
+
+    def __init__(self, objective: Objective) -> None:
+        from envs.tracker_tuning import TrackerTuningBanditEnv
+
+        self.objective = objective
+        src = objective.episodes(cache=objective.train_episodes)
+        self.n = objective.n_train(src)
+        self.env = TrackerTuningBanditEnv(
+            episodes=src,
+            threshold_px=objective.threshold_px,
+            extended=objective.extended,
+            tracker=objective.tracker,
+        )
+        self.space = self.env.space
+
+    def __call__(self, values: dict[str, float]) -> tuple[float, list[float]]:
+        """``(mean accuracy %, per-episode accuracies %)`` of the tuned ``values``."""
+        action = self.space.to_action(values)
+        accs = []
+        for i in range(self.n):
+            self.env.reset(options={"episode": i})
+            _, reward, *_ = self.env.step(action)
+            accs.append(100.0 * reward)
+        return float(np.mean(accs)), accs
+
+
+_SCORERS: dict[str, Scorer] = {}
+
+
+def _scorer(objective: Objective) -> Scorer:
+    key = json.dumps(objective.describe(), sort_keys=True)
+    if key not in _SCORERS:
+        _SCORERS.clear()
+        _SCORERS[key] = Scorer(objective)
+    return _SCORERS[key]
+
+
+# ---------------------------------------------------------------------------- storage
+def storage_url(study: str | None, out: Path) -> str:
+    """The storage of ``--study``: ``None`` -> ``sqlite:///OUT/study.db``; a URL
+    (``sqlite:///``, ``postgresql://``, ``mysql://``) as is; a ``*.log`` / ``*.journal``
+    path or ``journal:PATH`` -> an Optuna journal file."""
+    if study is None:
+        return f"sqlite:///{(out / STUDY_FILE).resolve()}"
+    s = str(study)
+    if s.startswith("journal:"):
+        return s
+    if "://" in s:
+        return s
+    if s.endswith((".log", ".journal", ".jsonl")):
+        return f"journal:{Path(s).resolve()}"
+    if s.endswith((".db", ".sqlite", ".sqlite3")):
+        return f"sqlite:///{Path(s).resolve()}"
+    raise ValueError(
+        f"--study must be a database URL (sqlite:///..., postgresql://...), a "
+        f"journal file (*.log or journal:PATH) or a *.db file, got {s!r}"
+    )
+
+
+def _check_sqlite(path: Path) -> None:
+    """Refuse a file that is not SQLite, or an SQLite database that is not an Optuna study."""
+    if not path.exists() or path.stat().st_size == 0:
+        return
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            tables = {
+                r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")
+            }
+        finally:
+            con.close()
+    except sqlite3.DatabaseError as exc:
+        raise ValueError(f"{path}: not an Optuna study (corrupt or not SQLite: {exc})") from None
+    if tables and not {"studies", "trials", "version_info"} <= tables:
+        raise ValueError(
+            f"{path}: an SQLite database that is not an Optuna study (tables "
+            f"{', '.join(sorted(tables)[:5])}); choose another --study or --out"
+        )
+
+
+def open_storage(url: str) -> Any:
+    """An Optuna storage for ``url`` (see :func:`storage_url`); heartbeats on databases so
+    trials of a killed worker are failed and retried."""
+    optuna = require("optuna", "rl", "crowdsim tune")
+    if url.startswith("journal:"):
+        from optuna.storages.journal import JournalFileBackend
+
+        path = Path(url[len("journal:") :])
+        if path.exists() and path.stat().st_size:
+            head = path.read_bytes()[:1]
+            if head not in (b"{", b"["):
+                raise ValueError(f"{path}: not an Optuna journal file (corrupt or foreign)")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return optuna.storages.JournalStorage(JournalFileBackend(str(path)))
+    if url.startswith("sqlite:///"):
+        path = Path(url[len("sqlite:///") :])
+        _check_sqlite(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+    import warnings
+
+    from optuna.storages import RDBStorage
+
+    retry = getattr(optuna.storages, "RetryHeartbeatStaleTrialCallback", None)
+    try:
+        with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna's words
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            if retry is not None:  # optuna >= 4.9
+                return RDBStorage(
+                    url,
+                    heartbeat_interval=30,
+                    grace_period=90,
+                    heartbeat_stale_trial_callback=retry(max_retry=1),
+                )
+            return RDBStorage(
+                url,
+                heartbeat_interval=30,
+                grace_period=90,
+                failed_trial_callback=optuna.storages.RetryFailedTrialCallback(max_retry=1),
+            )
+    except ImportError as exc:  # a database driver (psycopg2, pymysql) is missing
+        raise DependencyNotInstalled(f"{url.split(':')[0]} storage needs a driver: {exc}") from None
+    except Exception as exc:  # SQLAlchemy errors: corrupt file, unreachable server
+        raise ValueError(
+            f"cannot open the study storage {url!r}: "
+            f"{type(exc).__name__}: {str(exc).splitlines()[0]}"
+        ) from None
+
+
+def _make_sampler(name: str, space: ParamSpace, seed: int, trials: int) -> Any:
+    import optuna
+
+    require_choice("", "--sampler", name, SAMPLERS)
+    if name == "cmaes":
+        require("cmaes", "rl", "--sampler cmaes")
+        # the paper defaults are the study's first (enqueued) trial; CMA-ES starts from the
+        # centre of the box otherwise (Optuna >= 4.9 deprecates x0)
+        return optuna.samplers.CmaEsSampler(
+            seed=seed, n_startup_trials=0, warn_independent_sampling=False
+        )
+    return optuna.samplers.TPESampler(seed=seed, n_startup_trials=max(3, min(10, trials // 3)))
+
+
+def open_study(
+    url: str,
+    name: str,
+    objective: Objective,
+    sampler: str,
+    seed: int,
+    trials: int,
+    enqueue_defaults: bool = True,
+) -> Any:
+    """Create or resume the study ``name``; a study made for another parameter space or
+    objective is refused (its trials would not be comparable). A new study gets the paper
+    defaults as its first trial (``enqueue_defaults``; Ray Tune evaluates them itself)."""
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    storage = open_storage(url)
+    space = objective.space()
+    signature = {"space": space.signature(), "objective": objective.describe()}
+    try:
+        study = optuna.create_study(
+            storage=storage,
+            study_name=name,
+            direction="maximize",
+            sampler=_make_sampler(sampler, space, seed, trials),
+            load_if_exists=True,
+        )
+    except (ValueError, DependencyNotInstalled):
+        raise
+    except Exception as exc:  # storage errors (SQLAlchemy, journal) on a foreign file
+        raise ValueError(
+            f"cannot open study {name!r} in {url}: {type(exc).__name__}: "
+            f"{str(exc).splitlines()[0] if str(exc) else ''}"
+        ) from None
+    if study.direction != optuna.study.StudyDirection.MAXIMIZE:
+        raise ValueError(
+            f"study {name!r} in {url} minimises; it is not a crowdsim tuning "
+            "study (choose another --study-name)"
+        )
+    old = study.user_attrs.get("crowdsim")
+    if old is None:
+        if study.trials:
+            raise ValueError(
+                f"study {name!r} in {url} was not made by crowdsim tune; choose "
+                "another --study-name or --out"
+            )
+        study.set_user_attr("crowdsim", json.loads(json.dumps(signature)))
+        if enqueue_defaults:
+            study.enqueue_trial(
+                dict(zip(space.names, space.default.tolist(), strict=True)),
+                user_attrs={"defaults": True},
+            )
+    elif old != json.loads(json.dumps(signature)):
+        changed = [
+            k
+            for k in signature["objective"]
+            if old.get("objective", {}).get(k) != signature["objective"][k]
+        ]
+        if old.get("space") != signature["space"]:
+            changed.insert(0, "parameter space")
+        raise ValueError(
+            f"study {name!r} in {url} was made for another objective (differs in "
+            f"{', '.join(map(str, changed))}); resume with the same flags, or "
+            "choose another --out or --study-name"
+        )
+    return study
+
+
+def complete_trials(study: Any) -> list[Any]:
+    from optuna.trial import TrialState
+
+    return study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+
+
+def _fail_orphans(study: Any) -> int:
+    """Mark RUNNING trials of a killed run as FAIL (only for a study this run owns)."""
+    from optuna.trial import TrialState
+
+    n = 0
+    for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
+        study._storage.set_trial_state_values(t._trial_id, state=TrialState.FAIL)
+        n += 1
+    return n
+
+
+class _OutLock:
+    """An exclusive lock on ``OUT/.tune.lock``: two local runs never share one study file."""
+
+    def __init__(self, out: Path) -> None:
+        self.path = out / ".tune.lock"
+        self.fh = None
+
+    def __enter__(self) -> _OutLock:
+        import fcntl
+
+        self.fh = open(self.path, "a+")
+        try:
+            fcntl.flock(self.fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self.fh.close()
+            raise ValueError(
+                f"{self.path.parent}: another crowdsim tune is running on this folder"
+            ) from None
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.fh is not None:
+            self.fh.close()
+
+
+# ---------------------------------------------------------------------------- local runs
+def _objective_fn(objective: Objective, space: ParamSpace) -> Callable[[Any], float]:
+    def fn(trial: Any) -> float:
+        values = space.optuna_suggest(trial)
+        value, per = _scorer(objective)(values)
+        trial.set_user_attr("per_episode", [round(v, 4) for v in per])
+        return value
+
+    return fn
+
+
+def _worker(
+    url: str, name: str, objective: Objective, sampler: str, seed: int, trials: int
+) -> None:
+    """One optimisation process: runs trials until the study holds ``trials`` complete ones."""
+    from optuna.study import MaxTrialsCallback
+    from optuna.trial import TrialState
+
+    study = open_study(url, name, objective, sampler, seed, trials)
+    if len(complete_trials(study)) >= trials:
+        return
+    study.optimize(
+        _objective_fn(objective, objective.space()),
+        n_trials=None,
+        callbacks=[MaxTrialsCallback(trials, states=(TrialState.COMPLETE,))],
+        gc_after_trial=False,
+        show_progress_bar=False,
+    )
+
+
+def _run_local(
+    url: str,
+    name: str,
+    objective: Objective,
+    sampler: str,
+    seed: int,
+    trials: int,
+    workers: int,
+    progress: bool,
+) -> None:
+    import multiprocessing as mp
+
+    from crowdsim.progress import progress_bar
+
+    study = open_study(url, name, objective, sampler, seed, trials)
+    done = len(complete_trials(study))
+    bar = progress_bar(total=trials, desc="tune", unit="trial", enabled=progress, leave=True)
+    bar.update(done)
+
+    def refresh() -> None:
+        ts = complete_trials(study)
+        bar.update(max(0, min(trials, len(ts)) - bar.n))
+        if ts:
+            bar.set_postfix(best=f"{max(t.value for t in ts):.2f}%")
+
+    refresh()
+    if done >= trials:
+        bar.close()
+        return
+    procs = []
+    try:
+        if workers > 1:
+            ctx = mp.get_context("spawn")
+            procs = [
+                ctx.Process(
+                    target=_worker,
+                    args=(url, name, objective, sampler, seed + 1 + i, trials),
+                    daemon=True,
+                )
+                for i in range(workers - 1)
+            ]
+            for p in procs:
+                p.start()
+        from optuna.study import MaxTrialsCallback
+        from optuna.trial import TrialState
+
+        study.optimize(
+            _objective_fn(objective, objective.space()),
+            n_trials=None,
+            callbacks=[
+                MaxTrialsCallback(trials, states=(TrialState.COMPLETE,)),
+                lambda s, t: refresh(),
+            ],
+            gc_after_trial=False,
+            show_progress_bar=False,
+        )
+        while any(p.is_alive() for p in procs):
+            time.sleep(0.5)
+            refresh()
+        bad = [p.exitcode for p in procs if p.exitcode not in (0, None)]
+        if bad:
+            raise RuntimeError(
+                f"{len(bad)} tuning worker(s) failed (exit codes {bad}); "
+                "finished trials are kept, rerun to resume"
+            )
+        refresh()
+    finally:
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+        bar.close()
+
+
+def _run_ray(
+    url: str,
+    name: str,
+    objective: Objective,
+    sampler: str,
+    seed: int,
+    trials: int,
+    workers: int,
+    address: str | None,
+    out: Path,
+    progress: bool = True,
+) -> Any:
+    """Ray Tune with OptunaSearch; every result also goes to the Optuna study at ``url``.
+
+    A rerun runs the trials still missing from the study (Ray's own experiment folder,
+    ``OUT/ray``, keeps each run's trial logs)."""
+    ray = require("ray", "distributed", "--backend ray")
+    require("ray.tune", "distributed", "--backend ray")
+    from ray import tune as rtune
+    from ray.tune.search.optuna import OptunaSearch
+
+    space = objective.space()
+    study = open_study(url, name, objective, sampler, seed, trials, enqueue_defaults=False)
+    done = len(complete_trials(study))
+    if done >= trials:
+        return study
+    if not ray.is_initialized():
+        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+
+    def trainable(config: dict[str, float]) -> dict[str, float]:
+        value, _ = _scorer(objective)({k: float(config[k]) for k in space.names})
+        return {"accuracy": value}
+
+    import optuna
+
+    points = [] if done else [dict(zip(space.names, space.default.tolist(), strict=True))]
+    search = OptunaSearch(
+        metric="accuracy",
+        mode="max",
+        points_to_evaluate=points or None,
+        sampler=_make_sampler(sampler, space, seed, trials),
+    )
+    tuner = rtune.Tuner(
+        rtune.with_resources(trainable, {"cpu": 1}),
+        param_space=space.ray_search_space(),
+        tune_config=rtune.TuneConfig(
+            search_alg=search, num_samples=trials - done, max_concurrent_trials=max(1, workers)
+        ),
+        run_config=rtune.RunConfig(
+            name=name, storage_path=str((out / "ray").resolve()), verbose=int(progress)
+        ),
+    )
+    results = tuner.fit()
+    dists = space.optuna_distributions()
+    for r in results:
+        if r.error is None and r.metrics and "accuracy" in r.metrics:
+            values = {k: float(r.config[k]) for k in space.names}
+            attrs = {"ray": True}
+            if np.allclose(space.to_action(values), 0.0, atol=1e-12):
+                attrs["defaults"] = True
+            study.add_trial(
+                optuna.trial.create_trial(
+                    params=values,
+                    distributions=dists,
+                    value=float(r.metrics["accuracy"]),
+                    user_attrs=attrs,
+                )
+            )
+    return study
+
+
+# ---------------------------------------------------------------------------- results
+@dataclass
+class TuneResult:
+    """What :func:`tune` found and wrote."""
+
+    best_params: dict[str, float]
+    best_value: float
+    default_value: float | None
+    trials: int
+    heldout: dict[str, Any] = field(default_factory=dict)
+    files: dict[str, str] = field(default_factory=dict)
+
+
+def plot_history(study: Any, path: Path) -> Path:
+    """Every complete trial's accuracy and the best so far, PNG."""
+    from crowdsim.plotting import new_figure, save_figure
+
+    ts = sorted(complete_trials(study), key=lambda t: t.number)
+    x = np.array([t.number for t in ts])
+    y = np.array([t.value for t in ts])
+    fig, ax = new_figure(figsize=(6, 3.8))
+    if len(ts):
+        ax.plot(x, y, "o", ms=4, alpha=0.6, label="trial")
+        ax.step(x, np.maximum.accumulate(y), where="post", color="C3", label="best so far")
+        d = [t for t in ts if t.user_attrs.get("defaults")]
+        if d:
+            ax.axhline(d[0].value, color="0.4", ls="--", lw=1, label="paper defaults")
+    ax.set_xlabel("trial")
+    ax.set_ylabel("accuracy at T px on the tuning sequences (%)")
+    ax.set_title("optimisation history")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right")
+    return save_figure(fig, path, dpi=110)
+
+
+def plot_importances(study: Any, path: Path) -> tuple[Path, dict[str, float]]:
+    """fANOVA importances of the parameters (Optuna's evaluator), PNG; ``{}`` when there are
+    too few trials or no variation to attribute."""
+    import optuna
+
+    from crowdsim.plotting import new_figure, save_figure
+
+    imp: dict[str, float] = {}
+    ts = complete_trials(study)
+    if len(ts) >= 2 and np.ptp([t.value for t in ts]) > 0:
+        try:
+            imp = optuna.importance.get_param_importances(study)
+        except (RuntimeError, ValueError):
+            imp = {}
+    fig, ax = new_figure(figsize=(5.5, 3.2))
+    if imp:
+        names = list(imp)[::-1]
+        ax.barh(names, [imp[n] for n in names], color="C0")
+        ax.set_xlabel("importance (fANOVA, fraction of variance)")
+    else:
+        ax.text(0.5, 0.5, "not enough trials or variation", ha="center", va="center")
+        ax.set_axis_off()
+    ax.set_title("parameter importances")
+    return save_figure(fig, path, dpi=110), {k: float(v) for k, v in imp.items()}
+
+
+def evaluate_heldout(
+    objective: Objective,
+    param_sets: dict[str, Any],
+    n: int,
+    metrics: str = "full",
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Score parameter sets on ``n`` held-out sequences (never seen while tuning).
+
+    Returns ``{"sequences": [{"name", "description", name: {acc@5, acc@15, hota...}}],
+    "summary": {name: {metric: {"mean", "std"}}}}``.
+    """
+    from crowdsim.progress import progress_bar
+    from tracker.runner import run_tracker
+
+    src = objective.episodes(heldout=True)
+    count = min(n, len(src)) if objective.suite is not None else n
+    rows = []
+    keys = ("acc@5", "acc@15", "hota", "mota", "idf1")
+    for i in progress_bar(range(count), desc="held-out", unit="seq", enabled=progress):
+        seq = src.episode(i)
+        spec = src.spec(i)
+        row: dict[str, Any] = {
+            "name": getattr(seq, "name", str(i)),
+            "description": getattr(spec, "description", str(spec)),
+            "seed": getattr(spec, "seed", None),
+        }
+        for label, params in param_sets.items():
+            run = run_tracker(objective.tracker, seq, params=params, metrics=metrics)
+            row[label] = {k: float(run.report[k]) for k in keys if k in run.report}
+        rows.append(row)
+    summary = {}
+    for label in param_sets:
+        summary[label] = {}
+        for k in keys:
+            vals = [r[label][k] for r in rows if k in r[label]]
+            if vals:
+                summary[label][k] = {"mean": float(np.mean(vals)), "std": float(np.std(vals))}
+    return {"sequences": rows, "summary": summary, "threshold_px": objective.threshold_px}
+
+
+def tune(
+    objective: Objective,
+    *,
+    trials: int,
+    out: str | os.PathLike[str],
+    sampler: str = "tpe",
+    study: str | None = None,
+    study_name: str = DEFAULT_STUDY_NAME,
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+    seed: int = 0,
+    heldout: int = 3,
+    heldout_metrics: str = "full",
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> TuneResult:
+    """Tune the static parameters; see the module docstring. Resumes an existing study."""
+    require_number("tune", "trials", trials, lo=1, integer=True)
+    require_number("tune", "workers", workers, lo=1, integer=True)
+    require_number("tune", "heldout", heldout, lo=0, integer=True)
+    require_number("tune", "seed", seed, lo=0, integer=True)
+    require_choice("", "--backend", backend, BACKENDS)
+    require_choice("", "--sampler", sampler, SAMPLERS)
+    require("optuna", "rl", "crowdsim tune")
+    log = log or (lambda msg: print(msg, file=sys.stderr))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    url = storage_url(study, out)
+    space = objective.space()
+    objective.episodes()  # validate suite / scenarios / --only before any work
+    with _OutLock(out):
+        st = open_study(
+            url, study_name, objective, sampler, seed, trials, enqueue_defaults=backend == "local"
+        )
+        if study is None:
+            n = _fail_orphans(st)  # our own file: RUNNING trials belong to a killed run
+            if n:
+                log(f"marked {n} unfinished trial(s) of an interrupted run as failed")
+        before = len(complete_trials(st))
+        if before:
+            log(f"resuming study {study_name!r}: {before} finished trial(s) in {url}")
+        if backend == "ray":
+            st = _run_ray(
+                url, study_name, objective, sampler, seed, trials, workers, address, out, progress
+            )
+        else:
+            _run_local(url, study_name, objective, sampler, seed, trials, workers, progress)
+            st = open_study(url, study_name, objective, sampler, seed, trials)
+        ts = complete_trials(st)
+        best = max(ts, key=lambda t: t.value)
+        best_values = {k: float(best.params[k]) for k in space.names}
+        defaults = [t for t in ts if t.user_attrs.get("defaults")]
+        default_value = float(defaults[0].value) if defaults else None
+        files = {"study": url}
+        files["history"] = str(plot_history(st, out / "history.png"))
+        p, importances = plot_importances(st, out / "importance.png")
+        files["importance"] = str(p)
+        result = TuneResult(
+            best_params=best_values,
+            best_value=float(best.value),
+            default_value=default_value,
+            trials=len(ts),
+            files=files,
+        )
+        if heldout:
+            best_params = space.to_params(space.to_action(best_values))
+            result.heldout = evaluate_heldout(
+                objective,
+                {"defaults": space.base, "tuned": best_params},
+                heldout,
+                metrics=heldout_metrics,
+                progress=progress,
+            )
+            write_text_atomic(out / "heldout.json", json.dumps(result.heldout, indent=2) + "\n")
+            files["heldout"] = str(out / "heldout.json")
+        doc = {
+            "format": 1,
+            "tracker": objective.tracker,
+            "params": best_values,
+            "action": space.to_action(best_values).round(6).tolist(),
+            "value": result.best_value,
+            "default_value": default_value,
+            "trial": int(best.number),
+            "trials": len(ts),
+            "metric": f"mean accuracy at {objective.threshold_px:g} px (%) on the tuning sequences",
+            "objective": objective.describe(),
+            "space": space.describe(),
+            "importances": importances,
+            "study": {"storage": url, "name": study_name},
+            "heldout": result.heldout.get("summary", {}),
+        }
+        write_text_atomic(out / "best_params.json", json.dumps(doc, indent=2) + "\n")
+        files["best_params"] = str(out / "best_params.json")
+    return result
+
+
+def load_params(path: str | os.PathLike[str]) -> tuple[str, Any]:
+    """``(tracker name, BQPParams)`` from a ``best_params.json`` written by :func:`tune`
+    (or any JSON object ``{"params": {field: value}}`` / ``{field: value}``)."""
+    from tracker.registry import get
+
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{p}: not valid JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{p}: expected a JSON object of parameters")
+    name = doc.get("tracker", "bqp")
+    values = doc.get("params", doc)
+    if not isinstance(values, dict):
+        raise ValueError(f"{p}: 'params' must be an object of parameter values")
+    values = {k: v for k, v in values.items() if k not in ("tracker", "format")}
+    entry = get(name)
+    try:
+        return name, entry.make_params(**values)
+    except TypeError as exc:
+        raise ValueError(f"{p}: {exc}") from None
+
+
+# ---------------------------------------------------------------------------- RL training
+def _policy_meta(algo: str, env_kwargs: dict[str, Any], space: ParamSpace) -> dict[str, Any]:
+    from envs.tracker_tuning import ENV_ID, OBS_FIELDS
+
+    return {
+        "format": 1,
+        "env_id": ENV_ID,
+        "algo": algo,
+        "env_kwargs": env_kwargs,
+        "observation": [f[0] for f in OBS_FIELDS] + [f"param:{n}" for n in space.names],
+        "action": list(space.names),
+        "space": space.signature(),
+    }
+
+
+def train(
+    algo: str,
+    *,
+    out: str | os.PathLike[str],
+    n_envs: int = 1,
+    steps: int = 2048,
+    env_kwargs: dict[str, Any] | None = None,
+    seed: int = 0,
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Train PPO or SAC on ``TrackerTuning-v0`` over ``n_envs`` asynchronous envs.
+
+    Writes ``OUT/model.zip`` (stable-baselines3, with :data:`POLICY_META` inside),
+    ``OUT/learning_curve.png`` and ``OUT/learning_curve.json``: the mean step reward (accuracy
+    at T px, %) of every finished episode against the environment steps so far.
+    """
+    require_choice("", "--algo", algo, ALGOS)
+    require_number("train", "envs", n_envs, lo=1, integer=True)
+    require_number("train", "steps", steps, lo=1, integer=True)
+    require("torch", "rl", "crowdsim train")
+    sb3 = require("stable_baselines3", "rl", "crowdsim train")
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    from envs.tracker_tuning import TrackerTuningEnv
+
+    log = log or (lambda msg: print(msg, file=sys.stderr))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    env_kwargs = dict(env_kwargs or {})
+    probe = TrackerTuningEnv(**env_kwargs)
+    space = probe.space
+    probe.close()
+    vec = make_vec_env(
+        TrackerTuningEnv,
+        n_envs=n_envs,
+        seed=seed,
+        env_kwargs=env_kwargs,
+        vec_env_cls=SubprocVecEnv if n_envs > 1 else DummyVecEnv,
+        vec_env_kwargs={"start_method": "spawn"} if n_envs > 1 else None,
+    )
+    curve: list[dict[str, float]] = []
+
+    class Curve(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.bar = None
+
+        def _on_training_start(self) -> None:
+            from crowdsim.progress import progress_bar
+
+            self.bar = progress_bar(
+                total=steps, desc=f"train {algo}", unit="step", enabled=progress, leave=True
+            )
+
+        def _on_step(self) -> bool:
+            for info in self.locals.get("infos", []):
+                ep = info.get("episode")
+                if ep is not None:
+                    curve.append(
+                        {
+                            "steps": int(self.num_timesteps),
+                            "reward_per_step": 100.0 * float(ep["r"]) / max(ep["l"], 1),
+                            "length": int(ep["l"]),
+                        }
+                    )
+            if self.bar is not None:
+                self.bar.update(self.num_timesteps - self.bar.n)
+                if curve:
+                    recent = [c["reward_per_step"] for c in curve[-10:]]
+                    self.bar.set_postfix(acc=f"{np.mean(recent):.1f}%")
+            return True
+
+        def _on_training_end(self) -> None:
+            if self.bar is not None:
+                self.bar.close()
+
+    if algo == "ppo":
+        n_steps = max(4, min(64, math.ceil(steps / n_envs / 4)))
+        model = sb3.PPO(
+            "MlpPolicy",
+            vec,
+            n_steps=n_steps,
+            batch_size=max(2, min(64, n_steps * n_envs)),
+            n_epochs=10,
+            learning_rate=3e-4,
+            gamma=0.9,
+            seed=seed,
+            verbose=0,
+            device="cpu",
+        )
+    else:
+        model = sb3.SAC(
+            "MlpPolicy",
+            vec,
+            learning_starts=min(100, max(1, steps // 4)),
+            batch_size=64,
+            gamma=0.9,
+            train_freq=1,
+            seed=seed,
+            verbose=0,
+            device="cpu",
+        )
+    t0 = time.perf_counter()
+    try:
+        model.learn(total_timesteps=steps, callback=Curve())
+    finally:
+        vec.close()
+    wall = time.perf_counter() - t0
+    with atomic_path(out / "model.zip") as tmp:
+        model.save(tmp)
+        with zipfile.ZipFile(tmp, "a") as zf:
+            zf.writestr(POLICY_META, json.dumps(_policy_meta(algo, env_kwargs, space)))
+    doc = {
+        "algo": algo,
+        "envs": n_envs,
+        "steps": steps,
+        "wall_s": wall,
+        "steps_per_s": steps / wall if wall > 0 else None,
+        "episodes": curve,
+    }
+    write_text_atomic(out / "learning_curve.json", json.dumps(doc, indent=2) + "\n")
+    plot_learning_curve(
+        curve,
+        out / "learning_curve.png",
+        title=f"{algo.upper()} on TrackerTuning-v0, {n_envs} env(s)",
+    )
+    log(
+        f"{algo}: {steps} steps in {wall:.0f} s ({steps / max(wall, 1e-9):.2f} steps/s), "
+        f"{len(curve)} episodes -> {out / 'model.zip'}"
+    )
+    return doc
+
+
+def plot_learning_curve(curve: Sequence[dict[str, float]], path: Path, title: str = "") -> Path:
+    """Mean step reward (%) per finished episode and its running mean, PNG."""
+    from crowdsim.plotting import new_figure, save_figure
+
+    fig, ax = new_figure(figsize=(6, 3.8))
+    if curve:
+        x = np.array([c["steps"] for c in curve])
+        y = np.array([c["reward_per_step"] for c in curve])
+        ax.plot(x, y, "o", ms=3, alpha=0.5, label="episode")
+        k = max(1, len(y) // 10)
+        run = np.convolve(y, np.ones(k) / k, mode="valid")
+        ax.plot(x[k - 1 :], run, "-", color="C3", label=f"running mean ({k})")
+        ax.legend(loc="lower right")
+    else:
+        ax.text(0.5, 0.5, "no finished episode", ha="center", va="center")
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("mean step reward: accuracy at T px (%)")
+    ax.set_title(title or "learning curve")
+    ax.grid(alpha=0.3)
+    return save_figure(fig, path, dpi=110)
+
+
+def load_policy(path: str | os.PathLike[str]) -> tuple[Any, dict[str, Any]]:
+    """``(stable-baselines3 model, metadata)`` of a ``model.zip`` written by :func:`train`.
+
+    Refuses (``ValueError``) a file that is not such a zip, a policy trained on another
+    environment, or one whose spaces do not match ``TrackerTuning-v0``'s.
+    """
+    from envs.tracker_tuning import ENV_ID, OBS_FIELDS
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"{p}: no such policy file")
+    try:
+        with zipfile.ZipFile(p) as zf:
+            names = zf.namelist()
+            meta = json.loads(zf.read(POLICY_META)) if POLICY_META in names else None
+    except zipfile.BadZipFile:
+        raise ValueError(f"{p}: not a stable-baselines3 model (not a zip file)") from None
+    if meta is None or meta.get("env_id") != ENV_ID:
+        raise ValueError(
+            f"{p}: not a policy for {ENV_ID} (trained on "
+            f"{(meta or {}).get('env_id', 'another environment')}); train one "
+            "with crowdsim train"
+        )
+    sb3 = require("stable_baselines3", "rl", "--policy")
+    cls = {"ppo": sb3.PPO, "sac": sb3.SAC}.get(meta.get("algo"))
+    if cls is None:
+        raise ValueError(f"{p}: unknown algorithm {meta.get('algo')!r}")
+    model = cls.load(str(p), device="cpu")
+    space = ParamSpace(extended=bool(meta.get("env_kwargs", {}).get("extended", False)))
+    want_obs = (len(OBS_FIELDS) + space.dim,)
+    if model.observation_space.shape != want_obs or model.action_space.shape != (space.dim,):
+        raise ValueError(
+            f"{p}: the policy's spaces {model.observation_space.shape} -> "
+            f"{model.action_space.shape} do not match {ENV_ID} ({want_obs} -> "
+            f"({space.dim},))"
+        )
+    return model, meta
+
+
+# ---------------------------------------------------------------------------- tracking
+def tuned_tracker(
+    source: Any,
+    params: str | os.PathLike[str] | None = None,
+    policy: str | os.PathLike[str] | None = None,
+    overrides: dict[str, Any] | None = None,
+) -> tuple[Any, Any, str]:
+    """``(tracker, frame source, description)`` for ``crowdsim track --params | --policy``.
+
+    ``params``: a ``best_params.json`` -> the BQP tracker with those static parameters.
+    ``policy``: a ``model.zip`` from :func:`train` -> an observed BQP tracker and ``source``
+    wrapped in :class:`envs.tracker_tuning.PolicyControlled` (the policy sets the parameters
+    every ``k_frames`` frames, as in training). ``overrides`` (e.g. ``appearance``) go on top.
+    """
+    from dataclasses import replace
+
+    from tracker.registry import get, make_tracker
+
+    if (params is None) == (policy is None):
+        raise ValueError("give exactly one of --params and --policy")
+    overrides = dict(overrides or {})
+    if params is not None:
+        name, p = load_params(params)
+        if overrides:
+            p = replace(p, **overrides)
+        return make_tracker(name, p), source, f"{name} with the parameters of {params}"
+    from envs.tracker_tuning import PolicyControlled, make_observed_tracker
+
+    model, meta = load_policy(policy)
+    kwargs = meta.get("env_kwargs", {})
+    name = kwargs.get("tracker", "bqp")
+    base = get(name).make_params(**overrides)
+    space = ParamSpace(extended=bool(kwargs.get("extended", False)), base=base)
+    trk = make_observed_tracker(name, space.to_params(space.default_action))
+    k = int(kwargs.get("k_frames", 25))
+    ctl = PolicyControlled(source, trk, model, space, k_frames=k)
+    return trk, ctl, f"{name} with the {meta['algo'].upper()} policy of {policy} (every {k} frames)"

@@ -1,0 +1,95 @@
+"""ParamSpace: [-1, 1]^d <-> BQPParams, shared by the env, Optuna and Ray Tune."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from envs.param_space import BASE_TUNABLES, EXTRA_TUNABLES, ParamSpace, Tunable
+from tracker.bqp.params import BQPParams
+
+
+def test_zero_action_is_exactly_the_paper_defaults():
+    space = ParamSpace()
+    assert space.to_params(np.zeros(5)) == BQPParams()
+    ext = ParamSpace(extended=True)
+    assert ext.dim == 8 and ext.to_params(np.zeros(8)) == BQPParams()
+    np.testing.assert_array_equal(space.to_action(BQPParams()), np.zeros(5))
+
+
+def test_ends_of_the_box_are_the_documented_ranges():
+    space = ParamSpace(extended=True)
+    lo, hi = space.to_params(-np.ones(8)), space.to_params(np.ones(8))
+    for t in BASE_TUNABLES + EXTRA_TUNABLES:
+        assert getattr(lo, t.name) == pytest.approx(t.low)
+        assert getattr(hi, t.name) == pytest.approx(t.high)
+    assert (lo.zeta, lo.eta, lo.w_sp, lo.w_g) == (0.0, 0.0, 0.0, 0.0)  # terms can switch off
+
+
+def test_round_trip_and_monotone():
+    space = ParamSpace(extended=True)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        a = rng.uniform(-1, 1, 8)
+        np.testing.assert_allclose(space.to_action(space.to_params(a)), a, atol=1e-12)
+    grid = np.linspace(-1, 1, 41)
+    for t in space.tunables:
+        v = t.value(grid)
+        assert (np.diff(v) > 0).all()
+
+
+def test_clipping_counts_and_refuses_nan_and_wrong_shape():
+    space = ParamSpace()
+    a, n = space.clip([1.5, -2, 0.3, 1.0, -1.0])
+    assert n == 2 and a.tolist() == [1.0, -1.0, 0.3, 1.0, -1.0]
+    assert space.to_params([9, 9, 9, 9, 9]) == space.to_params(np.ones(5))
+    with pytest.raises(ValueError, match="NaN"):
+        space.clip([np.nan, 0, 0, 0, 0])
+    with pytest.raises(ValueError, match="5 entries"):
+        space.clip(np.zeros(3))
+
+
+def test_values_outside_a_range_map_to_its_end():
+    space = ParamSpace()
+    a = space.to_action(
+        {"zeta": 5.0, "eta": -1.0, "w_sp": 0.3, "w_g": 1.0, "update_threshold": 0.6}
+    )
+    assert a.tolist() == [1.0, -1.0, 0.0, 0.0, 0.0]
+    with pytest.raises(ValueError, match="lack w_g"):
+        space.to_action({"zeta": 1, "eta": 1, "w_sp": 1, "update_threshold": 1})
+
+
+def test_base_params_keep_their_untuned_fields():
+    base = BQPParams(appearance="ncc", fw_variant="away")
+    p = ParamSpace(base=base).to_params(np.ones(5))
+    assert (p.appearance, p.fw_variant, p.zeta) == ("ncc", "away", 1.5)
+    with pytest.raises(ValueError, match="BQPParams"):
+        ParamSpace(base={"zeta": 1})
+    with pytest.raises(ValueError, match="unknown BQP parameter"):
+        ParamSpace().params_from_dict({"zeta": 1.0, "gamma": 2})
+
+
+def test_optuna_suggestions_use_the_same_ranges():
+    optuna = pytest.importorskip("optuna")
+    space = ParamSpace()
+    study = optuna.create_study(direction="maximize", sampler=optuna.samplers.RandomSampler(seed=1))
+    seen = []
+
+    def objective(trial):
+        values = space.optuna_suggest(trial)
+        seen.append(values)
+        return -float(np.sum(space.to_action(values) ** 2))
+
+    study.optimize(objective, n_trials=20)
+    for v in seen:
+        for t in space.tunables:
+            assert t.low <= v[t.name] <= t.high
+    dists = space.optuna_distributions()
+    assert dists["w_g"].low == 0.0 and dists["w_g"].high == 3.0
+
+
+def test_tunable_validation():
+    with pytest.raises(ValueError, match="default"):
+        Tunable(name="zeta", low=0.0, default=2.0, high=1.0)
+    with pytest.raises(ValueError, match="high"):
+        Tunable(name="zeta", low=1.0, default=1.0, high=1.0)

@@ -1,0 +1,323 @@
+"""TrackerTuning-v0 and its bandit variant: conformance, determinism, reward, clipping."""
+
+from __future__ import annotations
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from envs.episodes import ScenarioDistribution, ScenarioEpisodes
+from envs.param_space import ParamSpace
+from envs.tracker_tuning import (
+    BANDIT_ENV_ID,
+    ENV_ID,
+    OBS_FIELDS,
+    PolicyControlled,
+    TrackerTuningBanditEnv,
+    TrackerTuningEnv,
+    make_observed_tracker,
+    register_envs,
+)
+
+TINY = {
+    "scenarios": ["counterflow"],
+    "agents": [6, 8],
+    "frames": 12,
+    "warmup_steps": 4,
+    "template_px": [10],
+    "max_width": 160,
+    "max_height": 120,
+}
+"""A sequence of a few people, 12 small frames: each env step takes milliseconds."""
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _registered():
+    register_envs()
+    register_envs()  # idempotent
+
+
+def tiny_env(cls=TrackerTuningEnv, **kw):
+    return cls(scenarios=dict(TINY), k_frames=5, **kw)
+
+
+@pytest.mark.parametrize("env_id", [ENV_ID, BANDIT_ENV_ID])
+def test_gymnasium_check_env_with_render(env_id):
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make(env_id, scenarios=dict(TINY), k_frames=5, render_mode="rgb_array")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a checker warning is a failure here
+        check_env(env.unwrapped)
+    env.close()
+
+
+@pytest.mark.parametrize("cls", [TrackerTuningEnv, TrackerTuningBanditEnv])
+def test_sb3_check_env(cls):
+    from stable_baselines3.common.env_checker import check_env
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(tiny_env(cls), warn=True)
+
+
+def test_episode_runs_the_sequence_in_k_frame_steps():
+    env = tiny_env()
+    obs, info = env.reset(seed=3)
+    assert obs.shape == (len(OBS_FIELDS) + 5,) and obs.dtype == np.float32
+    assert info["frame"] == 0 and info["params"] == {
+        "zeta": 0.3,
+        "eta": 0.2,
+        "w_sp": 0.3,
+        "w_g": 1.0,
+        "update_threshold": 0.6,
+    }
+    frames, done, rewards = [], False, []
+    while not done:
+        obs, r, done, trunc, info = env.step(np.zeros(5, np.float32))
+        assert type(r) is float and 0.0 <= r <= 1.0 and not trunc
+        assert r == pytest.approx(info["accuracy"] / 100.0)
+        frames.append(info["frames"])
+        rewards.append(r)
+    assert frames == [5, 5, 1]  # 12 frames: frame 0 initialises, 11 are tracked
+    assert info["frame"] == 11 and obs[12] == 1.0  # progress
+    assert env.observation_space.contains(obs)
+
+
+def test_reward_matches_point_errors_of_the_tracked_frames():
+    """The step reward is the fraction of gt points within T px over exactly its frames."""
+    from tracker.metrics import point_errors
+
+    env = tiny_env(threshold_px=1.0)
+    env.reset(seed=5)
+    _, r1, *_ = env.step(np.zeros(5))
+    ep = env._ep
+    err = point_errors(ep.gt_ids, ep.gt_points[1:6], ep.gt_ids, ep.tracks[1:6])
+    v = err[~np.isnan(err)]
+    assert r1 == pytest.approx(float((v <= 1.0).mean()))
+    assert 0.0 < r1 < 1.0  # 1 px is strict enough that not every point is exact
+
+
+def test_sequence_reward_equals_runner_accuracy():
+    """The bandit step tracks exactly like a plain run of the BQP tracker with the paper
+    defaults, and its reward is that run's accuracy at 5 px over frames 1..T-1."""
+    from tracker.metrics import accuracy_curve
+    from tracker.runner import run_tracker
+
+    env = tiny_env(TrackerTuningBanditEnv)
+    env.reset(options={"episode": 2})
+    _, r, done, _, info = env.step(np.zeros(5))
+    assert done
+    seq = env.episodes.episode(2)
+    run = run_tracker("bqp", seq, metrics="none")
+    gt_ids, gt = seq.gt_points()
+    col = {int(i): c for c, i in enumerate(gt_ids)}
+    ref = np.full_like(env._ep.tracks, np.nan)
+    for j, i in enumerate(run.result.ids):
+        ref[:, col[int(i)]] = run.result.positions[:, j]
+    np.testing.assert_array_equal(env._ep.tracks, ref)
+    acc = accuracy_curve(gt_ids, gt[1:], run.result.ids, run.result.positions[1:], [5])[0]
+    assert r == pytest.approx(acc / 100) and info["accuracy"] == pytest.approx(acc)
+
+
+def test_same_seed_same_episode_and_rewards():
+    def roll(seed):
+        env = tiny_env()
+        obs, _ = env.reset(seed=seed)
+        out = [obs]
+        rng = np.random.default_rng(0)
+        done = False
+        while not done:
+            obs, r, done, _, _ = env.step(rng.uniform(-1, 1, 5))
+            out.append(obs)
+            out.append(np.float32(r))
+        return out
+
+    a, b = roll(11), roll(11)
+    assert len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+
+
+def test_actions_reach_the_tracker_and_are_clipped_and_counted():
+    env = tiny_env()
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.array([2.0, -3.0, 0.5, 0.0, 1.0]))
+    p = env._trk.params
+    assert (p.zeta, p.eta, p.w_sp, p.w_g, p.update_threshold) == pytest.approx(
+        (1.5, 0.0, 0.9, 1.0, 1.0)
+    )
+    assert env._trk.appearance.update_threshold == 1.0  # set_params reached the model
+    assert info["clipped"] == 2 and info["clipped_total"] == 2
+    _, _, _, _, info = env.step(np.array([5.0, 0, 0, 0, 0]))
+    assert info["clipped"] == 1 and info["clipped_total"] == 3
+    obs, *_ = env.step(np.zeros(5))
+    np.testing.assert_array_equal(obs[len(OBS_FIELDS) :], np.zeros(5, np.float32))
+    with pytest.raises(ValueError, match="5 entries"):
+        env.step(np.zeros(4))
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(np.full(5, np.nan))
+
+
+def test_parameters_change_the_tracking():
+    """Switching every term off (action -1 on the weights) changes the tracks."""
+    env = tiny_env(TrackerTuningBanditEnv, threshold_px=1.0)
+    env.reset(options={"episode": 1})
+    env.step(np.zeros(5))
+    a = env._ep.tracks.copy()
+    env.reset(options={"episode": 1})
+    env.step(np.array([-1.0, -1.0, -1.0, -1.0, 1.0]))
+    assert not np.array_equal(a, env._ep.tracks, equal_nan=True)
+
+
+def test_bandit_is_one_step():
+    env = tiny_env(TrackerTuningBanditEnv)
+    env.reset(seed=0)
+    _, _, done, _, info = env.step(np.zeros(5))
+    assert done and info["frames"] == 11 and info["frame"] == 11
+    with pytest.raises(gym.error.ResetNeeded):
+        env.step(np.zeros(5))
+
+
+def test_extended_space_has_eight_actions():
+    env = tiny_env(extended=True)
+    assert env.action_space.shape == (8,)
+    env.reset(seed=0)
+    env.step(np.array([0, 0, 0, 0, 0, 1.0, -1.0, 1.0]))
+    p = env._trk.params
+    assert (p.search_factor, p.motion_sigma, p.kcf_learning_rate) == (3.0, 0.2, 0.3)
+
+
+def test_render_is_the_rgb_overlay():
+    env = tiny_env(render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(np.zeros(5))
+    img = env.render()
+    seq = env._ep.seq
+    assert img.shape == (seq.height, seq.width, 3) and img.dtype == np.uint8
+    # ground truth is drawn in green: RGB (0, 255, 0) pixels exist
+    assert ((img[..., 0] == 0) & (img[..., 1] == 255) & (img[..., 2] == 0)).any()
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="k_frames"):
+        TrackerTuningEnv(scenarios=dict(TINY), k_frames=0)
+    with pytest.raises(ValueError, match="unknown scenario 'parade'"):
+        TrackerTuningEnv(scenarios="parade")
+    with pytest.raises(ValueError, match="unknown suite 'nope'"):
+        TrackerTuningEnv(suite="nope")
+    with pytest.raises(ValueError, match="unknown tracker"):
+        TrackerTuningEnv(scenarios=dict(TINY), tracker="kalman")
+    with pytest.raises(ValueError, match="BQP tracker"):
+        TrackerTuningEnv(scenarios=dict(TINY), tracker="ncc")
+    env = tiny_env()
+    with pytest.raises(gym.error.ResetNeeded):
+        env.step(np.zeros(5))
+
+
+def test_make_and_async_vector_env():
+    """make and make_vec(async) with 2 tiny envs. The 'spawn' context: this test process has
+    already run numba's GNU-OpenMP parallel kernels, after which a forked child may not."""
+    env = gym.make(ENV_ID, scenarios=dict(TINY), k_frames=5)
+    assert isinstance(env.unwrapped, TrackerTuningEnv)
+    env.close()
+    vec = gym.make_vec(
+        ENV_ID,
+        num_envs=2,
+        vectorization_mode="async",
+        vector_kwargs={"context": "spawn"},
+        scenarios=dict(TINY),
+        k_frames=5,
+    )
+    try:
+        obs, _ = vec.reset(seed=[1, 2])
+        assert obs.shape == (2, len(OBS_FIELDS) + 5)
+        obs, r, term, trunc, _ = vec.step(np.zeros((2, 5), np.float32))
+        assert r.shape == (2,) and ((r >= 0) & (r <= 1)).all()
+    finally:
+        vec.close()
+
+
+def test_async_vector_env_default_context_in_a_fresh_process():
+    """What a user types: import envs, make_vec(..., vectorization_mode="async")."""
+    import subprocess
+    import sys
+
+    code = (
+        "import gymnasium as gym, numpy as np\n"
+        "from envs.tracker_tuning import register_envs, ENV_ID\n"
+        "register_envs()\n"
+        f"vec = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode='async', "
+        f"scenarios={dict(TINY)!r}, k_frames=5)\n"
+        "obs, _ = vec.reset(seed=0)\n"
+        "_, r, *_ = vec.step(np.zeros((2, 5), np.float32))\n"
+        "vec.close()\n"
+        "print(obs.shape, r.shape)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "(2, 18) (2,)"
+
+
+def test_policy_controlled_tracking_follows_the_env():
+    """A policy run through PolicyControlled makes the same tracks as the env stepping it."""
+
+    class Constant:
+        def __init__(self, a):
+            self.a = np.asarray(a, np.float32)
+            self.seen = []
+
+        def predict(self, obs, deterministic=True):
+            self.seen.append(np.asarray(obs).copy())
+            return self.a, None
+
+    from tracker.runner import run_tracker
+
+    a = [0.8, -0.5, 0.2, -1.0, 0.4]
+    env = tiny_env()
+    obs0, _ = env.reset(options={"episode": 4})
+    done = False
+    while not done:
+        _, _, done, _, _ = env.step(a)
+    space = ParamSpace()
+    pol = Constant(a)
+    seq = env.episodes.episode(4)
+    trk = make_observed_tracker("bqp", space.to_params(space.default_action))
+    run = run_tracker(trk, PolicyControlled(seq, trk, pol, space, k_frames=5), metrics="accuracy")
+    assert len(pol.seen) == 3
+    np.testing.assert_array_equal(pol.seen[0], obs0)
+    gt_ids, _ = seq.gt_points()
+    col = {int(i): c for c, i in enumerate(gt_ids)}
+    for j, i in enumerate(run.result.ids):
+        np.testing.assert_array_equal(run.result.positions[:, j], env._ep.tracks[:, col[int(i)]])
+    assert "acc@5" in run.report
+
+
+def test_episodes_from_a_fixed_stream_are_disjoint_by_seed():
+    d = ScenarioDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in TINY.items()})
+    train, held = ScenarioEpisodes(d, seed=0), ScenarioEpisodes(d, seed=1)
+    assert train.spec(0) == ScenarioEpisodes(d, seed=0).spec(0)
+    seeds_a = {train.spec(i).seed for i in range(20)}
+    seeds_b = {held.spec(i).seed for i in range(20)}
+    assert not seeds_a & seeds_b
+
+
+def test_suite_episodes_from_a_folder_and_a_builtin_suite(tmp_path):
+    from envs.episodes import SuiteEpisodes
+    from synth_data.generate import generate
+    from synth_data.suites import suite_specs
+
+    d = ScenarioDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in TINY.items()})
+    spec = d.sample_spec(np.random.default_rng(3), name="tiny1")
+    generate([spec], tmp_path / "suite", workers=1, progress=False)
+    env = TrackerTuningEnv(suite=str(tmp_path / "suite"), frames=8, k_frames=5)
+    _, info = env.reset(seed=0)
+    assert info["sequence"] == "tiny1" and info["length"] == 8
+    _, r, done, _, info = env.step(np.zeros(5))
+    _, r, done, _, info = env.step(np.zeros(5))
+    assert done and info["frames"] == 2 and 0.0 <= r <= 1.0
+    with pytest.raises(ValueError, match="no sequence 'tiny2'"):
+        SuiteEpisodes(tmp_path / "suite", only=["tiny2"])
+    held = SuiteEpisodes("ucf9", only=["seq8"], frames=3, reseed=5)
+    (orig,) = suite_specs("ucf9", ["seq8"])
+    assert held.spec(0).seed == orig.seed + 5 and held.spec(0).frames == 3

@@ -1,0 +1,273 @@
+"""Tuners: Optuna study resumes after a kill, bad studies are refused, RL training and
+policies round-trip. Sequences are tiny (a few people, 12 small frames)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+
+import pytest
+
+from envs.tuners import (
+    DependencyNotInstalled,
+    Objective,
+    complete_trials,
+    load_params,
+    load_policy,
+    open_study,
+    require,
+    storage_url,
+    tune,
+)
+
+TINY = {
+    "scenarios": ["counterflow"],
+    "agents": [6, 8],
+    "frames": 12,
+    "warmup_steps": 4,
+    "template_px": [10],
+    "max_width": 160,
+    "max_height": 120,
+}
+
+
+def objective(**kw):
+    return Objective(scenarios=dict(TINY), train_episodes=2, threshold_px=1.0, **kw)
+
+
+def trials_of(out):
+    con = sqlite3.connect(out / "study.db")
+    try:
+        rows = con.execute(
+            "SELECT t.number, t.state, v.value FROM trials t LEFT JOIN "
+            "trial_values v ON v.trial_id = t.trial_id ORDER BY t.number"
+        ).fetchall()
+    finally:
+        con.close()
+    return rows
+
+
+def test_tune_writes_results_and_a_rerun_continues_the_study(tmp_path):
+    out = tmp_path / "t"
+    res = tune(
+        objective(),
+        trials=3,
+        out=out,
+        heldout=1,
+        heldout_metrics="accuracy",
+        progress=False,
+        log=lambda m: None,
+    )
+    assert res.trials == 3
+    first = [
+        (t.number, t.params, t.value)
+        for t in complete_trials(
+            open_study(storage_url(None, out), "crowdsim-tune", objective(), "tpe", 0, 3)
+        )
+    ]
+    doc = json.loads((out / "best_params.json").read_text())
+    assert doc["trials"] == 3 and set(doc["params"]) == {
+        "zeta",
+        "eta",
+        "w_sp",
+        "w_g",
+        "update_threshold",
+    }
+    # trial 0 is the paper defaults, so the best is never worse than them on the tuning set
+    assert first[0][1] == {
+        "zeta": 0.3,
+        "eta": 0.2,
+        "w_sp": 0.3,
+        "w_g": 1.0,
+        "update_threshold": 0.6,
+    }
+    assert doc["value"] >= doc["default_value"] == pytest.approx(first[0][2])
+    assert set(doc["heldout"]) == {"defaults", "tuned"}
+    for name in ("history.png", "importance.png", "heldout.json"):
+        assert (out / name).stat().st_size > 0
+    msgs = []
+    res2 = tune(objective(), trials=5, out=out, heldout=0, progress=False, log=msgs.append)
+    assert res2.trials == 5 and any("3 finished" in m for m in msgs)
+    again = [
+        (t.number, t.params, t.value)
+        for t in complete_trials(
+            open_study(storage_url(None, out), "crowdsim-tune", objective(), "tpe", 0, 5)
+        )
+    ]
+    assert again[:3] == first
+    # the file round-trips into the tracker's parameters
+    name, params = load_params(out / "best_params.json")
+    doc = json.loads((out / "best_params.json").read_text())
+    assert name == "bqp" and params.zeta == pytest.approx(doc["params"]["zeta"])
+
+
+def test_killed_run_resumes_without_losing_finished_trials(tmp_path):
+    out = tmp_path / "k"
+    spec = tmp_path / "tiny.json"
+    spec.write_text(json.dumps(TINY))
+    cmd = [
+        sys.executable,
+        "-c",
+        "import sys; from crowdsim.cli import main; sys.exit(main())",
+        "tune",
+        "--scenarios",
+        str(spec),
+        "--trials",
+        "40",
+        "--train-episodes",
+        "2",
+        "--threshold",
+        "1",
+        "--heldout",
+        "0",
+        "--no-progress",
+        "--out",
+        str(out),
+    ]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    t0 = time.monotonic()
+    done = []
+    while time.monotonic() - t0 < 120:
+        time.sleep(0.2)
+        if (out / "study.db").exists():
+            try:
+                done = [r for r in trials_of(out) if r[1] == "COMPLETE"]
+            except sqlite3.OperationalError:
+                continue
+            if len(done) >= 3:
+                break
+        assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    proc.stderr.close()
+    before = [r for r in trials_of(out) if r[1] == "COMPLETE"]
+    assert len(before) >= 3
+    want = len(before) + 2
+    cmd[cmd.index("40")] = str(want)
+    rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert rerun.returncode == 0, rerun.stderr[-2000:]
+    after = trials_of(out)
+    complete = [r for r in after if r[1] == "COMPLETE"]
+    assert len(complete) >= want
+    assert set(before) <= set(complete)  # same numbers, same values
+    assert not [r for r in after if r[1] == "RUNNING"]
+    assert json.loads((out / "best_params.json").read_text())["trials"] == len(complete)
+
+
+def test_journal_storage_and_cmaes(tmp_path):
+    journal = tmp_path / "shared" / "study.log"
+    res = tune(
+        objective(),
+        trials=3,
+        out=tmp_path / "j",
+        study=str(journal),
+        sampler="cmaes",
+        heldout=0,
+        progress=False,
+        log=lambda m: None,
+    )
+    assert res.trials == 3 and journal.stat().st_size > 0
+    assert storage_url(str(journal), tmp_path) == f"journal:{journal.resolve()}"
+
+
+def test_two_local_workers_share_the_study(tmp_path):
+    res = tune(
+        objective(),
+        trials=4,
+        out=tmp_path / "w",
+        workers=2,
+        heldout=0,
+        progress=False,
+        log=lambda m: None,
+    )
+    assert 4 <= res.trials <= 5  # a parallel worker may finish one trial past the target
+
+
+def test_bad_studies_and_sources_are_refused(tmp_path):
+    out = tmp_path / "bad"
+    out.mkdir()
+    (out / "study.db").write_bytes(b"this is not a database at all" * 40)
+    with pytest.raises(ValueError, match="not an Optuna study"):
+        tune(objective(), trials=1, out=out, heldout=0, progress=False)
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    con = sqlite3.connect(foreign / "study.db")
+    con.execute("CREATE TABLE people (id INTEGER)")
+    con.commit()
+    con.close()
+    with pytest.raises(ValueError, match="not an Optuna study"):
+        tune(objective(), trials=1, out=foreign, heldout=0, progress=False)
+    journal = tmp_path / "x.log"
+    journal.write_bytes(b"\x00\x01garbage")
+    with pytest.raises(ValueError, match="not an Optuna journal"):
+        tune(
+            objective(), trials=1, out=tmp_path / "y", study=str(journal), heldout=0, progress=False
+        )
+    with pytest.raises(ValueError, match="--study must be"):
+        storage_url("mystudy", tmp_path)
+    with pytest.raises(ValueError, match="unknown suite 'nope'"):
+        tune(Objective(suite="nope"), trials=1, out=tmp_path / "z", progress=False)
+    with pytest.raises(ValueError, match="unknown scenario 'parade'"):
+        Objective(scenarios="parade").episodes()
+    with pytest.raises(ValueError, match="--sampler"):
+        tune(objective(), trials=1, out=tmp_path / "s", sampler="grid", progress=False)
+
+
+def test_missing_extras_name_the_install_line(monkeypatch, tmp_path):
+    with pytest.raises(DependencyNotInstalled, match=r"pip install 'crowdsim\[distributed\]'"):
+        require("crowdsim_no_such_module", "distributed", "--backend ray")
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if ray were not installed
+    with pytest.raises(ValueError, match=r"pip install 'crowdsim\[distributed\]'"):
+        tune(objective(), trials=1, out=tmp_path, backend="ray", heldout=0, progress=False)
+    monkeypatch.setitem(sys.modules, "torch", None)  # as if torch were not installed
+    from envs.tuners import train
+
+    with pytest.raises(ValueError, match=r"pip install 'crowdsim\[rl\]'"):
+        train("ppo", out=tmp_path, steps=1)
+
+
+def test_train_ppo_saves_a_policy_that_tracks(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from envs.episodes import ScenarioDistribution, ScenarioEpisodes
+    from envs.param_space import ParamSpace
+    from envs.tracker_tuning import PolicyControlled, make_observed_tracker
+    from envs.tuners import train
+    from tracker.runner import run_tracker
+
+    doc = train(
+        "ppo",
+        out=tmp_path,
+        n_envs=1,
+        steps=12,
+        env_kwargs={"scenarios": dict(TINY), "k_frames": 5},
+        progress=False,
+        log=lambda m: None,
+    )
+    assert len(doc["episodes"]) >= 3  # 3 steps per 12-frame episode
+    assert all(0 <= e["reward_per_step"] <= 100 for e in doc["episodes"])
+    assert (tmp_path / "learning_curve.png").stat().st_size > 0
+    model, meta = load_policy(tmp_path / "model.zip")
+    assert meta["algo"] == "ppo" and meta["env_kwargs"]["k_frames"] == 5
+    d = ScenarioDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in TINY.items()})
+    seq = ScenarioEpisodes(d, seed=7).episode(0)
+    space = ParamSpace()
+    trk = make_observed_tracker("bqp", space.to_params(space.default_action))
+    ctl = PolicyControlled(seq, trk, model, space, k_frames=5)
+    run = run_tracker(trk, ctl, metrics="accuracy")
+    assert len(ctl.actions) == 3 and run.result.n_frames == 12
+    # a zip that is not a crowdsim policy is refused
+    import zipfile
+
+    other = tmp_path / "other.zip"
+    with zipfile.ZipFile(other, "w") as zf:
+        zf.writestr("data", "{}")
+    with pytest.raises(ValueError, match="not a policy for crowdsim/TrackerTuning-v0"):
+        load_policy(other)
+    (tmp_path / "junk.zip").write_bytes(b"junk")
+    with pytest.raises(ValueError, match="not a zip"):
+        load_policy(tmp_path / "junk.zip")
