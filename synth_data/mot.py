@@ -25,7 +25,11 @@ Reader API (also reads real MOT17 / MOT20 folders)
 * ``gt_points() -> (ids (N,) int64, points (T, N, 2) float64)``: head centres in pixels, NaN
   where absent, ``T = length``. Only rows with ``conf > 0`` and ``class == 1`` count. Head
   boxes give their centre; body boxes give ``(left + w / 2, top + HEAD_IN_BODY * h)``.
-* ``agents() -> dict[str, (N,) ndarray]`` from ``gt/agents.csv`` (empty dict without it).
+* ``agents() -> dict[str, (N,) ndarray]`` from ``gt/agents.csv`` (empty dict without it);
+* ``births() -> ((ids0, pts0), {t: (ids, pts)})``: from the points CSV ``init`` when set (see
+  :mod:`synth_data.sequence`), else from the ground truth (each id born at its first frame).
+
+A ``MotSequence`` is a :class:`synth_data.sequence.SequenceSource`.
 
 ``write_mot(path, rows)`` and ``read_mot_file(path) -> (K, 9+) float64`` write and read MOT
 text files; malformed lines raise :class:`ValueError` as ``file:line: message``.
@@ -173,6 +177,8 @@ class MotSequence:
     im_dir: str = "img1"
     im_ext: str = ".jpg"
     info: dict[str, str] = field(default_factory=dict)
+    init: Path | None = None
+    """Points CSV that overrides the ground-truth births (``crowdsim track --init``)."""
 
     @property
     def video_path(self) -> Path:
@@ -216,6 +222,10 @@ class MotSequence:
             img = cv2.imread(str(p), cv2.IMREAD_COLOR)
             if img is None:
                 raise ValueError(f"{p}: not a readable image")
+            if img.shape[:2] != (self.height, self.width):
+                raise ValueError(f"{p}: the image is {img.shape[1]}x{img.shape[0]} px, but "
+                                 f"seqinfo.ini says imWidth={self.width}, "
+                                 f"imHeight={self.height}")
             return img
         if self.video_path.is_file():
             cap = cv2.VideoCapture(str(self.video_path))
@@ -249,6 +259,19 @@ class MotSequence:
             points[t[keep], col[keep], 1] = y[keep]
         return ids, points
 
+    def births(self):
+        """``((ids0, pts0), {t (0-based): (ids, pts)})``: from :attr:`init` (ids checked
+        against the ground truth) or from the ground truth itself."""
+        from synth_data.sequence import births_from_ground_truth, births_from_init
+
+        gt_ids, gt_pts = self.gt_points()
+        if self.init is not None:
+            return births_from_init(self.init, self.length, gt_ids, where=str(self.path))
+        if len(gt_ids) == 0:
+            raise ValueError(f"{self.path}: no ground truth to start from; pass --init "
+                             "points.csv (rows frame,id,x,y)")
+        return births_from_ground_truth(gt_ids, gt_pts)
+
     def agents(self) -> dict[str, np.ndarray]:
         """Columns of ``gt/agents.csv`` as int64 arrays (empty dict when absent)."""
         path = self.path / "gt" / "agents.csv"
@@ -273,6 +296,20 @@ class MotSequence:
                     raise ValueError(f"{path}:{lineno}: non-integer value in {row!r}") from None
         arr = np.array(data, dtype=np.int64).reshape(-1, len(header))
         return {h: arr[:, k] for k, h in enumerate(header)}
+
+
+def _check_gt_rows(gt_path: Path, gt: np.ndarray) -> None:
+    """Refuse non-integer or out-of-int64 ids and duplicate ``(frame, id)`` rows by name."""
+    if not len(gt):
+        return
+    ids = gt[:, 1]
+    bad = (ids != np.round(ids)) | (np.abs(ids) >= 2.0**63)
+    if bad.any():
+        raise ValueError(f"{gt_path}: id {ids[bad][0]:g} is not an integer within int64")
+    key = np.unique(gt[:, :2], axis=0, return_counts=True)
+    if (key[1] > 1).any():
+        f, i = key[0][key[1] > 1][0]
+        raise ValueError(f"{gt_path}: frame {int(f)}, id {int(i)} appears twice")
 
 
 def read_sequence(path: str | os.PathLike[str]) -> MotSequence:
@@ -305,26 +342,32 @@ def read_sequence(path: str | os.PathLike[str]) -> MotSequence:
 
     gt_path = path / "gt" / "gt.txt"
     gt = read_mot_file(gt_path)[:, :9] if gt_path.is_file() else np.zeros((0, 9))
-    length = get("seqLength", int, -1)
-    if length < 0:
-        raise ValueError(f"{ini}: missing key 'seqLength'")
+    _check_gt_rows(gt_path, gt)
+    length = get("seqLength", int)
+    if length < 1:
+        raise ValueError(f"{ini}: key 'seqLength' must be >= 1, got {length}")
     frame_rate = get("frameRate", float)
     width = get("imWidth", int)
     height = get("imHeight", int)
     for key, value in (("frameRate", frame_rate), ("imWidth", width), ("imHeight", height)):
-        if value <= 0:
-            raise ValueError(f"{ini}: key {key!r} must be > 0, got {value}")
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{ini}: key {key!r} must be a finite number > 0, got {value}")
     box_type = sec.get("boxType", "body").strip()
     if box_type not in ("head", "body"):
         raise ValueError(f"{ini}: key 'boxType' must be head or body, got {box_type!r}")
     if "templateSize" in sec:
         template = get("templateSize", int)
+        if not 2 <= template <= 256:
+            raise ValueError(f"{ini}: key 'templateSize' must be in [2, 256] px, got {template}")
     elif len(gt):
         ped = gt[(gt[:, 6] > 0) & (gt[:, 7] == 1)]
         widths = ped[:, 4] if len(ped) else gt[:, 4]
         template = int(np.clip(round(float(np.median(widths))), 4, 64))
     else:
         template = DEFAULT_TEMPLATE_SIZE
+    if len(gt) and gt[:, 0].max() > length:
+        raise ValueError(f"{gt_path}: frame {int(gt[:, 0].max())} is beyond seqLength={length} "
+                         f"of {ini}")
     return MotSequence(path=path, name=sec.get("name", path.name).strip(), frame_rate=frame_rate,
                        width=width, height=height, length=length, template_size=template, gt=gt,
                        box_type=box_type, im_dir=sec.get("imDir", "img1").strip(),

@@ -88,6 +88,7 @@ CAMERA_FIELDS: dict[str, type | tuple[type, ...]] = {
 }
 OUTPUT_FIELDS: dict[str, type] = {"images": bool, "video": bool}
 MAX_FRAMES: int = 1_000_000
+MAX_WARMUP_STEPS: int = 100_000
 
 
 @dataclass(frozen=True)
@@ -205,8 +206,9 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
     if not (0 < fps <= 1000):
         raise ValueError(f"{where}: fps must be in (0, 1000], got {data.get('fps')!r}")
     warmup = data.get("warmup_steps", 0)
-    if warmup < 0:
-        raise ValueError(f"{where}: warmup_steps must be >= 0, got {warmup!r}")
+    if not 0 <= warmup <= MAX_WARMUP_STEPS:  # 1e5 steps = 67 simulated minutes at 25 fps
+        raise ValueError(f"{where}: warmup_steps must be in [0, {MAX_WARMUP_STEPS}], "
+                         f"got {warmup!r}")
     sections = {}
     for sec in SECTIONS:
         value = data.get(sec, {})

@@ -42,7 +42,9 @@ def suite_specs(name: str, only: list[str] | None = None) -> list[SequenceSpec]:
         known = [s.name for s in specs]
         unknown = [o for o in only if o not in known]
         if unknown:
-            raise ValueError(f"--only: no sequence {unknown[0]!r} in suite {name!r}; "
-                             f"choose from {', '.join(known)}")
+            raise ValueError(
+                f"--only: no sequence {unknown[0]!r} in suite {name!r}; "
+                f"choose from {', '.join(known)}"
+            )
         specs = [s for s in specs if s.name in only]
     return specs

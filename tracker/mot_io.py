@@ -1,20 +1,15 @@
-"""Point tracks <-> MOT text rows, and the points CSV that initialises real-video tracking.
+"""Point tracks <-> MOT text rows.
 
 Point tracks are written as head boxes of the template size centred on the point
 (``bb_left = x - s/2``), one MOTChallenge result row per tracked point:
 ``frame,id,bb_left,bb_top,bb_width,bb_height,conf,-1,-1,-1`` (1-based frames). Reading takes
 the box centre back.
 
-Points CSV (``--init``): a header line and rows ``frame,id,x,y`` (pixels, 1-based frame) or
-``id,x,y`` (all at frame 1). Rows at the first frame initialise the tracker; later rows are
-births, as the papers initialise people entering the scene.
+Where the starting targets and births come from (ground truth, or the points CSV of
+``--init``) is the sequence's business: ``births()`` of :mod:`synth_data.sequence` sources.
 """
 
 from __future__ import annotations
-
-import csv
-import os
-from pathlib import Path
 
 import numpy as np
 
@@ -69,73 +64,3 @@ def mot_rows_to_tracks(rows: np.ndarray, length: int | None = None,
     pos[frames - 1, col, 0] = rows[:, 2] + rows[:, 4] / 2.0
     pos[frames - 1, col, 1] = rows[:, 3] + rows[:, 5] / 2.0
     return ids, pos
-
-
-def read_points_csv(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray,
-                                                           np.ndarray]:
-    """Read a points CSV: returns ``frames (K,) 1-based, ids (K,), points (K, 2)`` px."""
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"{path}: no such points file")
-    with open(path, newline="") as fh:
-        reader = csv.reader(fh)
-        try:
-            header = [h.strip().lower() for h in next(reader)]
-        except StopIteration:
-            raise ValueError(f"{path}: empty points file (expected a header frame,id,x,y "
-                             "or id,x,y)") from None
-        if header not in (["frame", "id", "x", "y"], ["id", "x", "y"]):
-            raise ValueError(f"{path}:1: header must be 'frame,id,x,y' or 'id,x,y', got "
-                             f"{','.join(header)!r}")
-        out = []
-        for lineno, row in enumerate(reader, start=2):
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != len(header):
-                raise ValueError(f"{path}:{lineno}: expected {len(header)} columns, got "
-                                 f"{len(row)}")
-            try:
-                vals = [float(c) for c in row]
-            except ValueError:
-                raise ValueError(f"{path}:{lineno}: non-numeric value in {row!r}") from None
-            if not np.isfinite(vals).all():
-                raise ValueError(f"{path}:{lineno}: non-finite value in {row!r}")
-            if len(vals) == 3:
-                vals = [1.0, *vals]
-            if vals[0] < 1 or vals[0] != int(vals[0]) or vals[1] != int(vals[1]):
-                raise ValueError(f"{path}:{lineno}: frame must be a positive integer and id an "
-                                 f"integer, got {row!r}")
-            out.append(vals)
-    arr = np.asarray(out, dtype=np.float64).reshape(-1, 4)
-    ids = arr[:, 1].astype(np.int64)
-    uniq, counts = np.unique(ids, return_counts=True)
-    if (counts > 1).any():
-        raise ValueError(f"{path}: id {uniq[counts > 1][0]} is listed more than once")
-    return arr[:, 0].astype(np.int64), ids, arr[:, 2:4]
-
-
-def births_from_points(frames: np.ndarray, ids: np.ndarray, points: np.ndarray):
-    """Split points into the initial targets (frame 1) and births ``{t (0-based): (ids, pts)}``."""
-    init = (ids[frames == 1], points[frames == 1])
-    births = {}
-    for f in np.unique(frames[frames > 1]):
-        sel = frames == f
-        births[int(f) - 1] = (ids[sel], points[sel])
-    return init, births
-
-
-def births_from_ground_truth(ids: np.ndarray, points: np.ndarray):
-    """Initial targets and births from ground-truth tracks ``(T, N, 2)`` (synthetic data).
-
-    Each id is born at its first present frame, at its ground-truth position there.
-    """
-    present = np.isfinite(points).all(-1)
-    has = present.any(0)
-    first = np.where(has, present.argmax(0), -1)
-    init_sel = first == 0
-    init = (ids[init_sel], points[0, init_sel])
-    births = {}
-    for t in np.unique(first[first > 0]):
-        sel = first == t
-        births[int(t)] = (ids[sel], points[t, sel])
-    return init, births

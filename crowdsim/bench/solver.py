@@ -9,7 +9,7 @@ Reproduces two claims on the relaxed per-frame QP of the BQP tracker:
 Problems come from one of three sources:
 
 * ``--tracker-frames N``: the BQP tracker (:class:`tracker.bqp.BQPTracker`) itself runs N
-  frames on a crowd rendered by :func:`crowdsim.bench.track.synthetic_crowd` at each size and
+  frames on a crowd rendered by :func:`synth_data.sequence.synthetic_crowd` at each size and
   its recorded per-frame QPs are taken;
 * ``--from-npz FILE``: QPs dumped from tracking frames with :func:`tracker.bqp.qp.save_many`
   (e.g. ``BQPTracker(record_qps=True).recorded_qps``), for instance on real video;
@@ -116,7 +116,8 @@ def _problems(args: argparse.Namespace) -> list[tuple[str, BlockQP]]:
 
 def _tracker_problems(args: argparse.Namespace) -> list[tuple[str, BlockQP]]:
     """QPs recorded by the BQP tracker itself on rendered crowds (``--tracker-frames``)."""
-    from crowdsim.bench.track import run_tracker, synthetic_crowd
+    from crowdsim.bench.track import run_tracker
+    from synth_data.sequence import synthetic_crowd
     from tracker.bqp.params import BQPParams
     from tracker.bqp.tracker import BQPTracker
 

@@ -20,9 +20,8 @@ import json
 import math
 import os
 import time
-from dataclasses import dataclass
 
-import numpy as np
+from synth_data.sequence import InMemorySequence, load_crowd, synthetic_crowd  # noqa: F401
 
 PACKED_DENSITY: float = 2.5
 """People per square metre of the packed speed runs."""
@@ -32,81 +31,6 @@ def packed_size(n: int, px_per_m: float) -> tuple[int, int]:
     """A 16:9 frame holding ``n`` people at :data:`PACKED_DENSITY`."""
     scale = math.sqrt(n / PACKED_DENSITY * px_per_m ** 2 / (1280 * 720))
     return max(64, int(1280 * scale)), max(48, int(720 * scale))
-
-
-@dataclass
-class Crowd:
-    """A rendered synthetic crowd: ``frames`` list of (H, W, 3) uint8, gt ``(T, N, 2)`` px."""
-
-    frames: list[np.ndarray]
-    ids: np.ndarray
-    points: np.ndarray
-    template_size: int
-
-
-def synthetic_crowd(n: int, n_frames: int, seed: int = 0, template_px: int = 12,
-                    size: tuple[int, int] = (1280, 720), fps: float = 25.0,
-                    speed: float = 1.3, contrast: float = 1.0,
-                    noise_sigma: float = 3.0) -> Crowd:
-    """Render ``n`` people in lanes of opposite flows (counterflow bands of 4 m).
-
-    People start on a jittered grid that fills the frame, walk along x at N(speed, 0.15) m/s
-    (alternate 4 m bands walk the other way) with a slow sinusoidal weave, so that the
-    neighbourhood-motion and grouping terms have coherent groups to find. ``contrast`` and
-    ``noise_sigma`` are the renderer's appearance knobs (lower contrast, more noise = harder).
-    """
-    from crowdsim.appearance_model import AppearanceParams
-    from crowdsim.camera import Camera
-    from crowdsim.render import SceneRenderer, default_px_per_m, prepare_agents
-    from crowdsim.trajectories import Trajectories
-
-    if n < 1 or n_frames < 2:
-        raise ValueError(f"need n >= 1 and n_frames >= 2, got {n}, {n_frames}")
-    rng = np.random.default_rng(seed)
-    ppm = default_px_per_m(template_px)
-    w_m, h_m = size[0] / ppm, size[1] / ppm
-    cols = max(1, int(round(math.sqrt(n * w_m / h_m))))
-    rows = int(math.ceil(n / cols))
-    gx, gy = np.meshgrid((np.arange(cols) + 0.5) * w_m / cols,
-                         (np.arange(rows) + 0.5) * h_m / rows)
-    start = np.stack([gx.ravel(), gy.ravel()], 1)[:n]
-    cell = min(w_m / cols, h_m / rows)
-    start += rng.uniform(-0.2, 0.2, start.shape) * cell
-    direction = np.where((start[:, 1] // 4.0) % 2 == 0, 1.0, -1.0)
-    v = direction * rng.normal(speed, 0.15, n)
-    dt = 1.0 / fps
-    t = np.arange(n_frames)[:, None] * dt
-    phase = rng.uniform(0, 2 * math.pi, n)
-    pos = np.empty((n_frames, n, 2))
-    pos[..., 0] = start[:, 0] + v * t
-    pos[..., 1] = start[:, 1] + 0.15 * np.sin(0.8 * t + phase)
-    traj = Trajectories(pos, np.arange(1, n + 1), dt)
-    cam = Camera(px_per_m=ppm, width=size[0], height=size[1], center=(w_m / 2, h_m / 2))
-    params = AppearanceParams(template_px=template_px, contrast=contrast,
-                              noise_sigma=noise_sigma)
-    tracks = prepare_agents(traj, cam, params, seed)
-    renderer = SceneRenderer(cam, params, seed, fps)
-    frames = [renderer.render_tracks(tracks, k).copy() for k in range(n_frames)]
-    pts = tracks.pixels.copy()
-    inside = (pts[..., 0] >= 0) & (pts[..., 0] <= size[0] - 1) & (pts[..., 1] >= 0) & \
-        (pts[..., 1] <= size[1] - 1)
-    pts[~inside] = np.nan
-    return Crowd(frames, traj.ids.copy(), pts, template_px)
-
-
-def load_crowd(seq_dir: str, max_frames: int | None = None) -> Crowd:
-    """A MOT sequence folder (e.g. from ``crowdsim generate``) as a :class:`Crowd`."""
-    import itertools
-
-    from synth_data.mot import read_sequence
-
-    seq = read_sequence(seq_dir)
-    ids, pts = seq.gt_points()
-    if len(ids) == 0:
-        raise ValueError(f"{seq_dir}: the sequence has no ground truth")
-    n = seq.length if max_frames is None else min(max_frames, seq.length)
-    frames = list(itertools.islice(seq.frames(), n))
-    return Crowd(frames, ids, pts[:n], int(seq.template_size))
 
 
 ABLATION: tuple[tuple[str, dict], ...] = (
@@ -120,7 +44,7 @@ ABLATION: tuple[tuple[str, dict], ...] = (
 """The term ablation of the paper's Table 3: overrides of :class:`BQPParams` per row."""
 
 
-def run_ablation(crowd: Crowd) -> list[dict]:
+def run_ablation(crowd: InMemorySequence) -> list[dict]:
     """Table 3: accuracy of every term combination, with KCF and with NCC appearance."""
     from tracker.bqp.params import BQPParams
     from tracker.bqp.tracker import BQPTracker
@@ -134,17 +58,17 @@ def run_ablation(crowd: Crowd) -> list[dict]:
     return rows
 
 
-def run_tracker(tracker, crowd: Crowd) -> dict:
+def run_tracker(tracker, crowd: InMemorySequence) -> dict:
     """Track ``crowd`` (births from ground truth); returns fps, per-stage ms and accuracy."""
     from tracker.metrics import accuracy_curve
-    from tracker.mot_io import births_from_ground_truth
 
-    (ids, pts), births = births_from_ground_truth(crowd.ids, crowd.points)
+    (ids, pts), births = crowd.births()
+    gt_ids, gt_pts = crowd.gt_points()
     t0 = time.perf_counter()
-    res = tracker.track(crowd.frames, ids, pts, crowd.template_size, births=births)
+    res = tracker.track(crowd.frames(), ids, pts, crowd.template_size, births=births)
     wall = time.perf_counter() - t0
     steps = max(res.n_frames - 1, 1)
-    curve = accuracy_curve(crowd.ids, crowd.points, res.ids, res.positions)
+    curve = accuracy_curve(gt_ids, gt_pts, res.ids, res.positions)
     out = {
         "targets": int(len(ids)),
         "frames": int(res.n_frames),

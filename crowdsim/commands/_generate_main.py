@@ -15,8 +15,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(["generate", *(sys.argv[1:] if argv is None else argv)])
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, FileExistsError) as exc:
+    except ValueError as exc:
         print(f"crowdsim generate: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        from crowdsim.cli import describe_os_error
+
+        print(f"crowdsim generate: error: {describe_os_error(exc)}", file=sys.stderr)
         return 2
 
 

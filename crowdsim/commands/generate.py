@@ -6,6 +6,11 @@
 Writes ``DIR/<sequence name>/`` and ``DIR/manifest.json``; completed sequences are skipped on a
 rerun (resume), existing sequences made from another spec are only replaced with
 ``--overwrite`` (otherwise exit code 2). See :mod:`synth_data.generate`.
+
+Exit codes: 0 done; 1 a worker failed or died (finished sequences are kept: rerun to resume);
+2 a user error, a file-system error (full disk, read-only folder...: one line naming the path,
+nothing left behind), or SIGINT/SIGTERM (the run stops at once, removes its temporary folders
+and says so in one line).
 """
 
 from __future__ import annotations
@@ -15,24 +20,50 @@ import os
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("generate", help="generate synthetic benchmark sequences (MOT layout)",
-                       description=__doc__.splitlines()[0].replace("``", ""))
+    p = sub.add_parser(
+        "generate",
+        help="generate synthetic benchmark sequences (MOT layout)",
+        description=__doc__.splitlines()[0].replace("``", ""),
+    )
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--suite", choices=("ucf9", "galleria", "stress"),
-                     help="named suite of spec files shipped with crowdsim")
-    src.add_argument("--spec", action="append", metavar="FILE",
-                     help="sequence spec file (.toml/.yaml); repeat for several")
+    src.add_argument(
+        "--suite",
+        choices=("ucf9", "galleria", "stress"),
+        help="named suite of spec files shipped with crowdsim",
+    )
+    src.add_argument(
+        "--spec",
+        action="append",
+        metavar="FILE",
+        help="sequence spec file (.toml/.yaml); repeat for several",
+    )
     p.add_argument("--only", nargs="+", metavar="SEQ", help="with --suite: only these sequences")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--frames", type=int, metavar="N", help="truncate every sequence to N frames")
-    p.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="parallel sequences (default: CPU count, at most the sequence count)")
-    p.add_argument("--backend", choices=("local", "ray"), default="local",
-                   help="local process pool (default) or Ray tasks")
-    p.add_argument("--address", default=None, metavar="ADDR",
-                   help="Ray cluster address (default: start a local Ray instance)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace existing sequences that do not match their spec")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="parallel sequences (default: CPU count, at most the sequence count)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="local process pool (default) or Ray tasks",
+    )
+    p.add_argument(
+        "--address",
+        default=None,
+        metavar="ADDR",
+        help="Ray cluster address (default: start a local Ray instance)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace existing sequences that do not match their spec",
+    )
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.set_defaults(func=run)
 
@@ -40,7 +71,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from synth_data.generate import GenerationError, generate
+    from crowdsim.jobs import Interrupted, interruptible
+    from synth_data.generate import GenerationError, clean_stale_tmp, generate
     from synth_data.spec import load_spec
     from synth_data.suites import suite_specs
 
@@ -54,14 +86,33 @@ def run(args: argparse.Namespace) -> int:
     specs = [s.truncated(args.frames) for s in specs]
     workers = args.workers if args.workers is not None else min(os.cpu_count() or 1, len(specs))
     try:
-        manifest = generate(specs, args.out, workers=workers, backend=args.backend,
-                            address=args.address, overwrite=args.overwrite,
-                            progress=not args.no_progress)
+        with interruptible():
+            manifest = generate(
+                specs,
+                args.out,
+                workers=workers,
+                backend=args.backend,
+                address=args.address,
+                overwrite=args.overwrite,
+                progress=not args.no_progress,
+            )
     except GenerationError as exc:
         print(f"crowdsim generate: error: {exc}", file=sys.stderr)
         return 1
+    except Interrupted as exc:
+        if getattr(exc, "removed", None) is None:  # stopped before any job ran
+            clean_stale_tmp(args.out)
+        print(
+            f"crowdsim generate: interrupted by {exc.signal_name}; workers stopped, this "
+            f"run's temporary folders removed; finished sequences are kept in {args.out}, "
+            "rerun the same command to resume",
+            file=sys.stderr,
+        )
+        return 2
     seqs = manifest["sequences"]
     total = sum(e["bytes"] for e in seqs.values())
-    print(f"{len(seqs)} sequence(s) complete in {args.out} ({total / 1e6:.1f} MB); "
-          f"manifest: {os.path.join(args.out, 'manifest.json')}")
+    print(
+        f"{len(seqs)} sequence(s) complete in {args.out} ({total / 1e6:.1f} MB); "
+        f"manifest: {os.path.join(args.out, 'manifest.json')}"
+    )
     return 0

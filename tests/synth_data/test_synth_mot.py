@@ -12,8 +12,9 @@ from synth_data.mot import read_mot_file, read_sequence, write_mot
 
 
 def test_write_read_round_trip(tmp_path):
-    rows = np.array([[1, 1, 10.5, 20.25, 12, 12, 1, 1, 1.0],
-                     [2, 7, -3.125, 4.0, 12, 12, 1, 1, 0.5]])
+    rows = np.array(
+        [[1, 1, 10.5, 20.25, 12, 12, 1, 1, 1.0], [2, 7, -3.125, 4.0, 12, 12, 1, 1, 0.5]]
+    )
     path = write_mot(tmp_path / "gt.txt", rows)
     np.testing.assert_allclose(read_mot_file(path), rows)
 
@@ -29,15 +30,18 @@ def test_short_result_rows_are_padded_and_whitespace_is_accepted(tmp_path):
     assert read_mot_file(empty).shape == (0, 9)
 
 
-@pytest.mark.parametrize("content, message", [
-    ("1,1,2,3,4\n", r"bad\.txt:1: expected at least 6 columns"),
-    ("1,1,2,3,4,5,1,1,1\n2,1,2,x,4,5,1,1,1\n", r"bad\.txt:2: non-numeric value 'x'"),
-    ("0,1,2,3,4,5,1,1,1\n", r"bad\.txt:1: frame must be a positive integer.*'0'"),
-    ("1.5,1,2,3,4,5,1,1,1\n", r"bad\.txt:1: frame must be a positive integer"),
-    ("1,1,2,3,-4,5,1,1,1\n", r"bad\.txt:1: box width/height must be >= 0"),
-    ("1,1,2,3,4,5,1,1,1\n1,2,2,3,4,5,1,1\n", r"bad\.txt:2: expected 9 columns"),
-    ("1,1,nan,3,4,5,1,1,1\n", r"bad\.txt:1: non-finite value"),
-])
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("1,1,2,3,4\n", r"bad\.txt:1: expected at least 6 columns"),
+        ("1,1,2,3,4,5,1,1,1\n2,1,2,x,4,5,1,1,1\n", r"bad\.txt:2: non-numeric value 'x'"),
+        ("0,1,2,3,4,5,1,1,1\n", r"bad\.txt:1: frame must be a positive integer.*'0'"),
+        ("1.5,1,2,3,4,5,1,1,1\n", r"bad\.txt:1: frame must be a positive integer"),
+        ("1,1,2,3,-4,5,1,1,1\n", r"bad\.txt:1: box width/height must be >= 0"),
+        ("1,1,2,3,4,5,1,1,1\n1,2,2,3,4,5,1,1\n", r"bad\.txt:2: expected 9 columns"),
+        ("1,1,nan,3,4,5,1,1,1\n", r"bad\.txt:1: non-finite value"),
+    ],
+)
 def test_malformed_mot_lines_name_file_and_line(tmp_path, content, message):
     p = tmp_path / "bad.txt"
     p.write_text(content)
@@ -56,12 +60,14 @@ def _mot17_like(root, with_images=True):
     (seq / "gt").mkdir(parents=True)
     (seq / "seqinfo.ini").write_text(
         "[Sequence]\nname=MOT17-XX\nimDir=img1\nframeRate=30\nseqLength=3\nimWidth=64\n"
-        "imHeight=48\nimExt=.jpg\n")
+        "imHeight=48\nimExt=.jpg\n"
+    )
     (seq / "gt" / "gt.txt").write_text(
         "1,1,10,5,20,50,1,1,0.9\n2,1,12,5,20,50,1,1,0.8\n3,1,14,5,20,50,1,1,1\n"
         "1,2,30,8,24,60,1,1,1\n3,2,31,8,24,60,1,1,1\n"
         "1,3,0,0,40,40,0,3,1\n"  # a car, ignored (conf 0, class 3)
-        "2,4,5,5,18,40,1,7,1\n")  # a static person (class 7), not a pedestrian target
+        "2,4,5,5,18,40,1,7,1\n"
+    )  # a static person (class 7), not a pedestrian target
     if with_images:
         (seq / "img1").mkdir()
         for i in range(1, 4):
@@ -71,8 +77,13 @@ def _mot17_like(root, with_images=True):
 
 def test_reads_a_real_mot17_layout(tmp_path):
     seq = read_sequence(_mot17_like(tmp_path))
-    assert (seq.name, seq.frame_rate, seq.width, seq.height, seq.length) == \
-        ("MOT17-XX", 30.0, 64, 48, 3)
+    assert (seq.name, seq.frame_rate, seq.width, seq.height, seq.length) == (
+        "MOT17-XX",
+        30.0,
+        64,
+        48,
+        3,
+    )
     assert seq.box_type == "body"
     assert seq.gt.shape == (7, 9)
     assert seq.template_size == 20  # median width of the pedestrian boxes
@@ -90,8 +101,9 @@ def test_reads_a_real_mot17_layout(tmp_path):
 
 def test_reads_frames_from_video_mp4(tmp_path):
     root = _mot17_like(tmp_path, with_images=False)
-    writer = cv2.VideoWriter(str(root / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30.0,
-                             (64, 48))
+    writer = cv2.VideoWriter(
+        str(root / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (64, 48)
+    )
     if not writer.isOpened():
         pytest.skip("this OpenCV build cannot write mp4v")
     for i in range(1, 4):
@@ -107,21 +119,27 @@ def test_reads_frames_from_video_mp4(tmp_path):
 def test_no_gt_gives_an_empty_array_and_the_default_template(tmp_path):
     seq_dir = tmp_path / "s"
     seq_dir.mkdir()
-    (seq_dir / "seqinfo.ini").write_text("[Sequence]\nname=s\nframeRate=25\nseqLength=2\n"
-                                         "imWidth=32\nimHeight=32\n")
+    (seq_dir / "seqinfo.ini").write_text(
+        "[Sequence]\nname=s\nframeRate=25\nseqLength=2\nimWidth=32\nimHeight=32\n"
+    )
     seq = read_sequence(seq_dir)
     assert seq.gt.shape == (0, 9) and seq.template_size == 12
     ids, pts = seq.gt_points()
     assert ids.shape == (0,) and pts.shape == (2, 0, 2)
 
 
-@pytest.mark.parametrize("ini, message", [
-    (None, "missing seqinfo.ini"),
-    ("[Other]\nx=1\n", r"missing \[Sequence\] section"),
-    ("[Sequence]\nframeRate=25\nimWidth=3\nimHeight=3\n", "missing key 'seqLength'"),
-    ("[Sequence]\nframeRate=fast\nseqLength=2\nimWidth=3\nimHeight=3\n",
-     "key 'frameRate' has a bad value 'fast'"),
-])
+@pytest.mark.parametrize(
+    "ini, message",
+    [
+        (None, "missing seqinfo.ini"),
+        ("[Other]\nx=1\n", r"missing \[Sequence\] section"),
+        ("[Sequence]\nframeRate=25\nimWidth=3\nimHeight=3\n", "missing key 'seqLength'"),
+        (
+            "[Sequence]\nframeRate=fast\nseqLength=2\nimWidth=3\nimHeight=3\n",
+            "key 'frameRate' has a bad value 'fast'",
+        ),
+    ],
+)
 def test_bad_sequence_folders_give_clear_errors(tmp_path, ini, message):
     seq_dir = tmp_path / "s"
     seq_dir.mkdir()
@@ -130,10 +148,18 @@ def test_bad_sequence_folders_give_clear_errors(tmp_path, ini, message):
     with pytest.raises(ValueError, match=message):
         read_sequence(seq_dir)
 
-_row = st.tuples(st.integers(1, 10_000), st.integers(1, 10_000),
-                 st.floats(-1e4, 1e4, allow_nan=False), st.floats(-1e4, 1e4, allow_nan=False),
-                 st.floats(0, 500, allow_nan=False), st.floats(0, 500, allow_nan=False),
-                 st.sampled_from([0.0, 1.0]), st.integers(1, 12), st.floats(0, 1))
+
+_row = st.tuples(
+    st.integers(1, 10_000),
+    st.integers(1, 10_000),
+    st.floats(-1e4, 1e4, allow_nan=False),
+    st.floats(-1e4, 1e4, allow_nan=False),
+    st.floats(0, 500, allow_nan=False),
+    st.floats(0, 500, allow_nan=False),
+    st.sampled_from([0.0, 1.0]),
+    st.integers(1, 12),
+    st.floats(0, 1),
+)
 
 
 @settings(max_examples=40, deadline=None)

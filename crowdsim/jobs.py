@@ -1,0 +1,553 @@
+"""Run many independent jobs on a local process pool or on Ray, with a resumable manifest.
+
+One runner for every command that fans work out (``generate``, ``compare``, ``ablation``,
+``tune``): each :class:`Job` has a unique ``key``; when it finishes its JSON-serialisable
+result is recorded in a JSON manifest, so a rerun with the same manifest skips it (resume).
+
+Example
+-------
+>>> import math, pathlib, tempfile
+>>> manifest = pathlib.Path(tempfile.mkdtemp()) / "manifest.json"
+>>> jobs = [Job(f"sqrt-{k}", math.sqrt, (k,)) for k in (4, 9)]
+>>> run_jobs(jobs, manifest, progress=False)
+{'sqrt-4': 2.0, 'sqrt-9': 3.0}
+>>> done = []
+>>> run_jobs(jobs, manifest, progress=False, on_done=lambda key, res: done.append(key))
+{'sqrt-4': 2.0, 'sqrt-9': 3.0}
+>>> done  # both were already in the manifest: nothing ran again
+[]
+>>> read_manifest(manifest)["jobs"]
+{'sqrt-4': 2.0, 'sqrt-9': 3.0}
+
+Guarantees
+----------
+* **No lost entries.** Every update of the manifest happens under an exclusive
+  ``fcntl.flock`` on ``.<manifest name>.lock`` beside it: read, merge the new entry, write
+  atomically (:mod:`crowdsim.atomic`). Two runs sharing a manifest (e.g. two ``generate``
+  runs into one folder with different ``--only`` sets) keep each other's entries.
+* **Workers die with their parent.** Pool workers are spawned (no fork of a process holding
+  OpenCV or numba threads); on Linux each asks the kernel for ``SIGKILL`` when its parent
+  dies (``prctl(PR_SET_PDEATHSIG)``), and a watchdog thread that polls the parent pid covers
+  other platforms and the start-up race.
+* **Prompt interruption.** SIGINT or SIGTERM to the parent raises :class:`Interrupted` (a
+  ``KeyboardInterrupt``) in the caller at once: queued jobs are cancelled, running local
+  workers get SIGTERM (a job unwinds, so its ``finally``/``except`` clean-ups run, and the
+  worker exits) and SIGKILL after :data:`STOP_GRACE_S`; Ray tasks are cancelled with
+  ``force=True``. Jobs that finished before the signal stay in the manifest. Workers ignore
+  SIGINT themselves, so a terminal Ctrl-C is handled once, by the parent.
+* **Failures.** A job that raises one of ``passthrough`` (default ``ValueError``,
+  ``FileExistsError``: user errors) re-raises it unchanged; any other exception, or a worker
+  that died, raises :class:`JobError` naming the key. Queued jobs are then cancelled, running
+  ones finish and are recorded, so a rerun resumes.
+
+Job functions must be picklable (module-level) for ``workers > 1`` and for Ray; with
+``workers == 1`` (or a single job) they run in the calling process. Ray's output must be
+visible to the driver; the manifest is only written by the driver.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from crowdsim.atomic import write_text_atomic
+from crowdsim.checks import require_choice, require_number
+
+MANIFEST_FORMAT: int = 1
+STOP_GRACE_S: float = 3.0
+"""Seconds a terminated worker gets to clean up before it is killed."""
+WATCHDOG_PERIOD_S: float = 0.5
+"""How often a worker checks that its parent is still alive (fallback to PDEATHSIG)."""
+RAY_HINT = "--backend ray needs Ray, an optional extra: pip install 'crowdsim[distributed]'"
+
+
+class JobError(RuntimeError):
+    """A job failed or its worker died; ``key`` names it. Finished jobs stay recorded."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(message)
+        self.key = key
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM stopped the run; ``signal_name`` says which."""
+
+    def __init__(self, signal_name: str) -> None:
+        super().__init__(signal_name)
+        self.signal_name = signal_name
+
+
+@dataclass(frozen=True)
+class Job:
+    """One unit of work.
+
+    Parameters
+    ----------
+    key : str
+        Unique name; the manifest records the result under it.
+    fn : callable
+        ``fn(*args, **kwargs)`` returns a JSON-serialisable result. Module-level (picklable)
+        when it runs in a pool or on Ray.
+    args : tuple
+    kwargs : dict
+    size : float
+        Progress units of the job (e.g. its frames); the bar's total is the sum.
+    progress_kw : str, optional
+        When given, ``fn`` receives under this keyword a callable ``advance(n)`` that moves
+        the progress bar by ``n`` units while the job runs (also from pool workers).
+    """
+
+    key: str
+    fn: Callable[..., Any]
+    args: tuple = ()
+    kwargs: dict[str, Any] = field(default_factory=dict)
+    size: float = 1.0
+    progress_kw: str | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.key, str) or not self.key:
+            raise ValueError(f"Job.key must be a non-empty string, got {self.key!r}")
+        if not callable(self.fn):
+            raise ValueError(f"Job.fn of {self.key!r} must be callable, got {self.fn!r}")
+        require_number("Job", "size", self.size, lo=0)
+
+
+# ---------------------------------------------------------------------------- manifest
+def _empty(section: str) -> dict[str, Any]:
+    return {"format": MANIFEST_FORMAT, section: {}}
+
+
+def read_manifest(path: str | os.PathLike[str], section: str = "jobs") -> dict[str, Any]:
+    """The manifest at ``path`` (an empty one when missing or unreadable), unlocked.
+
+    Returns ``{"format": 1, section: {key: result, ...}, ...}``; other top-level keys of the
+    file are kept.
+    """
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return _empty(section)
+    if not isinstance(data, dict):
+        return _empty(section)
+    if not isinstance(data.get(section), dict):
+        data[section] = {}
+    return data
+
+
+def lock_path(path: str | os.PathLike[str]) -> Path:
+    """The lock file of the manifest ``path``: ``.<name>.lock`` beside it."""
+    path = Path(path)
+    return path.parent / f".{path.name}.lock"
+
+
+@contextmanager
+def manifest_lock(path: str | os.PathLike[str]) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on the manifest's lock file (no-op where fcntl is missing)."""
+    lock = lock_path(path)
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX: no lock, as before this module
+        yield
+        return
+    with open(lock, "a+") as fh:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+
+@contextmanager
+def locked_manifest(
+    path: str | os.PathLike[str], section: str = "jobs"
+) -> Iterator[dict[str, Any]]:
+    """Lock, read and yield the manifest; on a normal exit write it back atomically.
+
+    Modify the yielded dict in place (``m[section][key] = result``); entries of other runs
+    written meanwhile are in it, because the file is read after the lock is taken.
+    """
+    with manifest_lock(path):
+        data = read_manifest(path, section)
+        yield data
+        data["format"] = data.get("format", MANIFEST_FORMAT)
+        data[section] = dict(sorted(data[section].items()))
+        write_text_atomic(path, json.dumps(data, indent=1) + "\n")
+
+
+# ---------------------------------------------------------------------------- workers
+_QUEUE: Any = None
+_IN_JOB = False
+
+
+class _Terminated(BaseException):
+    """Raised inside a worker's running job by SIGTERM so that its clean-ups run."""
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Ask for SIGKILL when the parent dies (Linux), and watch the parent pid (everywhere)."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+        except (OSError, AttributeError):  # pragma: no cover - exotic libc
+            pass
+    if os.getppid() != parent_pid:  # the parent died before prctl took effect
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(WATCHDOG_PERIOD_S)
+            if os.getppid() != parent_pid:
+                os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, name="crowdsim-parent-watchdog", daemon=True).start()
+
+
+def _on_sigterm(signum: int, frame: Any) -> None:
+    if _IN_JOB:
+        raise _Terminated()
+    os._exit(128 + signum)
+
+
+def _worker_init(parent_pid: int, queue: Any, user_init: Callable[[], None] | None) -> None:
+    global _QUEUE
+    _die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
+    signal.signal(signal.SIGTERM, _on_sigterm)
+    _QUEUE = queue
+    if user_init is not None:
+        user_init()
+
+
+class _Advance:
+    """Picklable ``advance(n)`` for a job in a pool worker: sends ``(key, n)`` to the parent."""
+
+    def __init__(self, key: str) -> None:
+        self.key = key
+
+    def __call__(self, n: float = 1) -> None:
+        if _QUEUE is not None:
+            _QUEUE.put((self.key, n))
+
+
+def _call_in_worker(job: Job) -> Any:
+    global _IN_JOB
+    kwargs = dict(job.kwargs)
+    if job.progress_kw:
+        kwargs[job.progress_kw] = _Advance(job.key)
+    _IN_JOB = True
+    try:
+        return job.fn(*job.args, **kwargs)
+    except _Terminated:  # the job's own clean-ups have run while unwinding
+        os._exit(128 + signal.SIGTERM)
+    finally:
+        _IN_JOB = False
+
+
+def _call_on_ray(job: Job) -> Any:
+    return job.fn(*job.args, **job.kwargs)
+
+
+# ---------------------------------------------------------------------------- driver
+class _Progress:
+    """The bar, with per-job units so a finished job tops up to exactly its size."""
+
+    def __init__(self, jobs: Sequence[Job], enabled: bool, desc: str, unit: str) -> None:
+        from crowdsim.progress import progress_bar
+
+        self.bar = progress_bar(
+            total=sum(j.size for j in jobs), unit=unit, desc=desc, enabled=enabled
+        )
+        self.sizes = {j.key: j.size for j in jobs}
+        self.seen: dict[str, float] = {}
+
+    def advance(self, key: str, n: float) -> None:
+        room = self.sizes.get(key, 0.0) - self.seen.get(key, 0.0)
+        n = min(n, room)
+        if n > 0:
+            self.seen[key] = self.seen.get(key, 0.0) + n
+            self.bar.update(n)
+
+    def finish(self, key: str) -> None:
+        self.advance(key, self.sizes.get(key, 0.0))
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+@contextmanager
+def interruptible() -> Iterator[None]:
+    """While inside (in the main thread), SIGINT and SIGTERM raise :class:`Interrupted`.
+
+    :func:`run_jobs` uses it; a command wraps its whole run in it too, so that a signal
+    during its own preparation ends the same way. Previous handlers are restored on exit.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        raise Interrupted(signal.Signals(signum).name)
+
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def run_jobs(
+    jobs: Sequence[Job],
+    manifest_path: str | os.PathLike[str],
+    *,
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+    progress: bool = True,
+    on_done: Callable[[str, Any], None] | None = None,
+    section: str = "jobs",
+    desc: str = "jobs",
+    unit: str = "job",
+    passthrough: tuple[type[BaseException], ...] = (ValueError, FileExistsError),
+    worker_init: Callable[[], None] | None = None,
+) -> dict[str, Any]:
+    """Run every job whose key is not yet in the manifest; return all the jobs' results.
+
+    Parameters
+    ----------
+    jobs : sequence of Job
+        Unique keys.
+    manifest_path : path
+        JSON manifest; results are recorded under ``manifest[section][key]`` as each job
+        finishes (under the lock, merged with what other runs wrote).
+    workers : int
+        Local processes (``backend="local"``); 1 runs in this process.
+    backend : {"local", "ray"}
+        ``"ray"``: one Ray task (1 CPU) per job on the cluster at ``address`` (a local Ray
+        instance when None).
+    progress : bool
+        Show a progress bar on stderr (only when stderr is a terminal).
+    on_done : callable, optional
+        ``on_done(key, result)`` in this process after each job is recorded.
+    section, desc, unit : str
+        Manifest section; progress bar label and unit.
+    passthrough : tuple of exception types
+        Raised unchanged from a job; others become :class:`JobError`.
+    worker_init : callable, optional
+        Picklable, called once in each pool worker (e.g. to limit its threads).
+
+    Returns
+    -------
+    dict
+        ``{key: result}`` in the order of ``jobs`` (earlier runs' results included).
+
+    Raises
+    ------
+    ValueError
+        Duplicate keys, bad ``workers`` or ``backend``, Ray missing.
+    JobError
+        A job failed or a worker died.
+    Interrupted
+        SIGINT or SIGTERM; queued jobs were cancelled and running ones stopped.
+    """
+    require_choice("run_jobs", "backend", backend, ("local", "ray"))
+    require_number("run_jobs", "workers", workers, lo=1, integer=True)
+    keys = [j.key for j in jobs]
+    if len(set(keys)) != len(keys):
+        dup = next(k for k in keys if keys.count(k) > 1)
+        raise ValueError(f"run_jobs: two jobs share the key {dup!r}")
+    manifest_path = Path(manifest_path)
+    done = read_manifest(manifest_path, section)[section]
+    todo = [j for j in jobs if j.key not in done]
+    if todo:
+        bar = _Progress(todo, progress, desc, unit)
+
+        def record(job: Job, result: Any) -> None:
+            try:
+                json.dumps(result)
+            except (TypeError, ValueError):
+                raise JobError(
+                    job.key, f"{job.key}: the result is not JSON-serialisable: {result!r:.200}"
+                ) from None
+            with locked_manifest(manifest_path, section) as m:
+                m[section][job.key] = result
+            bar.finish(job.key)
+            if on_done is not None:
+                on_done(job.key, result)
+
+        try:
+            with interruptible():
+                if backend == "ray":
+                    _run_ray(todo, address, record, passthrough)
+                elif workers == 1 or len(todo) == 1:
+                    _run_inline(todo, record, bar, passthrough)
+                else:
+                    _run_pool(
+                        todo, min(int(workers), len(todo)), record, bar, passthrough, worker_init
+                    )
+        finally:
+            bar.close()
+    done = read_manifest(manifest_path, section)[section]
+    return {k: done[k] for k in keys if k in done}
+
+
+def _failure(
+    job: Job, exc: BaseException, passthrough: tuple[type[BaseException], ...]
+) -> BaseException:
+    if isinstance(exc, passthrough):
+        return exc
+    return JobError(job.key, f"{job.key}: {type(exc).__name__}: {exc}")
+
+
+def _run_inline(
+    todo: list[Job],
+    record: Callable[[Job, Any], None],
+    bar: _Progress,
+    passthrough: tuple[type[BaseException], ...],
+) -> None:
+    for job in todo:
+        kwargs = dict(job.kwargs)
+        if job.progress_kw:
+            kwargs[job.progress_kw] = lambda n=1, key=job.key: bar.advance(key, n)
+        try:
+            result = job.fn(*job.args, **kwargs)
+        except Exception as exc:  # noqa: BLE001 - reported with the key
+            raise _failure(job, exc, passthrough) from exc
+        record(job, result)
+
+
+def _drain(queue: Any, bar: _Progress) -> None:
+    import queue as queue_mod
+
+    while True:
+        try:
+            key, n = queue.get_nowait()
+        except queue_mod.Empty:
+            return
+        except (EOFError, OSError, ValueError):  # queue closed
+            return
+        bar.advance(key, n)
+
+
+def _stop_pool(pool: Any) -> None:
+    """SIGTERM every worker, SIGKILL it after the grace time; queued jobs then fail with the
+    broken pool and never run. (Futures are not cancelled first: Python 3.11's executor
+    raises InvalidStateError in its manager thread when a broken pool meets a cancelled
+    future.)"""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + STOP_GRACE_S
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+    for p in procs:
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)
+
+
+def _run_pool(
+    todo: list[Job],
+    workers: int,
+    record: Callable[[Job, Any], None],
+    bar: _Progress,
+    passthrough: tuple[type[BaseException], ...],
+    worker_init: Callable[[], None] | None,
+) -> None:
+    import multiprocessing as mp
+    from concurrent.futures import FIRST_COMPLETED, CancelledError, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
+
+    ctx = mp.get_context("spawn")  # no fork of a process holding OpenCV/numba threads
+    queue = ctx.Queue()
+    pool = ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=ctx,
+        initializer=_worker_init,
+        initargs=(os.getpid(), queue, worker_init),
+    )
+    futures: dict[Any, Job] = {}
+    try:
+        for job in todo:
+            futures[pool.submit(_call_in_worker, job)] = job
+        pending = set(futures)
+        failure: BaseException | None = None
+        while pending:
+            finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            _drain(queue, bar)
+            for fut in finished:
+                job = futures[fut]
+                try:
+                    result = fut.result()
+                except CancelledError:
+                    continue
+                except BrokenProcessPool:
+                    failure = failure or JobError(
+                        job.key,
+                        f"a worker process died while running {job.key}; finished "
+                        "jobs are kept, rerun the same command to resume",
+                    )
+                except Exception as exc:  # noqa: BLE001 - reported with the key
+                    failure = failure or _failure(job, exc, passthrough)
+                else:
+                    record(job, result)
+            if failure is not None:
+                for fut in pending:
+                    fut.cancel()  # queued ones; running ones finish and are recorded
+        _drain(queue, bar)
+        if failure is not None:
+            raise failure
+    except KeyboardInterrupt:
+        _stop_pool(pool)
+        raise
+    finally:
+        pool.shutdown(wait=True)
+        queue.close()
+        queue.join_thread()
+
+
+def _run_ray(
+    todo: list[Job],
+    address: str | None,
+    record: Callable[[Job, Any], None],
+    passthrough: tuple[type[BaseException], ...],
+) -> None:
+    try:
+        import ray
+    except ImportError:
+        raise ValueError(RAY_HINT) from None
+    if not ray.is_initialized():
+        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+    task = ray.remote(num_cpus=1)(_call_on_ray)
+    refs = {task.remote(job): job for job in todo}
+    try:
+        while refs:
+            ready, _ = ray.wait(list(refs), num_returns=1, timeout=1.0)
+            for ref in ready:
+                job = refs.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except Exception as exc:  # noqa: BLE001 - Ray wraps worker errors
+                    cause = getattr(exc, "cause", None)
+                    if isinstance(cause, passthrough):
+                        raise cause from None
+                    raise JobError(job.key, f"{job.key}: Ray task failed: {exc}") from None
+                record(job, result)
+    except BaseException:
+        for ref in refs:
+            ray.cancel(ref, force=True)
+        raise

@@ -1,0 +1,528 @@
+"""One face for every sequence a tracker runs on: :class:`SequenceSource`.
+
+Three implementations:
+
+* a MOTChallenge folder: :class:`synth_data.mot.MotSequence` (``read_sequence(path)``);
+* a video file: :class:`VideoSequence` (targets from a points CSV, no ground truth);
+* frames in memory: :class:`InMemorySequence`, e.g. ``InMemorySequence.from_spec(spec)``
+  (simulated and rendered without touching disk, through :mod:`synth_data.scene`) or
+  :func:`synthetic_crowd` (the benchmarks' lanes of opposite flows).
+
+:func:`open_sequence` opens a folder or a video by path. Births follow the papers: the
+targets present in the first frame start the tracker, every later one is born at its first
+frame, at its ground-truth position (or as listed in a points CSV).
+
+Points CSV (``init``): a header line and rows ``frame,id,x,y`` (pixels, 1-based frame) or
+``id,x,y`` (all at frame 1). Rows at the first frame initialise the tracker; later rows are
+births.
+
+>>> seq = synthetic_crowd(3, 2, seed=0, size=(64, 48))
+>>> isinstance(seq, SequenceSource), seq.length, next(seq.frames()).shape
+(True, 2, (48, 64, 3))
+>>> (ids0, pts0), later = seq.births()
+>>> ids0.tolist(), pts0.shape
+([1, 2, 3], (3, 2))
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+import os
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from crowdsim.checks import require_number
+
+Births = tuple[tuple[np.ndarray, np.ndarray], dict[int, tuple[np.ndarray, np.ndarray]]]
+"""``((ids0 (n0,), points0 (n0, 2)), {t (0-based frame): (ids (k,), points (k, 2))})``."""
+
+
+@runtime_checkable
+class SequenceSource(Protocol):
+    """What a tracker runner needs from a sequence.
+
+    Attributes
+    ----------
+    name : str
+    frame_rate : float
+        Frames per second.
+    width, height : int
+        Frame size in pixels.
+    length : int
+        Number of frames ``T``.
+    template_size : int
+        Head (template) size in pixels.
+    """
+
+    name: str
+    frame_rate: float
+    width: int
+    height: int
+    length: int
+    template_size: int
+
+    def frames(self) -> Iterator[np.ndarray]:
+        """Every frame in order as ``(H, W, 3)`` uint8 BGR; may be called again."""
+        ...
+
+    def gt_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(ids (N,) int64, points (T, N, 2) float64 px)``, NaN where absent; ``N = 0``
+        without ground truth."""
+        ...
+
+    def births(self) -> Births:
+        """Targets to start at frame 0 and the later births (see :data:`Births`)."""
+        ...
+
+
+# ---------------------------------------------------------------------------- births
+def read_points_csv(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Read a points CSV: returns ``frames (K,) 1-based, ids (K,), points (K, 2)`` px."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such points file")
+    with open(path, newline="") as fh:
+        reader = csv.reader(fh)
+        try:
+            header = [h.strip().lower() for h in next(reader)]
+        except StopIteration:
+            raise ValueError(
+                f"{path}: empty points file (expected a header frame,id,x,y or id,x,y)"
+            ) from None
+        except (UnicodeDecodeError, csv.Error) as exc:
+            raise ValueError(f"{path}: not a text CSV file ({exc})") from None
+        if header not in (["frame", "id", "x", "y"], ["id", "x", "y"]):
+            raise ValueError(
+                f"{path}:1: header must be 'frame,id,x,y' or 'id,x,y', got {','.join(header)!r}"
+            )
+        out = []
+        for lineno, row in enumerate(reader, start=2):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(header):
+                raise ValueError(f"{path}:{lineno}: expected {len(header)} columns, got {len(row)}")
+            try:
+                vals = [float(c) for c in row]
+            except ValueError:
+                raise ValueError(f"{path}:{lineno}: non-numeric value in {row!r}") from None
+            if not np.isfinite(vals).all():
+                raise ValueError(f"{path}:{lineno}: non-finite value in {row!r}")
+            if len(vals) == 3:
+                vals = [1.0, *vals]
+            if vals[0] < 1 or vals[0] != int(vals[0]) or vals[1] != int(vals[1]):
+                raise ValueError(
+                    f"{path}:{lineno}: frame must be a positive integer and id an "
+                    f"integer, got {row!r}"
+                )
+            out.append(vals)
+    arr = np.asarray(out, dtype=np.float64).reshape(-1, 4)
+    ids = arr[:, 1].astype(np.int64)
+    uniq, counts = np.unique(ids, return_counts=True)
+    if (counts > 1).any():
+        raise ValueError(f"{path}: id {uniq[counts > 1][0]} is listed more than once")
+    return arr[:, 0].astype(np.int64), ids, arr[:, 2:4]
+
+
+def births_from_points(frames: np.ndarray, ids: np.ndarray, points: np.ndarray) -> Births:
+    """Split points into the initial targets (frame 1) and births ``{t (0-based): (ids, pts)}``.
+
+    ``frames (K,)`` 1-based, ``ids (K,)``, ``points (K, 2)`` px (as :func:`read_points_csv`).
+    """
+    init = (ids[frames == 1], points[frames == 1])
+    births = {}
+    for f in np.unique(frames[frames > 1]):
+        sel = frames == f
+        births[int(f) - 1] = (ids[sel], points[sel])
+    return init, births
+
+
+def births_from_ground_truth(ids: np.ndarray, points: np.ndarray) -> Births:
+    """Initial targets and births from ground-truth tracks ``points (T, N, 2)``, ``ids (N,)``.
+
+    Each id is born at its first present frame, at its ground-truth position there.
+    """
+    present = np.isfinite(points).all(-1)
+    has = present.any(0)
+    first = np.where(has, present.argmax(0), -1)
+    init_sel = first == 0
+    init = (ids[init_sel], points[0, init_sel])
+    births = {}
+    for t in np.unique(first[first > 0]):
+        sel = first == t
+        births[int(t)] = (ids[sel], points[t, sel])
+    return init, births
+
+
+def births_from_init(
+    init: str | os.PathLike[str],
+    length: int | None = None,
+    gt_ids: np.ndarray | None = None,
+    where: str = "",
+) -> Births:
+    """Births from a points CSV, checked against the sequence: frames within ``length`` and,
+    when the sequence has ground truth, ids that it knows."""
+    frames, ids, pts = read_points_csv(init)
+    if length is not None and len(frames) and frames.max() > length:
+        raise ValueError(
+            f"{init}: frame {int(frames.max())} is beyond the {length} frames of {where}"
+        )
+    if gt_ids is not None and len(gt_ids) and len(ids):
+        unknown = sorted(set(ids.tolist()) - set(np.asarray(gt_ids).tolist()))
+        if unknown:
+            raise ValueError(
+                f"{init}: ids {unknown[:5]} are unknown to the ground truth of {where}"
+            )
+    return births_from_points(frames, ids, pts)
+
+
+def _no_gt(length: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.zeros(0, np.int64), np.full((length, 0, 2), np.nan)
+
+
+# ---------------------------------------------------------------------------- video
+class VideoSequence:
+    """Frames of a video file; targets from a points CSV (``init``), no ground truth.
+
+    Parameters
+    ----------
+    path : path
+        Any video OpenCV reads.
+    init : path, optional
+        Points CSV (see the module docstring); needed by :meth:`births`.
+    template_size : int, optional
+        Head size in pixels (default :data:`synth_data.mot.DEFAULT_TEMPLATE_SIZE`).
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        init: str | os.PathLike[str] | None = None,
+        template_size: int | None = None,
+    ) -> None:
+        import cv2
+
+        from synth_data.mot import DEFAULT_TEMPLATE_SIZE
+
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"{path}: no such video file")
+        cap = cv2.VideoCapture(str(path))
+        try:
+            ok, first = cap.read() if cap.isOpened() else (False, None)
+            if not ok:
+                raise ValueError(f"{path}: not a readable video file")
+            fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+            count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+            if count <= 0:  # containers without a frame count: count them
+                count = 1
+                while cap.grab():
+                    count += 1
+        finally:
+            cap.release()
+        self.path = path
+        self.init = None if init is None else Path(init)
+        self.name = path.stem
+        self.frame_rate = fps if math.isfinite(fps) and fps > 0 else 25.0
+        self.height, self.width = (int(v) for v in first.shape[:2])
+        self.length = count
+        self.template_size = int(template_size or DEFAULT_TEMPLATE_SIZE)
+        require_number(str(path), "template_size", self.template_size, lo=2, integer=True)
+
+    def __repr__(self) -> str:
+        return f"VideoSequence({str(self.path)!r}, {self.length} frames {self.width}x{self.height})"
+
+    def frames(self) -> Iterator[np.ndarray]:
+        import cv2
+
+        cap = cv2.VideoCapture(str(self.path))
+        try:
+            for _ in range(self.length):
+                ok, img = cap.read()
+                if not ok:
+                    return
+                yield img
+        finally:
+            cap.release()
+
+    def gt_points(self) -> tuple[np.ndarray, np.ndarray]:
+        return _no_gt(self.length)
+
+    def births(self) -> Births:
+        if self.init is None:
+            raise ValueError(
+                f"{self.path}: a video has no ground truth to start from; give a "
+                "points CSV (--init points.csv with rows frame,id,x,y)"
+            )
+        return births_from_init(self.init, self.length, where=str(self.path))
+
+
+# ---------------------------------------------------------------------------- in memory
+class InMemorySequence:
+    """A sequence held in memory: a list of frames, or a renderer drawing them on demand.
+
+    Parameters (keyword-only)
+    -------------------------
+    name : str
+    frame_rate : float
+    width, height : int
+    template_size : int
+    frames : sequence of (H, W, 3) uint8, optional
+        The frames; or give ``render`` and ``length``.
+    render : callable, optional
+        ``render(t)`` -> frame ``t`` (0-based) as ``(H, W, 3)`` uint8, deterministic.
+    length : int, optional
+        Number of frames (required with ``render``).
+    ids : (N,) int, optional
+        Ground-truth ids (with ``points``).
+    points : (T, N, 2) float, optional
+        Ground-truth head centres in pixels, NaN where absent.
+    init : Births, optional
+        Explicit starting targets and births; default: from the ground truth.
+    """
+
+    def __init__(
+        self,
+        *,
+        name: str,
+        frame_rate: float,
+        width: int,
+        height: int,
+        template_size: int,
+        frames: Sequence[np.ndarray] | None = None,
+        render: Callable[[int], np.ndarray] | None = None,
+        length: int | None = None,
+        ids: np.ndarray | None = None,
+        points: np.ndarray | None = None,
+        init: Births | None = None,
+    ) -> None:
+        owner = f"InMemorySequence {name!r}"
+        require_number(owner, "frame_rate", frame_rate, lo=0, lo_open=True)
+        for key, value in (("width", width), ("height", height), ("template_size", template_size)):
+            require_number(owner, key, value, lo=1, integer=True)
+        if (frames is None) == (render is None):
+            raise ValueError(f"{owner}: give exactly one of frames and render")
+        if frames is not None:
+            if length is not None and length != len(frames):
+                raise ValueError(f"{owner}: length {length} != {len(frames)} frames")
+            length = len(frames)
+        elif length is None:
+            raise ValueError(f"{owner}: a render function needs the length")
+        require_number(owner, "length", length, lo=0, integer=True)
+        if (ids is None) != (points is None):
+            raise ValueError(f"{owner}: give both ids and points, or neither")
+        if ids is None:
+            ids, points = _no_gt(int(length))
+        ids = np.asarray(ids, dtype=np.int64)
+        points = np.asarray(points, dtype=np.float64)
+        if points.shape != (length, len(ids), 2):
+            raise ValueError(
+                f"{owner}: points must have shape ({length}, {len(ids)}, 2), got {points.shape}"
+            )
+        self.name = str(name)
+        self.frame_rate = float(frame_rate)
+        self.width, self.height = int(width), int(height)
+        self.template_size = int(template_size)
+        self.length = int(length)
+        self._frames = frames
+        self._render = render
+        self._ids, self._points = ids, points
+        self._init = init
+
+    def __repr__(self) -> str:
+        kind = "frames" if self._frames is not None else "rendered"
+        return (
+            f"InMemorySequence({self.name!r}, {self.length} {kind} frames "
+            f"{self.width}x{self.height}, {len(self._ids)} people)"
+        )
+
+    # -- constructors
+    @classmethod
+    def from_scene(cls, scene: Any) -> InMemorySequence:
+        """Frames drawn on demand from a :class:`synth_data.scene.Scene`."""
+        ids, points = scene.gt_points()
+        return cls(
+            name=scene.name,
+            frame_rate=scene.frame_rate,
+            width=scene.width,
+            height=scene.height,
+            template_size=scene.template_size,
+            render=scene.frame,
+            length=scene.length,
+            ids=ids,
+            points=points,
+        )
+
+    @classmethod
+    def from_spec(cls, spec: Any, frames: int | None = None) -> InMemorySequence:
+        """Simulate ``spec`` (truncated to ``frames`` like ``generate --frames``) and render
+        it on demand, without touching disk: the frames ``generate`` would encode as JPEG.
+
+        With ``appearance.video_kbps > 0``, ``generate`` first passes the frames through a
+        video codec (:mod:`synth_data.video`); these are the frames the codec receives,
+        without its artefacts. The ground truth equals ``read_sequence(...).gt_points()`` of
+        the generated folder (to the 3 decimals of ``gt.txt``).
+        """
+        from synth_data.scene import Scene
+
+        if frames is not None:
+            spec = spec.truncated(frames)
+        return cls.from_scene(Scene.from_spec(spec))
+
+    @classmethod
+    def from_source(cls, source: SequenceSource, max_frames: int | None = None) -> InMemorySequence:
+        """Read the first ``max_frames`` frames (all by default) of any source into memory."""
+        n = source.length if max_frames is None else min(int(max_frames), source.length)
+        frames = list(itertools.islice(source.frames(), n))
+        ids, points = source.gt_points()
+        return cls(
+            name=source.name,
+            frame_rate=source.frame_rate,
+            width=source.width,
+            height=source.height,
+            template_size=source.template_size,
+            frames=frames,
+            ids=ids,
+            points=points[: len(frames)],
+        )
+
+    def materialize(self) -> InMemorySequence:
+        """The same sequence with every frame rendered into a list (e.g. to time tracking
+        without rendering)."""
+        if self._frames is not None:
+            return self
+        return InMemorySequence(
+            name=self.name,
+            frame_rate=self.frame_rate,
+            width=self.width,
+            height=self.height,
+            template_size=self.template_size,
+            frames=list(self.frames()),
+            ids=self._ids,
+            points=self._points,
+            init=self._init,
+        )
+
+    # -- the SequenceSource face
+    def frames(self) -> Iterator[np.ndarray]:
+        if self._frames is not None:
+            yield from self._frames
+            return
+        assert self._render is not None
+        for t in range(self.length):
+            yield self._render(t)
+
+    def gt_points(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._ids, self._points
+
+    def births(self) -> Births:
+        if self._init is not None:
+            return self._init
+        if len(self._ids) == 0:
+            raise ValueError(f"{self.name}: no ground truth to start the targets from")
+        return births_from_ground_truth(self._ids, self._points)
+
+
+# ---------------------------------------------------------------------------- factories
+def open_sequence(
+    path: str | os.PathLike[str], init: str | os.PathLike[str] | None = None
+) -> SequenceSource:
+    """A MOTChallenge sequence folder or a video file, with optional points CSV ``init``.
+
+    Raises ``ValueError`` naming ``path`` when it is neither.
+    """
+    from synth_data.mot import read_sequence
+
+    p = Path(path)
+    if p.is_dir():
+        seq = read_sequence(p)
+        seq.init = None if init is None else Path(init)
+        return seq
+    if p.is_file():
+        return VideoSequence(p, init=init)
+    raise ValueError(f"{p}: no such sequence folder or video file")
+
+
+def synthetic_crowd(
+    n: int,
+    n_frames: int,
+    seed: int = 0,
+    template_px: int = 12,
+    size: tuple[int, int] = (1280, 720),
+    fps: float = 25.0,
+    speed: float = 1.3,
+    contrast: float = 1.0,
+    noise_sigma: float = 3.0,
+) -> InMemorySequence:
+    """Render ``n`` people in lanes of opposite flows (counterflow bands of 4 m), in memory.
+
+    People start on a jittered grid that fills the frame, walk along x at N(speed, 0.15) m/s
+    (alternate 4 m bands walk the other way) with a slow sinusoidal weave, so that the
+    neighbourhood-motion and grouping terms have coherent groups to find. ``contrast`` and
+    ``noise_sigma`` are the renderer's appearance knobs (lower contrast, more noise = harder).
+    Frames are rendered up front (a list), so tracking timings exclude rendering. Ground
+    truth: ids ``1..n``, points ``(n_frames, n, 2)`` px, NaN outside the frame.
+    """
+    from crowdsim.appearance_model import AppearanceParams
+    from crowdsim.camera import Camera
+    from crowdsim.render import SceneRenderer, default_px_per_m, prepare_agents
+    from crowdsim.trajectories import Trajectories
+
+    if n < 1 or n_frames < 2:
+        raise ValueError(f"need n >= 1 and n_frames >= 2, got {n}, {n_frames}")
+    rng = np.random.default_rng(seed)
+    ppm = default_px_per_m(template_px)
+    w_m, h_m = size[0] / ppm, size[1] / ppm
+    cols = max(1, int(round(math.sqrt(n * w_m / h_m))))
+    rows = int(math.ceil(n / cols))
+    gx, gy = np.meshgrid((np.arange(cols) + 0.5) * w_m / cols, (np.arange(rows) + 0.5) * h_m / rows)
+    start = np.stack([gx.ravel(), gy.ravel()], 1)[:n]
+    cell = min(w_m / cols, h_m / rows)
+    start += rng.uniform(-0.2, 0.2, start.shape) * cell
+    direction = np.where((start[:, 1] // 4.0) % 2 == 0, 1.0, -1.0)
+    v = direction * rng.normal(speed, 0.15, n)
+    dt = 1.0 / fps
+    t = np.arange(n_frames)[:, None] * dt
+    phase = rng.uniform(0, 2 * math.pi, n)
+    pos = np.empty((n_frames, n, 2))
+    pos[..., 0] = start[:, 0] + v * t
+    pos[..., 1] = start[:, 1] + 0.15 * np.sin(0.8 * t + phase)
+    traj = Trajectories(pos, np.arange(1, n + 1), dt)
+    cam = Camera(px_per_m=ppm, width=size[0], height=size[1], center=(w_m / 2, h_m / 2))
+    params = AppearanceParams(template_px=template_px, contrast=contrast, noise_sigma=noise_sigma)
+    tracks = prepare_agents(traj, cam, params, seed)
+    renderer = SceneRenderer(cam, params, seed, fps)
+    frames = [renderer.render_tracks(tracks, k).copy() for k in range(n_frames)]
+    pts = tracks.pixels.copy()
+    inside = (
+        (pts[..., 0] >= 0)
+        & (pts[..., 0] <= size[0] - 1)
+        & (pts[..., 1] >= 0)
+        & (pts[..., 1] <= size[1] - 1)
+    )
+    pts[~inside] = np.nan
+    return InMemorySequence(
+        name=f"synthetic-crowd-n{n}-s{seed}",
+        frame_rate=fps,
+        width=size[0],
+        height=size[1],
+        template_size=template_px,
+        frames=frames,
+        ids=traj.ids.copy(),
+        points=pts,
+    )
+
+
+def load_crowd(seq_dir: str | os.PathLike[str], max_frames: int | None = None) -> InMemorySequence:
+    """A MOT sequence folder (e.g. from ``crowdsim generate``) read into memory; it must have
+    ground truth."""
+    from synth_data.mot import read_sequence
+
+    seq = read_sequence(seq_dir)
+    if len(seq.gt_points()[0]) == 0:
+        raise ValueError(f"{seq_dir}: the sequence has no ground truth")
+    return InMemorySequence.from_source(seq, max_frames)

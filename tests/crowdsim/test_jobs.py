@@ -1,0 +1,197 @@
+"""crowdsim.jobs: resumable manifest under a lock, failures, prompt stop, no orphan workers."""
+
+from __future__ import annotations
+
+import doctest
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+import crowdsim.jobs as jobs_mod
+from crowdsim.jobs import Interrupted, Job, JobError, read_manifest, run_jobs
+
+ROOT = Path(__file__).resolve().parents[2]
+
+HELPERS = textwrap.dedent("""
+    import os, time
+
+    def square(x, progress=None):
+        if progress is not None:
+            progress(1)
+        return x * x
+
+    def fail(x):
+        raise RuntimeError(f"boom {x}")
+
+    def user_error(x):
+        raise ValueError(f"bad value {x}")
+
+    def sleeper(folder, name):
+        # record the worker pid, then work for a long time
+        with open(os.path.join(folder, f"{name}.pid"), "w") as fh:
+            fh.write(str(os.getpid()))
+        try:
+            time.sleep(60)
+        finally:
+            with open(os.path.join(folder, f"{name}.cleaned"), "w") as fh:
+                fh.write("1")
+        return name
+""")
+
+
+@pytest.fixture()
+def helpers(tmp_path, monkeypatch):
+    (tmp_path / "jobhelpers.py").write_text(HELPERS)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(tmp_path), str(ROOT)]))
+    import importlib
+
+    import jobhelpers
+
+    return importlib.reload(jobhelpers)
+
+
+def test_module_example_runs():
+    assert doctest.testmod(jobs_mod).failed == 0
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_results_recorded_and_resumed(tmp_path, helpers, workers):
+    manifest = tmp_path / "m.json"
+    seen = []
+    jobs = [Job(f"k{i}", helpers.square, (i,), progress_kw="progress") for i in range(4)]
+    out = run_jobs(
+        jobs, manifest, workers=workers, progress=False, on_done=lambda k, r: seen.append(k)
+    )
+    assert out == {f"k{i}": i * i for i in range(4)} and sorted(seen) == sorted(out)
+    assert read_manifest(manifest)["jobs"] == out
+    seen.clear()
+    more = jobs + [Job("k9", helpers.square, (9,))]
+    assert (
+        run_jobs(
+            more, manifest, workers=workers, progress=False, on_done=lambda k, r: seen.append(k)
+        )["k9"]
+        == 81
+    )
+    assert seen == ["k9"]  # the first four were resumed from the manifest
+
+
+def test_failures_name_the_key_and_keep_finished_jobs(tmp_path, helpers):
+    manifest = tmp_path / "m.json"
+    with pytest.raises(JobError, match=r"bad: RuntimeError: boom 3") as info:
+        run_jobs(
+            [Job("ok", helpers.square, (2,)), Job("bad", helpers.fail, (3,))],
+            manifest,
+            progress=False,
+        )
+    assert info.value.key == "bad"
+    assert read_manifest(manifest)["jobs"] == {"ok": 4}
+    with pytest.raises(ValueError, match="bad value 5"):  # user errors pass through as is
+        run_jobs([Job("u", helpers.user_error, (5,))], manifest, progress=False)
+    with pytest.raises(JobError, match=r"bad: RuntimeError: boom 1"):
+        run_jobs(
+            [Job("bad", helpers.fail, (1,)), Job("s", helpers.square, (3,))],
+            manifest,
+            workers=2,
+            progress=False,
+        )
+    assert read_manifest(manifest)["jobs"]["s"] == 9  # the running one finished, recorded
+    with pytest.raises(ValueError, match="two jobs share the key 'a'"):
+        run_jobs([Job("a", helpers.square, (1,)), Job("a", helpers.square, (2,))], manifest)
+    with pytest.raises(ValueError, match=r"run_jobs.workers must be an integer >= 1, got 0"):
+        run_jobs([], manifest, workers=0)
+    with pytest.raises(ValueError, match=r"Job.size must be a finite number >= 0"):
+        Job("x", helpers.square, size=float("nan"))
+
+
+def test_concurrent_runs_merge_the_manifest_under_the_lock(tmp_path, helpers):
+    manifest = tmp_path / "m.json"
+    script = (
+        "import sys; from crowdsim.jobs import Job, run_jobs; import jobhelpers as h\n"
+        "p = sys.argv[1]\n"
+        "run_jobs([Job(f'{p}{i}', h.square, (i,)) for i in range(150)], sys.argv[2], "
+        "progress=False)\n"
+    )
+    procs = [
+        subprocess.Popen([sys.executable, "-c", script, p, str(manifest)], cwd=tmp_path)
+        for p in ("a", "b", "c")
+    ]
+    assert [p.wait(timeout=60) for p in procs] == [0, 0, 0]
+    done = json.loads(manifest.read_text())["jobs"]
+    assert len(done) == 450 and done["b149"] == 149 * 149
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            return "\nState:\tZ" not in fh.read()
+    except FileNotFoundError:
+        return False
+
+
+def _start_sleepers(tmp_path: Path, n: int, workers: int) -> tuple[subprocess.Popen, list[int]]:
+    script = (
+        "import sys; from crowdsim.jobs import Job, run_jobs, Interrupted\n"
+        "import jobhelpers as h\n"
+        f"jobs = [Job(f's{{i}}', h.sleeper, ({str(tmp_path)!r}, f's{{i}}')) "
+        f"for i in range({n})]\n"
+        "try:\n"
+        f"    run_jobs(jobs, {str(tmp_path / 'm.json')!r}, workers={workers}, "
+        "progress=False)\n"
+        "except Interrupted as exc:\n"
+        "    print('stopped by', exc.signal_name); sys.exit(2)\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 30
+    busy = min(n, workers)
+    while len(list(tmp_path.glob("*.pid"))) < busy and time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    pids = [int(p.read_text()) for p in tmp_path.glob("*.pid")]
+    assert len(pids) == busy, "the workers did not start"
+    return proc, pids
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_signal_stops_promptly_and_workers_clean_up(tmp_path, helpers, sig):
+    proc, pids = _start_sleepers(tmp_path, n=4, workers=2)
+    t0 = time.monotonic()
+    proc.send_signal(sig)
+    out, err = proc.communicate(timeout=20)
+    assert time.monotonic() - t0 < jobs_mod.STOP_GRACE_S + 2
+    assert proc.returncode == 2 and out.strip() == f"stopped by {sig.name}", err
+    assert "Traceback" not in err
+    assert not any(_alive(p) for p in pids)
+    # running jobs unwound (their finally ran), queued ones never started
+    assert len(list(tmp_path.glob("*.cleaned"))) == 2 and len(list(tmp_path.glob("*.pid"))) == 2
+    assert read_manifest(tmp_path / "m.json")["jobs"] == {}
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_workers_die_with_a_killed_parent(tmp_path, helpers):
+    proc, pids = _start_sleepers(tmp_path, n=2, workers=2)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.communicate(timeout=10)
+    deadline = time.monotonic() + 5
+    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(p) for p in pids)
+
+
+def test_interrupted_is_a_keyboard_interrupt():
+    exc = Interrupted("SIGTERM")
+    assert isinstance(exc, KeyboardInterrupt) and exc.signal_name == "SIGTERM"
