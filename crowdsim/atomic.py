@@ -7,6 +7,7 @@ owner-only ``0o600``.
 
 from __future__ import annotations
 
+import errno
 import os
 import tempfile
 from collections.abc import Iterator
@@ -38,17 +39,35 @@ def atomic_path(path: str | os.PathLike[str], suffix: str | None = None) -> Iter
     'done'
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "is a folder, not a file", str(path))
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.",
-                                suffix=path.suffix if suffix is None else suffix)
+    try:
+        fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.",
+                                    suffix=path.suffix if suffix is None else suffix)
+    except OSError as exc:
+        raise _retarget(exc, None, path) from None
     os.close(fd)
     tmp = Path(name)
     try:
         yield tmp
         os.chmod(tmp, _MODE)
         os.replace(tmp, path)
+    except OSError as exc:
+        raise _retarget(exc, tmp, path) from None
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _retarget(exc: OSError, tmp: Path | None, path: Path) -> OSError:
+    """``exc`` naming the user's ``path`` instead of our hidden temporary file (or nothing)."""
+    if exc.filename is not None and (tmp is None or os.fspath(exc.filename) != str(tmp)):
+        if tmp is not None or Path(os.fspath(exc.filename)).parent != path.parent:
+            return exc
+    try:
+        return type(exc)(exc.errno, exc.strerror or str(exc), str(path))
+    except TypeError:  # pragma: no cover - an OSError subclass with its own constructor
+        return exc
 
 
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> Path:

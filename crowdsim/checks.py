@@ -10,6 +10,8 @@ ValueError: SocialForceParams.tau must be a finite number > 0, got nan
 from __future__ import annotations
 
 import math
+import os
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -52,3 +54,77 @@ def require_choice(owner: str, name: str, value: Any, choices: tuple[Any, ...]) 
     if value not in choices:
         where = f"{owner}.{name}" if owner else name
         raise ValueError(f"{where} must be one of {choices}, got {value!r}")
+
+
+MEMORY_LIMIT_BYTES: int = 12 * 2**30
+"""Largest working set (bytes) one command may plan to allocate: half of a 24 GiB machine.
+
+Requests whose estimate exceeds it are refused *before* allocating, with the estimate in the
+message, instead of dying halfway with a ``MemoryError`` or the kernel's OOM killer."""
+
+
+def format_bytes(n: float) -> str:
+    """``1536 -> '1.5 KiB'``, ``3 * 2**30 -> '3.0 GiB'`` (binary units).
+
+    >>> format_bytes(3 * 2**30)
+    '3.0 GiB'
+    >>> format_bytes(12)
+    '12 B'
+    """
+    n = float(n)
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(n) < 1024 or unit == "PiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+def require_memory(what: str, nbytes: float, limit: float = MEMORY_LIMIT_BYTES) -> None:
+    """Raise ``ValueError("<what> needs about <estimate> of memory, more than ...")`` when the
+    estimated working set ``nbytes`` of a request exceeds ``limit``.
+
+    >>> require_memory("a (2000000000, 1, 2) float64 array", 32e9)
+    Traceback (most recent call last):
+    ...
+    ValueError: a (2000000000, 1, 2) float64 array needs about 29.8 GiB of memory, more than \
+the 12.0 GiB limit
+    """
+    if not nbytes <= limit:  # also refuses NaN
+        raise ValueError(f"{what} needs about {format_bytes(nbytes)} of memory, more than the "
+                         f"{format_bytes(limit)} limit")
+
+
+def require_output_file(flag: str, path: str | os.PathLike[str]) -> Path:
+    """Check, before any work, that a file can be written at ``path``; returns it as a Path.
+
+    Raises ``ValueError`` naming ``flag`` and the path when ``path`` is a folder, when one of
+    its ancestors is a regular file (``"--out a/b.npz: a is a file, not a folder"``) or when
+    the nearest existing ancestor folder is not writable. The write itself may still fail
+    (a full disk); callers write atomically so that no partial file remains.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"{flag} {p}: is a folder, not a file")
+    for parent in p.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise ValueError(f"{flag} {p}: {parent} is a file, not a folder")
+            if not os.access(parent, os.W_OK | os.X_OK):
+                raise ValueError(f"{flag} {p}: the folder {parent} is not writable")
+            break
+    return p
+
+
+def require_output_dir(flag: str, path: str | os.PathLike[str]) -> Path:
+    """Like :func:`require_output_file` for a folder to be created at ``path``: refuses an
+    ancestor that is a regular file (``"--out a/seq: a is a file, not a folder"``) and an
+    unwritable nearest existing ancestor. ``path`` itself may exist (callers decide)."""
+    p = Path(path)
+    for parent in p.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise ValueError(f"{flag} {p}: {parent} is a file, not a folder")
+            if not os.access(parent, os.W_OK | os.X_OK):
+                raise ValueError(f"{flag} {p}: the folder {parent} is not writable")
+            break
+    return p

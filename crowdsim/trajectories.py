@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,6 +24,15 @@ from typing import Any
 import numpy as np
 
 from crowdsim.atomic import atomic_path
+from crowdsim.checks import require_memory
+
+CSV_COLUMNS: tuple[str, ...] = ("frame", "id", "x", "y")
+"""Columns of a trajectory CSV file, in this order (metres for x and y)."""
+MAX_COORD_M: float = 1e5
+"""Largest ``|x|`` or ``|y|`` (metres) a trajectory may hold: 100 km. Beyond it the pixel
+coordinates of any useful camera overflow, and such a value is a unit or parsing mistake."""
+MAX_TRAJECTORY_BYTES: int = 4 * 2**30
+"""Largest dense ``(T, N, 2)`` float64 position array a file may expand to (4 GiB)."""
 
 ANOMALY_KINDS: tuple[str, ...] = ("none", "against", "stop", "cross", "leave")
 """Anomaly codes stored in ``attributes["anomaly"]``: index into this tuple."""
@@ -69,8 +79,10 @@ class Trajectories:
         n = self.positions.shape[1]
         if self.ids.shape != (n,):
             raise ValueError(f"ids must have shape ({n},), got {self.ids.shape}")
-        if len(np.unique(self.ids)) != n:
-            raise ValueError("ids must be unique")
+        uniq, counts = np.unique(self.ids, return_counts=True)
+        if len(uniq) != n:
+            raise ValueError(f"ids must be unique, id {uniq[counts > 1][0]} appears "
+                             f"{counts[counts > 1][0]} times")
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"dt must be a positive number of seconds, got {self.dt!r}")
         for name, (dtype, fill) in ATTRIBUTE_DEFAULTS.items():
@@ -134,22 +146,58 @@ class Trajectories:
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Trajectories:
-        """Read an ``.npz`` written by :meth:`save`; errors name the file and the missing key."""
+        """Read an ``.npz`` written by :meth:`save`.
+
+        Errors name the file and what is wrong with it: not a zip archive, a missing array,
+        positions of the wrong shape, non-finite or out-of-range (:data:`MAX_COORD_M`)
+        coordinates, duplicate ids, a bad ``dt``.
+        """
         path = Path(path)
+        if not path.exists():
+            raise ValueError(f"{path}: no such trajectory file")
+        if path.is_dir():
+            raise ValueError(f"{path}: is a folder, not a trajectory .npz file")
+        what = f"{path}: not a crowdsim trajectories .npz"
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+        if magic != b"PK\x03\x04" and magic != b"PK\x05\x06":
+            raise ValueError(f"{what} (not a zip archive; write one with crowdsim simulate "
+                             "--out FILE.npz)")
         try:
             data = np.load(path, allow_pickle=False)
-        except FileNotFoundError:
-            raise ValueError(f"{path}: no such trajectory file") from None
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"{path}: not a readable .npz file ({exc})") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise ValueError(f"{what} ({_first_line(exc)})") from None
+        if not isinstance(data, np.lib.npyio.NpzFile):  # pragma: no cover - np.load sniffing
+            raise ValueError(f"{what} (a single array, not an archive)")
         with data:
-            for key in ("positions", "ids", "dt"):
-                if key not in data.files:
-                    raise ValueError(f"{path}: missing array {key!r}")
-            attrs = {k[5:]: data[k] for k in data.files if k.startswith("attr_")}
-            meta = json.loads(str(data["meta"])) if "meta" in data.files else {}
-            return cls(positions=data["positions"], ids=data["ids"], dt=float(data["dt"]),
-                       attributes=attrs, meta=meta)
+            missing = [k for k in ("positions", "ids", "dt") if k not in data.files]
+            if missing:
+                raise ValueError(f"{what} (missing array {missing[0]!r}; it has "
+                                 f"{', '.join(data.files) or 'no arrays'})")
+            try:
+                arrays = {k: data[k] for k in data.files}
+            except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+                raise ValueError(f"{what} ({_first_line(exc)})") from None
+        try:
+            meta = json.loads(str(arrays["meta"])) if "meta" in arrays else {}
+        except json.JSONDecodeError:
+            raise ValueError(f"{what} (array 'meta' is not JSON)") from None
+        positions, ids, dt = arrays["positions"], arrays["ids"], arrays["dt"]
+        if positions.dtype.kind not in "fiu":
+            raise ValueError(f"{path}: positions must be numbers, got dtype {positions.dtype}")
+        if ids.dtype.kind not in "iu":
+            raise ValueError(f"{path}: ids must be integers, got dtype {ids.dtype}")
+        if dt.shape != () or dt.dtype.kind not in "fiu":
+            raise ValueError(f"{path}: dt must be one number of seconds, got {dt!r}")
+        if positions.ndim != 3 or positions.shape[2] != 2:
+            raise ValueError(f"{path}: positions must have shape (T, N, 2), "
+                             f"got {positions.shape}")
+        check_positions(positions, str(path))
+        attrs = {k[5:]: v for k, v in arrays.items() if k.startswith("attr_")}
+        try:
+            return cls(positions=positions, ids=ids, dt=float(dt), attributes=attrs, meta=meta)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
 
     # ------------------------------------------------------------------ csv
     def to_csv(self, path: str | os.PathLike[str]) -> Path:
@@ -166,43 +214,130 @@ class Trajectories:
     def from_csv(cls, path: str | os.PathLike[str], fps: float) -> Trajectories:
         """Read ``frame,id,x,y`` rows (metres; a header line is optional).
 
-        Frames may start anywhere; they are shifted so the first frame is row 0. Errors name
-        the file, the line and the offending value.
+        Frames may start anywhere; they are shifted so the first frame is row 0. Frames and
+        ids must be whole numbers within int64 (``3`` or ``3.0``, never ``2.5``), coordinates
+        finite with ``|x|, |y| <=`` :data:`MAX_COORD_M`, exactly four columns per row and one
+        row per ``(frame, id)``. The dense ``(T, N, 2)`` array must fit in
+        :data:`MAX_TRAJECTORY_BYTES`. Errors name the file, the line and the offending value.
         """
         path = Path(path)
         if not (np.isfinite(fps) and fps > 0):
             raise ValueError(f"fps must be positive, got {fps!r}")
-        if not path.is_file():
+        if not path.exists():
             raise ValueError(f"{path}: no such trajectory file")
-        rows: list[tuple[int, int, float, float]] = []
-        with open(path) as fh:
-            for lineno, line in enumerate(fh, 1):
-                line = line.strip()
-                if not line or line.startswith("#"):
-                    continue
-                parts = [p.strip() for p in line.replace(";", ",").split(",")]
-                if lineno == 1 and not _is_number(parts[0]):
-                    continue  # header
-                if len(parts) < 4:
-                    raise ValueError(f"{path}:{lineno}: expected 4 columns frame,id,x,y, "
-                                     f"got {len(parts)}: {line!r}")
-                try:
-                    frame, ident = int(float(parts[0])), int(float(parts[1]))
-                    x, y = float(parts[2]), float(parts[3])
-                except ValueError:
-                    raise ValueError(f"{path}:{lineno}: non-numeric value in {line!r}") from None
-                if not (np.isfinite(x) and np.isfinite(y)):
-                    raise ValueError(f"{path}:{lineno}: position must be finite, got {line!r}")
-                rows.append((frame, ident, x, y))
-        if not rows:
+        if path.is_dir():
+            raise ValueError(f"{path}: is a folder, not a trajectory CSV file")
+        frames_l: list[int] = []
+        ids_l: list[int] = []
+        xy_l: list[tuple[float, float]] = []
+        lines_l: list[int] = []
+        try:
+            fh = open(path, encoding="utf-8")
+            with fh:
+                for lineno, line in enumerate(fh, 1):
+                    line = line.strip()
+                    if not line or line.startswith("#"):
+                        continue
+                    parts = [p.strip() for p in line.replace(";", ",").split(",")]
+                    if not frames_l and not _is_number(parts[0]):
+                        if [p.lower() for p in parts] != list(CSV_COLUMNS):
+                            raise ValueError(f"{path}:{lineno}: the header must be "
+                                             f"{','.join(CSV_COLUMNS)}, got {line!r}")
+                        continue
+                    if len(parts) != len(CSV_COLUMNS):
+                        raise ValueError(f"{path}:{lineno}: expected 4 columns frame,id,x,y, "
+                                         f"got {len(parts)}: {line!r}")
+                    where = f"{path}:{lineno}"
+                    frames_l.append(_parse_int(parts[0], "frame", where))
+                    ids_l.append(_parse_int(parts[1], "id", where))
+                    x, y = (_parse_coord(v, k, where) for v, k in zip(parts[2:], "xy",
+                                                                       strict=True))
+                    xy_l.append((x, y))
+                    lines_l.append(lineno)
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: not a text CSV file (undecodable bytes)") from None
+        if not frames_l:
             raise ValueError(f"{path}: no trajectory rows")
-        arr = np.array(rows, dtype=np.float64)
-        frames = arr[:, 0].astype(np.int64)
-        frames -= frames.min()
-        ids, col = np.unique(arr[:, 1].astype(np.int64), return_inverse=True)
-        positions = np.full((frames.max() + 1, len(ids), 2), np.nan)
-        positions[frames, col] = arr[:, 2:4]
+        frames = np.array(frames_l, dtype=np.int64)
+        raw_ids = np.array(ids_l, dtype=np.int64)
+        t0, t1 = int(frames.min()), int(frames.max())
+        ids, col = np.unique(raw_ids, return_inverse=True)
+        n_rows = t1 - t0 + 1  # Python int: no overflow
+        require_memory(f"{path}: frames {t0}..{t1} x {len(ids)} ids (a ({n_rows}, {len(ids)}, 2) "
+                       "float64 position array)", 16.0 * n_rows * len(ids),
+                       MAX_TRAJECTORY_BYTES)
+        frames -= t0
+        key = frames * len(ids) + col
+        order = np.argsort(key, kind="stable")
+        dup = np.nonzero(np.diff(key[order]) == 0)[0]
+        if len(dup):
+            a, b = order[dup[0]], order[dup[0] + 1]
+            raise ValueError(f"{path}:{lines_l[b]}: frame {frames_l[b]}, id {ids_l[b]} appears "
+                             f"twice (also on line {lines_l[a]})")
+        positions = np.full((n_rows, len(ids), 2), np.nan)
+        positions[frames, col] = np.array(xy_l, dtype=np.float64)
         return cls(positions=positions, ids=ids, dt=1.0 / fps, meta={"source": str(path)})
+
+
+def check_positions(positions: np.ndarray, where: str) -> None:
+    """Raise ``ValueError`` naming the first coordinate that is infinite or beyond
+    :data:`MAX_COORD_M` metres (NaN marks an absent agent and is allowed).
+
+    Parameters
+    ----------
+    positions : (T, N, 2) float
+        Metres.
+    where : str
+        Prefix of the message (the file).
+    """
+    pos = np.asarray(positions, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        bad = np.isinf(pos) | (np.abs(pos) > MAX_COORD_M)
+    if bad.any():
+        t, n, k = (int(v[0]) for v in np.nonzero(bad))
+        raise ValueError(f"{where}: {'xy'[k]} = {pos[t, n, k]:g} m at row {t}, column {n} is "
+                         f"outside [-{MAX_COORD_M:g}, {MAX_COORD_M:g}] m")
+
+
+def _first_line(exc: BaseException) -> str:
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+
+
+def _parse_int(text: str, name: str, where: str) -> int:
+    """A whole number in the int64 range: ``"3"``, ``"+3"``, ``"3.0"``, ``"3e2"``."""
+    try:
+        value = int(text)
+    except ValueError:
+        try:
+            f = float(text)
+        except ValueError:
+            raise ValueError(f"{where}: {name} {text!r} is not a number") from None
+        if not np.isfinite(f):
+            raise ValueError(f"{where}: {name} {text} is not finite") from None
+        if not f.is_integer():
+            raise ValueError(f"{where}: {name} {text} is not an integer") from None
+        if not -(2.0**63) <= f < 2.0**63:
+            raise ValueError(f"{where}: {name} {text} is outside the int64 range") from None
+        if abs(f) > 2**53:  # beyond exact float integers: ask for the digits
+            raise ValueError(f"{where}: {name} {text} is too large to be read exactly; write "
+                             "it as a whole number within int64") from None
+        value = int(f)
+    if not -(2**63) <= value < 2**63:
+        raise ValueError(f"{where}: {name} {text} is outside the int64 range")
+    return value
+
+
+def _parse_coord(text: str, name: str, where: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{where}: {name} {text!r} is not a number") from None
+    if not np.isfinite(value):
+        raise ValueError(f"{where}: {name} {text} is not finite")
+    if abs(value) > MAX_COORD_M:
+        raise ValueError(f"{where}: {name} {text} m is outside [-{MAX_COORD_M:g}, "
+                         f"{MAX_COORD_M:g}] m")
+    return value
 
 
 def _is_number(text: str) -> bool:

@@ -51,14 +51,75 @@ def load_results(results: str, seq_dir: str):
     return seq, gt_ids, gt_pts, ids, pts
 
 
+MAX_SIMILARITY_PX = 1000.0
+
+
+def check_args(args: argparse.Namespace) -> None:
+    """Validate the flags and paths before reading anything large."""
+    import math
+
+    from crowdsim.checks import require_output_file
+
+    if not (math.isfinite(args.similarity_px) and 0 < args.similarity_px <= MAX_SIMILARITY_PX):
+        raise ValueError(f"--similarity-px must be in (0, {MAX_SIMILARITY_PX:g}] px, "
+                         f"got {args.similarity_px}")
+    results = Path(args.results)
+    if results.is_dir():
+        raise ValueError(f"{args.results}: is a folder, not a MOT results file")
+    if not results.is_file():
+        raise ValueError(f"{args.results}: no such results file")
+    if args.plot is not None:
+        plot = Path(args.plot)
+        if plot.suffix.lower() != ".png":
+            raise ValueError(f"--plot must end in .png, got {args.plot!r}")
+        require_output_file("--plot", plot)
+        seq = Path(args.sequence).resolve()
+        if plot.resolve() == results.resolve() or seq in plot.resolve().parents:
+            raise ValueError(f"--plot {args.plot} would overwrite an input; choose another "
+                             "file")
+
+
+def verify_frames(seq) -> None:
+    """Refuse a damaged sequence, naming the file.
+
+    With ``checksums.json`` (crowdsim sequences) every listed file must exist and match its
+    SHA-256. Otherwise every image that ``seqLength`` promises must exist, and the first one
+    must have the ``imWidth x imHeight`` of ``seqinfo.ini``. A sequence without an image folder
+    (ground truth only, or a video) is not checked further.
+    """
+    from synth_data.writer import sha256_file
+
+    listing = seq.path / "checksums.json"
+    if listing.is_file():
+        try:
+            checks = json.loads(listing.read_text())
+        except ValueError:
+            raise ValueError(f"{listing}: not valid JSON") from None
+        if not isinstance(checks, dict):
+            raise ValueError(f"{listing}: expected an object of file: sha256")
+        for rel, digest in sorted(checks.items()):
+            p = seq.path / rel
+            if not p.is_file():
+                raise ValueError(f"{p}: missing (listed in {listing.name})")
+            if sha256_file(p) != digest:
+                raise ValueError(f"{p}: damaged (its SHA-256 differs from {listing.name})")
+    im_dir = seq.path / seq.im_dir
+    if not im_dir.is_dir():
+        return
+    for i in range(1, seq.length + 1):
+        p = im_dir / f"{i:06d}{seq.im_ext}"
+        if not p.is_file():
+            raise ValueError(f"{p}: missing (seqLength={seq.length} promises frames "
+                             f"1..{seq.length})")
+    seq.frame(1)  # decodes one image: imWidth/imHeight must match it
+
+
 def run(args: argparse.Namespace) -> int:
     from tracker.metrics import evaluate, format_table, plot_accuracy
 
-    if not args.similarity_px > 0:
-        raise ValueError(f"--similarity-px must be > 0, got {args.similarity_px}")
-    if not Path(args.results).is_file():
-        raise ValueError(f"{args.results}: no such results file")
+    check_args(args)
     seq, gt_ids, gt_pts, ids, pts = load_results(args.results, args.sequence)
+    verify_frames(seq)
     report = evaluate(gt_ids, gt_pts, ids, pts, similarity_scale=args.similarity_px,
                       strict=True)
     name = Path(args.results).stem

@@ -1,15 +1,49 @@
 """``crowdsim render``: render trajectories (simulator .npz or a frame,id,x,y CSV) to a sequence.
 
 ``crowdsim render --trajectories FILE.csv|FILE.npz --fps F [--px-per-m S] [--size WxH]
-[--seed K] --out SEQ_DIR``
+[--seed K] --out SEQ_DIR [--overwrite]``
 
 Frame size and scale default to fitting the trajectories' extent (scale: the template spans
-0.5 m). The output is one MOTChallenge sequence folder, written atomically.
+0.5 m). The output is one MOTChallenge sequence folder, written atomically by
+:func:`synth_data.writer.write_sequence`: into a temporary sibling folder whose marker file,
+written first, proves it is ours, then renamed into place. A temporary folder left by a killed
+render is removed by the next render into the same parent folder (only when its marker names a
+dead process of this host); SIGINT and SIGTERM remove it at once and say so in one line.
+
+Limits (checked before anything is allocated): frame sides 8..8192 px, scale 1e-3..1e4 px/m,
+coordinates within ±1e5 m (:data:`crowdsim.trajectories.MAX_COORD_M`), and an estimated working
+set within :data:`crowdsim.checks.MEMORY_LIMIT_BYTES`. ``--overwrite`` replaces only a
+crowdsim sequence folder (``seqinfo.ini`` + ``gt/`` + ``meta.json``, nothing else) or a suite
+folder with ``manifest.json``, and never the input file.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
+import os
+import signal
+from pathlib import Path
+from typing import Any
+
+MAX_SIDE_PX = 8192
+"""Largest frame width or height (px); one 8192 x 8192 frame peaked at 3.0 GiB resident
+(``/usr/bin/time``, 2 cores), so the largest frames run on a 24 GiB machine."""
+MIN_SIDE_PX = 8
+PX_PER_M_RANGE = (1e-3, 1e4)
+"""Allowed ``--px-per-m``: beyond 1e4 px/m a 12 px person is 1 mm wide."""
+MAX_FPS = 1000.0
+BYTES_PER_PIXEL = 64
+"""Render working set per frame pixel (float32 ground, noise pool, frame, JPEG); measured
+45-61 B at 2048..8192 px sides."""
+BYTES_PER_AGENT_ROW = 128
+"""Working set per (frame, agent) cell (positions, pixels, headings, sway, gt); measured
+107 B for 2000 frames x 1000 people."""
+SEQUENCE_ENTRIES = frozenset({"img1", "gt", "seqinfo.ini", "meta.json", "checksums.json",
+                              "video.mp4", ".crowdsim-tmp-owner.json"})
+"""Everything a sequence folder written by crowdsim may hold (the writer's marker is removed
+right after the rename that publishes the folder)."""
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -26,61 +60,190 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trajectories", required=True, metavar="FILE",
                    help=".npz from crowdsim simulate, or a CSV frame,id,x,y in metres")
     p.add_argument("--fps", type=float, default=None, metavar="F",
-                   help="frame rate of the trajectories (required for CSV; .npz knows its dt)")
-    p.add_argument("--px-per-m", type=float, default=None, metavar="S", help="scale, px/m")
-    p.add_argument("--size", type=_size, default=None, metavar="WxH", help="frame size")
+                   help="frame rate of the trajectories, (0, 1000] (required for CSV; "
+                   ".npz knows its dt)")
+    p.add_argument("--px-per-m", type=float, default=None, metavar="S",
+                   help="scale, px/m, in [0.001, 10000]")
+    p.add_argument("--size", type=_size, default=None, metavar="WxH",
+                   help=f"frame size, sides {MIN_SIDE_PX}..{MAX_SIDE_PX} px")
     p.add_argument("--template-px", type=int, default=12, metavar="PX",
-                   help="person template size in pixels (default 12)")
+                   help="person template size in pixels, 4..64 (default 12)")
     p.add_argument("--seed", type=int, default=0, metavar="K", help="rendering seed")
     p.add_argument("--video", action="store_true", help="also write video.mp4")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing SEQ_DIR")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing crowdsim sequence (or suite) folder SEQ_DIR")
     p.add_argument("--out", required=True, metavar="SEQ_DIR", help="sequence folder to write")
     p.set_defaults(func=run)
 
 
+# ---------------------------------------------------------------------------- checks
+def _check_flags(args: argparse.Namespace) -> None:
+    if args.fps is not None and not (math.isfinite(args.fps) and 0 < args.fps <= MAX_FPS):
+        raise ValueError(f"--fps must be in (0, {MAX_FPS:g}], got {args.fps}")
+    lo, hi = PX_PER_M_RANGE
+    if args.px_per_m is not None and not (math.isfinite(args.px_per_m)
+                                          and lo <= args.px_per_m <= hi):
+        raise ValueError(f"--px-per-m must be in [{lo:g}, {hi:g}], got {args.px_per_m:g}")
+    if not 0 <= args.seed < 2**63:
+        raise ValueError(f"--seed must be in [0, 2**63), got {args.seed}")
+    if args.size is not None:
+        w, h = args.size
+        if not (MIN_SIDE_PX <= w <= MAX_SIDE_PX and MIN_SIDE_PX <= h <= MAX_SIDE_PX):
+            raise ValueError(f"--size must be between {MIN_SIDE_PX}x{MIN_SIDE_PX} and "
+                             f"{MAX_SIDE_PX}x{MAX_SIDE_PX}, got {w}x{h}")
+    if not 4 <= args.template_px <= 64:
+        raise ValueError(f"--template-px must be in [4, 64], got {args.template_px}")
+
+
+def is_sequence_folder(path: Path) -> bool:
+    """True when ``path`` is a sequence folder written by crowdsim and holds nothing else."""
+    if not path.is_dir() or path.is_symlink():
+        return False
+    if not ((path / "seqinfo.ini").is_file() and (path / "gt").is_dir()):
+        return False
+    try:
+        meta = json.loads((path / "meta.json").read_text())
+    except (OSError, ValueError):
+        return False
+    if not (isinstance(meta, dict) and "camera" in meta and "appearance" in meta):
+        return False
+    return all(p.name in SEQUENCE_ENTRIES for p in path.iterdir())
+
+
+def is_suite_folder(path: Path) -> bool:
+    """True when ``path`` holds a crowdsim ``manifest.json`` and only sequence folders."""
+    if not path.is_dir() or path.is_symlink():
+        return False
+    try:
+        manifest = json.loads((path / "manifest.json").read_text())
+    except (OSError, ValueError):
+        return False
+    if not (isinstance(manifest, dict) and isinstance(manifest.get("sequences"), dict)):
+        return False
+    return all(p.name == "manifest.json" or p.name.startswith(".") or is_sequence_folder(p)
+               for p in path.iterdir())
+
+
+def check_output(out: Path, source: Path, overwrite: bool) -> None:
+    """Refuse an ``--out`` that is the input, holds it, or is not ours to replace."""
+    src = source.resolve()
+    dst = out.resolve()
+    if dst == src or dst in src.parents:
+        raise ValueError(f"--out {out} would replace the input {source}; choose another folder")
+    if not (out.exists() or out.is_symlink()):
+        return
+    if not overwrite:
+        raise ValueError(f"--out {out} already exists; pass --overwrite to replace it")
+    if out.is_symlink() or not out.is_dir():
+        raise ValueError(f"--out {out} is a file, not a crowdsim sequence folder; refusing to "
+                         "replace it with --overwrite")
+    if not (is_sequence_folder(out) or is_suite_folder(out)):
+        raise ValueError(f"--out {out} is not a crowdsim sequence or suite folder (no "
+                         "seqinfo.ini + gt/ + meta.json of ours, or other files inside); "
+                         "refusing to replace it with --overwrite")
+
+
+def estimate_bytes(width: int, height: int, n_frames: int, n_agents: int) -> int:
+    """Estimated peak working set (bytes) of rendering ``n_frames`` frames of ``n_agents``."""
+    return BYTES_PER_PIXEL * width * height + BYTES_PER_AGENT_ROW * n_frames * n_agents
+
+
+# ---------------------------------------------------------------------------- signals
+class _Terminated(BaseException):
+    """SIGTERM while rendering (cleaned up like Ctrl-C)."""
+
+
+def _on_sigterm(signum: int, frame: Any) -> None:
+    raise _Terminated()
+
+
+# ---------------------------------------------------------------------------- command
+def load_trajectories(path: Path, fps: float | None):
+    from crowdsim.trajectories import Trajectories
+
+    if path.suffix == ".npz":
+        traj = Trajectories.load(path)
+        if fps is not None and abs(fps - traj.fps) > 1e-9:
+            traj = Trajectories(positions=traj.positions, ids=traj.ids, dt=1.0 / fps,
+                                attributes=traj.attributes, meta=traj.meta)
+    elif path.suffix == ".csv":
+        if fps is None:
+            raise ValueError("--fps is required for CSV trajectories")
+        traj = Trajectories.from_csv(path, fps=fps)
+    else:
+        raise ValueError(f"--trajectories must be a .csv or .npz file, got {str(path)!r}")
+    if traj.n_steps == 0 or not traj.present.any():
+        raise ValueError(f"{path}: the trajectories contain no present position")
+    return traj
+
+
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    import sys
 
     from tqdm import tqdm
 
     from crowdsim.appearance_model import AppearanceParams
     from crowdsim.camera import Camera
+    from crowdsim.checks import require_memory, require_output_dir
     from crowdsim.render import default_px_per_m
-    from crowdsim.trajectories import Trajectories
-    from synth_data.writer import write_sequence
+    from synth_data.writer import clean_stale_tmp, write_sequence
 
+    _check_flags(args)
     path = Path(args.trajectories)
-    if args.fps is not None and not (args.fps > 0):
-        raise ValueError(f"--fps must be > 0, got {args.fps}")
-    if args.px_per_m is not None and not (args.px_per_m > 0):
-        raise ValueError(f"--px-per-m must be > 0, got {args.px_per_m}")
-    if args.seed < 0:
-        raise ValueError(f"--seed must be >= 0, got {args.seed}")
-    if path.suffix == ".npz":
-        traj = Trajectories.load(path)
-        if args.fps is not None and abs(args.fps - traj.fps) > 1e-9:
-            traj = Trajectories(positions=traj.positions, ids=traj.ids, dt=1.0 / args.fps,
-                                attributes=traj.attributes, meta=traj.meta)
-    elif path.suffix == ".csv":
-        if args.fps is None:
-            raise ValueError("--fps is required for CSV trajectories")
-        traj = Trajectories.from_csv(path, fps=args.fps)
-    else:
-        raise ValueError(f"--trajectories must be a .csv or .npz file, got {str(path)!r}")
+    out = Path(args.out)
+    if not out.name or out.name in (".", ".."):
+        raise ValueError(f"--out must name a folder, got {args.out!r}")
+    require_output_dir("--out", out)
+    check_output(out, path, args.overwrite)
+    traj = load_trajectories(path, args.fps)
     appearance = AppearanceParams(template_px=args.template_px)
-    if args.size is not None:
-        w, h = args.size
-        if not (8 <= w <= 16384 and 8 <= h <= 16384):
-            raise ValueError(f"--size must be between 8x8 and 16384x16384, got {w}x{h}")
     scale = args.px_per_m
     if scale is None and args.size is None:
         scale = default_px_per_m(args.template_px)
     camera = Camera.fit(traj.extent(), px_per_m=scale, size=args.size, seed=args.seed)
+    if not (MIN_SIDE_PX <= camera.width <= MAX_SIDE_PX
+            and MIN_SIDE_PX <= camera.height <= MAX_SIDE_PX):  # pragma: no cover - fit clips
+        raise ValueError(f"frame size {camera.width}x{camera.height} is outside the limits")
+    require_memory(f"rendering {traj.n_steps} frames of {camera.width}x{camera.height} px with "
+                   f"{traj.n_agents} people", estimate_bytes(camera.width, camera.height,
+                                                             traj.n_steps, traj.n_agents))
+    pix = camera.project(traj.positions[traj.present])
+    if not camera.visible(pix).any():
+        xmin, ymin, xmax, ymax = traj.extent()
+        raise ValueError(f"--px-per-m {camera.px_per_m:g}: no trajectory point falls inside "
+                         f"the {camera.width}x{camera.height} frame (the people span "
+                         f"{(xmax - xmin) * camera.px_per_m:.3g} x "
+                         f"{(ymax - ymin) * camera.px_per_m:.3g} px); lower --px-per-m or "
+                         "enlarge --size")
     meta = {"source": str(path), "seed": args.seed, "fps": traj.fps}
-    with tqdm(total=traj.n_steps, unit="frame", desc="rendering") as bar:
-        entry = write_sequence(args.out, traj, camera=camera, appearance=appearance,
-                               seed=args.seed, meta=meta, video=args.video,
-                               overwrite=args.overwrite, progress=bar.update)
-    print(f"wrote {args.out}: {entry['frames']} frames {camera.width}x{camera.height} "
+    out.parent.mkdir(parents=True, exist_ok=True)
+    for p in clean_stale_tmp(out.parent):
+        print(f"crowdsim render: removed {p}, left by a render that was killed", file=sys.stderr)
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if _main_thread() else None
+    try:
+        with tqdm(total=traj.n_steps, unit="frame", desc="rendering", disable=None) as bar:
+            entry = write_sequence(out, traj, camera=camera, appearance=appearance,
+                                   seed=args.seed, meta=meta, video=args.video,
+                                   overwrite=args.overwrite, progress=bar.update)
+    except (KeyboardInterrupt, _Terminated) as exc:
+        how = "terminated" if isinstance(exc, _Terminated) else "interrupted"
+        print(f"crowdsim render: {how}; removed the unfinished temporary folder of {out}",
+              file=sys.stderr)
+        return 130 if how == "interrupted" else 143
+    except OSError as exc:  # name --out, not the hidden temporary folder (or nothing)
+        name = "" if exc.filename is None else Path(os.fsdecode(exc.filename)).name
+        if exc.filename is None or name.startswith(".crowdsim-tmp-"):
+            raise type(exc)(exc.errno, exc.strerror or str(exc), str(out)) from None
+        raise
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+    print(f"wrote {out}: {entry['frames']} frames {camera.width}x{camera.height} "
           f"at {camera.px_per_m:.2f} px/m")
     return 0
+
+
+def _main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()

@@ -67,21 +67,41 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.agents < 1:
-        raise ValueError(f"--agents must be >= 1, got {args.agents}")
+MAX_AGENTS = 100_000
+MAX_DT = 0.2
+BYTES_PER_AGENT_STEP = 64
+"""Working set per (step, agent): the recorder's rows (24 B), the dense (S+1, N, 2) float64
+trajectories (16 B) and the summary's velocities and speeds (24 B)."""
+
+
+def check_args(args: argparse.Namespace) -> None:
+    """Validate the flags before anything is simulated; errors name the flag and the value."""
+    from crowdsim.checks import require_memory, require_output_file
+
+    if not 1 <= args.agents <= MAX_AGENTS:
+        raise ValueError(f"--agents must be in [1, {MAX_AGENTS}], got {args.agents}")
     if args.steps < 0:
         raise ValueError(f"--steps must be >= 0, got {args.steps}")
-    if args.seed < 0:
-        raise ValueError(f"--seed must be >= 0, got {args.seed}")
-    if not (math.isfinite(args.dt) and args.dt > 0):
-        raise ValueError(f"--dt must be > 0 seconds, got {args.dt}")
+    if not 0 <= args.seed < 2**63:
+        raise ValueError(f"--seed must be in [0, 2**63), got {args.seed}")
+    if not (math.isfinite(args.dt) and 0 < args.dt <= MAX_DT):
+        raise ValueError(f"--dt must be in (0, {MAX_DT:g}] seconds, got {args.dt}")
     if args.density is not None and not (math.isfinite(args.density) and 0 < args.density <= 6):
         raise ValueError(f"--density must be in (0, 6] persons/m², got {args.density}")
     if args.out is not None and args.out.suffix != ".npz":
         raise ValueError(f"--out must end in .npz, got {str(args.out)!r}")
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise ValueError(f"--plot must end in .png, got {str(args.plot)!r}")
+    require_memory(f"--steps {args.steps} x --agents {args.agents}",
+                   float(BYTES_PER_AGENT_STEP) * (args.steps + 1) * args.agents)
+    if args.out is not None:
+        require_output_file("--out", args.out)
+    if args.plot is not None:
+        require_output_file("--plot", args.plot)
+
+
+def run(args: argparse.Namespace) -> int:
+    check_args(args)
 
     import time
 

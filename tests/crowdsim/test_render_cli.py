@@ -56,8 +56,8 @@ def test_render_npz_with_size_and_scale(tmp_path):
 
 @pytest.mark.parametrize("extra, message", [
     ([], "--fps is required for CSV"),
-    (["--fps", "0"], "--fps must be > 0"),
-    (["--fps", "10", "--px-per-m", "-2"], "--px-per-m must be > 0"),
+    (["--fps", "0"], "--fps must be in (0, 1000], got 0"),
+    (["--fps", "10", "--px-per-m", "-2"], "--px-per-m must be in [0.001, 10000], got -2"),
 ])
 def test_render_bad_flags_exit_2_with_one_line(tmp_path, capsys, extra, message):
     csv = _traj().to_csv(tmp_path / "walk.csv")
@@ -74,3 +74,72 @@ def test_render_malformed_csv_names_the_line(tmp_path, capsys):
                   str(tmp_path / "seq")]) == 2
     assert "bad.csv:3" in capsys.readouterr().err
     assert not (tmp_path / "seq").exists()
+
+
+def _dead_pid() -> int:
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    return int(proc.stdout)
+
+
+def test_overwrite_replaces_only_our_folders(tmp_path, capsys):
+    csv = _traj().to_csv(tmp_path / "walk.csv")
+    seq = tmp_path / "seq"
+    argv = ["render", "--trajectories", str(csv), "--fps", "10", "--size", "64x48"]
+    assert _main([*argv, "--out", str(seq)]) == 0
+    first = (seq / "checksums.json").read_text()
+    # A sequence of ours is replaced (different seed -> different frames).
+    assert _main([*argv, "--seed", "5", "--overwrite", "--out", str(seq)]) == 0
+    assert (seq / "checksums.json").read_text() != first
+    # ... but not once a file of the user's sits inside it.
+    (seq / "notes.txt").write_text("mine")
+    assert _main([*argv, "--overwrite", "--out", str(seq)]) == 2
+    assert "is not a crowdsim sequence or suite folder" in capsys.readouterr().err
+    assert (seq / "notes.txt").read_text() == "mine"
+    # A suite folder (manifest.json + sequence folders) may be replaced.
+    suite = tmp_path / "suite"
+    suite.mkdir()
+    (suite / "manifest.json").write_text('{"format": 1, "sequences": {}}')
+    (seq / "notes.txt").unlink()
+    seq.rename(suite / "seq")
+    assert _main([*argv, "--overwrite", "--out", str(suite)]) == 0
+    assert (suite / "seqinfo.ini").is_file() and not (suite / "manifest.json").exists()
+    # A user folder, the input itself, or a folder holding the input: refused, kept.
+    thesis = tmp_path / "thesis"
+    thesis.mkdir()
+    (thesis / "thesis.tex").write_text("\\chapter{One}")
+    for out, needle in ((thesis, "is not a crowdsim sequence"), (csv, "would replace the input"),
+                        (tmp_path, "would replace the input")):
+        capsys.readouterr()
+        assert _main([*argv, "--overwrite", "--out", str(out)]) == 2
+        assert needle in capsys.readouterr().err
+    assert (thesis / "thesis.tex").read_text() == "\\chapter{One}"
+    assert csv.read_text().startswith("frame,id,x,y")
+
+
+def test_render_removes_a_killed_renders_tmp_folder_only(tmp_path, capsys):
+    import json
+    import socket
+
+    from synth_data.writer import TMP_MARKER, TMP_PREFIX
+
+    csv = _traj().to_csv(tmp_path / "walk.csv")
+    pid = _dead_pid()
+    stale = tmp_path / f"{TMP_PREFIX}seq-{pid}-0badf00d"
+    (stale / "img1").mkdir(parents=True)
+    (stale / "img1" / "000001.jpg").write_bytes(b"partial")
+    (stale / TMP_MARKER).write_text(json.dumps({"pid": pid, "host": socket.gethostname(),
+                                                "target": "seq", "created": 0.0}))
+    lookalike = tmp_path / f"{TMP_PREFIX}notes-2024"  # no marker: the user's
+    lookalike.mkdir()
+    (lookalike / "thesis.txt").write_text("mine")
+    assert _main(["render", "--trajectories", str(csv), "--fps", "10", "--size", "64x48",
+                  "--out", str(tmp_path / "seq")]) == 0
+    assert f"removed {stale}" in capsys.readouterr().err
+    assert not stale.exists()
+    assert (lookalike / "thesis.txt").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["walk.csv", "seq", lookalike.name])
