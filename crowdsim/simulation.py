@@ -377,9 +377,9 @@ class Simulation:
             raise ValueError(f"steps must be a non-negative integer, got {n_steps!r}")
         it = range(int(n_steps))
         if progress:
-            from tqdm import tqdm
+            from crowdsim.progress import progress_bar
 
-            it = tqdm(it, desc=f"simulating {self.scenario.name}", unit="step", leave=False)
+            it = progress_bar(it, desc=f"simulating {self.scenario.name}", unit="step")
         for _ in it:
             self.step()
         return self.trajectories if self._recorder is not None else None

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import configparser
 import csv
+import json
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -372,3 +373,38 @@ def read_sequence(path: str | os.PathLike[str]) -> MotSequence:
                        width=width, height=height, length=length, template_size=template, gt=gt,
                        box_type=box_type, im_dir=sec.get("imDir", "img1").strip(),
                        im_ext=sec.get("imExt", ".jpg").strip(), info=sec)
+
+
+def verify_frames(seq) -> None:
+    """Refuse a damaged sequence, naming the file.
+
+    With ``checksums.json`` (crowdsim sequences) every listed file must exist and match its
+    SHA-256. Otherwise every image that ``seqLength`` promises must exist, and the first one
+    must have the ``imWidth x imHeight`` of ``seqinfo.ini``. A sequence without an image folder
+    (ground truth only, or a video) is not checked further.
+    """
+    from synth_data.writer import sha256_file
+
+    listing = seq.path / "checksums.json"
+    if listing.is_file():
+        try:
+            checks = json.loads(listing.read_text())
+        except ValueError:
+            raise ValueError(f"{listing}: not valid JSON") from None
+        if not isinstance(checks, dict):
+            raise ValueError(f"{listing}: expected an object of file: sha256")
+        for rel, digest in sorted(checks.items()):
+            p = seq.path / rel
+            if not p.is_file():
+                raise ValueError(f"{p}: missing (listed in {listing.name})")
+            if sha256_file(p) != digest:
+                raise ValueError(f"{p}: damaged (its SHA-256 differs from {listing.name})")
+    im_dir = seq.path / seq.im_dir
+    if not im_dir.is_dir():
+        return
+    for i in range(1, seq.length + 1):
+        p = im_dir / f"{i:06d}{seq.im_ext}"
+        if not p.is_file():
+            raise ValueError(f"{p}: missing (seqLength={seq.length} promises frames "
+                             f"1..{seq.length})")
+    seq.frame(1)  # decodes one image: imWidth/imHeight must match it

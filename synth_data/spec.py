@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import re
 import sys
@@ -86,6 +87,10 @@ CAMERA_FIELDS: dict[str, type | tuple[type, ...]] = {
     "tilt_deg": (int, float), "distance_m": (int, float), "jitter_px": (int, float),
     "jitter_frames": (int, float), "max_width": int, "max_height": int, "margin_m": (int, float),
 }
+MAX_SIDE_PX: int = 8192
+"""Largest frame width or height, px (as ``crowdsim render``)."""
+PX_PER_M: tuple[float, float] = (1e-3, 1e4)
+"""Allowed camera scale, px/m."""
 OUTPUT_FIELDS: dict[str, type] = {"images": bool, "video": bool}
 MAX_FRAMES: int = 1_000_000
 MAX_WARMUP_STEPS: int = 100_000
@@ -233,9 +238,16 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
         if len(c) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                   for v in c):
             raise ValueError(f"{where}: camera.center must be two numbers, got {c!r}")
-    for key in ("max_width", "max_height"):
-        if key in camera and not (8 <= camera[key] <= 16384):
-            raise ValueError(f"{where}: camera.{key} must be in [8, 16384], got {camera[key]!r}")
+    # the same limits as crowdsim render: one 8192 x 8192 frame peaks at 3 GiB while drawn;
+    # beyond 1e4 px/m a person is a millimetre wide and no head lands in the frame
+    for key in ("max_width", "max_height", "width", "height"):
+        if key in camera and not (8 <= camera[key] <= MAX_SIDE_PX):
+            raise ValueError(f"{where}: camera.{key} must be in [8, {MAX_SIDE_PX}], got "
+                             f"{camera[key]!r}")
+    if "px_per_m" in camera and not (math.isfinite(camera["px_per_m"])
+                                     and PX_PER_M[0] <= camera["px_per_m"] <= PX_PER_M[1]):
+        raise ValueError(f"{where}: camera.px_per_m must be in [{PX_PER_M[0]:g}, "
+                         f"{PX_PER_M[1]:g}], got {camera['px_per_m']:g}")
     if "margin_m" in camera and not (0 <= camera["margin_m"] <= 1000):
         raise ValueError(f"{where}: camera.margin_m must be in [0, 1000], "
                          f"got {camera['margin_m']!r}")

@@ -83,7 +83,8 @@ class TrackRun:
 def run_tracker(tracker: str | Tracker, source: SequenceLike, *, frames: int | None = None,
                 params: Any = None, metrics: Metrics = "full", strict: bool = False,
                 progress: bool = False,
-                prepare: Callable[[Tracker, Any], Any] | None = None) -> TrackRun:
+                prepare: Callable[[Tracker, Any], Any] | None = None,
+                template_size: int | None = None) -> TrackRun:
     """Track ``source`` with ``tracker`` (a registry name or a :class:`Tracker`) and score it.
 
     Parameters
@@ -108,6 +109,8 @@ def run_tracker(tracker: str | Tracker, source: SequenceLike, *, frames: int | N
         tracking-by-detection tracker its detections
         (:func:`synth_data.detections.attach_detections`) without this library importing
         the data layer.
+    template_size : int, optional
+        Template (head) size in px; default: the source's.
     """
     trk = make_tracker(tracker, params)
     if prepare is not None:
@@ -118,7 +121,8 @@ def run_tracker(tracker: str | Tracker, source: SequenceLike, *, frames: int | N
     (ids, pts), births = source.births()
     births = {t: b for t, b in births.items() if t < n}
     t0 = time.perf_counter()
-    res = trk.track(itertools.islice(source.frames(), n), ids, pts, int(source.template_size),
+    size = int(template_size or source.template_size)
+    res = trk.track(itertools.islice(source.frames(), n), ids, pts, size,
                     births=births, n_frames=n, progress=progress)
     wall = time.perf_counter() - t0
     steps = max(res.n_frames - 1, 1)

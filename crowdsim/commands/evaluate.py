@@ -79,49 +79,17 @@ def check_args(args: argparse.Namespace) -> None:
                              "file")
 
 
-def verify_frames(seq) -> None:
-    """Refuse a damaged sequence, naming the file.
-
-    With ``checksums.json`` (crowdsim sequences) every listed file must exist and match its
-    SHA-256. Otherwise every image that ``seqLength`` promises must exist, and the first one
-    must have the ``imWidth x imHeight`` of ``seqinfo.ini``. A sequence without an image folder
-    (ground truth only, or a video) is not checked further.
-    """
-    from synth_data.writer import sha256_file
-
-    listing = seq.path / "checksums.json"
-    if listing.is_file():
-        try:
-            checks = json.loads(listing.read_text())
-        except ValueError:
-            raise ValueError(f"{listing}: not valid JSON") from None
-        if not isinstance(checks, dict):
-            raise ValueError(f"{listing}: expected an object of file: sha256")
-        for rel, digest in sorted(checks.items()):
-            p = seq.path / rel
-            if not p.is_file():
-                raise ValueError(f"{p}: missing (listed in {listing.name})")
-            if sha256_file(p) != digest:
-                raise ValueError(f"{p}: damaged (its SHA-256 differs from {listing.name})")
-    im_dir = seq.path / seq.im_dir
-    if not im_dir.is_dir():
-        return
-    for i in range(1, seq.length + 1):
-        p = im_dir / f"{i:06d}{seq.im_ext}"
-        if not p.is_file():
-            raise ValueError(f"{p}: missing (seqLength={seq.length} promises frames "
-                             f"1..{seq.length})")
-    seq.frame(1)  # decodes one image: imWidth/imHeight must match it
-
-
 def run(args: argparse.Namespace) -> int:
+    from synth_data.mot import verify_frames
     from tracker.metrics import evaluate, format_table, plot_accuracy
 
     check_args(args)
     seq, gt_ids, gt_pts, ids, pts = load_results(args.results, args.sequence)
     verify_frames(seq)
+    # any result ids: MOTA, IDF1 and HOTA need no correspondence; acc@T uses the ids as they
+    # are when they are ground-truth ids, else a majority mapping (tracker.metrics.evaluate)
     report = evaluate(gt_ids, gt_pts, ids, pts, similarity_scale=args.similarity_px,
-                      strict=True)
+                      id_mapping="auto")
     name = Path(args.results).stem
     if args.plot:
         plot_accuracy({name: [c["acc"] for c in report["curve"]]}, args.plot, title=seq.name)

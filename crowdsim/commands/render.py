@@ -180,11 +180,10 @@ def load_trajectories(path: Path, fps: float | None):
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from tqdm import tqdm
-
     from crowdsim.appearance_model import AppearanceParams
     from crowdsim.camera import Camera
     from crowdsim.checks import require_memory, require_output_dir
+    from crowdsim.progress import progress_bar
     from crowdsim.render import default_px_per_m
     from synth_data.writer import clean_stale_tmp, write_sequence
 
@@ -221,7 +220,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"crowdsim render: removed {p}, left by a render that was killed", file=sys.stderr)
     previous = signal.signal(signal.SIGTERM, _on_sigterm) if _main_thread() else None
     try:
-        with tqdm(total=traj.n_steps, unit="frame", desc="rendering", disable=None) as bar:
+        with progress_bar(total=traj.n_steps, unit="frame", desc="rendering") as bar:
             entry = write_sequence(out, traj, camera=camera, appearance=appearance,
                                    seed=args.seed, meta=meta, video=args.video,
                                    overwrite=args.overwrite, progress=bar.update)

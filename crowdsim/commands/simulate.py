@@ -105,8 +105,6 @@ def run(args: argparse.Namespace) -> int:
 
     import time
 
-    import numpy as np
-
     from crowdsim.params import SocialForceParams
     from crowdsim.scenarios import make_scenario
     from crowdsim.simulation import Simulation
@@ -134,19 +132,27 @@ def run(args: argparse.Namespace) -> int:
 
         plot_trajectories(traj, sim.world.walls, args.plot,
                           title=f"{scenario.name}: {traj.n_agents} agents, seed {args.seed}")
+    print(summary_table(sim, traj, args.steps, wall, args.out, args.plot))
+    return 0
+
+
+def summary_table(sim, traj, steps: int, wall: float, out=None, plot=None) -> str:
+    """The table ``crowdsim simulate`` prints (also the first part of ``crowdsim demo``)."""
+    import numpy as np
+
+    scenario, params = sim.scenario, sim.params
     speed = np.hypot(*np.moveaxis(traj.velocities(), -1, 0))
+    start = int(np.isfinite(traj.positions[0]).all(-1).sum())
     rows = [
         ("scenario", scenario.name),
-        ("agents (start / total / end)", f"{args.agents} / {traj.n_agents} / {sim.state.n}"),
+        ("agents (start / total / end)", f"{start} / {traj.n_agents} / {sim.state.n}"),
         ("density at start (/m²)", f"{scenario.density:g}"),
         ("mean speed (m/s)", f"{np.nanmean(speed):.3f}" if np.isfinite(speed).any() else "n/a"),
-        ("steps x dt", f"{args.steps} x {params.dt:g} s = {args.steps * params.dt:g} s"),
+        ("steps x dt", f"{steps} x {params.dt:g} s = {steps * params.dt:g} s"),
         ("wall time (s)", f"{wall:.2f}"),
-        ("steps/s", f"{args.steps / wall:.1f}" if wall > 0 else "n/a"),
-        ("output", str(args.out) if args.out else "(not written)"),
-        *([("plot", str(args.plot))] if args.plot else []),
+        ("steps/s", f"{steps / wall:.1f}" if wall > 0 else "n/a"),
+        ("output", str(out) if out else "(not written)"),
+        *([("plot", str(plot))] if plot else []),
     ]
     width = max(len(k) for k, _ in rows)
-    for key, value in rows:
-        print(f"{key:<{width}}  {value}")
-    return 0
+    return "\n".join(f"{key:<{width}}  {value}" for key, value in rows)

@@ -3,7 +3,9 @@
 INPUT is a MOTChallenge sequence folder (targets start from its ground truth: the initial
 targets at frame 1, every later id born at its first frame) or a video file (targets come from
 ``--init points.csv`` with rows ``frame,id,x,y`` in pixels; rows after frame 1 are births).
-Results are MOT text rows, one head box of the template size centred on each tracked point.
+Any registered tracker runs (``--tracker``, see :mod:`tracker.registry`); ``--set`` changes
+its parameters. Results are MOT text rows, one head box of the template size centred on each
+tracked point. Tracking and scoring go through :func:`tracker.runner.run_tracker`.
 """
 
 from __future__ import annotations
@@ -14,152 +16,127 @@ import json
 import sys
 from pathlib import Path
 
-TRACKERS = ("bqp", "ncc")
+MAX_TEMPLATE_PX = 256
+"""Largest template (head) size: the appearance models hold (n, 3, w, w) arrays per target
+with ``w`` about twice the template; 256 px keeps 1000 targets under 2 GiB."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("track", help="track a sequence or video (BQP or NCC), write MOT results",
-                       description=__doc__.splitlines()[0].replace("``", ""))
+    from tracker.registry import TRACKERS
+
+    listing = "; ".join(f"{name}: {e.summary}" for name, e in TRACKERS.items())
+    p = sub.add_parser("track", help="track a sequence or video with any registered tracker, "
+                       "write MOT results", description=__doc__.splitlines()[0].replace("``", ""))
     p.add_argument("input", help="MOT sequence folder or video file")
-    p.add_argument("--tracker", choices=TRACKERS, default="bqp",
-                   help="bqp: the BQP/Frank-Wolfe tracker; ncc: independent NCC templates")
+    p.add_argument("--tracker", default="bqp", metavar="NAME",
+                   help=f"registered tracker (default bqp). {listing}")
+    p.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="tracker parameter, e.g. --set zeta=0.5 (repeatable)")
     p.add_argument("--out", required=True, help="MOT results file to write")
     p.add_argument("--init", help="points CSV (frame,id,x,y or id,x,y); required for a video")
     p.add_argument("--video", help="write an overlay MP4 (gt green, tracks yellow)")
     p.add_argument("--evaluate", action="store_true",
                    help="print the accuracy table against the sequence's ground truth")
     p.add_argument("--template-size", type=int, default=None,
-                   help="template (head) size in px (default: from seqinfo.ini, or 12)")
+                   help=f"template (head) size in px, 2..{MAX_TEMPLATE_PX} (default: from "
+                   "seqinfo.ini, or 12)")
     p.add_argument("--frames", type=int, default=None, help="track only the first N frames")
-    p.add_argument("--appearance", choices=("kcf", "ncc"), default="kcf",
-                   help="appearance model of the BQP tracker")
+    p.add_argument("--appearance", choices=("kcf", "ncc"), default=None,
+                   help="appearance model of a BQP tracker (same as --set appearance=...)")
     p.add_argument("--dense", action="store_true",
                    help="BQP with dense candidates instead of the default speed-up sampling "
-                   "(m=3 extrema + 10 samples each)")
+                   "(same as --tracker bqp-dense)")
+    tuned = p.add_mutually_exclusive_group()
+    tuned.add_argument("--params", metavar="JSON",
+                       help="BQP with tuned static parameters (best_params.json of crowdsim tune)")
+    tuned.add_argument("--policy", metavar="ZIP",
+                       help="BQP driven by an adaptive policy (model.zip of crowdsim train)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
-class _VideoInput:
-    """Frames of a video file (the tracker runs on real video, not only on sequences)."""
-
-    def __init__(self, path: Path):
-        import cv2
-
-        cap = cv2.VideoCapture(str(path))
-        ok, first = cap.read() if cap.isOpened() else (False, None)
-        if not ok:
-            cap.release()
-            raise ValueError(f"{path}: not a readable video file")
-        self.path = path
-        self.frame_rate = float(cap.get(cv2.CAP_PROP_FPS) or 25.0)
-        self.length = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0) or None
-        self.height, self.width = first.shape[:2]
-        cap.release()
-
-    def frames(self):
-        import cv2
-
-        cap = cv2.VideoCapture(str(self.path))
-        try:
-            while True:
-                ok, img = cap.read()
-                if not ok:
-                    return
-                yield img
-        finally:
-            cap.release()
+def _check_output(path: str, flag: str, suffix: str | None = None) -> Path:
+    """Refuse an output path that cannot be written, before any work is done."""
+    out = Path(path)
+    if suffix and out.suffix.lower() != suffix:
+        raise ValueError(f"{flag} must end in {suffix}, got {path!r}")
+    if out.is_dir():
+        raise IsADirectoryError(21, "is a folder, not a file", str(out))
+    for parent in out.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise NotADirectoryError(20, f"{parent} is a file, not a folder", str(out))
+            break
+    return out
 
 
-def load_input(path: str, init: str | None, template_size: int | None):
-    """Open INPUT: returns (source, template_size, (ids, points) init, births, gt or None)."""
-    from synth_data.mot import DEFAULT_TEMPLATE_SIZE, read_sequence
-    from tracker.mot_io import births_from_ground_truth, births_from_points, read_points_csv
+def _overrides(args: argparse.Namespace) -> tuple[str, dict]:
+    from crowdsim.commands.simulate import parse_assignments
+    from tracker.registry import get
 
-    p = Path(path)
-    gt = None
-    if p.is_dir():
-        src = read_sequence(p)
-        size = template_size or src.template_size
-        gt_ids, gt_pts = src.gt_points()
-        gt = (gt_ids, gt_pts)
-    elif p.is_file():
-        src = _VideoInput(p)
-        size = template_size or DEFAULT_TEMPLATE_SIZE
-        if init is None:
-            raise ValueError(f"{p}: a video input needs --init points.csv (frame,id,x,y)")
-    else:
-        raise ValueError(f"{p}: no such sequence folder or video file")
-    if template_size is not None and template_size < 2:
-        raise ValueError(f"--template-size must be >= 2 px, got {template_size}")
-    if init is not None:
-        frames, ids, pts = read_points_csv(init)
-        (i_ids, i_pts), births = births_from_points(frames, ids, pts)
-        if gt is not None and len(ids):
-            unknown = sorted(set(ids.tolist()) - set(gt[0].tolist()))
-            if unknown and len(gt[0]):
-                raise ValueError(f"{init}: ids {unknown[:5]} are unknown to the ground truth "
-                                 f"of {p}")
-    else:
-        if gt is None or len(gt[0]) == 0:
-            raise ValueError(f"{p}: no ground truth to start from; pass --init points.csv")
-        (i_ids, i_pts), births = births_from_ground_truth(*gt)
-    return src, int(size), (i_ids, i_pts), births, gt
-
-
-def make_tracker(name: str, appearance: str = "kcf", dense: bool = False):
-    from tracker.baselines.ncc import NCCTracker
-    from tracker.bqp.params import BQPParams
-    from tracker.bqp.tracker import BQPTracker
-
-    if name == "bqp":
-        return BQPTracker(BQPParams(appearance=appearance, speedup=not dense))
-    if name == "ncc":
-        return NCCTracker()
-    raise ValueError(f"unknown tracker {name!r}; expected one of {TRACKERS}")
+    name = args.tracker
+    entry = get(name)  # unknown names list the valid ones
+    over = parse_assignments(args.set, "--set")
+    if args.appearance is not None:
+        over["appearance"] = args.appearance
+    if args.dense:
+        over["speedup"] = False
+    entry.make_params(**over)  # unknown or out-of-range parameters fail here, named
+    return name, over
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from synth_data.mot import write_mot
-    from tracker.metrics import evaluate, format_table
+    from synth_data.detections import attach_detections
+    from synth_data.mot import verify_frames, write_mot
+    from synth_data.sequence import open_sequence
+    from tracker.metrics import format_table
     from tracker.mot_io import tracks_to_mot_rows
+    from tracker.registry import make_tracker
+    from tracker.runner import run_tracker
 
     if args.frames is not None and args.frames < 1:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
-    if args.evaluate and not Path(args.input).is_dir():
+    size = args.template_size
+    if size is not None and not 2 <= size <= MAX_TEMPLATE_PX:
+        raise ValueError(f"--template-size must be in [2, {MAX_TEMPLATE_PX}] px, got {size}")
+    is_folder = Path(args.input).is_dir()
+    if args.evaluate and not is_folder:
         raise ValueError("--evaluate needs a sequence folder with ground truth as INPUT")
-    src, size, (ids, pts), births, gt = load_input(args.input, args.init, args.template_size)
-    tracker = make_tracker(args.tracker, args.appearance, args.dense)
-    n_total = src.length if args.frames is None else min(args.frames, src.length or args.frames)
-    frames = itertools.islice(src.frames(), n_total)
-    result = tracker.track(frames, ids, pts, size, births=births, n_frames=n_total,
-                           progress=not args.no_progress)
-    rows = tracks_to_mot_rows(result.ids, result.positions, size)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_mot(out, rows)
-    t = result.timings
-    stages = ", ".join(f"{k} {1000 * v / max(result.n_frames - 1, 1):.1f} ms"
-                       for k, v in t.items() if k != "total")
-    print(f"{tracker.name}: {result.n_frames} frames, {len(result.ids)} targets, "
-          f"{(result.n_frames - 1) / max(t.get('total', 0.0), 1e-9):.1f} frames/s "
-          f"({stages} per frame) -> {out}", file=sys.stderr)
+    out = _check_output(args.out, "--out")
+    if args.video:
+        _check_output(args.video, "--video", ".mp4")
+    name, over = _overrides(args)
+    src = open_sequence(args.input, init=args.init)
+    if is_folder:
+        verify_frames(src)  # a damaged or swapped image is named, not tracked silently
+    size = int(size or src.template_size)
+    tracker = make_tracker(name, **over)
+    feed = src
+    if args.params or args.policy:
+        from envs.tuners import tuned_tracker
+
+        if not name.startswith("bqp"):
+            raise ValueError("--params and --policy set the parameters of a BQP tracker, "
+                             f"not of --tracker {name}")
+        tracker, feed, what = tuned_tracker(src, args.params, args.policy, over)
+        print(f"tracking with {what}", file=sys.stderr)
+    run = run_tracker(tracker, feed, frames=args.frames, template_size=size,
+                      metrics="full" if args.evaluate else "none",
+                      progress=not args.no_progress, prepare=attach_detections)
+    result = run.result
+    write_mot(out, tracks_to_mot_rows(result.ids, result.positions, size))
+    stages = ", ".join(f"{k} {v:.1f} ms" for k, v in run.stage_ms.items())
+    print(f"{run.tracker}: {result.n_frames} frames, {len(result.ids)} targets, "
+          f"{run.fps:.1f} frames/s ({stages} per frame) -> {out}", file=sys.stderr)
     if args.video:
         from tracker.overlay import write_overlay
 
-        gt_pts = gt[1] if gt is not None else None
+        gt_pts = src.gt_points()[1] if is_folder else None
         write_overlay(args.video, itertools.islice(src.frames(), result.n_frames), size,
                       tracks=result.positions, ground_truth=gt_pts,
                       fps=getattr(src, "frame_rate", 25.0))
         print(f"overlay -> {args.video}", file=sys.stderr)
     if args.evaluate:
-        gt_ids, gt_pts = gt
-        gt_pts = gt_pts[:result.n_frames]
-        report = evaluate(gt_ids, gt_pts, result.ids, result.positions, strict=False)
-        print(format_table({tracker.name: report}))
-        print(json.dumps({k: v for k, v in report.items() if k != "curve"} |
-                         {"fps": float(np.round((result.n_frames - 1) / max(
-                             t.get("total", 0.0), 1e-9), 2))}))
+        print(format_table({run.tracker: run.report}))
+        print(json.dumps(run.summary()))
     return 0
