@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import sys
 
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "sim": ("crowdsim.bench.sim", "simulator speed vs JuPedSim and PySocialForce (corridor)"),
@@ -33,6 +34,14 @@ def bench_parser(name: str) -> tuple[argparse.ArgumentParser, object]:
 
 
 def main(name: str, argv: list[str] | None = None) -> int:
-    """Run benchmark ``name`` with command-line ``argv`` (``benchmarks/NAME.py`` calls this)."""
+    """Run benchmark ``name`` with command-line ``argv`` (``benchmarks/NAME.py`` calls this).
+
+    Bad input (``ValueError``) and file errors end with one line on stderr and exit code 2.
+    """
     parser, mod = bench_parser(name)
-    return int(mod.run(parser.parse_args(argv)) or 0)
+    args = parser.parse_args(argv)
+    try:
+        return int(mod.run(args) or 0)
+    except (ValueError, OSError) as exc:
+        print(f"crowdsim bench {name}: error: {exc}", file=sys.stderr)
+        return 2

@@ -330,7 +330,7 @@ def test_two_concurrent_runs_into_one_folder_keep_every_manifest_entry(tmp_path)
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_sigkill_of_the_parent_leaves_no_worker_and_a_rerun_completes(tmp_path):
     out = tmp_path / "out"
-    cmd = _gen(out, _spec_files(tmp_path, ["k1", "k2"], 200), 2)
+    cmd = _gen(out, _spec_files(tmp_path, ["k1", "k2"], 600), 2)
     proc = subprocess.Popen(cmd, cwd=ROOT, env=_env(), stderr=subprocess.PIPE)
     try:
         workers = _busy_writers(out, proc, 2)
