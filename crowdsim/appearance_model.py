@@ -44,13 +44,27 @@ PALETTES: dict[str, tuple[tuple[int, int, int], ...]] = {
 """Named clothing palettes: each a tuple of BGR cluster centres (the first is the densest)."""
 
 PROMINENT_COLOURS: tuple[tuple[int, int, int], ...] = (
-    (0, 0, 230), (0, 220, 255), (230, 60, 0), (0, 200, 0), (200, 0, 200), (255, 255, 0),
-    (0, 128, 255), (128, 0, 255), (255, 128, 128), (0, 255, 128), (30, 90, 160), (180, 255, 180),
+    (0, 0, 230),
+    (0, 220, 255),
+    (230, 60, 0),
+    (0, 200, 0),
+    (200, 0, 200),
+    (255, 255, 0),
+    (0, 128, 255),
+    (128, 0, 255),
+    (255, 128, 128),
+    (0, 255, 128),
+    (30, 90, 160),
+    (180, 255, 180),
 )
 """BGR colours of prominent people ("queens"), far from every palette cluster."""
 
-HAIR_COLOURS: tuple[tuple[int, int, int], ...] = ((20, 20, 25), (25, 40, 60), (40, 70, 110),
-                                                   (150, 150, 160))
+HAIR_COLOURS: tuple[tuple[int, int, int], ...] = (
+    (20, 20, 25),
+    (25, 40, 60),
+    (40, 70, 110),
+    (150, 150, 160),
+)
 SKIN_COLOURS: tuple[tuple[int, int, int], ...] = ((140, 170, 215), (90, 130, 180), (60, 85, 120))
 SUPERSAMPLE: int = 8
 """Drawing resolution factor used to anti-alias the sprites."""
@@ -228,33 +242,58 @@ class AppearanceParams:
         own = "appearance"
         require_choice(own, "palette", self.palette, tuple(sorted(PALETTES)))
         require_choice(own, "video_codec", self.video_codec, VIDEO_CODECS)
-        for name, lo, hi in (("template_px", 4, 64), ("n_clusters", 1, len(PALETTES[self.palette])),
-                             ("variants_per_cluster", 1, 16), ("jpeg_quality", 1, 100),
-                             ("orientation_bins", 4, 128), ("subpixel", 1, 4)):
+        for name, lo, hi in (
+            ("template_px", 4, 64),
+            ("n_clusters", 1, len(PALETTES[self.palette])),
+            ("variants_per_cluster", 1, 16),
+            ("jpeg_quality", 1, 100),
+            ("orientation_bins", 4, 128),
+            ("subpixel", 1, 4),
+        ):
             require_number(own, name, getattr(self, name), lo=lo, hi=hi, integer=True)
-        for name, lo, hi in (("cluster_spread", 0, 100), ("prominent_fraction", 0, 1),
-                             ("dark_hair_fraction", 0, 1), ("hair_spread", 0, 100),
-                             ("contrast", 0.05, 2), ("body_scale", 0.5, 2),
-                             ("ground_texture", 0, 80), ("paving_m", 0, 100), ("shadow", 0, 1),
-                             ("sway_deg", 0, 45), ("arm_swing", 0, 0.5), ("gait_bob", 0, 0.5),
-                             ("head_turn_deg", 0, 90), ("distractor_density", 0, 10),
-                             ("moving_shadow_density", 0, 10), ("illumination_drift", 0, 0.5),
-                             ("flicker", 0, 0.5), ("noise_sigma", 0, 50), ("defocus_px", 0, 20),
-                             ("video_kbps", 0, 1_000_000), ("motion_blur_px", 0, 30)):
+        for name, lo, hi in (
+            ("cluster_spread", 0, 100),
+            ("prominent_fraction", 0, 1),
+            ("dark_hair_fraction", 0, 1),
+            ("hair_spread", 0, 100),
+            ("contrast", 0.05, 2),
+            ("body_scale", 0.5, 2),
+            ("ground_texture", 0, 80),
+            ("paving_m", 0, 100),
+            ("shadow", 0, 1),
+            ("sway_deg", 0, 45),
+            ("arm_swing", 0, 0.5),
+            ("gait_bob", 0, 0.5),
+            ("head_turn_deg", 0, 90),
+            ("distractor_density", 0, 10),
+            ("moving_shadow_density", 0, 10),
+            ("illumination_drift", 0, 0.5),
+            ("flicker", 0, 0.5),
+            ("noise_sigma", 0, 50),
+            ("defocus_px", 0, 20),
+            ("video_kbps", 0, 1_000_000),
+            ("motion_blur_px", 0, 30),
+        ):
             require_number(own, name, getattr(self, name), lo=lo, hi=hi)
-        for name in ("cluster_decay", "illumination_period_s", "head_turn_period_s",
-                     "moving_shadow_m"):
+        for name in (
+            "cluster_decay",
+            "illumination_period_s",
+            "head_turn_period_s",
+            "moving_shadow_m",
+        ):
             require_number(own, name, getattr(self, name), lo=0, lo_open=True)
         require_number(own, "cluster_decay", self.cluster_decay, lo=0, hi=1, lo_open=True)
         if len(self.ground_bgr) != 3:
-            raise ValueError(f"appearance.ground_bgr must be three numbers in [0, 255], "
-                             f"got {self.ground_bgr!r}")
+            raise ValueError(
+                f"appearance.ground_bgr must be three numbers in [0, 255], got {self.ground_bgr!r}"
+            )
         for c in self.ground_bgr:
             require_number(own, "ground_bgr", c, lo=0, hi=255)
         object.__setattr__(self, "ground_bgr", tuple(int(c) for c in self.ground_bgr))
         if not isinstance(self.heads_on_top, (bool, np.bool_)):
-            raise ValueError(f"appearance.heads_on_top must be true or false, "
-                             f"got {self.heads_on_top!r}")
+            raise ValueError(
+                f"appearance.heads_on_top must be true or false, got {self.heads_on_top!r}"
+            )
 
     @classmethod
     def from_dict(cls, values: dict) -> AppearanceParams:
@@ -334,8 +373,9 @@ class SpriteBank:
     subpixel: int
     size: int
 
-    def index(self, pose: np.ndarray, bins: np.ndarray, py: np.ndarray,
-              px: np.ndarray) -> np.ndarray:
+    def index(
+        self, pose: np.ndarray, bins: np.ndarray, py: np.ndarray, px: np.ndarray
+    ) -> np.ndarray:
         """Flat sprite index of ``(pose, orientation bin, phase y, phase x)`` arrays."""
         p = self.subpixel
         return ((pose * self.n_bins + bins) * p + py) * p + px
@@ -390,9 +430,15 @@ def _pt(x: float, y: float, one: int) -> tuple[int, int]:
     return int(round(x * one)), int(round(y * one))
 
 
-def _draw_person(size_hi: int, centre: float, scale: float, angle: float,
-                 params: AppearanceParams, gait: float,
-                 turn: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _draw_person(
+    size_hi: int,
+    centre: float,
+    scale: float,
+    angle: float,
+    params: AppearanceParams,
+    gait: float,
+    turn: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Draw one person at supersampled resolution in unit colours.
 
     Returns ``(cover (S, S, 3), mask (S, S), head (S, S))``: the visible coverage of the
@@ -444,17 +490,26 @@ def _draw_person(size_hi: int, centre: float, scale: float, angle: float,
     return img, mask, head
 
 
-def _shadow_hi(size_hi: int, centre: float, scale: float, angle: float,
-               blur_hi: float, body_scale: float = 1.0) -> np.ndarray:
+def _shadow_hi(
+    size_hi: int, centre: float, scale: float, angle: float, blur_hi: float, body_scale: float = 1.0
+) -> np.ndarray:
     """Soft shadow coverage at supersampled resolution, offset towards the lower right."""
     hi = np.zeros((size_hi, size_hi), np.float32)
     one = 16
     cx = centre + SHADOW_OFFSET[0] * scale
     cy = centre + SHADOW_OFFSET[1] * scale
-    cv2.ellipse(hi, (int(round(cx * one)), int(round(cy * one))),
-                (int(round(0.33 * scale * body_scale * one)),
-                 int(round(0.5 * scale * body_scale * one))),
-                math.degrees(angle), 0, 360, 1.0, -1, cv2.LINE_AA, 4)
+    cv2.ellipse(
+        hi,
+        (int(round(cx * one)), int(round(cy * one))),
+        (int(round(0.33 * scale * body_scale * one)), int(round(0.5 * scale * body_scale * one))),
+        math.degrees(angle),
+        0,
+        360,
+        1.0,
+        -1,
+        cv2.LINE_AA,
+        4,
+    )
     return cv2.GaussianBlur(hi, (0, 0), blur_hi)
 
 
@@ -506,15 +561,27 @@ def build_sprite_bank(params: AppearanceParams, rng: np.random.Generator) -> Spr
         angle = 2.0 * math.pi * b / nb
         shadow = None
         if params.shadow > 0:
-            shadow = params.shadow * _shadow_hi(size_hi + 2 * pad_hi, centre_hi, s * ss, angle,
-                                                max(0.6, SHADOW_BLUR * s) * ss,
-                                                params.body_scale)
+            shadow = params.shadow * _shadow_hi(
+                size_hi + 2 * pad_hi,
+                centre_hi,
+                s * ss,
+                angle,
+                max(0.6, SHADOW_BLUR * s) * ss,
+                params.body_scale,
+            )
         for g in range(n_g):
             for h in range(n_h):
                 pose = g * n_h + h
                 turn = math.radians((h - (n_h - 1) / 2.0) * params.head_turn_deg)
-                img, mask, hd = _draw_person(size_hi + 2 * pad_hi, centre_hi, s * ss, angle,
-                                             params, 2.0 * math.pi * g / n_g, turn)
+                img, mask, hd = _draw_person(
+                    size_hi + 2 * pad_hi,
+                    centre_hi,
+                    s * ss,
+                    angle,
+                    params,
+                    2.0 * math.pi * g / n_g,
+                    turn,
+                )
                 full = mask if shadow is None else mask + shadow * (1.0 - mask)
                 for py in range(p):
                     for px in range(p):
@@ -522,10 +589,10 @@ def build_sprite_bank(params: AppearanceParams, rng: np.random.Generator) -> Spr
                         y0 = pad_hi - py * step
                         x0 = pad_hi - px * step
                         win = (slice(y0, y0 + size_hi), slice(x0, x0 + size_hi))
-                        for src, dst in ((img, cover), (full, alpha), (mask, solid),
-                                         (hd, head)):
-                            dst[pose, b, py, px] = cv2.resize(src[win], (z, z),
-                                                              interpolation=cv2.INTER_AREA)
+                        for src, dst in ((img, cover), (full, alpha), (mask, solid), (hd, head)):
+                            dst[pose, b, py, px] = cv2.resize(
+                                src[win], (z, z), interpolation=cv2.INTER_AREA
+                            )
     alpha = alpha.reshape(-1, z, z)
     visible = alpha > ALPHA_EPS
     any_row = visible.any(axis=2)
@@ -536,7 +603,15 @@ def build_sprite_bank(params: AppearanceParams, rng: np.random.Generator) -> Spr
     cover[~visible] = 0.0
     head = head.reshape(-1, z, z)
     head[~visible] = 0.0
-    return SpriteBank(cover=cover, alpha=alpha,
-                      solid=(solid.reshape(-1, z, z) >= SOLID_COVERAGE) & visible, head=head,
-                      spans=np.stack([lo, hi], -1).astype(np.int32), colours=colours,
-                      n_bins=nb, n_poses=n_pose, subpixel=p, size=z)
+    return SpriteBank(
+        cover=cover,
+        alpha=alpha,
+        solid=(solid.reshape(-1, z, z) >= SOLID_COVERAGE) & visible,
+        head=head,
+        spans=np.stack([lo, hi], -1).astype(np.int32),
+        colours=colours,
+        n_bins=nb,
+        n_poses=n_pose,
+        subpixel=p,
+        size=z,
+    )

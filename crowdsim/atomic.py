@@ -43,8 +43,11 @@ def atomic_path(path: str | os.PathLike[str], suffix: str | None = None) -> Iter
         raise IsADirectoryError(errno.EISDIR, "is a folder, not a file", str(path))
     path.parent.mkdir(parents=True, exist_ok=True)
     try:
-        fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.",
-                                    suffix=path.suffix if suffix is None else suffix)
+        fd, name = tempfile.mkstemp(
+            dir=path.parent,
+            prefix=f".{path.stem}.",
+            suffix=path.suffix if suffix is None else suffix,
+        )
     except OSError as exc:
         raise _retarget(exc, None, path) from None
     os.close(fd)

@@ -129,9 +129,15 @@ def ncc_score(spec: Any, workdir: str | os.PathLike[str]) -> float:
     return float(run.report["acc@15"])
 
 
-def calibrate_spec(spec: Any, target: float, *, trials: int = 16, seed: int = 0,
-                   storage: str | None = None,
-                   log: Callable[[str], None] = print) -> dict[str, Any]:
+def calibrate_spec(
+    spec: Any,
+    target: float,
+    *,
+    trials: int = 16,
+    seed: int = 0,
+    storage: str | None = None,
+    log: Callable[[str], None] = print,
+) -> dict[str, Any]:
     """Search ``scene`` and ``camera`` so that NCC scores ``target`` % at 15 px.
 
     The study lives in ``storage`` (an Optuna URL; SQLite makes it resumable after a kill).
@@ -143,9 +149,13 @@ def calibrate_spec(spec: Any, target: float, *, trials: int = 16, seed: int = 0,
         raise ValueError("crowdsim calibrate needs Optuna: pip install optuna") from None
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     sampler = optuna.samplers.TPESampler(seed=seed, n_startup_trials=4)
-    study = optuna.create_study(study_name=f"calibrate-{spec.name}-{spec.digest()[:12]}",
-                                storage=storage, sampler=sampler, direction="minimize",
-                                load_if_exists=True)
+    study = optuna.create_study(
+        study_name=f"calibrate-{spec.name}-{spec.digest()[:12]}",
+        storage=storage,
+        sampler=sampler,
+        direction="minimize",
+        load_if_exists=True,
+    )
     if not study.trials:
         # start from the spec as written and from the middle of the space
         study.enqueue_trial({"scene": 0.0, "camera": 0.0})
@@ -157,8 +167,10 @@ def calibrate_spec(spec: Any, target: float, *, trials: int = 16, seed: int = 0,
             c = trial.suggest_float("camera", 0.0, 1.0)
             score = ncc_score(apply_knobs(spec, knob_values(spec, s, c)), work)
             trial.set_user_attr("ncc_15px", score)
-            log(f"{spec.name}: trial {trial.number}: scene {s:.2f} camera {c:.2f} -> NCC "
-                f"{score:.1f}% (target {target:g})")
+            log(
+                f"{spec.name}: trial {trial.number}: scene {s:.2f} camera {c:.2f} -> NCC "
+                f"{score:.1f}% (target {target:g})"
+            )
             return abs(score - target)
 
         def stop(study: Any, trial: Any) -> None:
@@ -170,10 +182,14 @@ def calibrate_spec(spec: Any, target: float, *, trials: int = 16, seed: int = 0,
             study.optimize(objective, n_trials=trials - done, callbacks=[stop])
     best = study.best_trial
     s, c = best.params["scene"], best.params["camera"]
-    return {"scene": round(s, 4), "camera": round(c, 4),
-            "ncc_15px": round(best.user_attrs["ncc_15px"], 2),
-            "error": round(best.value, 2), "trials": len(study.trials),
-            "values": knob_values(spec, s, c)}
+    return {
+        "scene": round(s, 4),
+        "camera": round(c, 4),
+        "ncc_15px": round(best.user_attrs["ncc_15px"], 2),
+        "error": round(best.value, 2),
+        "trials": len(study.trials),
+        "values": knob_values(spec, s, c),
+    }
 
 
 # ------------------------------------------------------------------------- spec files
@@ -203,8 +219,14 @@ def set_table_values(text: str, table: str, values: dict[str, Any]) -> str:
     """
     lines = text.splitlines()
     header = re.compile(r"^\s*\[([^\]]+)\]\s*(#.*)?$")
-    start = next((i for i, ln in enumerate(lines)
-                  if (m := header.match(ln)) and m.group(1).strip() == table), None)
+    start = next(
+        (
+            i
+            for i, ln in enumerate(lines)
+            if (m := header.match(ln)) and m.group(1).strip() == table
+        ),
+        None,
+    )
     if start is None:
         lines += ["", f"[{table}]"] + [f"{k} = {_format(v)}" for k, v in values.items()]
         return "\n".join(lines) + "\n"
@@ -213,8 +235,10 @@ def set_table_values(text: str, table: str, values: dict[str, Any]) -> str:
     for i in range(start + 1, end):
         m = re.match(r"^(\s*)([A-Za-z0-9_]+)(\s*=\s*)([^#]*?)(\s*#.*)?$", lines[i])
         if m and m.group(2) in todo:
-            lines[i] = f"{m.group(1)}{m.group(2)}{m.group(3)}{_format(todo.pop(m.group(2)))}" \
+            lines[i] = (
+                f"{m.group(1)}{m.group(2)}{m.group(3)}{_format(todo.pop(m.group(2)))}"
                 f"{m.group(5) or ''}"
+            )
     insert = end
     while insert > start + 1 and not lines[insert - 1].strip():
         insert -= 1
@@ -235,16 +259,25 @@ def write_calibration(path: str | os.PathLike[str], result: dict[str, Any]) -> N
     before = load_spec(path)
     if not any(k.startswith("base_") for k in before.calibration):
         app, cam = before.appearance, before.camera
-        base = {_base_key(s, n): (getattr(app, n) if s == "appearance" else cam.get(n, 0.0))
-                for (s, n) in result["values"]}
+        base = {
+            _base_key(s, n): (getattr(app, n) if s == "appearance" else cam.get(n, 0.0))
+            for (s, n) in result["values"]
+        }
         text = set_table_values(text, "calibration", base)
     for section in ("appearance", "camera"):
         vals = {n: v for (s, n), v in result["values"].items() if s == section}
         text = set_table_values(text, section, vals)
-    text = set_table_values(text, "calibration", {
-        "scene": result["scene"], "camera": result["camera"],
-        "achieved_ncc_15px": result["ncc_15px"], "trials": result["trials"],
-        "note": "knobs set by crowdsim calibrate (NCC tracker, acc@15 on the full sequence)"})
+    text = set_table_values(
+        text,
+        "calibration",
+        {
+            "scene": result["scene"],
+            "camera": result["camera"],
+            "achieved_ncc_15px": result["ncc_15px"],
+            "trials": result["trials"],
+            "note": "knobs set by crowdsim calibrate (NCC tracker, acc@15 on the full sequence)",
+        },
+    )
     tmp = path.with_name(f".{path.name}.calibrate")
     tmp.write_text(text)
     try:
@@ -254,9 +287,15 @@ def write_calibration(path: str | os.PathLike[str], result: dict[str, Any]) -> N
     write_text_atomic(path, text)
 
 
-def calibrate_suite(suite: str, *, only: list[str] | None = None, trials: int = 16,
-                    out: str | os.PathLike[str] | None = None, seed: int = 0,
-                    log: Callable[[str], None] = print) -> dict[str, dict[str, Any]]:
+def calibrate_suite(
+    suite: str,
+    *,
+    only: list[str] | None = None,
+    trials: int = 16,
+    out: str | os.PathLike[str] | None = None,
+    seed: int = 0,
+    log: Callable[[str], None] = print,
+) -> dict[str, dict[str, Any]]:
     """Calibrate every sequence of ``suite`` with a paper NCC figure; write specs and README.
 
     Studies are kept in ``out/calibration.db`` (SQLite; a killed run resumes where it was).
@@ -278,10 +317,14 @@ def calibrate_suite(suite: str, *, only: list[str] | None = None, trials: int = 
         base = _uncalibrated(spec)
         res = calibrate_spec(base, target, trials=trials, seed=seed, storage=storage, log=log)
         write_calibration(spec.source or suite_dir(suite) / f"{spec.name}.toml", res)
-        log(f"{spec.name}: NCC {res['ncc_15px']:.1f}% (paper {target:g}%), scene "
-            f"{res['scene']:.2f}, camera {res['camera']:.2f}, {res['trials']} trials")
-        results[spec.name] = {"paper_ncc_15px": target, **{k: v for k, v in res.items()
-                                                           if k != "values"}}
+        log(
+            f"{spec.name}: NCC {res['ncc_15px']:.1f}% (paper {target:g}%), scene "
+            f"{res['scene']:.2f}, camera {res['camera']:.2f}, {res['trials']} trials"
+        )
+        results[spec.name] = {
+            "paper_ncc_15px": target,
+            **{k: v for k, v in res.items() if k != "values"},
+        }
     write_suite_readme(suite)
     return results
 
@@ -310,20 +353,27 @@ def write_suite_readme(suite: str) -> Path:
     """``synth_data/suites/<suite>/README.md``: the paper's NCC figures beside the achieved."""
     from synth_data.suites import suite_dir, suite_specs
 
-    rows = ["| sequence | scene | people | template px | paper NCC @15 | calibrated NCC @15 |"
-            " scene | camera |", "|---|---|---|---|---|---|---|---|"]
+    rows = [
+        "| sequence | scene | people | template px | paper NCC @15 | calibrated NCC @15 |"
+        " scene | camera |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for s in suite_specs(suite):
         c = s.calibration
         got = c.get("achieved_ncc_15px")
-        rows.append(f"| {s.name} | {s.scenario.get('name', '')} | "
-                    f"{s.scenario.get('n_agents', '')} | {s.appearance.template_px} | "
-                    f"{c.get('paper_ncc_15px', '')} | {'' if got is None else got} | "
-                    f"{c.get('scene', '')} | {c.get('camera', '')} |")
-    text = (f"# Suite `{suite}`\n\nCounterparts of the papers' sequences. `crowdsim calibrate "
-            f"--suite {suite}` sets each spec's appearance and camera knobs (never its motion) "
-            "so that the independent NCC tracker scores the paper's NCC figure at 15 px; the "
-            "achieved figures below are written by that command, measured on the full "
-            "sequence as `crowdsim compare` measures them.\n\n" + "\n".join(rows) + "\n")
+        rows.append(
+            f"| {s.name} | {s.scenario.get('name', '')} | "
+            f"{s.scenario.get('n_agents', '')} | {s.appearance.template_px} | "
+            f"{c.get('paper_ncc_15px', '')} | {'' if got is None else got} | "
+            f"{c.get('scene', '')} | {c.get('camera', '')} |"
+        )
+    text = (
+        f"# Suite `{suite}`\n\nCounterparts of the papers' sequences. `crowdsim calibrate "
+        f"--suite {suite}` sets each spec's appearance and camera knobs (never its motion) "
+        "so that the independent NCC tracker scores the paper's NCC figure at 15 px; the "
+        "achieved figures below are written by that command, measured on the full "
+        "sequence as `crowdsim compare` measures them.\n\n" + "\n".join(rows) + "\n"
+    )
     path = suite_dir(suite) / "README.md"
     write_text_atomic(path, text)
     return path

@@ -93,9 +93,16 @@ class Camera:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def fit(cls, extent: tuple[float, float, float, float], *, px_per_m: float | None = None,
-            size: tuple[int, int] | None = None, margin_m: float = 1.0,
-            max_size: tuple[int, int] = (1920, 1080), **kwargs: float) -> Camera:
+    def fit(
+        cls,
+        extent: tuple[float, float, float, float],
+        *,
+        px_per_m: float | None = None,
+        size: tuple[int, int] | None = None,
+        margin_m: float = 1.0,
+        max_size: tuple[int, int] = (1920, 1080),
+        **kwargs: float,
+    ) -> Camera:
         """A camera looking at the centre of ``extent`` = ``(xmin, ymin, xmax, ymax)`` metres.
 
         With ``size`` but no ``px_per_m`` the scale is the largest that shows the whole extent
@@ -116,8 +123,9 @@ class Camera:
         else:
             width, height = size
         center = ((xmin + xmax) / 2.0, (ymin + ymax) / 2.0)
-        return cls(px_per_m=float(px_per_m), width=int(width), height=int(height), center=center,
-                   **kwargs)
+        return cls(
+            px_per_m=float(px_per_m), width=int(width), height=int(height), center=center, **kwargs
+        )
 
     # ------------------------------------------------------------------ maps
     @property
@@ -131,12 +139,13 @@ class Camera:
         th = -math.radians(self.tilt_deg)  # camera south of the look-at point: top is far
         d = self.distance_m
         # Camera axes in world coordinates: x_c along +x, y_c and z_c (forward) rotated about x.
-        rot = np.array([[1.0, 0.0, 0.0],
-                        [0.0, math.cos(th), math.sin(th)],
-                        [0.0, math.sin(th), -math.cos(th)]])
+        rot = np.array(
+            [[1.0, 0.0, 0.0], [0.0, math.cos(th), math.sin(th)], [0.0, math.sin(th), -math.cos(th)]]
+        )
         cam_pos = np.array([cx, cy, 0.0]) - d * rot[2]
-        ground = np.array([[1.0, 0.0, -cam_pos[0]], [0.0, 1.0, -cam_pos[1]],
-                           [0.0, 0.0, -cam_pos[2]]])
+        ground = np.array(
+            [[1.0, 0.0, -cam_pos[0]], [0.0, 1.0, -cam_pos[1]], [0.0, 0.0, -cam_pos[2]]]
+        )
         f = s * d  # focal length (px) giving scale s at the look-at point
         k = np.array([[f, 0.0, u0], [0.0, f, v0], [0.0, 0.0, 1.0]])
         h = k @ rot @ ground
@@ -179,8 +188,10 @@ class Camera:
         h = np.linalg.inv(self.homography)
         u, v = px[..., 0], px[..., 1]
         w = h[2, 0] * u + h[2, 1] * v + h[2, 2]
-        return np.stack([(h[0, 0] * u + h[0, 1] * v + h[0, 2]) / w,
-                         (h[1, 0] * u + h[1, 1] * v + h[1, 2]) / w], axis=-1)
+        return np.stack(
+            [(h[0, 0] * u + h[0, 1] * v + h[0, 2]) / w, (h[1, 0] * u + h[1, 1] * v + h[1, 2]) / w],
+            axis=-1,
+        )
 
     def project_trajectories(self, positions: np.ndarray) -> np.ndarray:
         """``(T, N, 2)`` metres -> ``(T, N, 2)`` pixels including the per-frame jitter."""
@@ -202,5 +213,9 @@ class Camera:
         px = np.asarray(pixels, dtype=np.float64)
         u, v = px[..., 0], px[..., 1]
         with np.errstate(invalid="ignore"):
-            return ((u >= margin) & (u <= self.width - 1 - margin)
-                    & (v >= margin) & (v <= self.height - 1 - margin))
+            return (
+                (u >= margin)
+                & (u <= self.width - 1 - margin)
+                & (v >= margin)
+                & (v <= self.height - 1 - margin)
+            )

@@ -17,8 +17,7 @@ from typing import Any
 import numpy as np
 
 
-def _rule(integer: bool, lo: float | None, hi: float | None, lo_open: bool,
-          hi_open: bool) -> str:
+def _rule(integer: bool, lo: float | None, hi: float | None, lo_open: bool, hi_open: bool) -> str:
     kind = "an integer" if integer else "a finite number"
     if lo is not None and hi is not None:
         return f"{kind} in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
@@ -29,13 +28,22 @@ def _rule(integer: bool, lo: float | None, hi: float | None, lo_open: bool,
     return kind
 
 
-def require_number(owner: str, name: str, value: Any, *, lo: float | None = None,
-                   hi: float | None = None, lo_open: bool = False, hi_open: bool = False,
-                   integer: bool = False) -> None:
+def require_number(
+    owner: str,
+    name: str,
+    value: Any,
+    *,
+    lo: float | None = None,
+    hi: float | None = None,
+    lo_open: bool = False,
+    hi_open: bool = False,
+    integer: bool = False,
+) -> None:
     """Raise ``ValueError("<owner>.<name> must be ..., got <value>")`` unless ``value`` is a
     finite real number (a whole one if ``integer``) within the given bounds."""
-    number = (isinstance(value, (int, float, np.integer, np.floating))
-              and not isinstance(value, (bool, np.bool_)))
+    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+        value, (bool, np.bool_)
+    )
     ok = number and math.isfinite(value)
     if ok and integer:
         ok = float(value).is_integer()
@@ -45,8 +53,9 @@ def require_number(owner: str, name: str, value: Any, *, lo: float | None = None
         ok = value < hi if hi_open else value <= hi
     if not ok:
         where = f"{owner}.{name}" if owner else name
-        raise ValueError(f"{where} must be {_rule(integer, lo, hi, lo_open, hi_open)}, "
-                         f"got {value!r}")
+        raise ValueError(
+            f"{where} must be {_rule(integer, lo, hi, lo_open, hi_open)}, got {value!r}"
+        )
 
 
 def require_choice(owner: str, name: str, value: Any, choices: tuple[Any, ...]) -> None:
@@ -90,8 +99,10 @@ def require_memory(what: str, nbytes: float, limit: float = MEMORY_LIMIT_BYTES) 
 the 12.0 GiB limit
     """
     if not nbytes <= limit:  # also refuses NaN
-        raise ValueError(f"{what} needs about {format_bytes(nbytes)} of memory, more than the "
-                         f"{format_bytes(limit)} limit")
+        raise ValueError(
+            f"{what} needs about {format_bytes(nbytes)} of memory, more than the "
+            f"{format_bytes(limit)} limit"
+        )
 
 
 def require_output_file(flag: str, path: str | os.PathLike[str]) -> Path:

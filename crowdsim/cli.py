@@ -92,8 +92,11 @@ def describe_os_error(exc: OSError) -> str:
     """
     if exc.errno is None or exc.filename is None or isinstance(exc.filename, int):
         text = exc.strerror if exc.errno is not None and exc.strerror else str(exc)
-        return text if exc.filename is None or isinstance(exc.filename, int) \
+        return (
+            text
+            if exc.filename is None or isinstance(exc.filename, int)
             else f"{os.fsdecode(exc.filename)}: {text}"
+        )
     name = os.fsdecode(exc.filename)
     path = Path(name)
     code = exc.errno

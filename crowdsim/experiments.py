@@ -57,8 +57,12 @@ COMPARE_ROWS: tuple[Row, ...] = (
 """Rows of ``crowdsim compare``: the papers' methods we have, and detection-based references."""
 
 METRICS: tuple[tuple[str, str, str], ...] = (
-    ("acc@15", "acc@15", "%"), ("acc@5", "acc@5", "%"), ("mota", "MOTA", "%"),
-    ("idf1", "IDF1", "%"), ("hota", "HOTA", "%"), ("fps", "frames/s", ""),
+    ("acc@15", "acc@15", "%"),
+    ("acc@5", "acc@5", "%"),
+    ("mota", "MOTA", "%"),
+    ("idf1", "IDF1", "%"),
+    ("hota", "HOTA", "%"),
+    ("fps", "frames/s", ""),
 )
 """``(key, heading, unit)`` of every table section."""
 
@@ -80,8 +84,9 @@ def paper_numbers(suite: str) -> dict[str, dict[str, dict[str, float]]]:
     return {k: v for k, v in json.loads(path.read_text()).items() if not k.startswith("_")}
 
 
-def run_cell(seq_dir: str, tracker: str, overrides: dict[str, Any],
-             frames: int | None) -> dict[str, Any]:
+def run_cell(
+    seq_dir: str, tracker: str, overrides: dict[str, Any], frames: int | None
+) -> dict[str, Any]:
     """Track one sequence with one row; JSON-ready figures and the accuracy curve."""
     from synth_data.detections import attach_detections
     from synth_data.sequence import open_sequence
@@ -89,8 +94,9 @@ def run_cell(seq_dir: str, tracker: str, overrides: dict[str, Any],
     from tracker.runner import run_tracker
 
     source = open_sequence(seq_dir)
-    run = run_tracker(make_tracker(tracker, **overrides), source, frames=frames,
-                      prepare=attach_detections)
+    run = run_tracker(
+        make_tracker(tracker, **overrides), source, frames=frames, prepare=attach_detections
+    )
     out = run.summary()
     out["curve"] = [c["acc"] for c in run.report.get("curve", [])]
     return out
@@ -101,11 +107,21 @@ def _cell_key(seq: str, row: Row, frames: int | None) -> str:
     return f"{seq}|{row.tracker}|{over}|frames={frames or 'all'}"
 
 
-def run_table(rows: Sequence[Row], suite: str, out: str | os.PathLike[str], *,
-              only: list[str] | None = None, frames: int | None = None, workers: int = 1,
-              backend: str = "local", address: str | None = None, progress: bool = True,
-              title: str = "comparison", paper_table: str = "acc@15",
-              log: Callable[[str], None] = print) -> str:
+def run_table(
+    rows: Sequence[Row],
+    suite: str,
+    out: str | os.PathLike[str],
+    *,
+    only: list[str] | None = None,
+    frames: int | None = None,
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+    progress: bool = True,
+    title: str = "comparison",
+    paper_table: str = "acc@15",
+    log: Callable[[str], None] = print,
+) -> str:
     """Generate the suite, run every row on every sequence, write the table; returns its text.
 
     Parameters
@@ -141,16 +157,37 @@ def run_table(rows: Sequence[Row], suite: str, out: str | os.PathLike[str], *,
         specs = [replace(s, frames=min(s.frames, frames)) for s in specs]
     seq_root = out / "sequences"
     log(f"{title}: {len(rows)} rows x {len(specs)} sequences of {suite} -> {out}")
-    generate(specs, seq_root, workers=workers, backend=backend, address=address,
-             progress=progress, log=log)
-    jobs = [Job(_cell_key(s.name, r, frames), run_cell,
-                (str(seq_root / s.name), r.tracker, dict(r.overrides), frames), size=s.frames)
-            for s in specs for r in rows]
-    results = run_jobs(jobs, out / "cells.json", workers=workers, backend=backend,
-                       address=address, progress=progress, desc=title, unit="frame",
-                       section="cells")
-    cells = {(s.name, r.label): results[_cell_key(s.name, r, frames)]
-             for s in specs for r in rows}
+    generate(
+        specs,
+        seq_root,
+        workers=workers,
+        backend=backend,
+        address=address,
+        progress=progress,
+        log=log,
+    )
+    jobs = [
+        Job(
+            _cell_key(s.name, r, frames),
+            run_cell,
+            (str(seq_root / s.name), r.tracker, dict(r.overrides), frames),
+            size=s.frames,
+        )
+        for s in specs
+        for r in rows
+    ]
+    results = run_jobs(
+        jobs,
+        out / "cells.json",
+        workers=workers,
+        backend=backend,
+        address=address,
+        progress=progress,
+        desc=title,
+        unit="frame",
+        section="cells",
+    )
+    cells = {(s.name, r.label): results[_cell_key(s.name, r, frames)] for s in specs for r in rows}
     paper = paper_numbers(suite)
     names = [s.name for s in specs]
     text = format_table(rows, names, cells, paper, paper_table, title)
@@ -166,16 +203,26 @@ def _paper(paper: dict, table: str, row: Row, seq: str) -> float | None:
     return paper.get(table, {}).get(row.paper, {}).get(seq)
 
 
-def format_table(rows: Sequence[Row], seqs: Sequence[str], cells: dict, paper: dict,
-                 paper_table: str = "acc@15", title: str = "comparison") -> str:
+def format_table(
+    rows: Sequence[Row],
+    seqs: Sequence[str],
+    cells: dict,
+    paper: dict,
+    paper_table: str = "acc@15",
+    title: str = "comparison",
+) -> str:
     """Markdown: one section per metric, rows = methods, columns = sequences and the mean.
 
     Accuracy cells read ``ours (paper)`` where the papers report the figure.
     """
     lines = [f"# {title}", ""]
     for key, heading, unit in METRICS:
-        lines += [f"## {heading}", "", "| method | " + " | ".join(seqs) + " | mean |",
-                  "|---" * (len(seqs) + 2) + "|"]
+        lines += [
+            f"## {heading}",
+            "",
+            "| method | " + " | ".join(seqs) + " | mean |",
+            "|---" * (len(seqs) + 2) + "|",
+        ]
         for row in rows:
             vals, texts = [], []
             for s in seqs:
@@ -193,8 +240,9 @@ def format_table(rows: Sequence[Row], seqs: Sequence[str], cells: dict, paper: d
     return "\n".join(lines) + "\n"
 
 
-def table_csv(rows: Sequence[Row], seqs: Sequence[str], cells: dict, paper: dict,
-              paper_table: str = "acc@15") -> str:
+def table_csv(
+    rows: Sequence[Row], seqs: Sequence[str], cells: dict, paper: dict, paper_table: str = "acc@15"
+) -> str:
     """Long format: one line per method and sequence, ours and the papers' figures."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -205,9 +253,16 @@ def table_csv(rows: Sequence[Row], seqs: Sequence[str], cells: dict, paper: dict
             c = cells[(s, row.label)]
             p15 = _paper(paper, paper_table, row, s)
             p5 = _paper(paper, "acc@5", row, s)
-            w.writerow([row.label, row.tracker, s,
-                        *[("" if c.get(k) is None else f"{c[k]:.3f}") for k in keys],
-                        "" if p15 is None else p15, "" if p5 is None else p5])
+            w.writerow(
+                [
+                    row.label,
+                    row.tracker,
+                    s,
+                    *[("" if c.get(k) is None else f"{c[k]:.3f}") for k in keys],
+                    "" if p15 is None else p15,
+                    "" if p5 is None else p5,
+                ]
+            )
     return buf.getvalue()
 
 
@@ -215,7 +270,8 @@ def _plot_curves(rows: Sequence[Row], seqs: Sequence[str], cells: dict, folder: 
     from tracker.metrics import plot_accuracy
 
     for s in seqs:
-        curves = {r.label: cells[(s, r.label)]["curve"] for r in rows
-                  if cells[(s, r.label)].get("curve")}
+        curves = {
+            r.label: cells[(s, r.label)]["curve"] for r in rows if cells[(s, r.label)].get("curve")
+        }
         if curves:
             plot_accuracy(curves, folder / f"{s}.png", title=f"{s}: accuracy vs threshold")

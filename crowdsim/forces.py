@@ -73,17 +73,54 @@ def _build_grid(pos, cell, period):
     return order, start, nx, ny, x0, y0, cx, cy
 
 
-def _pedestrian_wall_impl(pos, vel, radius, v0, e, group, walls, wall_grid, wall_start,
-                          wall_items, period, cutoff, elliptic, V0, sigma, step_time, A, B, U0,
-                          R, cos_half_fov, c_out, beta3, group_gap, tau, headway_time, tan_cone,
-                          depth, v_ref, b_min, speed_cap, dt, extra, out):
+def _pedestrian_wall_impl(
+    pos,
+    vel,
+    radius,
+    v0,
+    e,
+    group,
+    walls,
+    wall_grid,
+    wall_start,
+    wall_items,
+    period,
+    cutoff,
+    elliptic,
+    V0,
+    sigma,
+    step_time,
+    A,
+    B,
+    U0,
+    R,
+    cos_half_fov,
+    c_out,
+    beta3,
+    group_gap,
+    tau,
+    headway_time,
+    tan_cone,
+    depth,
+    v_ref,
+    b_min,
+    speed_cap,
+    dt,
+    extra,
+    out,
+):
     n = pos.shape[0]
     if n == 0:
         return
     order, start, nx, ny, x0, y0, cx, cy = _build_grid(pos, cutoff, period)
     cut2 = cutoff * cutoff
-    wgx0, wgy0, wcell, wnx, wny = wall_grid[0], wall_grid[1], wall_grid[2], int(wall_grid[3]), \
-        int(wall_grid[4])
+    wgx0, wgy0, wcell, wnx, wny = (
+        wall_grid[0],
+        wall_grid[1],
+        wall_grid[2],
+        int(wall_grid[3]),
+        int(wall_grid[4]),
+    )
     for i in nb.prange(n):
         xi = pos[i, 0]
         yi = pos[i, 1]
@@ -311,8 +348,9 @@ def _nearest_wall_kernel(pos, walls, grid, start, items, reach, clearance, direc
             direction[i, 1] = by
 
 
-def nearest_wall(pos: np.ndarray, walls: np.ndarray, wall_grid: WallGrid,
-                 reach: float) -> tuple[np.ndarray, np.ndarray]:
+def nearest_wall(
+    pos: np.ndarray, walls: np.ndarray, wall_grid: WallGrid, reach: float
+) -> tuple[np.ndarray, np.ndarray]:
     """The nearest wall surface of each point, within ``reach`` metres.
 
     Parameters
@@ -335,9 +373,16 @@ def nearest_wall(pos: np.ndarray, walls: np.ndarray, wall_grid: WallGrid,
     clearance = np.full(len(pos), np.inf)
     direction = np.zeros((len(pos), 2))
     if len(pos) and len(wall_grid.items):
-        _nearest_wall_kernel(pos, np.asarray(walls, np.float64).reshape(-1, 5),
-                             wall_grid.params, wall_grid.start, wall_grid.items, float(reach),
-                             clearance, direction)
+        _nearest_wall_kernel(
+            pos,
+            np.asarray(walls, np.float64).reshape(-1, 5),
+            wall_grid.params,
+            wall_grid.start,
+            wall_grid.items,
+            float(reach),
+            clearance,
+            direction,
+        )
     return clearance, direction
 
 
@@ -357,8 +402,9 @@ def _k_nearest_cells(pos, i, q, jx, jy, k, r2, period, order, start, ny, found, 
         if period > 0.0:
             rx -= period * math.floor(rx / period + 0.5)
         d2 = rx * rx + ry * ry
-        if d2 > r2 or (found == k and (d2 > dist[q, k - 1]
-                                       or (d2 == dist[q, k - 1] and j > idx[q, k - 1]))):
+        if d2 > r2 or (
+            found == k and (d2 > dist[q, k - 1] or (d2 == dist[q, k - 1] and j > idx[q, k - 1]))
+        ):
             continue
         p = found if found < k else k - 1
         while p > 0 and (dist[q, p - 1] > d2 or (dist[q, p - 1] == d2 and idx[q, p - 1] > j)):
@@ -377,8 +423,9 @@ def _k_nearest_cells(pos, i, q, jx, jy, k, r2, period, order, start, ny, found, 
 
 
 @nb.njit(cache=True)
-def _k_nearest_kernel(pos, rows, k, radius, period, order, start, nx, ny, x0, y0, cx, cy,
-                      rings, idx, dist, rel):
+def _k_nearest_kernel(
+    pos, rows, k, radius, period, order, start, nx, ny, x0, y0, cx, cy, rings, idx, dist, rel
+):
     """Per query: scan the 3 x 3 cells around it; with ``rings == 2`` (cells of half the
     radius) scan the outer ring of the 5 x 5 block only when the k-th neighbour found so
     far lies beyond the half radius that the inner block is sure to cover."""
@@ -411,14 +458,16 @@ def _k_nearest_kernel(pos, rows, k, radius, period, order, start, nx, ny, x0, y0
                     jy = iy + ddy
                     if jy < 0 or jy >= ny:
                         continue
-                    found = _k_nearest_cells(pos, i, q, jx, jy, k, r2, period, order, start,
-                                             ny, found, idx, dist, rel)
+                    found = _k_nearest_cells(
+                        pos, i, q, jx, jy, k, r2, period, order, start, ny, found, idx, dist, rel
+                    )
         for p in range(found):
             dist[q, p] = math.sqrt(dist[q, p])
 
 
-def k_nearest(pos: np.ndarray, rows: np.ndarray, k: int, radius: float,
-              period: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def k_nearest(
+    pos: np.ndarray, rows: np.ndarray, k: int, radius: float, period: float = 0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The ``k`` nearest other points within ``radius`` of the points ``pos[rows]``.
 
     A uniform grid of cells of half the radius: the 3 x 3 block around a query covers half
@@ -454,8 +503,25 @@ def k_nearest(pos: np.ndarray, rows: np.ndarray, k: int, radius: float,
     rings = 2 if period <= 0 or period // (0.5 * radius) >= 5 else 1
     cell = 0.5 * radius if rings == 2 else float(radius)
     order, start, nx, ny, x0, y0, cx, cy = _build_grid(pos, cell, float(period))
-    _k_nearest_kernel(pos, rows, int(k), float(radius), float(period), order, start, nx, ny,
-                      x0, y0, cx, cy, rings, idx, dist, rel)
+    _k_nearest_kernel(
+        pos,
+        rows,
+        int(k),
+        float(radius),
+        float(period),
+        order,
+        start,
+        nx,
+        ny,
+        x0,
+        y0,
+        cx,
+        cy,
+        rings,
+        idx,
+        dist,
+        rel,
+    )
     return idx, dist, rel
 
 
@@ -467,8 +533,9 @@ PARALLEL_MIN_AGENTS = 5000
 (``NUMBA_NUM_THREADS``); each agent's sum stays in one thread, so results do not change."""
 
 
-def group_vision_attraction(pos: np.ndarray, vel: np.ndarray, e: np.ndarray, group: np.ndarray,
-                            params: SocialForceParams) -> np.ndarray:
+def group_vision_attraction(
+    pos: np.ndarray, vel: np.ndarray, e: np.ndarray, group: np.ndarray, params: SocialForceParams
+) -> np.ndarray:
     """Group vision and attraction accelerations of Moussaïd et al. (2010), ``(n, 2)``.
 
     * vision ``f_vis = -beta1 alpha_i v_i``: ``alpha_i`` is the head rotation (rad) needed to
@@ -502,9 +569,18 @@ def group_vision_attraction(pos: np.ndarray, vel: np.ndarray, e: np.ndarray, gro
     return out
 
 
-def social_force(pos: np.ndarray, vel: np.ndarray, radius: np.ndarray, v0: np.ndarray,
-                 e: np.ndarray, group: np.ndarray, walls: np.ndarray, params: SocialForceParams,
-                 period: float = 0.0, wall_grid: WallGrid | None = None) -> np.ndarray:
+def social_force(
+    pos: np.ndarray,
+    vel: np.ndarray,
+    radius: np.ndarray,
+    v0: np.ndarray,
+    e: np.ndarray,
+    group: np.ndarray,
+    walls: np.ndarray,
+    params: SocialForceParams,
+    period: float = 0.0,
+    wall_grid: WallGrid | None = None,
+) -> np.ndarray:
     """Total social-force acceleration ``(n, 2)`` in m/s², speed cap included.
 
     Parameters
@@ -525,19 +601,51 @@ def social_force(pos: np.ndarray, vel: np.ndarray, radius: np.ndarray, v0: np.nd
     if n == 0:
         return acc
     if period > 0 and period < 3 * params.cutoff:
-        raise ValueError(f"periodic length must be >= 3 * cutoff = {3 * params.cutoff} m, "
-                         f"got {period}")
-    extra = (group_vision_attraction(pos, vel, e, group, params) if (group >= 0).any()
-             else np.zeros((n, 2)))
+        raise ValueError(
+            f"periodic length must be >= 3 * cutoff = {3 * params.cutoff} m, got {period}"
+        )
+    extra = (
+        group_vision_attraction(pos, vel, e, group, params)
+        if (group >= 0).any()
+        else np.zeros((n, 2))
+    )
     kernel = _kernel_parallel if n >= PARALLEL_MIN_AGENTS else _kernel_serial
     if wall_grid is None:
         wall_grid = WallGrid(walls, params.cutoff)
     kernel(
-        pos, vel, radius, v0, e, group, walls, wall_grid.params, wall_grid.start,
-        wall_grid.items, float(period), params.cutoff,
-        params.potential == "elliptic", params.V0, params.sigma, params.step_time, params.A,
-        params.B, params.U0, params.R, math.cos(math.radians(params.fov_deg / 2)), params.c,
-        params.beta3, params.group_repulsion_gap, params.tau, params.headway_time,
-        math.tan(math.radians(params.headway_cone_deg)), params.headway_depth,
-        params.headway_ref_speed, params.b_min, params.speed_cap, params.dt, extra, acc)
+        pos,
+        vel,
+        radius,
+        v0,
+        e,
+        group,
+        walls,
+        wall_grid.params,
+        wall_grid.start,
+        wall_grid.items,
+        float(period),
+        params.cutoff,
+        params.potential == "elliptic",
+        params.V0,
+        params.sigma,
+        params.step_time,
+        params.A,
+        params.B,
+        params.U0,
+        params.R,
+        math.cos(math.radians(params.fov_deg / 2)),
+        params.c,
+        params.beta3,
+        params.group_repulsion_gap,
+        params.tau,
+        params.headway_time,
+        math.tan(math.radians(params.headway_cone_deg)),
+        params.headway_depth,
+        params.headway_ref_speed,
+        params.b_min,
+        params.speed_cap,
+        params.dt,
+        extra,
+        acc,
+    )
     return acc

@@ -139,10 +139,32 @@ class SocialForceParams:
     def __post_init__(self) -> None:
         own = "SocialForceParams"
         require_choice(own, "potential", self.potential, POTENTIALS)
-        positive = ("dt", "tau", "sigma", "step_time", "b_min", "B", "R", "speed_cap", "cutoff",
-                    "mass", "contact_slop", "headway_ref_speed")
-        nonneg = ("headway_time", "V0", "A", "U0", "beta1", "beta2", "beta3", "friction",
-                  "group_repulsion_gap", "group_gaze_deg")
+        positive = (
+            "dt",
+            "tau",
+            "sigma",
+            "step_time",
+            "b_min",
+            "B",
+            "R",
+            "speed_cap",
+            "cutoff",
+            "mass",
+            "contact_slop",
+            "headway_ref_speed",
+        )
+        nonneg = (
+            "headway_time",
+            "V0",
+            "A",
+            "U0",
+            "beta1",
+            "beta2",
+            "beta3",
+            "friction",
+            "group_repulsion_gap",
+            "group_gaze_deg",
+        )
         for name in positive:
             require_number(own, name, getattr(self, name), lo=0, lo_open=True)
         for name in nonneg:
@@ -152,10 +174,12 @@ class SocialForceParams:
         require_number(own, "dt", self.dt, lo=0, hi=0.2, lo_open=True)  # stable integration
         require_number(own, "fov_deg", self.fov_deg, lo=0, hi=360, lo_open=True)
         require_number(own, "headway_depth", self.headway_depth, lo=0, hi=1, lo_open=True)
-        require_number(own, "headway_cone_deg", self.headway_cone_deg, lo=0, hi=60,
-                       lo_open=True, hi_open=True)
-        require_number(own, "contact_bias", self.contact_bias, lo=0, hi=1, lo_open=True,
-                       hi_open=True)
+        require_number(
+            own, "headway_cone_deg", self.headway_cone_deg, lo=0, hi=60, lo_open=True, hi_open=True
+        )
+        require_number(
+            own, "contact_bias", self.contact_bias, lo=0, hi=1, lo_open=True, hi_open=True
+        )
         require_number(own, "c", self.c, lo=0, hi=1)
         require_number(own, "speed_cap", self.speed_cap, lo=1)  # a multiple of v0
 

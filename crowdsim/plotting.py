@@ -20,8 +20,13 @@ if TYPE_CHECKING:
     from crowdsim.trajectories import Trajectories
 
 
-def plot_trajectories(traj: Trajectories, walls: np.ndarray, path: str | os.PathLike[str],
-                      title: str = "", max_tracks: int = 400) -> Path:
+def plot_trajectories(
+    traj: Trajectories,
+    walls: np.ndarray,
+    path: str | os.PathLike[str],
+    title: str = "",
+    max_tracks: int = 400,
+) -> Path:
     """Write a PNG of the walls, up to ``max_tracks`` trajectories and the last positions.
 
     Parameters
@@ -49,8 +54,9 @@ def plot_trajectories(traj: Trajectories, walls: np.ndarray, path: str | os.Path
     return save_figure(fig, path, dpi=110)
 
 
-def new_figure(figsize: tuple[float, float] = (5.0, 3.6), dpi: int = 120,
-               ncols: int = 1) -> tuple[Any, Any]:
+def new_figure(
+    figsize: tuple[float, float] = (5.0, 3.6), dpi: int = 120, ncols: int = 1
+) -> tuple[Any, Any]:
     """A matplotlib ``Figure`` and its axes (``ncols`` of them), made without pyplot."""
     from matplotlib.figure import Figure
 

@@ -10,9 +10,15 @@ from collections.abc import Iterable
 from typing import Any
 
 
-def progress_bar(iterable: Iterable[Any] | None = None, *, total: int | None = None,
-                 desc: str = "", unit: str = "it", enabled: bool = True,
-                 leave: bool = False) -> Any:
+def progress_bar(
+    iterable: Iterable[Any] | None = None,
+    *,
+    total: int | None = None,
+    desc: str = "",
+    unit: str = "it",
+    enabled: bool = True,
+    leave: bool = False,
+) -> Any:
     """A tqdm bar on ``iterable`` (or a manual one with ``total``); off when not a terminal.
 
     ``enabled=False`` turns it off everywhere; otherwise tqdm's ``disable=None`` turns it off
@@ -20,5 +26,13 @@ def progress_bar(iterable: Iterable[Any] | None = None, *, total: int | None = N
     """
     from tqdm import tqdm
 
-    return tqdm(iterable, total=total, desc=desc, unit=unit, leave=leave,
-                disable=None if enabled else True, mininterval=0.2, dynamic_ncols=True)
+    return tqdm(
+        iterable,
+        total=total,
+        desc=desc,
+        unit=unit,
+        leave=leave,
+        disable=None if enabled else True,
+        mininterval=0.2,
+        dynamic_ncols=True,
+    )

@@ -130,8 +130,9 @@ def _seeds(seed: int, n: int) -> list[np.random.SeedSequence]:
     return np.random.SeedSequence([int(seed), 0xC0DE]).spawn(n)
 
 
-def assign_appearance(prominent: np.ndarray | None, n: int, params: AppearanceParams,
-                      rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def assign_appearance(
+    prominent: np.ndarray | None, n: int, params: AppearanceParams, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
     """``(appearance (n,), prominent (n,))`` for ``n`` agents.
 
     If ``prominent`` is given and has any True entry it is used; otherwise a fraction
@@ -168,8 +169,9 @@ def _headings(pixels: np.ndarray, speed_ok: np.ndarray, rng: np.random.Generator
     return out
 
 
-def _poses(gait: np.ndarray, t_len: int, dt: float, params: AppearanceParams,
-           rng: np.random.Generator) -> np.ndarray:
+def _poses(
+    gait: np.ndarray, t_len: int, dt: float, params: AppearanceParams, rng: np.random.Generator
+) -> np.ndarray:
     """``(T, N)`` sprite poses ``g * H + h`` from gait phases and seeded head turns."""
     n_g, n_h = params.gait_phases, params.head_turns
     pose = np.zeros(gait.shape, np.int64)
@@ -184,14 +186,16 @@ def _poses(gait: np.ndarray, t_len: int, dt: float, params: AppearanceParams,
     return pose
 
 
-def prepare_agents(traj: Trajectories, camera: Camera, params: AppearanceParams,
-                   seed: int) -> AgentTracks:
+def prepare_agents(
+    traj: Trajectories, camera: Camera, params: AppearanceParams, seed: int
+) -> AgentTracks:
     """Project trajectories and derive headings, sway, poses and appearances (all seeded)."""
     s_app, s_head, s_sway, s_turn = _seeds(seed, 4)
     pixels = camera.project_trajectories(traj.positions)
     n = traj.n_agents
-    app, prominent = assign_appearance(traj.attributes.get("prominent"), n, params,
-                                       np.random.default_rng(s_app))
+    app, prominent = assign_appearance(
+        traj.attributes.get("prominent"), n, params, np.random.default_rng(s_app)
+    )
     pos = traj.positions
     k = HEADING_WINDOW
     t_len = traj.n_steps
@@ -215,8 +219,14 @@ def prepare_agents(traj: Trajectories, camera: Camera, params: AppearanceParams,
         if params.sway_deg > 0:
             heading = heading + math.radians(params.sway_deg) * np.sin(gait)
     pose = _poses(gait, t_len, traj.dt, params, np.random.default_rng(s_turn))
-    return AgentTracks(ids=traj.ids.copy(), pixels=pixels, heading=heading, appearance=app,
-                       prominent=prominent, pose=pose)
+    return AgentTracks(
+        ids=traj.ids.copy(),
+        pixels=pixels,
+        heading=heading,
+        appearance=app,
+        prominent=prominent,
+        pose=pose,
+    )
 
 
 # ---------------------------------------------------------------------------- kernels
@@ -228,8 +238,9 @@ def prepare_agents(traj: Trajectories, camera: Camera, params: AppearanceParams,
 # face) and the person's three colours. Images are passed as (rows, columns * 3) views so the
 # inner loops run over contiguous memory and LLVM can vectorise them.
 @njit(cache=True, nogil=True, parallel=True)
-def _ground_pass(ground, oy, ox3, noise, ny, nx3, noise_scale, g0, gain_x, gy,
-                 out):  # pragma: no cover - numba
+def _ground_pass(
+    ground, oy, ox3, noise, ny, nx3, noise_scale, g0, gain_x, gy, out
+):  # pragma: no cover - numba
     h, w3 = out.shape
     inv_h = np.float32(1.0 / h)
     for y in prange(h):
@@ -238,15 +249,40 @@ def _ground_pass(ground, oy, ox3, noise, ny, nx3, noise_scale, g0, gain_x, gy,
         nrow = noise[ny + y]
         orow = out[y]
         for q in range(w3):
-            v = (np.float32(grow[ox3 + q]) * (gyy + gain_x[q])
-                 + np.float32(nrow[nx3 + q]) * noise_scale + np.float32(0.5))
+            v = (
+                np.float32(grow[ox3 + q]) * (gyy + gain_x[q])
+                + np.float32(nrow[nx3 + q]) * noise_scale
+                + np.float32(0.5)
+            )
             orow[q] = np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _stamp(out, cover, alpha, solid, spans, tiles, idx, app, x0, y0, noise, ny, nx3,
-           noise_scale, g0, gx, gy, band_rows, band_first, band_last, owner, owner_base,
-           use_owner):  # pragma: no cover - numba
+def _stamp(
+    out,
+    cover,
+    alpha,
+    solid,
+    spans,
+    tiles,
+    idx,
+    app,
+    x0,
+    y0,
+    noise,
+    ny,
+    nx3,
+    noise_scale,
+    g0,
+    gx,
+    gy,
+    band_rows,
+    band_first,
+    band_last,
+    owner,
+    owner_base,
+    use_owner,
+):  # pragma: no cover - numba
     # Horizontal bands are composited in parallel; a pixel belongs to exactly one band and
     # within a band agents are drawn in the given (depth) order, so the result equals a
     # serial pass. The owner buffer gets owner_base + the rank of the last person whose body
@@ -265,8 +301,11 @@ def _stamp(out, cover, alpha, solid, spans, tiles, idx, app, x0, y0, noise, ny, 
             ox = x0[k]
             ox3 = 3 * ox
             # Illumination is smooth: one gain per sprite (its centre) is exact to ~1e-4.
-            g = (g0 + gx * ((ox + half) / np.float32(w) - np.float32(0.5))
-                 + gy * ((oy + half) / np.float32(h) - np.float32(0.5)))
+            g = (
+                g0
+                + gx * ((ox + half) / np.float32(w) - np.float32(0.5))
+                + gy * ((oy + half) / np.float32(h) - np.float32(0.5))
+            )
             tc = tiles[a_k, 0]
             th = tiles[a_k, 1]
             ts = tiles[a_k, 2]
@@ -287,8 +326,12 @@ def _stamp(out, cover, alpha, solid, spans, tiles, idx, app, x0, y0, noise, ny, 
                 for q in range(lo, hi):
                     a = arow[q]
                     col = cc[q] * tc[q] + ch[q] * th[q] + cs[q] * ts[q]
-                    v = (np.float32(orow[ox3 + q]) * (np.float32(1.0) - a) + col * g
-                         + a * noise_scale * np.float32(nrow[nx3 + q]) + np.float32(0.5))
+                    v = (
+                        np.float32(orow[ox3 + q]) * (np.float32(1.0) - a)
+                        + col * g
+                        + a * noise_scale * np.float32(nrow[nx3 + q])
+                        + np.float32(0.5)
+                    )
                     orow[ox3 + q] = np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
                 if use_owner:
                     srow = solid[s, i]
@@ -299,8 +342,9 @@ def _stamp(out, cover, alpha, solid, spans, tiles, idx, app, x0, y0, noise, ny, 
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _head_visibility(head, solid, idx, x0, y0, owner, owner_base, r0, r1, c0, c1,
-                     vis):  # pragma: no cover - numba
+def _head_visibility(
+    head, solid, idx, x0, y0, owner, owner_base, r0, r1, c0, c1, vis
+):  # pragma: no cover - numba
     # Visible fraction of each person's head: over the head-disc pixels the person owns when
     # drawn alone (solid), the coverage-weighted share that is inside the frame and still
     # owned by the person after everyone is drawn (frame clipping counts as hidden).
@@ -336,8 +380,9 @@ def _shade(out, masks, x0, y0):  # pragma: no cover - numba
                 orow[ox3 + q] = np.uint8(min(v, np.float32(255.0)))
 
 
-def _draw_distractors(base: np.ndarray, params: AppearanceParams, px_per_m: float,
-                      rng: np.random.Generator) -> None:
+def _draw_distractors(
+    base: np.ndarray, params: AppearanceParams, px_per_m: float, rng: np.random.Generator
+) -> None:
     """Bake static head-like clutter (bollards, litter, road-marking dashes) into ``base``.
 
     ``base`` is the ``(H, W, 3)`` float32 ground; ``params.distractor_density`` items per
@@ -363,27 +408,58 @@ def _draw_distractors(base: np.ndarray, params: AppearanceParams, px_per_m: floa
         r = HEAD_RADIUS * s * sizes[k]
         kind = DISTRACTOR_KINDS[kinds[k]]
         if kind == "bollard":  # a dark disc the size of a head, with a shadow
-            shadow = (int(round((centres[k, 0] + 0.3 * s) * ss)),
-                      int(round((centres[k, 1] + 0.2 * s) * ss)))
-            cv2.circle(base, shadow, int(round(1.1 * r * ss)),
-                       tuple(float(v) for v in 0.7 * ground), -1, cv2.LINE_AA, 4)
+            shadow = (
+                int(round((centres[k, 0] + 0.3 * s) * ss)),
+                int(round((centres[k, 1] + 0.2 * s) * ss)),
+            )
+            cv2.circle(
+                base,
+                shadow,
+                int(round(1.1 * r * ss)),
+                tuple(float(v) for v in 0.7 * ground),
+                -1,
+                cv2.LINE_AA,
+                4,
+            )
             colour = np.array(HAIR_COLOURS[0], np.float64) + 20.0 + shades[k]
-            cv2.circle(base, c, int(round(r * ss)), tuple(float(v) for v in colour), -1,
-                       cv2.LINE_AA, 4)
+            cv2.circle(
+                base, c, int(round(r * ss)), tuple(float(v) for v in colour), -1, cv2.LINE_AA, 4
+            )
         elif kind == "litter":  # a small blob of clothing-like colour
             axes = (int(round(0.8 * r * ss)), int(round(0.5 * r * ss)))
             colour = palette[picks[k]] + shades[k]
-            cv2.ellipse(base, c, axes, float(angles[k]), 0, 360,
-                        tuple(float(v) for v in colour), -1, cv2.LINE_AA, 4)
+            cv2.ellipse(
+                base,
+                c,
+                axes,
+                float(angles[k]),
+                0,
+                360,
+                tuple(float(v) for v in colour),
+                -1,
+                cv2.LINE_AA,
+                4,
+            )
         else:  # a painted dash
             axes = (int(round(0.45 * s * sizes[k] * ss)), int(round(0.08 * s * ss)))
             colour = np.full(3, 225.0 + shades[k])
-            cv2.ellipse(base, c, axes, float(angles[k]), 0, 360,
-                        tuple(float(v) for v in colour), -1, cv2.LINE_AA, 4)
+            cv2.ellipse(
+                base,
+                c,
+                axes,
+                float(angles[k]),
+                0,
+                360,
+                tuple(float(v) for v in colour),
+                -1,
+                cv2.LINE_AA,
+                4,
+            )
 
 
-def make_ground(height: int, width: int, params: AppearanceParams, px_per_m: float,
-                rng: np.random.Generator) -> np.ndarray:
+def make_ground(
+    height: int, width: int, params: AppearanceParams, px_per_m: float, rng: np.random.Generator
+) -> np.ndarray:
     """``(height, width, 3)`` uint8 ground: multi-scale noise, paving, static clutter."""
     base = np.empty((height, width, 3), np.float32)
     base[:] = np.array(params.ground_bgr, np.float32)
@@ -433,17 +509,22 @@ class SceneRenderer:
         self.fps = float(fps)
         self.seed = int(seed)
         s_bank, s_ground, s_noise, s_light, s_shadow = np.random.SeedSequence(
-            [int(seed), 0x5CE4E]).spawn(5)
+            [int(seed), 0x5CE4E]
+        ).spawn(5)
         self.bank: SpriteBank = build_sprite_bank(params, np.random.default_rng(s_bank))
         self.margin = int(math.ceil(4 * camera.jitter_px)) + 1 if camera.jitter_px > 0 else 0
         h, w = camera.height, camera.width
         m = self.margin
-        self.ground = make_ground(h + 2 * m, w + 2 * m, params, camera.px_per_m,
-                                  np.random.default_rng(s_ground))
+        self.ground = make_ground(
+            h + 2 * m, w + 2 * m, params, camera.px_per_m, np.random.default_rng(s_ground)
+        )
         rng = np.random.default_rng(s_noise)
-        self.noise = np.clip(rng.standard_normal((h + NOISE_POOL_MARGIN, w + NOISE_POOL_MARGIN, 3),
-                                                 dtype=np.float32) * NOISE_POOL_SCALE,
-                             -127, 127).astype(np.int8)
+        self.noise = np.clip(
+            rng.standard_normal((h + NOISE_POOL_MARGIN, w + NOISE_POOL_MARGIN, 3), dtype=np.float32)
+            * NOISE_POOL_SCALE,
+            -127,
+            127,
+        ).astype(np.int8)
         # Flat (rows, columns * 3) layouts for the kernels; coverages repeated per channel.
         b = self.bank
         k, z = b.alpha.shape[:2]
@@ -478,8 +559,9 @@ class SceneRenderer:
             n = int(round(params.motion_blur_px))
             kern = np.zeros((n | 1, n | 1), np.float32)
             kern[(n | 1) // 2, :] = 1.0
-            rot = cv2.getRotationMatrix2D(((n | 1) / 2 - 0.5, (n | 1) / 2 - 0.5),
-                                          float(light.uniform(-30, 30)), 1.0)
+            rot = cv2.getRotationMatrix2D(
+                ((n | 1) / 2 - 0.5, (n | 1) / 2 - 0.5), float(light.uniform(-30, 30)), 1.0
+            )
             kern = cv2.warpAffine(kern, rot, kern.shape[::-1])
             self._blur = kern / kern.sum()
         self._init_moving_shadows(np.random.default_rng(s_shadow))
@@ -491,7 +573,7 @@ class SceneRenderer:
         h, w = cam.height, cam.width
         n = 0
         if p.moving_shadow_density > 0:
-            n = int(rng.poisson(p.moving_shadow_density * h * w / cam.px_per_m ** 2))
+            n = int(rng.poisson(p.moving_shadow_density * h * w / cam.px_per_m**2))
         d = p.moving_shadow_m * cam.px_per_m
         sz = int(math.ceil(2.0 * d)) + 3
         self._shadow_size = sz
@@ -503,11 +585,22 @@ class SceneRenderer:
         c = (sz - 1) / 2.0
         for k in range(n):  # scene setup, once per sequence
             axes = (int(round(0.5 * d * 16)), int(round(0.5 * d * rng.uniform(0.6, 1.0) * 16)))
-            cv2.ellipse(masks[k], (int(round(c * 16)), int(round(c * 16))), axes,
-                        float(np.degrees(ang[k])), 0, 360, 1.0, -1, cv2.LINE_AA, 4)
+            cv2.ellipse(
+                masks[k],
+                (int(round(c * 16)), int(round(c * 16))),
+                axes,
+                float(np.degrees(ang[k])),
+                0,
+                360,
+                1.0,
+                -1,
+                cv2.LINE_AA,
+                4,
+            )
             masks[k] = cv2.GaussianBlur(masks[k], (0, 0), max(0.6, 0.15 * d))
         self._shadow_masks = np.ascontiguousarray(
-            np.repeat(masks * np.float32(MOVING_SHADOW_DARKNESS), 3, axis=2))
+            np.repeat(masks * np.float32(MOVING_SHADOW_DARKNESS), 3, axis=2)
+        )
 
     # ------------------------------------------------------------------ per frame
     def _frame_jitter(self, t: int) -> np.ndarray:
@@ -523,11 +616,15 @@ class SceneRenderer:
         a = p.illumination_drift
         w = 2 * math.pi * t / (p.illumination_period_s * self.fps)
         ph = self._phases
-        gain = (1.0 + a * math.sin(w + ph[0]), a * math.sin(0.61 * w + ph[1]),
-                a * math.sin(0.37 * w + ph[2]))
+        gain = (
+            1.0 + a * math.sin(w + ph[0]),
+            a * math.sin(0.61 * w + ph[1]),
+            a * math.sin(0.37 * w + ph[2]),
+        )
         if p.flicker > 0:
             f = 1.0 + p.flicker * float(
-                np.random.default_rng([self.seed, 0xF11C, int(t)]).standard_normal())
+                np.random.default_rng([self.seed, 0xF11C, int(t)]).standard_normal()
+            )
             f = max(f, 0.0)
             gain = (gain[0] * f, gain[1] * f, gain[2] * f)
         return gain
@@ -544,10 +641,16 @@ class SceneRenderer:
         pos = np.mod(self._shadow_start + self._shadow_vel * t, period) - sz
         return np.floor(pos).astype(np.int64)
 
-    def render(self, t: int, pixels: np.ndarray, heading: np.ndarray,
-               appearance: np.ndarray, out: np.ndarray | None = None,
-               pose: np.ndarray | None = None,
-               visibility: np.ndarray | None = None) -> np.ndarray:
+    def render(
+        self,
+        t: int,
+        pixels: np.ndarray,
+        heading: np.ndarray,
+        appearance: np.ndarray,
+        out: np.ndarray | None = None,
+        pose: np.ndarray | None = None,
+        visibility: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Frame ``t`` as ``(H, W, 3)`` uint8 BGR.
 
         Parameters
@@ -586,14 +689,24 @@ class SceneRenderer:
         nscale = np.float32(self.params.noise_sigma / NOISE_POOL_SCALE)
         gain_x = gx * (np.arange(w, dtype=np.float32) / np.float32(w) - np.float32(0.5))
         out2 = out.reshape(h, w * 3)
-        _ground_pass(self._ground2, oy, 3 * ox, self._noise2, ny, 3 * nx, nscale, g0,
-                     np.repeat(gain_x, 3), gy, out2)
+        _ground_pass(
+            self._ground2,
+            oy,
+            3 * ox,
+            self._noise2,
+            ny,
+            3 * nx,
+            nscale,
+            g0,
+            np.repeat(gain_x, 3),
+            gy,
+            out2,
+        )
         pixels = np.asarray(pixels, np.float64)
         n_all = len(pixels)
         if visibility is not None:
             if visibility.shape != (n_all,):
-                raise ValueError(f"visibility must have shape ({n_all},), "
-                                 f"got {visibility.shape}")
+                raise ValueError(f"visibility must have shape ({n_all},), got {visibility.shape}")
             visibility[:] = np.where(np.isfinite(pixels).all(axis=1), 0.0, np.nan)
         bank = self.bank
         z = bank.size
@@ -601,17 +714,19 @@ class SceneRenderer:
             ok = np.isfinite(pixels[:, 0]) & np.isfinite(pixels[:, 1])
             # Cull agents whose sprite cannot touch the frame.
             with np.errstate(invalid="ignore"):
-                ok &= ((pixels[:, 0] > -z) & (pixels[:, 0] < w + z)
-                       & (pixels[:, 1] > -z) & (pixels[:, 1] < h + z))
+                ok &= (
+                    (pixels[:, 0] > -z)
+                    & (pixels[:, 0] < w + z)
+                    & (pixels[:, 1] > -z)
+                    & (pixels[:, 1] < h + z)
+                )
             sel = np.flatnonzero(ok)
             pts = pixels[sel]
             hd = np.asarray(heading, np.float64)[sel]
             ap = np.asarray(appearance, np.int64)[sel]
-            ps = np.zeros(len(sel), np.int64) if pose is None else \
-                np.asarray(pose, np.int64)[sel]
+            ps = np.zeros(len(sel), np.int64) if pose is None else np.asarray(pose, np.int64)[sel]
             if len(ps) and (ps.min() < 0 or ps.max() >= bank.n_poses):
-                raise ValueError(f"pose must be in [0, {bank.n_poses}), got {ps.min()}.."
-                                 f"{ps.max()}")
+                raise ValueError(f"pose must be in [0, {bank.n_poses}), got {ps.min()}..{ps.max()}")
             p = bank.subpixel
             f = pts - (z - 1) / 2.0
             base = np.floor(f)
@@ -643,34 +758,99 @@ class SceneRenderer:
                 base_id = self._owner_next
                 self._owner_next += len(sel)
             on_top = self.params.heads_on_top
-            _stamp(out2, self._cover3, self._alpha3, bank.solid, self._spans3, self._tiles,
-                   idx, ap[order], x0, y0, self._noise2, ny, 3 * nx, nscale, g0, gx, gy, rows,
-                   first, last, owner, base_id, use_owner and not on_top)
+            _stamp(
+                out2,
+                self._cover3,
+                self._alpha3,
+                bank.solid,
+                self._spans3,
+                self._tiles,
+                idx,
+                ap[order],
+                x0,
+                y0,
+                self._noise2,
+                ny,
+                3 * nx,
+                nscale,
+                g0,
+                gx,
+                gy,
+                rows,
+                first,
+                last,
+                owner,
+                base_id,
+                use_owner and not on_top,
+            )
             if on_top:  # heads are the highest point: only other heads can hide them
-                _stamp(out2, self._cover3, self._head_alpha3, self._head_solid,
-                       self._head_spans3, self._head_tiles, idx, ap[order], x0, y0,
-                       self._noise2, ny, 3 * nx, nscale, g0, gx, gy, rows, first, last, owner,
-                       base_id, use_owner)
+                _stamp(
+                    out2,
+                    self._cover3,
+                    self._head_alpha3,
+                    self._head_solid,
+                    self._head_spans3,
+                    self._head_tiles,
+                    idx,
+                    ap[order],
+                    x0,
+                    y0,
+                    self._noise2,
+                    ny,
+                    3 * nx,
+                    nscale,
+                    g0,
+                    gx,
+                    gy,
+                    rows,
+                    first,
+                    last,
+                    owner,
+                    base_id,
+                    use_owner,
+                )
             if use_owner and len(sel):
                 vis = np.empty(len(sel), np.float32)
-                _head_visibility(bank.head, self._head_solid if on_top else bank.solid, idx,
-                                 x0, y0, owner, base_id, *self._head_box, vis)
+                _head_visibility(
+                    bank.head,
+                    self._head_solid if on_top else bank.solid,
+                    idx,
+                    x0,
+                    y0,
+                    owner,
+                    base_id,
+                    *self._head_box,
+                    vis,
+                )
                 visibility[sel[order]] = vis
         if len(self._shadow_masks):
             corners = self.moving_shadow_corners(t)
             _shade(out2, self._shadow_masks, corners[:, 0].copy(), corners[:, 1].copy())
         if self.params.defocus_px > 0:
-            cv2.GaussianBlur(out, (0, 0), self.params.defocus_px, dst=out,
-                             borderType=cv2.BORDER_REFLECT)
+            cv2.GaussianBlur(
+                out, (0, 0), self.params.defocus_px, dst=out, borderType=cv2.BORDER_REFLECT
+            )
         if self._blur is not None:
             cv2.filter2D(out, -1, self._blur, dst=out, borderType=cv2.BORDER_REFLECT)
         return out
 
-    def render_tracks(self, tracks: AgentTracks, t: int, out: np.ndarray | None = None,
-                      visibility: np.ndarray | None = None) -> np.ndarray:
+    def render_tracks(
+        self,
+        tracks: AgentTracks,
+        t: int,
+        out: np.ndarray | None = None,
+        visibility: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Frame ``t`` of prepared :class:`AgentTracks` (see :meth:`render`)."""
-        return self.render(t, tracks.pixels[t], tracks.heading[t], tracks.appearance, out=out,
-                           pose=tracks.pose[t], visibility=visibility)
+        return self.render(
+            t,
+            tracks.pixels[t],
+            tracks.heading[t],
+            tracks.appearance,
+            out=out,
+            pose=tracks.pose[t],
+            visibility=visibility,
+        )
 
 
 def encode_jpeg(frame: np.ndarray, quality: int) -> bytes:

@@ -155,11 +155,19 @@ def _check_type(scenario: str, name: str, value: Any, default: Any) -> None:
 
 def _corridor_world(length: float, width: float, margin: float, period: float = 0.0) -> World:
     if period > 0:
-        walls = np.vstack([polyline([(-1.0, 0.0), (period + 1.0, 0.0)]),
-                           polyline([(-1.0, width), (period + 1.0, width)])])
+        walls = np.vstack(
+            [
+                polyline([(-1.0, 0.0), (period + 1.0, 0.0)]),
+                polyline([(-1.0, width), (period + 1.0, width)]),
+            ]
+        )
         return World(walls, (0.0, -1.0, period, width + 1.0), period=period)
-    walls = np.vstack([polyline([(-margin, 0.0), (length + margin, 0.0)]),
-                       polyline([(-margin, width), (length + margin, width)])])
+    walls = np.vstack(
+        [
+            polyline([(-margin, 0.0), (length + margin, 0.0)]),
+            polyline([(-margin, width), (length + margin, width)]),
+        ]
+    )
     return World(walls, (-margin - 2.0, -1.0, length + margin + 2.0, width + 1.0))
 
 
@@ -189,8 +197,9 @@ class Counterflow(Scenario):
         self._positive("width")
         self._fraction("right_fraction")
         if self.width < 2 * self.radius[1] + 0.2:
-            raise ValueError(f"{self.name}.width must be >= {2 * self.radius[1] + 0.2} m, "
-                             f"got {self.width}")
+            raise ValueError(
+                f"{self.name}.width must be >= {2 * self.radius[1] + 0.2} m, got {self.width}"
+            )
 
     def _length(self) -> float:
         length = lattice_length(self.n_agents, self.width, self.density)
@@ -200,8 +209,9 @@ class Counterflow(Scenario):
         n, w = self.n_agents, self.width
         length = self._length()
         if self.periodic:  # exactly n / (density * width): the density is the target one
-            pos = hex_positions(rng, n, 0.0, 0.0, w, self.density, self.radius[1],
-                                length=length, ordered=True)
+            pos = hex_positions(
+                rng, n, 0.0, 0.0, w, self.density, self.radius[1], length=length, ordered=True
+            )
         else:
             pos = hex_positions(rng, n, 0.0, 0.0, w, self.density, self.radius[1])
             length = max(length, float(pos[:, 0].max()) + 0.5 / math.sqrt(self.density))
@@ -214,15 +224,25 @@ class Counterflow(Scenario):
         else:
             world = _corridor_world(length, w, margin)
             routes = [Route([_end_gate(length + margin, w)]), Route([_end_gate(-margin, w)])]
-        agents = AgentBatch.create(pos, self._radii(rng, n), WALKERS.sample(rng, n),
-                                   np.where(right, 0, 1), rng, self.prominent_fraction)
+        agents = AgentBatch.create(
+            pos,
+            self._radii(rng, n),
+            WALKERS.sample(rng, n),
+            np.where(right, 0, 1),
+            rng,
+            self.prominent_fraction,
+        )
         sources = []
         if self.inflow and not self.periodic:
             flow = self.density * float(weidmann_speed(self.density)) * w
             sources = [
                 Source((-margin, 0.3, -margin + 1.5, w - 0.3), flow * self.right_fraction, 0),
-                Source((length + margin - 1.5, 0.3, length + margin, w - 0.3),
-                       flow * (1 - self.right_fraction), 1, heading=(-1.0, 0.0)),
+                Source(
+                    (length + margin - 1.5, 0.3, length + margin, w - 0.3),
+                    flow * (1 - self.right_fraction),
+                    1,
+                    heading=(-1.0, 0.0),
+                ),
             ]
         return Setup(world, routes, agents, sources, {"length": length, "width": w})
 
@@ -263,8 +283,9 @@ class Groups(Scenario):
         self._fraction("group_fraction")
         lo, hi = self.group_size
         if not 2 <= lo <= hi <= 10:
-            raise ValueError(f"groups.group_size must satisfy 2 <= low <= high <= 10, "
-                             f"got {self.group_size}")
+            raise ValueError(
+                f"groups.group_size must satisfy 2 <= low <= high <= 10, got {self.group_size}"
+            )
 
     def build(self, rng: np.random.Generator) -> Setup:
         n, w = self.n_agents, self.width
@@ -283,13 +304,14 @@ class Groups(Scenario):
             size = min(size, in_groups - k)
             if size < 2:
                 break
-            members = order[k: k + size]
+            members = order[k : k + size]
             group[members] = gid
             v0[members] = v0[members].mean()
             k += size
             gid += 1
-        agents = AgentBatch.create(pos, self._radii(rng, n), v0, 0, rng, self.prominent_fraction,
-                                   group=group)
+        agents = AgentBatch.create(
+            pos, self._radii(rng, n), v0, 0, rng, self.prominent_fraction, group=group
+        )
         routes = [Route([_end_gate(length + margin, w)])]
         return Setup(world, routes, agents, [], {"length": length, "width": w, "groups": gid})
 
@@ -315,8 +337,10 @@ class Anomalies(Scenario):
         self._fraction("anomaly_fraction")
         bad = [k for k in self.kinds if k not in ANOMALY_KINDS[1:]]
         if bad or not self.kinds:
-            raise ValueError(f"anomalies.kinds must be a non-empty subset of "
-                             f"{ANOMALY_KINDS[1:]}, got {self.kinds!r}")
+            raise ValueError(
+                f"anomalies.kinds must be a non-empty subset of "
+                f"{ANOMALY_KINDS[1:]}, got {self.kinds!r}"
+            )
 
     def build(self, rng: np.random.Generator) -> Setup:
         n, w = self.n_agents, self.width
@@ -326,12 +350,15 @@ class Anomalies(Scenario):
         mid = length / 2
         exit_w = 2.0
         # Street walls with a side exit (a gap in the upper wall and a short lane out).
-        walls = np.vstack([
-            polyline([(-margin, 0.0), (length + margin, 0.0)]),
-            polyline([(-margin, w), (mid - exit_w / 2, w), (mid - exit_w / 2, w + 4.0)]),
-            polyline([(mid + exit_w / 2, w + 4.0), (mid + exit_w / 2, w),
-                      (length + margin, w)]),
-        ])
+        walls = np.vstack(
+            [
+                polyline([(-margin, 0.0), (length + margin, 0.0)]),
+                polyline([(-margin, w), (mid - exit_w / 2, w), (mid - exit_w / 2, w + 4.0)]),
+                polyline(
+                    [(mid + exit_w / 2, w + 4.0), (mid + exit_w / 2, w), (length + margin, w)]
+                ),
+            ]
+        )
         world = World(walls, (-margin - 2.0, -1.0, length + margin + 2.0, w + 5.0))
         end, start = _end_gate(length + margin, w), _end_gate(-margin, w)
         side = [mid - exit_w / 2 + 0.4, w + 0.5, mid + exit_w / 2 - 0.4, w + 0.5]
@@ -346,8 +373,16 @@ class Anomalies(Scenario):
         v0 = WALKERS.sample(rng, n)
         route[anomaly == ANOMALY_KINDS.index("against")] = 1
         route[anomaly == ANOMALY_KINDS.index("leave")] = 2
-        agents = AgentBatch.create(pos, self._radii(rng, n), v0, route, rng,
-                                   self.prominent_fraction, waypoint=wp, anomaly=anomaly)
+        agents = AgentBatch.create(
+            pos,
+            self._radii(rng, n),
+            v0,
+            route,
+            rng,
+            self.prominent_fraction,
+            waypoint=wp,
+            anomaly=anomaly,
+        )
         # Crossers: a personal route to the opposite side 4 m ahead, then on to the end.
         crossers = np.flatnonzero(anomaly == ANOMALY_KINDS.index("cross"))
         for i in crossers:
@@ -358,7 +393,8 @@ class Anomalies(Scenario):
         stoppers = anomaly == ANOMALY_KINDS.index("stop")
         agents.stop_start[stoppers] = rng.uniform(0.5, 4.0, int(stoppers.sum()))
         agents.stop_end[stoppers] = agents.stop_start[stoppers] + rng.uniform(
-            3.0, 8.0, int(stoppers.sum()))
+            3.0, 8.0, int(stoppers.sum())
+        )
         flow = self.density * float(weidmann_speed(self.density)) * w
         sources = [Source((-margin, 0.3, -margin + 1.5, w - 0.3), flow, 0)]
         return Setup(world, routes, agents, sources, {"length": length, "width": w})
@@ -406,10 +442,12 @@ class Marathon(Scenario):
         t_dir = np.array([math.cos(theta), math.sin(theta)])
         inner_end = inner[-1] + straight2 * t_dir
         outer_end = outer[-1] + straight2 * t_dir
-        walls = np.vstack([
-            polyline(np.vstack([[(x_start, w)], inner, [inner_end]])),
-            polyline(np.vstack([[(x_start, 0.0)], outer, [outer_end]])),
-        ])
+        walls = np.vstack(
+            [
+                polyline(np.vstack([[(x_start, w)], inner, [inner_end]])),
+                polyline(np.vstack([[(x_start, 0.0)], outer, [outer_end]])),
+            ]
+        )
         # Gates: radial segments through the bend, then the finish line.
         gates = []
         for a in np.linspace(0.0, theta, seg + 1)[1:]:
@@ -421,12 +459,17 @@ class Marathon(Scenario):
             gates = []
         gates.append([*(inner_end - 0.5 * t_dir), *(outer_end - 0.5 * t_dir)])
         pts = np.vstack([walls[:, :2], walls[:, 2:4]])
-        bounds = (float(pts[:, 0].min()) - 1, float(pts[:, 1].min()) - 1,
-                  float(pts[:, 0].max()) + 1, float(pts[:, 1].max()) + 1)
+        bounds = (
+            float(pts[:, 0].min()) - 1,
+            float(pts[:, 1].min()) - 1,
+            float(pts[:, 0].max()) + 1,
+            float(pts[:, 1].max()) + 1,
+        )
         world = World(walls, bounds)
         # Runners cut the bend: the first gate is reached along the road.
-        agents = AgentBatch.create(pos, self._radii(rng, n), RUNNERS.sample(rng, n), 0, rng,
-                                   self.prominent_fraction)
+        agents = AgentBatch.create(
+            pos, self._radii(rng, n), RUNNERS.sample(rng, n), 0, rng, self.prominent_fraction
+        )
         flow = self.inflow_fraction * self.density * RUNNERS.mean * w * 0.5
         sources = [Source((x_start, 0.3, x_start + 2.0, w - 0.3), flow, 0, speeds=RUNNERS)]
         info = {"road_width": w, "pack_length": pack}
@@ -463,25 +506,46 @@ class Crossing(Scenario):
         up = np.column_stack([up[:, 1], up[:, 0] - 0.5])
         down = np.column_stack([down[:, 1], sw + 0.5 + down[:, 0]])
         pos = np.vstack([up, down])
-        far = max(float(-up[:, 1].min()) if n_up else 0.0,
-                  float(down[:, 1].max() - sw) if n_down else 0.0) + 3.0
+        far = (
+            max(
+                float(-up[:, 1].min()) if n_up else 0.0,
+                float(down[:, 1].max() - sw) if n_down else 0.0,
+            )
+            + 3.0
+        )
         # Kerb walls leave the crossing open.
-        walls = np.vstack([
-            polyline([(-10.0, 0.0), (-0.5, 0.0)]), polyline([(cw + 0.5, 0.0), (cw + 10.0, 0.0)]),
-            polyline([(-10.0, sw), (-0.5, sw)]), polyline([(cw + 0.5, sw), (cw + 10.0, sw)]),
-        ])
+        walls = np.vstack(
+            [
+                polyline([(-10.0, 0.0), (-0.5, 0.0)]),
+                polyline([(cw + 0.5, 0.0), (cw + 10.0, 0.0)]),
+                polyline([(-10.0, sw), (-0.5, sw)]),
+                polyline([(cw + 0.5, sw), (cw + 10.0, sw)]),
+            ]
+        )
         # Walkers leave beyond the opposite queue, outside the area a camera frames.
-        world = World(walls, (-10.0, -far - EXIT_DISTANCE - 1.0, cw + 10.0,
-                              sw + far + EXIT_DISTANCE + 1.0))
-        routes = [Route([[0.3, sw + 0.5, cw - 0.3, sw + 0.5],
-                         [0.3, sw + far + EXIT_DISTANCE, cw - 0.3, sw + far + EXIT_DISTANCE]],
-                        reach=0.4),
-                  Route([[0.3, -0.5, cw - 0.3, -0.5],
-                         [0.3, -far - EXIT_DISTANCE, cw - 0.3, -far - EXIT_DISTANCE]],
-                        reach=0.4)]
+        world = World(
+            walls, (-10.0, -far - EXIT_DISTANCE - 1.0, cw + 10.0, sw + far + EXIT_DISTANCE + 1.0)
+        )
+        routes = [
+            Route(
+                [
+                    [0.3, sw + 0.5, cw - 0.3, sw + 0.5],
+                    [0.3, sw + far + EXIT_DISTANCE, cw - 0.3, sw + far + EXIT_DISTANCE],
+                ],
+                reach=0.4,
+            ),
+            Route(
+                [
+                    [0.3, -0.5, cw - 0.3, -0.5],
+                    [0.3, -far - EXIT_DISTANCE, cw - 0.3, -far - EXIT_DISTANCE],
+                ],
+                reach=0.4,
+            ),
+        ]
         route = np.r_[np.zeros(n_up, np.int64), np.ones(n_down, np.int64)]
-        agents = AgentBatch.create(pos, self._radii(rng, n), WALKERS.sample(rng, n), route, rng,
-                                   self.prominent_fraction)
+        agents = AgentBatch.create(
+            pos, self._radii(rng, n), WALKERS.sample(rng, n), route, rng, self.prominent_fraction
+        )
         return Setup(world, routes, agents, [], {"street_width": sw, "crossing_width": cw})
 
 
@@ -536,14 +600,28 @@ class Circulation(Scenario):
         world = World(walls, (-r_out - 1, -r_out - 1, r_out + 1, r_out + 1))
         n_gates = 24
         ang = np.arange(n_gates) * 2 * math.pi / n_gates
-        gates = np.column_stack([r_in * np.cos(ang), r_in * np.sin(ang),
-                                 (r_out - 0.3) * np.cos(ang), (r_out - 0.3) * np.sin(ang)])
+        gates = np.column_stack(
+            [
+                r_in * np.cos(ang),
+                r_in * np.sin(ang),
+                (r_out - 0.3) * np.cos(ang),
+                (r_out - 0.3) * np.sin(ang),
+            ]
+        )
         theta = np.arctan2(pos[:, 1], pos[:, 0]) % (2 * math.pi)
         wp = (np.floor(theta / (2 * math.pi / n_gates)).astype(np.int64) + 1) % n_gates
-        speeds = SpeedDistribution(self.speed_mean, 0.2 * self.speed_mean, 0.3 * self.speed_mean,
-                                   2.0 * self.speed_mean)
-        agents = AgentBatch.create(pos, self._radii(rng, n), speeds.sample(rng, n), 0, rng,
-                                   self.prominent_fraction, waypoint=wp)
+        speeds = SpeedDistribution(
+            self.speed_mean, 0.2 * self.speed_mean, 0.3 * self.speed_mean, 2.0 * self.speed_mean
+        )
+        agents = AgentBatch.create(
+            pos,
+            self._radii(rng, n),
+            speeds.sample(rng, n),
+            0,
+            rng,
+            self.prominent_fraction,
+            waypoint=wp,
+        )
         routes = [Route(gates, loop=True, reach=0.3)]
         return Setup(world, routes, agents, [], {"inner_radius": r_in, "outer_radius": r_out})
 
@@ -614,42 +692,65 @@ class Station(Scenario):
                 for py in ticks:
                     walls.append(rectangle(px - 0.4, py - 0.4, px + 0.4, py + 0.4))
         walls = np.vstack(walls)
-        world = World(walls, (-EXIT_DISTANCE - 1, -EXIT_DISTANCE - 1, side + EXIT_DISTANCE + 1,
-                              side + EXIT_DISTANCE + 1))
+        world = World(
+            walls,
+            (
+                -EXIT_DISTANCE - 1,
+                -EXIT_DISTANCE - 1,
+                side + EXIT_DISTANCE + 1,
+                side + EXIT_DISTANCE + 1,
+            ),
+        )
         # Route j: through door j and on to 3 m outside it (where walkers vanish). Route
         # n_doors + k * n_doors + j: enter through door k first (people arriving outside it).
         gate_in = doors[:, :4]
         gate_out = gate_in + np.tile(doors[:, 4:6] * EXIT_DISTANCE, 2)
-        routes = [Route(np.array([gate_in[j], gate_out[j]]), reach=0.6)
-                  for j in range(self.n_doors)]
-        routes += [Route(np.array([gate_in[k], gate_in[j], gate_out[j]]), reach=0.6)
-                   for k in range(self.n_doors) for j in range(self.n_doors)]
+        routes = [
+            Route(np.array([gate_in[j], gate_out[j]]), reach=0.6) for j in range(self.n_doors)
+        ]
+        routes += [
+            Route(np.array([gate_in[k], gate_in[j], gate_out[j]]), reach=0.6)
+            for k in range(self.n_doors)
+            for j in range(self.n_doors)
+        ]
         # Initial people: uniform in the hall (away from pillars), each bound for a random door.
         cand = rng.uniform(0.6, side - 0.6, (4 * n + 16, 2))
         if self.pillar_spacing > 0:
-            near = np.abs(((cand + self.pillar_spacing / 2) % self.pillar_spacing)
-                          - self.pillar_spacing / 2)
+            near = np.abs(
+                ((cand + self.pillar_spacing / 2) % self.pillar_spacing) - self.pillar_spacing / 2
+            )
             cand = cand[~np.all(near < 0.9, axis=1)]
         pos = _thin_to_min_distance(cand, 2 * self.radius[1] + 0.05, n)
         route = rng.integers(0, self.n_doors, len(pos))
-        agents = AgentBatch.create(pos, self._radii(rng, len(pos)),
-                                   WALKERS.sample(rng, len(pos)), route, rng,
-                                   self.prominent_fraction)
+        agents = AgentBatch.create(
+            pos,
+            self._radii(rng, len(pos)),
+            WALKERS.sample(rng, len(pos)),
+            route,
+            rng,
+            self.prominent_fraction,
+        )
         trip = side / WALKERS.mean
         sources = []
         for k, d in enumerate(doors):
             # People arrive 1.5-3 m outside the door (out of the camera's view) and walk in.
             normal = d[4:6]
             along = (d[2:4] - d[:2]) / self.door_width
-            corners_out = np.array([d[:2] + 0.3 * along + 1.5 * normal,
-                                    d[2:4] - 0.3 * along + EXIT_DISTANCE * normal])
+            corners_out = np.array(
+                [d[:2] + 0.3 * along + 1.5 * normal, d[2:4] - 0.3 * along + EXIT_DISTANCE * normal]
+            )
             lo, hi = corners_out.min(axis=0), corners_out.max(axis=0)
             dest = [j for j in range(self.n_doors) if j != k]
             rate = n / trip / self.n_doors / len(dest)
             for j in dest:
-                sources.append(Source((lo[0], lo[1], hi[0], hi[1]), rate,
-                                      self.n_doors + k * self.n_doors + j,
-                                      heading=(float(-normal[0]), float(-normal[1]))))
+                sources.append(
+                    Source(
+                        (lo[0], lo[1], hi[0], hi[1]),
+                        rate,
+                        self.n_doors + k * self.n_doors + j,
+                        heading=(float(-normal[0]), float(-normal[1])),
+                    )
+                )
         return Setup(world, routes, agents, sources, {"side": side, "doors": doors[:, :4]})
 
 
@@ -669,8 +770,7 @@ def _thin_to_min_distance(cand: np.ndarray, dmin: float, n: int) -> np.ndarray:
 
 SCENARIOS: dict[str, type[Scenario]] = {
     cls.name: cls
-    for cls in (Marathon, Counterflow, Groups, Anomalies, Crossing, Circulation, Station,
-                Commuters)
+    for cls in (Marathon, Counterflow, Groups, Anomalies, Crossing, Circulation, Station, Commuters)
 }
 """Scenario name -> class."""
 
@@ -680,13 +780,16 @@ def make_scenario(name: str, **params: Any) -> Scenario:
     try:
         cls = SCENARIOS[name]
     except KeyError:
-        raise ValueError(f"unknown scenario {name!r}; choose one of "
-                         f"{', '.join(SCENARIOS)}") from None
+        raise ValueError(
+            f"unknown scenario {name!r}; choose one of {', '.join(SCENARIOS)}"
+        ) from None
     known = {f.name: f for f in fields(cls)}
     unknown = sorted(set(params) - set(known))
     if unknown:
-        raise ValueError(f"unknown parameter(s) for scenario {name!r}: {', '.join(unknown)}; "
-                         f"known: {', '.join(known)}")
+        raise ValueError(
+            f"unknown parameter(s) for scenario {name!r}: {', '.join(unknown)}; "
+            f"known: {', '.join(known)}"
+        )
     for key, value in params.items():
         default = getattr(cls, key, None)
         if isinstance(default, tuple) and isinstance(value, list):

@@ -94,8 +94,20 @@ class CrowdState:
     @classmethod
     def empty(cls) -> CrowdState:
         z2, zf, zi = np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int64)
-        return cls(z2, z2.copy(), zf, zf.copy(), zi, zi.copy(), zi.copy(), zi.copy(),
-                   np.zeros(0, bool), np.zeros(0, np.int8), zf.copy(), zf.copy())
+        return cls(
+            z2,
+            z2.copy(),
+            zf,
+            zf.copy(),
+            zi,
+            zi.copy(),
+            zi.copy(),
+            zi.copy(),
+            np.zeros(0, bool),
+            np.zeros(0, np.int8),
+            zf.copy(),
+            zf.copy(),
+        )
 
 
 class Simulation:
@@ -122,8 +134,13 @@ class Simulation:
         Steps taken so far.
     """
 
-    def __init__(self, scenario: Scenario, seed: int = 0,
-                 params: SocialForceParams | None = None, record: bool = True) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        seed: int = 0,
+        params: SocialForceParams | None = None,
+        record: bool = True,
+    ) -> None:
         if not isinstance(scenario, Scenario):
             raise ValueError(f"scenario must be a Scenario, got {type(scenario).__name__}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -142,9 +159,9 @@ class Simulation:
         self.time = 0.0
         self.steps = 0
         self.state = CrowdState.empty()
-        self._attrs: dict[str, list[np.ndarray]] = {k: [] for k in
-                                                     ("group", "prominent", "anomaly", "radius",
-                                                      "desired_speed")}
+        self._attrs: dict[str, list[np.ndarray]] = {
+            k: [] for k in ("group", "prominent", "anomaly", "radius", "desired_speed")
+        }
         self._n_total = 0
         # pymunk body id -> (body, shape); body ids of the agents in state order. Periodic
         # worlds give every agent a kinematic ghost one period away, so that pymunk resolves
@@ -167,8 +184,9 @@ class Simulation:
         self._record()
 
     # ------------------------------------------------------------------ public API
-    def step(self, desired_velocity: np.ndarray | None = None,
-             controlled: np.ndarray | None = None) -> None:
+    def step(
+        self, desired_velocity: np.ndarray | None = None, controlled: np.ndarray | None = None
+    ) -> None:
         """Advance the simulation by one time step ``params.dt``.
 
         Parameters
@@ -197,8 +215,18 @@ class Simulation:
         if self.world.period > 0 and st.n:
             self._place_ghosts()
         if st.n:
-            acc = social_force(st.pos, st.vel, st.radius, v0, e, st.group, self.world.walls, p,
-                               self.world.period, self._wall_grid)
+            acc = social_force(
+                st.pos,
+                st.vel,
+                st.radius,
+                v0,
+                e,
+                st.group,
+                self.world.walls,
+                p,
+                self.world.period,
+                self._wall_grid,
+            )
             forces = np.zeros((self._n_rows, 2))
             forces[self._row_of_agent] = acc * p.mass
             buf = pb.Buffer()
@@ -254,11 +282,17 @@ class Simulation:
         return self.routes.desired(st.pos, st.route, st.waypoint)[0]
 
     # ------------------------------------------------------------------ life cycle
-    def add_agents(self, pos: np.ndarray, *, radius: np.ndarray | float | None = None,
-                   desired_speed: np.ndarray | float = WALKERS.mean,
-                   route: np.ndarray | int = 0, group: np.ndarray | int = -1,
-                   vel: np.ndarray | None = None,
-                   prominent: np.ndarray | bool = False) -> np.ndarray:
+    def add_agents(
+        self,
+        pos: np.ndarray,
+        *,
+        radius: np.ndarray | float | None = None,
+        desired_speed: np.ndarray | float = WALKERS.mean,
+        route: np.ndarray | int = 0,
+        group: np.ndarray | int = -1,
+        vel: np.ndarray | None = None,
+        prominent: np.ndarray | bool = False,
+    ) -> np.ndarray:
         """Add agents at once (between steps); return their new ids ``(m,)`` int64.
 
         Ids continue from :attr:`n_total` and are never reused. Nothing checks that the
@@ -276,8 +310,9 @@ class Simulation:
         """
         pos = np.array(pos, dtype=np.float64)
         if pos.ndim != 2 or pos.shape[1] != 2 or not np.isfinite(pos).all():
-            raise ValueError(f"add_agents.pos must be finite with shape (m, 2), "
-                             f"got shape {pos.shape}")
+            raise ValueError(
+                f"add_agents.pos must be finite with shape (m, 2), got shape {pos.shape}"
+            )
         m = len(pos)
         if radius is None:
             radius = 0.5 * (self.scenario.radius[0] + self.scenario.radius[1])
@@ -294,12 +329,16 @@ class Simulation:
         batch = AgentBatch(
             pos=pos,
             vel=np.zeros((m, 2)) if vel is None else _velocities(vel, m, "add_agents.vel"),
-            radius=radius, desired_speed=speed, route=routes,
+            radius=radius,
+            desired_speed=speed,
+            route=routes,
             waypoint=np.zeros(m, np.int64),
             group=_per_agent(group, m, np.int64, "group"),
             prominent=_per_agent(prominent, m, bool, "prominent"),
-            anomaly=np.zeros(m, np.int8), stop_start=np.full(m, np.inf),
-            stop_end=np.full(m, np.inf))
+            anomaly=np.zeros(m, np.int8),
+            stop_start=np.full(m, np.inf),
+            stop_end=np.full(m, np.inf),
+        )
         if self.world.period > 0:
             batch.pos[:, 0] %= self.world.period
         batch.waypoint = self.routes.desired(batch.pos, batch.route, batch.waypoint)[1]
@@ -401,11 +440,18 @@ class Simulation:
         """Scenario, seed, parameters, steps, versions and scenario info (JSON-ready)."""
         from crowdsim import __version__
 
-        return {"scenario": self.scenario.to_dict(), "seed": self.seed,
-                "params": self.params.to_dict(), "steps": self.steps,
-                "versions": {"crowdsim": __version__, "pymunk": pymunk.version,
-                             "numpy": np.__version__},
-                "info": _jsonable(self.info)}
+        return {
+            "scenario": self.scenario.to_dict(),
+            "seed": self.seed,
+            "params": self.params.to_dict(),
+            "steps": self.steps,
+            "versions": {
+                "crowdsim": __version__,
+                "pymunk": pymunk.version,
+                "numpy": np.__version__,
+            },
+            "info": _jsonable(self.info),
+        }
 
     # ------------------------------------------------------------------ internals
     def _present_ids(self, ids: np.ndarray, where: str) -> np.ndarray:
@@ -413,8 +459,9 @@ class Simulation:
         self.index_of(ids)  # raises on absent ids
         return ids
 
-    def _command(self, desired_velocity: np.ndarray | None,
-                 controlled: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
+    def _command(
+        self, desired_velocity: np.ndarray | None, controlled: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray] | None:
         """The one-step command as ``(ids (m,), velocities (m, 2))``, resolved against the
         agents present before the step (some may leave at its start)."""
         if desired_velocity is None:
@@ -428,8 +475,9 @@ class Simulation:
             c = np.asarray(controlled)
             if c.dtype == bool:
                 if c.shape != (st.n,):
-                    raise ValueError(f"step.controlled as a mask must have shape ({st.n},), "
-                                     f"got {c.shape}")
+                    raise ValueError(
+                        f"step.controlled as a mask must have shape ({st.n},), got {c.shape}"
+                    )
                 ids = st.ids[c]
             else:
                 ids = self._present_ids(c, "step.controlled")
@@ -438,9 +486,9 @@ class Simulation:
             raise ValueError("step.controlled lists an agent more than once")
         return ids, vel
 
-    def _controlled_desired(self, e: np.ndarray, v0: np.ndarray,
-                            command: tuple[np.ndarray, np.ndarray] | None) -> tuple[
-                                np.ndarray, np.ndarray]:
+    def _controlled_desired(
+        self, e: np.ndarray, v0: np.ndarray, command: tuple[np.ndarray, np.ndarray] | None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``(e, v0)`` with the rows of held and commanded agents set to ``u / |u|, |u|``."""
         if len(self._held_ids):  # forget agents that have left
             live = self.index_of(self._held_ids, strict=False) >= 0
@@ -457,8 +505,7 @@ class Simulation:
         rows, vel = rows[live], vel[live]
         speed = np.hypot(vel[:, 0], vel[:, 1])
         e, v0 = e.copy(), v0.copy()
-        e[rows] = np.divide(vel, speed[:, None], out=np.zeros_like(vel),
-                            where=speed[:, None] > 0)
+        e[rows] = np.divide(vel, speed[:, None], out=np.zeros_like(vel), where=speed[:, None] > 0)
         v0[rows] = speed
         return e, v0
 
@@ -536,8 +583,7 @@ class Simulation:
         sorter = np.argsort(space_ids)
         self._row_of_agent = sorter[np.searchsorted(space_ids, self._body_ids, sorter=sorter)]
         if self.world.period > 0:
-            self._row_of_ghost = sorter[np.searchsorted(space_ids, self._ghost_ids,
-                                                        sorter=sorter)]
+            self._row_of_ghost = sorter[np.searchsorted(space_ids, self._ghost_ids, sorter=sorter)]
         self._order_dirty = False
 
     def _read_back(self) -> None:
@@ -548,8 +594,9 @@ class Simulation:
         self.state.pos = mine[:, :2].copy()
         self.state.vel = mine[:, 2:].copy()
         if not np.isfinite(mine).all():
-            raise FloatingPointError(f"non-finite agent state at step {self.steps}; "
-                                     f"reduce dt (now {self.params.dt} s)")
+            raise FloatingPointError(
+                f"non-finite agent state at step {self.steps}; reduce dt (now {self.params.dt} s)"
+            )
 
     def _wrap_and_cull(self) -> None:
         st = self.state
@@ -560,8 +607,12 @@ class Simulation:
                 st.pos[:, 0] %= period
                 self.set_state(pos=st.pos)
         xmin, ymin, xmax, ymax = self.world.bounds
-        gone = ((st.pos[:, 0] < xmin - 1) | (st.pos[:, 0] > xmax + 1)
-                | (st.pos[:, 1] < ymin - 1) | (st.pos[:, 1] > ymax + 1))
+        gone = (
+            (st.pos[:, 0] < xmin - 1)
+            | (st.pos[:, 0] > xmax + 1)
+            | (st.pos[:, 1] < ymin - 1)
+            | (st.pos[:, 1] > ymax + 1)
+        )
         if period > 0:
             gone &= (st.pos[:, 1] < ymin - 1) | (st.pos[:, 1] > ymax + 1)
         if gone.any():
@@ -613,18 +664,18 @@ class Simulation:
                 continue
             pos, radius = pos[ok], radius[ok]
             v0 = src.speeds.sample(rng, len(pos))
-            batch = AgentBatch.create(pos, radius, v0, src.route, rng,
-                                      self.scenario.prominent_fraction)
+            batch = AgentBatch.create(
+                pos, radius, v0, src.route, rng, self.scenario.prominent_fraction
+            )
             batch.vel = np.asarray(src.heading, float)[None, :] * v0[:, None] * 0.5
             new.append(batch)
         if new:
             batch = AgentBatch.concat(new)
             self._add_agents(batch)
             e_new, wp, _ = self.routes.desired(batch.pos, batch.route, batch.waypoint)
-            self.state.waypoint[-len(batch):] = wp
+            self.state.waypoint[-len(batch) :] = wp
             e, v0 = self._desired_cache
-            self._desired_cache = (np.vstack([e, e_new]),
-                                   np.concatenate([v0, batch.desired_speed]))
+            self._desired_cache = (np.vstack([e, e_new]), np.concatenate([v0, batch.desired_speed]))
 
     def _free(self, pos: np.ndarray, radius: np.ndarray, pending: list[AgentBatch]) -> np.ndarray:
         """True where a candidate overlaps nobody (present, pending, or an earlier candidate)."""
@@ -660,7 +711,6 @@ def _jsonable(obj: Any) -> Any:
     return obj
 
 
-
 def _ids_array(ids: Any, where: str) -> np.ndarray:
     ids = np.asarray(ids)
     if ids.ndim == 0:
@@ -688,6 +738,5 @@ def _per_agent(value: Any, m: int, dtype: Any, name: str) -> np.ndarray:
     if v.ndim == 0:
         v = np.broadcast_to(v, (m,))
     if v.shape != (m,):
-        raise ValueError(f"add_agents.{name} must be a scalar or have shape ({m},), "
-                         f"got {v.shape}")
+        raise ValueError(f"add_agents.{name} must be a scalar or have shape ({m},), got {v.shape}")
     return np.array(v, dtype=dtype)

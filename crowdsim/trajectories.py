@@ -81,8 +81,10 @@ class Trajectories:
             raise ValueError(f"ids must have shape ({n},), got {self.ids.shape}")
         uniq, counts = np.unique(self.ids, return_counts=True)
         if len(uniq) != n:
-            raise ValueError(f"ids must be unique, id {uniq[counts > 1][0]} appears "
-                             f"{counts[counts > 1][0]} times")
+            raise ValueError(
+                f"ids must be unique, id {uniq[counts > 1][0]} appears "
+                f"{counts[counts > 1][0]} times"
+            )
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"dt must be a positive number of seconds, got {self.dt!r}")
         for name, (dtype, fill) in ATTRIBUTE_DEFAULTS.items():
@@ -92,8 +94,9 @@ class Trajectories:
             else:
                 value = np.asarray(value, dtype=dtype)
                 if value.shape != (n,):
-                    raise ValueError(f"attribute {name!r} must have shape ({n},), "
-                                     f"got {value.shape}")
+                    raise ValueError(
+                        f"attribute {name!r} must have shape ({n},), got {value.shape}"
+                    )
                 self.attributes[name] = value
 
     # ------------------------------------------------------------------ shape helpers
@@ -128,8 +131,12 @@ class Trajectories:
         if not self.present.any():
             raise ValueError("trajectories contain no present position")
         xy = self.positions[self.present]
-        return (float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()),
-                float(xy[:, 1].max()))
+        return (
+            float(xy[:, 0].min()),
+            float(xy[:, 1].min()),
+            float(xy[:, 0].max()),
+            float(xy[:, 1].max()),
+        )
 
     # ------------------------------------------------------------------ npz
     def save(self, path: str | os.PathLike[str]) -> Path:
@@ -139,9 +146,14 @@ class Trajectories:
             raise ValueError(f"trajectory file must end in .npz, got {str(path)!r}")
         arrays = {f"attr_{k}": v for k, v in self.attributes.items()}
         with atomic_path(path) as tmp:
-            np.savez_compressed(tmp, positions=self.positions, ids=self.ids,
-                                dt=np.float64(self.dt), meta=np.str_(json.dumps(self.meta)),
-                                **arrays)
+            np.savez_compressed(
+                tmp,
+                positions=self.positions,
+                ids=self.ids,
+                dt=np.float64(self.dt),
+                meta=np.str_(json.dumps(self.meta)),
+                **arrays,
+            )
         return path
 
     @classmethod
@@ -161,8 +173,9 @@ class Trajectories:
         with open(path, "rb") as fh:
             magic = fh.read(4)
         if magic != b"PK\x03\x04" and magic != b"PK\x05\x06":
-            raise ValueError(f"{what} (not a zip archive; write one with crowdsim simulate "
-                             "--out FILE.npz)")
+            raise ValueError(
+                f"{what} (not a zip archive; write one with crowdsim simulate --out FILE.npz)"
+            )
         try:
             data = np.load(path, allow_pickle=False)
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
@@ -172,8 +185,10 @@ class Trajectories:
         with data:
             missing = [k for k in ("positions", "ids", "dt") if k not in data.files]
             if missing:
-                raise ValueError(f"{what} (missing array {missing[0]!r}; it has "
-                                 f"{', '.join(data.files) or 'no arrays'})")
+                raise ValueError(
+                    f"{what} (missing array {missing[0]!r}; it has "
+                    f"{', '.join(data.files) or 'no arrays'})"
+                )
             try:
                 arrays = {k: data[k] for k in data.files}
             except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
@@ -190,8 +205,7 @@ class Trajectories:
         if dt.shape != () or dt.dtype.kind not in "fiu":
             raise ValueError(f"{path}: dt must be one number of seconds, got {dt!r}")
         if positions.ndim != 3 or positions.shape[2] != 2:
-            raise ValueError(f"{path}: positions must have shape (T, N, 2), "
-                             f"got {positions.shape}")
+            raise ValueError(f"{path}: positions must have shape (T, N, 2), got {positions.shape}")
         check_positions(positions, str(path))
         attrs = {k[5:]: v for k, v in arrays.items() if k.startswith("attr_")}
         try:
@@ -241,17 +255,20 @@ class Trajectories:
                     parts = [p.strip() for p in line.replace(";", ",").split(",")]
                     if not frames_l and not _is_number(parts[0]):
                         if [p.lower() for p in parts] != list(CSV_COLUMNS):
-                            raise ValueError(f"{path}:{lineno}: the header must be "
-                                             f"{','.join(CSV_COLUMNS)}, got {line!r}")
+                            raise ValueError(
+                                f"{path}:{lineno}: the header must be "
+                                f"{','.join(CSV_COLUMNS)}, got {line!r}"
+                            )
                         continue
                     if len(parts) != len(CSV_COLUMNS):
-                        raise ValueError(f"{path}:{lineno}: expected 4 columns frame,id,x,y, "
-                                         f"got {len(parts)}: {line!r}")
+                        raise ValueError(
+                            f"{path}:{lineno}: expected 4 columns frame,id,x,y, "
+                            f"got {len(parts)}: {line!r}"
+                        )
                     where = f"{path}:{lineno}"
                     frames_l.append(_parse_int(parts[0], "frame", where))
                     ids_l.append(_parse_int(parts[1], "id", where))
-                    x, y = (_parse_coord(v, k, where) for v, k in zip(parts[2:], "xy",
-                                                                       strict=True))
+                    x, y = (_parse_coord(v, k, where) for v, k in zip(parts[2:], "xy", strict=True))
                     xy_l.append((x, y))
                     lines_l.append(lineno)
         except UnicodeDecodeError:
@@ -263,17 +280,22 @@ class Trajectories:
         t0, t1 = int(frames.min()), int(frames.max())
         ids, col = np.unique(raw_ids, return_inverse=True)
         n_rows = t1 - t0 + 1  # Python int: no overflow
-        require_memory(f"{path}: frames {t0}..{t1} x {len(ids)} ids (a ({n_rows}, {len(ids)}, 2) "
-                       "float64 position array)", 16.0 * n_rows * len(ids),
-                       MAX_TRAJECTORY_BYTES)
+        require_memory(
+            f"{path}: frames {t0}..{t1} x {len(ids)} ids (a ({n_rows}, {len(ids)}, 2) "
+            "float64 position array)",
+            16.0 * n_rows * len(ids),
+            MAX_TRAJECTORY_BYTES,
+        )
         frames -= t0
         key = frames * len(ids) + col
         order = np.argsort(key, kind="stable")
         dup = np.nonzero(np.diff(key[order]) == 0)[0]
         if len(dup):
             a, b = order[dup[0]], order[dup[0] + 1]
-            raise ValueError(f"{path}:{lines_l[b]}: frame {frames_l[b]}, id {ids_l[b]} appears "
-                             f"twice (also on line {lines_l[a]})")
+            raise ValueError(
+                f"{path}:{lines_l[b]}: frame {frames_l[b]}, id {ids_l[b]} appears "
+                f"twice (also on line {lines_l[a]})"
+            )
         positions = np.full((n_rows, len(ids), 2), np.nan)
         positions[frames, col] = np.array(xy_l, dtype=np.float64)
         return cls(positions=positions, ids=ids, dt=1.0 / fps, meta={"source": str(path)})
@@ -295,8 +317,10 @@ def check_positions(positions: np.ndarray, where: str) -> None:
         bad = np.isinf(pos) | (np.abs(pos) > MAX_COORD_M)
     if bad.any():
         t, n, k = (int(v[0]) for v in np.nonzero(bad))
-        raise ValueError(f"{where}: {'xy'[k]} = {pos[t, n, k]:g} m at row {t}, column {n} is "
-                         f"outside [-{MAX_COORD_M:g}, {MAX_COORD_M:g}] m")
+        raise ValueError(
+            f"{where}: {'xy'[k]} = {pos[t, n, k]:g} m at row {t}, column {n} is "
+            f"outside [-{MAX_COORD_M:g}, {MAX_COORD_M:g}] m"
+        )
 
 
 def _first_line(exc: BaseException) -> str:
@@ -319,8 +343,10 @@ def _parse_int(text: str, name: str, where: str) -> int:
         if not -(2.0**63) <= f < 2.0**63:
             raise ValueError(f"{where}: {name} {text} is outside the int64 range") from None
         if abs(f) > 2**53:  # beyond exact float integers: ask for the digits
-            raise ValueError(f"{where}: {name} {text} is too large to be read exactly; write "
-                             "it as a whole number within int64") from None
+            raise ValueError(
+                f"{where}: {name} {text} is too large to be read exactly; write "
+                "it as a whole number within int64"
+            ) from None
         value = int(f)
     if not -(2**63) <= value < 2**63:
         raise ValueError(f"{where}: {name} {text} is outside the int64 range")
@@ -335,8 +361,9 @@ def _parse_coord(text: str, name: str, where: str) -> float:
     if not np.isfinite(value):
         raise ValueError(f"{where}: {name} {text} is not finite")
     if abs(value) > MAX_COORD_M:
-        raise ValueError(f"{where}: {name} {text} m is outside [-{MAX_COORD_M:g}, "
-                         f"{MAX_COORD_M:g}] m")
+        raise ValueError(
+            f"{where}: {name} {text} m is outside [-{MAX_COORD_M:g}, {MAX_COORD_M:g}] m"
+        )
     return value
 
 
@@ -368,11 +395,17 @@ class TrajectoryRecorder:
     def __len__(self) -> int:
         return len(self._ids)
 
-    def finish(self, n_total: int, dt: float, attributes: dict[str, np.ndarray],
-               meta: dict[str, Any]) -> Trajectories:
+    def finish(
+        self, n_total: int, dt: float, attributes: dict[str, np.ndarray], meta: dict[str, Any]
+    ) -> Trajectories:
         """Build the dense ``(T, n_total, 2)`` trajectories."""
         out = np.full((len(self._ids), n_total, 2), np.nan)
         for t, (ids, pos) in enumerate(zip(self._ids, self._pos, strict=False)):
             out[t, ids] = pos
-        return Trajectories(positions=out, ids=np.arange(n_total, dtype=np.int64), dt=dt,
-                            attributes={k: v[:n_total] for k, v in attributes.items()}, meta=meta)
+        return Trajectories(
+            positions=out,
+            ids=np.arange(n_total, dtype=np.int64),
+            dt=dt,
+            attributes={k: v[:n_total] for k, v in attributes.items()},
+            meta=meta,
+        )

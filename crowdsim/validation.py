@@ -52,8 +52,9 @@ def max_overlap(pos: np.ndarray, radius: np.ndarray, period: float = 0.0) -> flo
     return float(max(0.0, rel.max()))
 
 
-def lane_order_parameter(pos: np.ndarray, sign: np.ndarray, band: float = 0.3,
-                         window: float = 5.0, period: float = 0.0) -> float:
+def lane_order_parameter(
+    pos: np.ndarray, sign: np.ndarray, band: float = 0.3, window: float = 5.0, period: float = 0.0
+) -> float:
     """Mean lane order ``<phi_i>`` for walkers along x with directions ``sign`` (+1/-1).
 
     Neighbours of ``i`` are agents with ``|dy| < band`` and ``|dx| < window``; agents with no
@@ -61,10 +62,10 @@ def lane_order_parameter(pos: np.ndarray, sign: np.ndarray, band: float = 0.3,
     """
     if len(pos) < 2:
         return float("nan")
-    tree = cKDTree(pos if period <= 0 else
-                   np.column_stack([pos[:, 0] % period, pos[:, 1] - pos[:, 1].min()]),
-                   boxsize=None if period <= 0 else
-                   [period, float(np.ptp(pos[:, 1])) + 2 * window + 1])
+    tree = cKDTree(
+        pos if period <= 0 else np.column_stack([pos[:, 0] % period, pos[:, 1] - pos[:, 1].min()]),
+        boxsize=None if period <= 0 else [period, float(np.ptp(pos[:, 1])) + 2 * window + 1],
+    )
     pairs = tree.query_pairs(np.hypot(window, band), output_type="ndarray")
     if len(pairs) == 0:
         return float("nan")
@@ -84,11 +85,13 @@ def lane_order_parameter(pos: np.ndarray, sign: np.ndarray, band: float = 0.3,
     return float(phi.mean())
 
 
-def random_mix_lane_order(pos: np.ndarray, sign: np.ndarray, rng: np.random.Generator,
-                          repeats: int = 20, **kw: float) -> float:
+def random_mix_lane_order(
+    pos: np.ndarray, sign: np.ndarray, rng: np.random.Generator, repeats: int = 20, **kw: float
+) -> float:
     """Lane order of the same positions with walking directions shuffled (random mix)."""
-    return float(np.nanmean([lane_order_parameter(pos, rng.permutation(sign), **kw)
-                             for _ in range(repeats)]))
+    return float(
+        np.nanmean([lane_order_parameter(pos, rng.permutation(sign), **kw) for _ in range(repeats)])
+    )
 
 
 @dataclass
@@ -107,20 +110,38 @@ class FDPoint:
         return self.speed / self.weidmann if self.weidmann > 0 else float("nan")
 
 
-def periodic_corridor(density: float, length: float, width: float,
-                      right_fraction: float = 1.0, seed: int = 0,
-                      params: SocialForceParams | None = None) -> Simulation:
+def periodic_corridor(
+    density: float,
+    length: float,
+    width: float,
+    right_fraction: float = 1.0,
+    seed: int = 0,
+    params: SocialForceParams | None = None,
+) -> Simulation:
     """A periodic corridor filled at ``density`` (the scenario used by the validations)."""
     n = max(2, int(round(density * length * width)))
-    sc = make_scenario("counterflow", n_agents=n, density=density, width=width,
-                       right_fraction=right_fraction, periodic=True, inflow=False)
+    sc = make_scenario(
+        "counterflow",
+        n_agents=n,
+        density=density,
+        width=width,
+        right_fraction=right_fraction,
+        periodic=True,
+        inflow=False,
+    )
     return Simulation(sc, seed=seed, params=params)
 
 
-def fundamental_diagram(densities: list[float], length: float = 20.0, width: float = 5.0,
-                        warmup_s: float = 20.0, measure_s: float = 20.0, seed: int = 0,
-                        params: SocialForceParams | None = None,
-                        progress: bool = False) -> list[FDPoint]:
+def fundamental_diagram(
+    densities: list[float],
+    length: float = 20.0,
+    width: float = 5.0,
+    warmup_s: float = 20.0,
+    measure_s: float = 20.0,
+    seed: int = 0,
+    params: SocialForceParams | None = None,
+    progress: bool = False,
+) -> list[FDPoint]:
     """Speed-density points of unidirectional periodic corridors, measured with PedPy.
 
     Each corridor walks ``warmup_s`` seconds, then ``measure_s`` seconds are recorded. PedPy
@@ -154,34 +175,68 @@ def fundamental_diagram(densities: list[float], length: float = 20.0, width: flo
             xs[t], ys[t] = sim.state.pos[:, 0], sim.state.pos[:, 1]
             if t % 25 == 0:
                 overlap = max(overlap, max_overlap(sim.state.pos, sim.state.radius, period))
-        lap = np.vstack([np.zeros((1, len(ids)), np.int64),
-                         np.cumsum(np.abs(np.diff(xs, axis=0)) > period / 2, axis=0)])
+        lap = np.vstack(
+            [
+                np.zeros((1, len(ids)), np.int64),
+                np.cumsum(np.abs(np.diff(xs, axis=0)) > period / 2, axis=0),
+            ]
+        )
         frames = np.broadcast_to(np.arange(n_meas)[:, None], xs.shape)
-        df = pd.DataFrame({"id": (ids[None, :] * 10_000 + lap).ravel(),
-                           "frame": frames.ravel(), "x": xs.ravel(), "y": ys.ravel()})
+        df = pd.DataFrame(
+            {
+                "id": (ids[None, :] * 10_000 + lap).ravel(),
+                "frame": frames.ravel(),
+                "x": xs.ravel(),
+                "y": ys.ravel(),
+            }
+        )
         traj = pedpy.TrajectoryData(data=df, frame_rate=1.0 / dt)
         x0 = period / 2 - 2.0
-        area = pedpy.MeasurementArea([(x0, 0.0), (x0 + 4.0, 0.0), (x0 + 4.0, sim.info["width"]),
-                                      (x0, sim.info["width"])])
+        area = pedpy.MeasurementArea(
+            [(x0, 0.0), (x0 + 4.0, 0.0), (x0 + 4.0, sim.info["width"]), (x0, sim.info["width"])]
+        )
         dens = pedpy.compute_classic_density(traj_data=traj, measurement_area=area)
         ind = pedpy.compute_individual_speed(
-            traj_data=traj, frame_step=5,
-            speed_calculation=pedpy.SpeedCalculation.BORDER_SINGLE_SIDED)
-        speed = pedpy.compute_mean_speed_per_frame(traj_data=traj, individual_speed=ind,
-                                                   measurement_area=area)
+            traj_data=traj,
+            frame_step=5,
+            speed_calculation=pedpy.SpeedCalculation.BORDER_SINGLE_SIDED,
+        )
+        speed = pedpy.compute_mean_speed_per_frame(
+            traj_data=traj, individual_speed=ind, measurement_area=area
+        )
         d = float(dens["density"].mean())
-        points.append(FDPoint(target_density=rho, global_density=len(ids) / (period * width),
-                              density=d, speed=float(speed["speed"].mean()),
-                              weidmann=float(weidmann_speed(d)), max_overlap=overlap))
+        points.append(
+            FDPoint(
+                target_density=rho,
+                global_density=len(ids) / (period * width),
+                density=d,
+                speed=float(speed["speed"].mean()),
+                weidmann=float(weidmann_speed(d)),
+                max_overlap=overlap,
+            )
+        )
     return points
 
 
-def lane_formation(n_agents: int = 240, density: float = 1.0, width: float = 6.0,
-                   seconds: float = 40.0, every_s: float = 2.0, seed: int = 0,
-                   params: SocialForceParams | None = None) -> dict[str, list[float]]:
+def lane_formation(
+    n_agents: int = 240,
+    density: float = 1.0,
+    width: float = 6.0,
+    seconds: float = 40.0,
+    every_s: float = 2.0,
+    seed: int = 0,
+    params: SocialForceParams | None = None,
+) -> dict[str, list[float]]:
     """Lane order over time in a periodic counterflow corridor, and the random-mix level."""
-    sc = make_scenario("counterflow", n_agents=n_agents, density=density, width=width,
-                       right_fraction=0.5, periodic=True, inflow=False)
+    sc = make_scenario(
+        "counterflow",
+        n_agents=n_agents,
+        density=density,
+        width=width,
+        right_fraction=0.5,
+        periodic=True,
+        inflow=False,
+    )
     sim = Simulation(sc, seed=seed, params=params, record=False)
     sign = np.where(sim.state.route == 0, 1, -1)
     period = sim.world.period

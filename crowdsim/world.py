@@ -15,8 +15,9 @@ import numpy as np
 # ------------------------------------------------------------------------------ geometry
 
 
-def polyline(points: list[tuple[float, float]] | np.ndarray, thickness: float = 0.05,
-             closed: bool = False) -> np.ndarray:
+def polyline(
+    points: list[tuple[float, float]] | np.ndarray, thickness: float = 0.05, closed: bool = False
+) -> np.ndarray:
     """Wall segments ``(m, 5)`` (``x0, y0, x1, y1, half_thickness``) along a polyline."""
     p = np.asarray(points, dtype=np.float64)
     if closed:
@@ -25,11 +26,13 @@ def polyline(points: list[tuple[float, float]] | np.ndarray, thickness: float = 
     return seg
 
 
-def rectangle(xmin: float, ymin: float, xmax: float, ymax: float,
-              thickness: float = 0.05) -> np.ndarray:
+def rectangle(
+    xmin: float, ymin: float, xmax: float, ymax: float, thickness: float = 0.05
+) -> np.ndarray:
     """Closed rectangular obstacle (or room) as wall segments ``(4, 5)``."""
-    return polyline([(xmin, ymin), (xmax, ymin), (xmax, ymax), (xmin, ymax)], thickness,
-                    closed=True)
+    return polyline(
+        [(xmin, ymin), (xmax, ymin), (xmax, ymax), (xmin, ymax)], thickness, closed=True
+    )
 
 
 def arc(cx: float, cy: float, r: float, a0: float, a1: float, n: int) -> np.ndarray:
@@ -117,8 +120,9 @@ class RouteTable:
                 d = np.asarray(r.direction, dtype=np.float64)
                 self.direction[k] = d / np.linalg.norm(d)
 
-    def desired(self, pos: np.ndarray, route: np.ndarray,
-                wp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def desired(
+        self, pos: np.ndarray, route: np.ndarray, wp: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Desired unit directions, advanced waypoint indices and the "arrived" mask.
 
         Parameters
@@ -135,8 +139,18 @@ class RouteTable:
         done = np.zeros(n, dtype=bool)
         wp = wp.copy()
         if n:
-            _route_kernel(pos, route, wp, self.gates, self.length, self.loop, self.direction,
-                          self.reach, e, done)
+            _route_kernel(
+                pos,
+                route,
+                wp,
+                self.gates,
+                self.length,
+                self.loop,
+                self.direction,
+                self.reach,
+                e,
+                done,
+            )
         return e, wp, done
 
 
@@ -211,14 +225,33 @@ class AgentBatch:
     stop_start: np.ndarray
     stop_end: np.ndarray
 
-    FIELDS = ("pos", "vel", "radius", "desired_speed", "route", "waypoint", "group",
-              "prominent", "anomaly", "stop_start", "stop_end")
+    FIELDS = (
+        "pos",
+        "vel",
+        "radius",
+        "desired_speed",
+        "route",
+        "waypoint",
+        "group",
+        "prominent",
+        "anomaly",
+        "stop_start",
+        "stop_end",
+    )
 
     @classmethod
-    def create(cls, pos: np.ndarray, radius: np.ndarray, desired_speed: np.ndarray,
-               route: np.ndarray | int, rng: np.random.Generator, prominent_fraction: float,
-               waypoint: np.ndarray | int = 0, group: np.ndarray | None = None,
-               anomaly: np.ndarray | None = None) -> AgentBatch:
+    def create(
+        cls,
+        pos: np.ndarray,
+        radius: np.ndarray,
+        desired_speed: np.ndarray,
+        route: np.ndarray | int,
+        rng: np.random.Generator,
+        prominent_fraction: float,
+        waypoint: np.ndarray | int = 0,
+        group: np.ndarray | None = None,
+        anomaly: np.ndarray | None = None,
+    ) -> AgentBatch:
         pos = np.asarray(pos, dtype=np.float64).reshape(-1, 2)
         n = len(pos)
         return cls(
@@ -287,9 +320,18 @@ class Source:
     stop: float = np.inf
 
 
-def hex_positions(rng: np.random.Generator, n: int, x0: float, y0: float, y1: float,
-                  density: float, r_max: float, direction: float = 1.0,
-                  length: float | None = None, ordered: bool = False) -> np.ndarray:
+def hex_positions(
+    rng: np.random.Generator,
+    n: int,
+    x0: float,
+    y0: float,
+    y1: float,
+    density: float,
+    r_max: float,
+    direction: float = 1.0,
+    length: float | None = None,
+    ordered: bool = False,
+) -> np.ndarray:
     """``n`` non-overlapping positions at ``density`` /m² in the band ``y0 <= y <= y1``.
 
     The area is that of a hexagonal lattice extending from ``x0`` along ``direction`` (+1 or
@@ -326,8 +368,9 @@ def hex_positions(rng: np.random.Generator, n: int, x0: float, y0: float, y1: fl
     return pts
 
 
-def relax_overlaps(pos: np.ndarray, min_dist: float, lo: np.ndarray, hi: np.ndarray,
-                   max_iter: int = 300) -> np.ndarray:
+def relax_overlaps(
+    pos: np.ndarray, min_dist: float, lo: np.ndarray, hi: np.ndarray, max_iter: int = 300
+) -> np.ndarray:
     """Push points apart until no pair is closer than ``min_dist``, staying in ``[lo, hi]``.
 
     Each sweep moves both points of every close pair apart by half their overlap (plus a

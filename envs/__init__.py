@@ -46,6 +46,7 @@ def __getattr__(name: str) -> Any:
         return getattr(importlib.import_module(_EXPORTS[name]), name)
     raise AttributeError(f"module 'envs' has no attribute {name!r}")
 
+
 _ENVS = {
     "crowdsim/TrackerTuning-v0": "envs.tracker_tuning:TrackerTuningEnv",
     "crowdsim/TrackerTuningBandit-v0": "envs.tracker_tuning:TrackerTuningBanditEnv",

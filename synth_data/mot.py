@@ -49,8 +49,17 @@ import numpy as np
 
 from crowdsim.atomic import write_text_atomic
 
-MOT_COLUMNS: tuple[str, ...] = ("frame", "id", "bb_left", "bb_top", "bb_width", "bb_height",
-                                "conf", "class", "visibility")
+MOT_COLUMNS: tuple[str, ...] = (
+    "frame",
+    "id",
+    "bb_left",
+    "bb_top",
+    "bb_width",
+    "bb_height",
+    "conf",
+    "class",
+    "visibility",
+)
 DEFAULT_TEMPLATE_SIZE: int = 12
 """Template size (px) when neither seqinfo.ini nor gt says otherwise."""
 HEAD_IN_BODY: float = 0.08
@@ -96,29 +105,38 @@ def read_mot_file(path: str | os.PathLike[str], min_columns: int = 6) -> np.ndar
                 continue
             parts = [p for p in text.replace(",", " ").split()]
             if len(parts) < min_columns:
-                raise ValueError(f"{path}:{lineno}: expected at least {min_columns} columns "
-                                 f"(frame,id,bb_left,bb_top,bb_width,bb_height,...), "
-                                 f"got {len(parts)}: {text!r}")
+                raise ValueError(
+                    f"{path}:{lineno}: expected at least {min_columns} columns "
+                    f"(frame,id,bb_left,bb_top,bb_width,bb_height,...), "
+                    f"got {len(parts)}: {text!r}"
+                )
             try:
                 values = [float(p) for p in parts]
             except ValueError:
                 bad = next(p for p in parts if not _is_float(p))
-                raise ValueError(f"{path}:{lineno}: non-numeric value {bad!r} "
-                                 f"in {text!r}") from None
+                raise ValueError(
+                    f"{path}:{lineno}: non-numeric value {bad!r} in {text!r}"
+                ) from None
             if not all(np.isfinite(values)):
                 raise ValueError(f"{path}:{lineno}: non-finite value in {text!r}")
             frame = values[0]
             if frame < 1 or frame != int(frame):
-                raise ValueError(f"{path}:{lineno}: frame must be a positive integer "
-                                 f"(MOT frames are 1-based), got {parts[0]!r}")
+                raise ValueError(
+                    f"{path}:{lineno}: frame must be a positive integer "
+                    f"(MOT frames are 1-based), got {parts[0]!r}"
+                )
             if values[4] < 0 or values[5] < 0:
-                raise ValueError(f"{path}:{lineno}: box width/height must be >= 0, "
-                                 f"got {parts[4]!r}, {parts[5]!r}")
+                raise ValueError(
+                    f"{path}:{lineno}: box width/height must be >= 0, "
+                    f"got {parts[4]!r}, {parts[5]!r}"
+                )
             if width is None:
                 width = len(values)
             elif len(values) != width:
-                raise ValueError(f"{path}:{lineno}: expected {width} columns like the first "
-                                 f"row, got {len(values)}")
+                raise ValueError(
+                    f"{path}:{lineno}: expected {width} columns like the first "
+                    f"row, got {len(values)}"
+                )
             rows.append(values)
     if not rows:
         return np.zeros((0, 9))
@@ -137,13 +155,30 @@ def _is_float(text: str) -> bool:
 
 
 # ---------------------------------------------------------------------------- writer helpers
-def write_seqinfo(seq_dir: str | os.PathLike[str], *, name: str, frame_rate: float, length: int,
-                  width: int, height: int, template_size: int | None = None,
-                  box_type: str = "head", im_dir: str = "img1", im_ext: str = ".jpg") -> Path:
+def write_seqinfo(
+    seq_dir: str | os.PathLike[str],
+    *,
+    name: str,
+    frame_rate: float,
+    length: int,
+    width: int,
+    height: int,
+    template_size: int | None = None,
+    box_type: str = "head",
+    im_dir: str = "img1",
+    im_ext: str = ".jpg",
+) -> Path:
     """Write ``seq_dir/seqinfo.ini`` in the MOTChallenge format (plus crowdsim keys)."""
-    lines = ["[Sequence]", f"name={name}", f"imDir={im_dir}", f"frameRate={frame_rate:g}",
-             f"seqLength={int(length)}", f"imWidth={int(width)}", f"imHeight={int(height)}",
-             f"imExt={im_ext}"]
+    lines = [
+        "[Sequence]",
+        f"name={name}",
+        f"imDir={im_dir}",
+        f"frameRate={frame_rate:g}",
+        f"seqLength={int(length)}",
+        f"imWidth={int(width)}",
+        f"imHeight={int(height)}",
+        f"imExt={im_ext}",
+    ]
     if template_size is not None:
         lines.append(f"templateSize={int(template_size)}")
     lines.append(f"boxType={box_type}")
@@ -200,8 +235,9 @@ class MotSequence:
                 yield self.frame(i)
             return
         if not self.video_path.is_file():
-            raise ValueError(f"{self.path}: no frames ({self.im_dir}/000001{self.im_ext} "
-                             "or video.mp4)")
+            raise ValueError(
+                f"{self.path}: no frames ({self.im_dir}/000001{self.im_ext} or video.mp4)"
+            )
         cap = cv2.VideoCapture(str(self.video_path))
         try:
             for i in range(1, self.length + 1):
@@ -224,9 +260,11 @@ class MotSequence:
             if img is None:
                 raise ValueError(f"{p}: not a readable image")
             if img.shape[:2] != (self.height, self.width):
-                raise ValueError(f"{p}: the image is {img.shape[1]}x{img.shape[0]} px, but "
-                                 f"seqinfo.ini says imWidth={self.width}, "
-                                 f"imHeight={self.height}")
+                raise ValueError(
+                    f"{p}: the image is {img.shape[1]}x{img.shape[0]} px, but "
+                    f"seqinfo.ini says imWidth={self.width}, "
+                    f"imHeight={self.height}"
+                )
             return img
         if self.video_path.is_file():
             cap = cv2.VideoCapture(str(self.video_path))
@@ -269,8 +307,10 @@ class MotSequence:
         if self.init is not None:
             return births_from_init(self.init, self.length, gt_ids, where=str(self.path))
         if len(gt_ids) == 0:
-            raise ValueError(f"{self.path}: no ground truth to start from; pass --init "
-                             "points.csv (rows frame,id,x,y)")
+            raise ValueError(
+                f"{self.path}: no ground truth to start from; pass --init "
+                "points.csv (rows frame,id,x,y)"
+            )
         return births_from_ground_truth(gt_ids, gt_pts)
 
     def agents(self) -> dict[str, np.ndarray]:
@@ -289,8 +329,9 @@ class MotSequence:
                 if not row:
                     continue
                 if len(row) != len(header):
-                    raise ValueError(f"{path}:{lineno}: expected {len(header)} columns, "
-                                     f"got {len(row)}")
+                    raise ValueError(
+                        f"{path}:{lineno}: expected {len(header)} columns, got {len(row)}"
+                    )
                 try:
                     data.append([int(v) for v in row])
                 except ValueError:
@@ -367,12 +408,23 @@ def read_sequence(path: str | os.PathLike[str]) -> MotSequence:
     else:
         template = DEFAULT_TEMPLATE_SIZE
     if len(gt) and gt[:, 0].max() > length:
-        raise ValueError(f"{gt_path}: frame {int(gt[:, 0].max())} is beyond seqLength={length} "
-                         f"of {ini}")
-    return MotSequence(path=path, name=sec.get("name", path.name).strip(), frame_rate=frame_rate,
-                       width=width, height=height, length=length, template_size=template, gt=gt,
-                       box_type=box_type, im_dir=sec.get("imDir", "img1").strip(),
-                       im_ext=sec.get("imExt", ".jpg").strip(), info=sec)
+        raise ValueError(
+            f"{gt_path}: frame {int(gt[:, 0].max())} is beyond seqLength={length} of {ini}"
+        )
+    return MotSequence(
+        path=path,
+        name=sec.get("name", path.name).strip(),
+        frame_rate=frame_rate,
+        width=width,
+        height=height,
+        length=length,
+        template_size=template,
+        gt=gt,
+        box_type=box_type,
+        im_dir=sec.get("imDir", "img1").strip(),
+        im_ext=sec.get("imExt", ".jpg").strip(),
+        info=sec,
+    )
 
 
 def verify_frames(seq) -> None:
@@ -405,6 +457,7 @@ def verify_frames(seq) -> None:
     for i in range(1, seq.length + 1):
         p = im_dir / f"{i:06d}{seq.im_ext}"
         if not p.is_file():
-            raise ValueError(f"{p}: missing (seqLength={seq.length} promises frames "
-                             f"1..{seq.length})")
+            raise ValueError(
+                f"{p}: missing (seqLength={seq.length} promises frames 1..{seq.length})"
+            )
     seq.frame(1)  # decodes one image: imWidth/imHeight must match it

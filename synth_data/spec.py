@@ -83,9 +83,17 @@ TOP_FIELDS: dict[str, tuple[type | tuple[type, ...], bool]] = {
 """Top-level key -> (type, required)."""
 SECTIONS: tuple[str, ...] = ("scenario", "camera", "appearance", "output", "calibration")
 CAMERA_FIELDS: dict[str, type | tuple[type, ...]] = {
-    "px_per_m": (int, float), "width": int, "height": int, "center": list,
-    "tilt_deg": (int, float), "distance_m": (int, float), "jitter_px": (int, float),
-    "jitter_frames": (int, float), "max_width": int, "max_height": int, "margin_m": (int, float),
+    "px_per_m": (int, float),
+    "width": int,
+    "height": int,
+    "center": list,
+    "tilt_deg": (int, float),
+    "distance_m": (int, float),
+    "jitter_px": (int, float),
+    "jitter_frames": (int, float),
+    "max_width": int,
+    "max_height": int,
+    "margin_m": (int, float),
 }
 MAX_SIDE_PX: int = 8192
 """Largest frame width or height, px (as ``crowdsim render``)."""
@@ -141,11 +149,19 @@ class SequenceSpec:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-serialisable form (what ``meta.json`` stores under ``spec``)."""
-        return {"name": self.name, "seed": self.seed, "frames": self.frames, "fps": self.fps,
-                "warmup_steps": self.warmup_steps, "description": self.description,
-                "scenario": dict(self.scenario), "camera": dict(self.camera),
-                "appearance": self.appearance.to_dict(), "output": dict(self.output),
-                "calibration": dict(self.calibration)}
+        return {
+            "name": self.name,
+            "seed": self.seed,
+            "frames": self.frames,
+            "fps": self.fps,
+            "warmup_steps": self.warmup_steps,
+            "description": self.description,
+            "scenario": dict(self.scenario),
+            "camera": dict(self.camera),
+            "appearance": self.appearance.to_dict(),
+            "output": dict(self.output),
+            "calibration": dict(self.calibration),
+        }
 
     def digest(self) -> str:
         """SHA-256 of everything that changes the output (not description/calibration)."""
@@ -166,8 +182,14 @@ class SequenceSpec:
 def _type_name(t: type | tuple[type, ...]) -> str:
     if isinstance(t, tuple):
         return "a number" if float in t else " or ".join(x.__name__ for x in t)
-    return {str: "a string", int: "an integer", bool: "true or false", list: "a list",
-            float: "a number", dict: "a table"}.get(t, t.__name__)
+    return {
+        str: "a string",
+        int: "an integer",
+        bool: "true or false",
+        list: "a list",
+        float: "a number",
+        dict: "a table",
+    }.get(t, t.__name__)
 
 
 def _check_type(where: str, key: str, value: Any, expected: type | tuple[type, ...]) -> None:
@@ -191,8 +213,10 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
         raise ValueError(f"{where}: a spec must be a table/mapping, got {type(data).__name__}")
     for key in data:
         if key not in TOP_FIELDS and key not in SECTIONS:
-            raise ValueError(f"{where}: unknown field {key!r}"
-                             f"{_suggest(str(key), list(TOP_FIELDS) + list(SECTIONS))}")
+            raise ValueError(
+                f"{where}: unknown field {key!r}"
+                f"{_suggest(str(key), list(TOP_FIELDS) + list(SECTIONS))}"
+            )
     for key, (typ, required) in TOP_FIELDS.items():
         if key not in data:
             if required:
@@ -201,8 +225,9 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
         _check_type(where, key, data[key], typ)
     name = data["name"]
     if not NAME_RE.match(name):
-        raise ValueError(f"{where}: name must be letters, digits, '.', '-' or '_' "
-                         f"(a folder name), got {name!r}")
+        raise ValueError(
+            f"{where}: name must be letters, digits, '.', '-' or '_' (a folder name), got {name!r}"
+        )
     if data["seed"] < 0:
         raise ValueError(f"{where}: seed must be >= 0, got {data['seed']!r}")
     if not (1 <= data["frames"] <= MAX_FRAMES):
@@ -212,8 +237,9 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
         raise ValueError(f"{where}: fps must be in (0, 1000], got {data.get('fps')!r}")
     warmup = data.get("warmup_steps", 0)
     if not 0 <= warmup <= MAX_WARMUP_STEPS:  # 1e5 steps = 67 simulated minutes at 25 fps
-        raise ValueError(f"{where}: warmup_steps must be in [0, {MAX_WARMUP_STEPS}], "
-                         f"got {warmup!r}")
+        raise ValueError(
+            f"{where}: warmup_steps must be in [0, {MAX_WARMUP_STEPS}], got {warmup!r}"
+        )
     sections = {}
     for sec in SECTIONS:
         value = data.get(sec, {})
@@ -230,37 +256,47 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
     camera = sections["camera"]
     for key, value in camera.items():
         if key not in CAMERA_FIELDS:
-            raise ValueError(f"{where}: unknown field 'camera.{key}'"
-                             f"{_suggest(key, list(CAMERA_FIELDS))}")
+            raise ValueError(
+                f"{where}: unknown field 'camera.{key}'{_suggest(key, list(CAMERA_FIELDS))}"
+            )
         _check_type(where, f"camera.{key}", value, CAMERA_FIELDS[key])
     if "center" in camera:
         c = camera["center"]
-        if len(c) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                  for v in c):
+        if len(c) != 2 or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in c
+        ):
             raise ValueError(f"{where}: camera.center must be two numbers, got {c!r}")
     # the same limits as crowdsim render: one 8192 x 8192 frame peaks at 3 GiB while drawn;
     # beyond 1e4 px/m a person is a millimetre wide and no head lands in the frame
     for key in ("max_width", "max_height", "width", "height"):
         if key in camera and not (8 <= camera[key] <= MAX_SIDE_PX):
-            raise ValueError(f"{where}: camera.{key} must be in [8, {MAX_SIDE_PX}], got "
-                             f"{camera[key]!r}")
-    if "px_per_m" in camera and not (math.isfinite(camera["px_per_m"])
-                                     and PX_PER_M[0] <= camera["px_per_m"] <= PX_PER_M[1]):
-        raise ValueError(f"{where}: camera.px_per_m must be in [{PX_PER_M[0]:g}, "
-                         f"{PX_PER_M[1]:g}], got {camera['px_per_m']:g}")
+            raise ValueError(
+                f"{where}: camera.{key} must be in [8, {MAX_SIDE_PX}], got {camera[key]!r}"
+            )
+    if "px_per_m" in camera and not (
+        math.isfinite(camera["px_per_m"]) and PX_PER_M[0] <= camera["px_per_m"] <= PX_PER_M[1]
+    ):
+        raise ValueError(
+            f"{where}: camera.px_per_m must be in [{PX_PER_M[0]:g}, "
+            f"{PX_PER_M[1]:g}], got {camera['px_per_m']:g}"
+        )
     if "margin_m" in camera and not (0 <= camera["margin_m"] <= 1000):
-        raise ValueError(f"{where}: camera.margin_m must be in [0, 1000], "
-                         f"got {camera['margin_m']!r}")
+        raise ValueError(
+            f"{where}: camera.margin_m must be in [0, 1000], got {camera['margin_m']!r}"
+        )
     from crowdsim.camera import JITTER_CORRELATION_FRAMES, Camera
 
     try:  # range checks of the camera itself, with placeholders for the fitted fields
-        Camera(px_per_m=float(camera.get("px_per_m", 10.0)), width=camera.get("width", 64),
-               height=camera.get("height", 64),
-               center=tuple(camera.get("center", (0.0, 0.0))),
-               tilt_deg=float(camera.get("tilt_deg", 0.0)),
-               distance_m=float(camera.get("distance_m", 60.0)),
-               jitter_px=float(camera.get("jitter_px", 0.0)),
-               jitter_frames=float(camera.get("jitter_frames", JITTER_CORRELATION_FRAMES)))
+        Camera(
+            px_per_m=float(camera.get("px_per_m", 10.0)),
+            width=camera.get("width", 64),
+            height=camera.get("height", 64),
+            center=tuple(camera.get("center", (0.0, 0.0))),
+            tilt_deg=float(camera.get("tilt_deg", 0.0)),
+            distance_m=float(camera.get("distance_m", 60.0)),
+            jitter_px=float(camera.get("jitter_px", 0.0)),
+            jitter_frames=float(camera.get("jitter_frames", JITTER_CORRELATION_FRAMES)),
+        )
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
 
@@ -290,8 +326,9 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
     output = {"images": True, "video": False}
     for key, value in sections["output"].items():
         if key not in OUTPUT_FIELDS:
-            raise ValueError(f"{where}: unknown field 'output.{key}'"
-                             f"{_suggest(key, list(OUTPUT_FIELDS))}")
+            raise ValueError(
+                f"{where}: unknown field 'output.{key}'{_suggest(key, list(OUTPUT_FIELDS))}"
+            )
         _check_type(where, f"output.{key}", value, OUTPUT_FIELDS[key])
         output[key] = value
     if not (output["images"] or output["video"]):
@@ -299,13 +336,23 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
 
     for key, value in sections["calibration"].items():
         if not isinstance(value, (int, float, str, bool, list)):
-            raise ValueError(f"{where}: calibration.{key} must be a number, string or list, "
-                             f"got {value!r}")
-    return SequenceSpec(name=name, seed=int(data["seed"]), frames=int(data["frames"]), fps=fps,
-                        warmup_steps=int(warmup), scenario=scenario, camera=camera,
-                        appearance=appearance, output=output,
-                        calibration=sections["calibration"],
-                        description=data.get("description", ""), source=source)
+            raise ValueError(
+                f"{where}: calibration.{key} must be a number, string or list, got {value!r}"
+            )
+    return SequenceSpec(
+        name=name,
+        seed=int(data["seed"]),
+        frames=int(data["frames"]),
+        fps=fps,
+        warmup_steps=int(warmup),
+        scenario=scenario,
+        camera=camera,
+        appearance=appearance,
+        output=output,
+        calibration=sections["calibration"],
+        description=data.get("description", ""),
+        source=source,
+    )
 
 
 def _validate_scenario(where: str, scenario: dict[str, Any]) -> None:

@@ -41,8 +41,10 @@ def _require_av() -> Any:
     try:
         import av
     except ImportError:  # pragma: no cover - depends on the environment
-        raise ImportError("appearance.video_kbps > 0 needs PyAV for the video codec: "
-                          "pip install av  (or pip install 'crowdsim[video]')") from None
+        raise ImportError(
+            "appearance.video_kbps > 0 needs PyAV for the video codec: "
+            "pip install av  (or pip install 'crowdsim[video]')"
+        ) from None
     return av
 
 
@@ -77,8 +79,15 @@ class VideoEncoder:
     Use as a context manager; :meth:`close` flushes the encoder.
     """
 
-    def __init__(self, path: str | os.PathLike[str], width: int, height: int, fps: float,
-                 kbps: float, codec: str = "h264") -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        width: int,
+        height: int,
+        fps: float,
+        kbps: float,
+        codec: str = "h264",
+    ) -> None:
         from fractions import Fraction
 
         if codec not in ENCODERS:
@@ -90,8 +99,9 @@ class VideoEncoder:
         av = _require_av()
         self._av = av
         self.path = Path(path)
-        self._container = av.open(str(self.path), "w", format="mp4",
-                                  options={"fflags": "+bitexact"})
+        self._container = av.open(
+            str(self.path), "w", format="mp4", options={"fflags": "+bitexact"}
+        )
         rate = Fraction(float(fps)).limit_denominator(1001)
         stream = self._container.add_stream(ENCODERS[codec], rate=rate)
         stream.width, stream.height = int(width), int(height)
@@ -126,8 +136,12 @@ class VideoEncoder:
     def __enter__(self) -> VideoEncoder:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         self.close()
 
 
@@ -146,8 +160,9 @@ def decode_frames(path: str | os.PathLike[str], n_frames: int) -> Iterator[np.nd
         cap.release()
 
 
-def codec_round_trip(frames: Iterable[np.ndarray], fps: float, kbps: float,
-                     codec: str = "h264") -> Iterator[np.ndarray]:
+def codec_round_trip(
+    frames: Iterable[np.ndarray], fps: float, kbps: float, codec: str = "h264"
+) -> Iterator[np.ndarray]:
     """Yield every frame after encoding and decoding it through ``codec`` at ``kbps``, in memory.
 
     For sources that never touch disk (``synth_data.scene``): the encoder settings of

@@ -70,8 +70,13 @@ def mot_ids(ids: np.ndarray) -> np.ndarray:
     return np.argsort(np.argsort(ids)) + 1
 
 
-def gt_rows(pixels: np.ndarray, camera: Any, template_px: int, mot_ids: np.ndarray,
-            visibility: np.ndarray | None = None) -> np.ndarray:
+def gt_rows(
+    pixels: np.ndarray,
+    camera: Any,
+    template_px: int,
+    mot_ids: np.ndarray,
+    visibility: np.ndarray | None = None,
+) -> np.ndarray:
     """MOT ground-truth rows ``(K, 9)``: one head box per agent and frame.
 
     Parameters
@@ -112,12 +117,22 @@ def gt_rows(pixels: np.ndarray, camera: Any, template_px: int, mot_ids: np.ndarr
     else:
         visibility = np.asarray(visibility, np.float64)
         if visibility.shape != pix.shape[:2]:
-            raise ValueError(f"visibility must have shape {pix.shape[:2]}, "
-                             f"got {visibility.shape}")
+            raise ValueError(f"visibility must have shape {pix.shape[:2]}, got {visibility.shape}")
         column = np.clip(np.nan_to_num(visibility[t_idx, n_idx]), 0.0, 1.0)
     k = len(t_idx)
-    return np.column_stack([t_idx + 1, mot_ids[n_idx], left, top, np.full(k, s), np.full(k, s),
-                            np.ones(k), np.ones(k), column]).astype(np.float64)
+    return np.column_stack(
+        [
+            t_idx + 1,
+            mot_ids[n_idx],
+            left,
+            top,
+            np.full(k, s),
+            np.full(k, s),
+            np.ones(k),
+            np.ones(k),
+            column,
+        ]
+    ).astype(np.float64)
 
 
 def sha256_file(path: Path) -> str:
@@ -147,8 +162,12 @@ def make_tmp_dir(out_dir: str | os.PathLike[str]) -> Path:
     tmp = tmp_dir_for(out_dir)
     tmp.mkdir()
     try:
-        marker = {"pid": os.getpid(), "host": socket.gethostname(), "target": out_dir.name,
-                  "created": time.time()}
+        marker = {
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "target": out_dir.name,
+            "created": time.time(),
+        }
         with open(tmp / TMP_MARKER, "w") as fh:
             fh.write(json.dumps(marker) + "\n")
     except BaseException:
@@ -181,12 +200,15 @@ def _pid_alive(pid: int, since: float | None = None) -> bool:
         pass
     try:
         text = Path(f"/proc/{pid}/stat").read_text()
-        fields = text[text.rindex(")") + 2:].split()
+        fields = text[text.rindex(")") + 2 :].split()
         if fields[0] in ("Z", "X"):
             return False
         if since is not None:
-            boot = next(float(line.split()[1]) for line in
-                        Path("/proc/stat").read_text().splitlines() if line.startswith("btime"))
+            boot = next(
+                float(line.split()[1])
+                for line in Path("/proc/stat").read_text().splitlines()
+                if line.startswith("btime")
+            )
             started = boot + int(fields[19]) / os.sysconf("SC_CLK_TCK")
             if started > since + 2.0:  # btime has 1 s resolution
                 return False
@@ -243,10 +265,20 @@ def publish_tmp_dir(tmp: Path, out_dir: Path) -> None:
     (out_dir / TMP_MARKER).unlink(missing_ok=True)
 
 
-def write_sequence(out_dir: str | os.PathLike[str], traj: Any, *, camera: Any, appearance: Any,
-                   seed: int, name: str | None = None, meta: dict[str, Any] | None = None,
-                   images: bool = True, video: bool = False, overwrite: bool = False,
-                   progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+def write_sequence(
+    out_dir: str | os.PathLike[str],
+    traj: Any,
+    *,
+    camera: Any,
+    appearance: Any,
+    seed: int,
+    name: str | None = None,
+    meta: dict[str, Any] | None = None,
+    images: bool = True,
+    video: bool = False,
+    overwrite: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
     """Render ``traj`` through ``camera`` into the sequence folder ``out_dir``.
 
     Parameters
@@ -300,42 +332,83 @@ def write_sequence(out_dir: str | os.PathLike[str], traj: Any, *, camera: Any, a
             # Codec first; the JPEGs are made from the decoded frames (codec artefacts).
             from synth_data.video import VideoEncoder, decode_frames
 
-            with VideoEncoder(tmp / "video.mp4", camera.width, camera.height, traj.fps,
-                              appearance.video_kbps, appearance.video_codec) as enc:
+            with VideoEncoder(
+                tmp / "video.mp4",
+                camera.width,
+                camera.height,
+                traj.fps,
+                appearance.video_kbps,
+                appearance.video_codec,
+            ) as enc:
                 for frame in frames:
                     enc.write(frame)
             if images:
-                total += _write_jpegs(tmp, decode_frames(tmp / "video.mp4", n_frames),
-                                      appearance.jpeg_quality, checksums)
+                total += _write_jpegs(
+                    tmp,
+                    decode_frames(tmp / "video.mp4", n_frames),
+                    appearance.jpeg_quality,
+                    checksums,
+                )
             if not video:
                 (tmp / "video.mp4").unlink()
         else:
-            total += _write_jpegs(tmp, frames, appearance.jpeg_quality, checksums,
-                                  images=images, video=video, fps=traj.fps)
+            total += _write_jpegs(
+                tmp,
+                frames,
+                appearance.jpeg_quality,
+                checksums,
+                images=images,
+                video=video,
+                fps=traj.fps,
+            )
         mids = mot_ids(tracks.ids)
         rows = gt_rows(tracks.pixels, camera, appearance.template_px, mids, visibility)
         write_mot(tmp / "gt" / "gt.txt", rows)
-        seen = np.isin(mids, np.unique(rows[:, 1]).astype(np.int64)) if len(rows) else \
-            np.zeros(len(mids), bool)
+        seen = (
+            np.isin(mids, np.unique(rows[:, 1]).astype(np.int64))
+            if len(rows)
+            else np.zeros(len(mids), bool)
+        )
         attrs = traj.attributes
-        write_agents_csv(tmp / "gt" / "agents.csv", {
-            "id": mids[seen], "group": attrs["group"][seen], "prominent": tracks.prominent[seen],
-            "anomaly": attrs["anomaly"][seen], "appearance": tracks.appearance[seen]})
-        write_seqinfo(tmp, name=name, frame_rate=traj.fps, length=n_frames, width=camera.width,
-                      height=camera.height, template_size=appearance.template_px)
+        write_agents_csv(
+            tmp / "gt" / "agents.csv",
+            {
+                "id": mids[seen],
+                "group": attrs["group"][seen],
+                "prominent": tracks.prominent[seen],
+                "anomaly": attrs["anomaly"][seen],
+                "appearance": tracks.appearance[seen],
+            },
+        )
+        write_seqinfo(
+            tmp,
+            name=name,
+            frame_rate=traj.fps,
+            length=n_frames,
+            width=camera.width,
+            height=camera.height,
+            template_size=appearance.template_px,
+        )
         meta_out = dict(meta or {})
         meta_out.setdefault("seed", int(seed))
-        meta_out["camera"] = {"px_per_m": camera.px_per_m, "width": camera.width,
-                              "height": camera.height, "center": list(camera.center),
-                              "tilt_deg": camera.tilt_deg, "distance_m": camera.distance_m,
-                              "jitter_px": camera.jitter_px, "seed": camera.seed,
-                              "jitter_frames": camera.jitter_frames}
+        meta_out["camera"] = {
+            "px_per_m": camera.px_per_m,
+            "width": camera.width,
+            "height": camera.height,
+            "center": list(camera.center),
+            "tilt_deg": camera.tilt_deg,
+            "distance_m": camera.distance_m,
+            "jitter_px": camera.jitter_px,
+            "seed": camera.seed,
+            "jitter_frames": camera.jitter_frames,
+        }
         meta_out["appearance"] = appearance.to_dict()
         meta_out["frames"] = n_frames
         meta_out["versions"] = package_versions()
         (tmp / "meta.json").write_text(json.dumps(meta_out, indent=2, sort_keys=True) + "\n")
-        for rel in ("gt/gt.txt", "gt/agents.csv", "seqinfo.ini", "meta.json") + \
-                (("video.mp4",) if video else ()):
+        for rel in ("gt/gt.txt", "gt/agents.csv", "seqinfo.ini", "meta.json") + (
+            ("video.mp4",) if video else ()
+        ):
             checksums[rel] = sha256_file(tmp / rel)
             total += (tmp / rel).stat().st_size
         checksums = dict(sorted(checksums.items()))
@@ -348,8 +421,9 @@ def write_sequence(out_dir: str | os.PathLike[str], traj: Any, *, camera: Any, a
     return {"name": name, "frames": n_frames, "files": checksums, "bytes": total}
 
 
-def _render_frames(renderer: Any, tracks: Any, visibility: np.ndarray,
-                   progress: Callable[[int], None] | None) -> Iterator[np.ndarray]:
+def _render_frames(
+    renderer: Any, tracks: Any, visibility: np.ndarray, progress: Callable[[int], None] | None
+) -> Iterator[np.ndarray]:
     """Yield every frame (one reused buffer), filling ``visibility[t]`` as it goes."""
     cam = renderer.camera
     frame = np.empty((cam.height, cam.width, 3), np.uint8)
@@ -360,9 +434,16 @@ def _render_frames(renderer: Any, tracks: Any, visibility: np.ndarray,
             progress(1)
 
 
-def _write_jpegs(tmp: Path, frames: Iterable[np.ndarray], quality: int,
-                 checksums: dict[str, str], *, images: bool = True, video: bool = False,
-                 fps: float = 25.0) -> int:
+def _write_jpegs(
+    tmp: Path,
+    frames: Iterable[np.ndarray],
+    quality: int,
+    checksums: dict[str, str],
+    *,
+    images: bool = True,
+    video: bool = False,
+    fps: float = 25.0,
+) -> int:
     """Write ``img1/*.jpg`` (and an OpenCV mp4v ``video.mp4``) of ``frames``; bytes written."""
     import cv2
 
@@ -377,8 +458,9 @@ def _write_jpegs(tmp: Path, frames: Iterable[np.ndarray], quality: int,
         if first is not None:
             h, w = first.shape[:2]
             frames = itertools.chain([first], frames)
-            writer = cv2.VideoWriter(str(tmp / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
-                                     float(fps), (w, h))
+            writer = cv2.VideoWriter(
+                str(tmp / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h)
+            )
             if not writer.isOpened():
                 raise RuntimeError("OpenCV cannot write mp4v video on this machine")
     try:

@@ -35,7 +35,8 @@ import pytest
 
 # ---------------------------------------------------------------------------- inputs
 GOOD_CSV = "frame,id,x,y\n" + "".join(
-    f"{t},{i},{1.0 + 0.1 * t + 2 * i:.2f},{1.0 + i:.2f}\n" for t in range(6) for i in (1, 2))
+    f"{t},{i},{1.0 + 0.1 * t + 2 * i:.2f},{1.0 + i:.2f}\n" for t in range(6) for i in (1, 2)
+)
 
 SPEC = """\
 name = "tiny"
@@ -77,8 +78,9 @@ def _mount_tmpfs(path: Path, options: str) -> bool:
     path.mkdir(parents=True, exist_ok=True)
     if not sys.platform.startswith("linux") or os.geteuid() != 0 or not shutil.which("mount"):
         return False
-    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(path)],
-                          capture_output=True)
+    proc = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(path)], capture_output=True
+    )
     return proc.returncode == 0
 
 
@@ -105,11 +107,13 @@ def write_tiny_sequence(seq: Path, n_frames: int = 6) -> Path:
             rows.append([t + 1, pid, x - 6, y - 6, 12, 12, 1, 1, 1])
         cv2.imwrite(str(seq / "img1" / f"{t + 1:06d}.jpg"), img)
     write_mot(seq / "gt" / "gt.txt", np.array(rows, dtype=np.float64))
-    write_seqinfo(seq, name="seq", frame_rate=10, length=n_frames, width=64, height=48,
-                  template_size=12)
+    write_seqinfo(
+        seq, name="seq", frame_rate=10, length=n_frames, width=64, height=48, template_size=12
+    )
     (seq / "meta.json").write_text(json.dumps({"camera": {}, "appearance": {}}) + "\n")
-    checks = {str(p.relative_to(seq)): sha256_file(p) for p in sorted(seq.rglob("*"))
-              if p.is_file()}
+    checks = {
+        str(p.relative_to(seq)): sha256_file(p) for p in sorted(seq.rglob("*")) if p.is_file()
+    }
     (seq / "checksums.json").write_text(json.dumps(checks) + "\n")
     return seq
 
@@ -172,8 +176,18 @@ def case(id: str, argv: str | list[str], needle: str, **kw) -> None:
 
 
 def _fmt(text: str, w: Path, env: Env) -> str:
-    return text.format(w=w, csv=env.csv, npz=env.npz, seq=env.seq, res=env.res, spec=env.spec,
-                       afile=env.afile, ro=env.ro, full=env.full, root=env.root)
+    return text.format(
+        w=w,
+        csv=env.csv,
+        npz=env.npz,
+        seq=env.seq,
+        res=env.res,
+        spec=env.spec,
+        afile=env.afile,
+        ro=env.ro,
+        full=env.full,
+        root=env.root,
+    )
 
 
 # --- simulate ---------------------------------------------------------------------------
@@ -182,8 +196,11 @@ case("sim-agents-0", f"{SIM} --agents 0", "--agents must be in [1, 100000], got 
 case("sim-agents-huge", f"{SIM} --agents 1000000", "got 1000000")
 case("sim-agents-text", f"{SIM} --agents many", "'many'")
 case("sim-steps-neg", f"{SIM} --steps -1", "--steps must be >= 0, got -1")
-case("sim-steps-memory", f"{SIM} --steps 100000000 --agents 100000",
-     "--steps 100000000 x --agents 100000 needs about")
+case(
+    "sim-steps-memory",
+    f"{SIM} --steps 100000000 --agents 100000",
+    "--steps 100000000 x --agents 100000 needs about",
+)
 case("sim-steps-float", f"{SIM} --steps 2.5", "'2.5'")
 case("sim-dt-0", f"{SIM} --dt 0", "--dt must be in (0, 0.2] seconds, got 0.0")
 case("sim-dt-neg", f"{SIM} --dt -0.04", "got -0.04")
@@ -199,19 +216,32 @@ case("sim-scenario-unknown", "simulate nosuch --steps 1", "nosuch")
 case("sim-out-suffix", f"{SIM} --out {{w}}/t.txt", "--out must end in .npz")
 case("sim-plot-suffix", f"{SIM} --plot {{w}}/t.jpg", "--plot must end in .png")
 case("sim-out-under-file", f"{SIM} --out {{afile}}/t.npz", "afile is a file, not a folder")
-case("sim-out-deep-under-file", f"{SIM} --out {{afile}}/a/b/t.npz",
-     "afile is a file, not a folder")
-case("sim-out-is-folder", f"{SIM} --out {{w}}/d.npz", "d.npz: is a folder, not a file",
-     setup=lambda w, env: (w / "d.npz").mkdir())
+case("sim-out-deep-under-file", f"{SIM} --out {{afile}}/a/b/t.npz", "afile is a file, not a folder")
+case(
+    "sim-out-is-folder",
+    f"{SIM} --out {{w}}/d.npz",
+    "d.npz: is a folder, not a file",
+    setup=lambda w, env: (w / "d.npz").mkdir(),
+)
 case("sim-plot-under-file", f"{SIM} --plot {{afile}}/t.png", "afile is a file, not a folder")
-case("sim-plot-is-folder", f"{SIM} --plot {{w}}/p.png", "p.png: is a folder, not a file",
-     setup=lambda w, env: (w / "p.png").mkdir())
-case("sim-out-sysfs", f"{SIM} --out /sys/crowdsim-battery.npz",
-     "/sys/crowdsim-battery.npz: permission denied")
+case(
+    "sim-plot-is-folder",
+    f"{SIM} --plot {{w}}/p.png",
+    "p.png: is a folder, not a file",
+    setup=lambda w, env: (w / "p.png").mkdir(),
+)
+case(
+    "sim-out-sysfs",
+    f"{SIM} --out /sys/crowdsim-battery.npz",
+    "/sys/crowdsim-battery.npz: permission denied",
+)
 case("sim-out-readonly", f"{SIM} --out {{ro}}/t.npz", "is not writable", needs="ro")
-case("sim-out-full-disk", f"{SIM} --agents 100 --steps 10 --out {{full}}/t.npz",
-     "{full}/t.npz: no space left on the device",
-     needs="full")
+case(
+    "sim-out-full-disk",
+    f"{SIM} --agents 100 --steps 10 --out {{full}}/t.npz",
+    "{full}/t.npz: no space left on the device",
+    needs="full",
+)
 case("sim-set-no-equals", f"{SIM} --set width", "--set expects NAME=VALUE, got 'width'")
 case("sim-set-unknown", f"{SIM} --set nosuchparam=3", "nosuchparam")
 case("sim-set-agents", f"{SIM} --set n_agents=5", "--set n_agents: use --agents instead")
@@ -241,102 +271,190 @@ def csv_case(id: str, content: str, needle: str, flags: str = "", **kw) -> None:
 
 
 HDR = "frame,id,x,y\n"
-case("render-no-traj-file", f"{R} --trajectories {{w}}/missing.csv",
-     "missing.csv: no such trajectory file")
-case("render-traj-is-folder", f"{R} --trajectories {{w}}/d.csv", "d.csv: is a folder",
-     setup=lambda w, env: (w / "d.csv").mkdir())
-case("render-traj-suffix", f"{R} --trajectories {{w}}/t.txt",
-     "--trajectories must be a .csv or .npz file", files=(("t.txt", GOOD_CSV),))
-case("render-csv-no-fps", "render --trajectories {csv} --out {w}/seq",
-     "--fps is required for CSV")
+case(
+    "render-no-traj-file",
+    f"{R} --trajectories {{w}}/missing.csv",
+    "missing.csv: no such trajectory file",
+)
+case(
+    "render-traj-is-folder",
+    f"{R} --trajectories {{w}}/d.csv",
+    "d.csv: is a folder",
+    setup=lambda w, env: (w / "d.csv").mkdir(),
+)
+case(
+    "render-traj-suffix",
+    f"{R} --trajectories {{w}}/t.txt",
+    "--trajectories must be a .csv or .npz file",
+    files=(("t.txt", GOOD_CSV),),
+)
+case("render-csv-no-fps", "render --trajectories {csv} --out {w}/seq", "--fps is required for CSV")
 case("render-fps-0", "render --trajectories {csv} --fps 0 --out {w}/seq", "got 0.0")
 case("render-fps-neg", "render --trajectories {csv} --fps -5 --out {w}/seq", "got -5.0")
 case("render-fps-nan", "render --trajectories {csv} --fps nan --out {w}/seq", "got nan")
 case("render-fps-inf", "render --trajectories {csv} --fps inf --out {w}/seq", "got inf")
-case("render-fps-huge", "render --trajectories {csv} --fps 1e9 --out {w}/seq",
-     "--fps must be in (0, 1000], got 1000000000.0")
-case("render-ppm-0", "render --trajectories {csv} --fps 10 --px-per-m 0 --out {w}/seq",
-     "--px-per-m must be in [0.001, 10000], got 0")
-case("render-ppm-neg", "render --trajectories {csv} --fps 10 --px-per-m -3 --out {w}/seq",
-     "got -3")
-case("render-ppm-nan", "render --trajectories {csv} --fps 10 --px-per-m nan --out {w}/seq",
-     "got nan")
-case("render-ppm-1e9", "render --trajectories {csv} --fps 10 --px-per-m 1e9 --out {w}/seq",
-     "--px-per-m must be in [0.001, 10000], got 1e+09")
-case("render-ppm-empties-gt",
-     "render --trajectories {w}/t.csv --fps 10 --px-per-m 5000 --out {w}/seq",
-     "--px-per-m 5000: no trajectory point falls inside",
-     files=(("t.csv", HDR + "0,1,0,0\n0,2,10,10\n1,1,0.1,0\n1,2,10.1,10\n"),))
-case("render-size-text", "render --trajectories {csv} --fps 10 --size big --out {w}/seq",
-     "--size must look like 1280x720, got 'big'")
-case("render-size-one", "render --trajectories {csv} --fps 10 --size 640 --out {w}/seq",
-     "got '640'")
-case("render-size-float", "render --trajectories {csv} --fps 10 --size 64.5x48 --out {w}/seq",
-     "got '64.5x48'")
-case("render-size-small", "render --trajectories {csv} --fps 10 --size 4x4 --out {w}/seq",
-     "got 4x4")
-case("render-size-neg", "render --trajectories {csv} --fps 10 --size=-64x48 --out {w}/seq",
-     "got -64x48")
-case("render-size-largest+1",
-     "render --trajectories {csv} --fps 10 --size 8193x8192 --out {w}/seq", "got 8193x8192")
-case("render-size-huge",
-     "render --trajectories {csv} --fps 10 --size 100000x100000 --out {w}/seq",
-     "got 100000x100000")
-case("render-template-0", "render --trajectories {csv} --fps 10 --template-px 0 --out {w}/seq",
-     "--template-px must be in [4, 64], got 0")
-case("render-template-5000",
-     "render --trajectories {csv} --fps 10 --template-px 5000 --out {w}/seq", "got 5000")
-case("render-seed-neg", "render --trajectories {csv} --fps 10 --seed -1 --out {w}/seq",
-     "--seed must be in [0, 2**63), got -1")
-case("render-seed-huge", "render --trajectories {csv} --fps 10 --seed 1e3 --out {w}/seq",
-     "'1e3'")
-case("render-out-exists", "render --trajectories {csv} --fps 10 --out {w}/seq",
-     "--out {w}/seq already exists; pass --overwrite",
-     setup=lambda w, env: shutil.copytree(env.seq, w / "seq"))
-case("render-overwrite-user-folder",
-     "render --trajectories {csv} --fps 10 --overwrite --out {w}/thesis",
-     "--out {w}/thesis is not a crowdsim sequence or suite folder",
-     files=(("thesis/thesis.tex", "\\chapter{One}\n"),))
-case("render-overwrite-empty-folder",
-     "render --trajectories {csv} --fps 10 --overwrite --out {w}/empty",
-     "is not a crowdsim sequence", setup=lambda w, env: (w / "empty").mkdir())
-case("render-overwrite-seq-with-user-file",
-     "render --trajectories {csv} --fps 10 --overwrite --out {w}/seq",
-     "is not a crowdsim sequence",
-     setup=lambda w, env: (shutil.copytree(env.seq, w / "seq"),
-                           (w / "seq" / "notes.txt").write_text("mine\n")))
-case("render-overwrite-fake-seq",
-     "render --trajectories {csv} --fps 10 --overwrite --out {w}/fake",
-     "is not a crowdsim sequence",
-     files=(("fake/seqinfo.ini", "[Sequence]\nname=x\n"), ("fake/gt/gt.txt", "")))
-case("render-overwrite-file",
-     "render --trajectories {csv} --fps 10 --overwrite --out {w}/paper.pdf",
-     "--out {w}/paper.pdf is a file, not a crowdsim sequence folder",
-     files=(("paper.pdf", b"%PDF-1.4\n"),))
-case("render-overwrite-input-csv",
-     "render --trajectories {w}/t.csv --fps 10 --overwrite --out {w}/t.csv",
-     "would replace the input", files=(("t.csv", GOOD_CSV),))
-case("render-overwrite-input-inside",
-     "render --trajectories {w}/data/t.csv --fps 10 --overwrite --out {w}/data",
-     "would replace the input", files=(("data/t.csv", GOOD_CSV),))
-case("render-overwrite-input-npz",
-     "render --trajectories {npz} --overwrite --out {npz}", "would replace the input")
-case("render-overwrite-root-with-input",
-     "render --trajectories {csv} --fps 10 --overwrite --out {root}", "would replace the input")
-case("render-overwrite-symlink",
-     "render --trajectories {csv} --fps 10 --overwrite --out {w}/link",
-     "is a file, not a crowdsim sequence folder",
-     setup=lambda w, env: (w / "link").symlink_to(env.seq))
-case("render-out-under-file", "render --trajectories {csv} --fps 10 --out {afile}/seq",
-     "--out {afile}/seq: {afile} is a file, not a folder")
+case(
+    "render-fps-huge",
+    "render --trajectories {csv} --fps 1e9 --out {w}/seq",
+    "--fps must be in (0, 1000], got 1000000000.0",
+)
+case(
+    "render-ppm-0",
+    "render --trajectories {csv} --fps 10 --px-per-m 0 --out {w}/seq",
+    "--px-per-m must be in [0.001, 10000], got 0",
+)
+case("render-ppm-neg", "render --trajectories {csv} --fps 10 --px-per-m -3 --out {w}/seq", "got -3")
+case(
+    "render-ppm-nan", "render --trajectories {csv} --fps 10 --px-per-m nan --out {w}/seq", "got nan"
+)
+case(
+    "render-ppm-1e9",
+    "render --trajectories {csv} --fps 10 --px-per-m 1e9 --out {w}/seq",
+    "--px-per-m must be in [0.001, 10000], got 1e+09",
+)
+case(
+    "render-ppm-empties-gt",
+    "render --trajectories {w}/t.csv --fps 10 --px-per-m 5000 --out {w}/seq",
+    "--px-per-m 5000: no trajectory point falls inside",
+    files=(("t.csv", HDR + "0,1,0,0\n0,2,10,10\n1,1,0.1,0\n1,2,10.1,10\n"),),
+)
+case(
+    "render-size-text",
+    "render --trajectories {csv} --fps 10 --size big --out {w}/seq",
+    "--size must look like 1280x720, got 'big'",
+)
+case(
+    "render-size-one", "render --trajectories {csv} --fps 10 --size 640 --out {w}/seq", "got '640'"
+)
+case(
+    "render-size-float",
+    "render --trajectories {csv} --fps 10 --size 64.5x48 --out {w}/seq",
+    "got '64.5x48'",
+)
+case(
+    "render-size-small", "render --trajectories {csv} --fps 10 --size 4x4 --out {w}/seq", "got 4x4"
+)
+case(
+    "render-size-neg",
+    "render --trajectories {csv} --fps 10 --size=-64x48 --out {w}/seq",
+    "got -64x48",
+)
+case(
+    "render-size-largest+1",
+    "render --trajectories {csv} --fps 10 --size 8193x8192 --out {w}/seq",
+    "got 8193x8192",
+)
+case(
+    "render-size-huge",
+    "render --trajectories {csv} --fps 10 --size 100000x100000 --out {w}/seq",
+    "got 100000x100000",
+)
+case(
+    "render-template-0",
+    "render --trajectories {csv} --fps 10 --template-px 0 --out {w}/seq",
+    "--template-px must be in [4, 64], got 0",
+)
+case(
+    "render-template-5000",
+    "render --trajectories {csv} --fps 10 --template-px 5000 --out {w}/seq",
+    "got 5000",
+)
+case(
+    "render-seed-neg",
+    "render --trajectories {csv} --fps 10 --seed -1 --out {w}/seq",
+    "--seed must be in [0, 2**63), got -1",
+)
+case("render-seed-huge", "render --trajectories {csv} --fps 10 --seed 1e3 --out {w}/seq", "'1e3'")
+case(
+    "render-out-exists",
+    "render --trajectories {csv} --fps 10 --out {w}/seq",
+    "--out {w}/seq already exists; pass --overwrite",
+    setup=lambda w, env: shutil.copytree(env.seq, w / "seq"),
+)
+case(
+    "render-overwrite-user-folder",
+    "render --trajectories {csv} --fps 10 --overwrite --out {w}/thesis",
+    "--out {w}/thesis is not a crowdsim sequence or suite folder",
+    files=(("thesis/thesis.tex", "\\chapter{One}\n"),),
+)
+case(
+    "render-overwrite-empty-folder",
+    "render --trajectories {csv} --fps 10 --overwrite --out {w}/empty",
+    "is not a crowdsim sequence",
+    setup=lambda w, env: (w / "empty").mkdir(),
+)
+case(
+    "render-overwrite-seq-with-user-file",
+    "render --trajectories {csv} --fps 10 --overwrite --out {w}/seq",
+    "is not a crowdsim sequence",
+    setup=lambda w, env: (
+        shutil.copytree(env.seq, w / "seq"),
+        (w / "seq" / "notes.txt").write_text("mine\n"),
+    ),
+)
+case(
+    "render-overwrite-fake-seq",
+    "render --trajectories {csv} --fps 10 --overwrite --out {w}/fake",
+    "is not a crowdsim sequence",
+    files=(("fake/seqinfo.ini", "[Sequence]\nname=x\n"), ("fake/gt/gt.txt", "")),
+)
+case(
+    "render-overwrite-file",
+    "render --trajectories {csv} --fps 10 --overwrite --out {w}/paper.pdf",
+    "--out {w}/paper.pdf is a file, not a crowdsim sequence folder",
+    files=(("paper.pdf", b"%PDF-1.4\n"),),
+)
+case(
+    "render-overwrite-input-csv",
+    "render --trajectories {w}/t.csv --fps 10 --overwrite --out {w}/t.csv",
+    "would replace the input",
+    files=(("t.csv", GOOD_CSV),),
+)
+case(
+    "render-overwrite-input-inside",
+    "render --trajectories {w}/data/t.csv --fps 10 --overwrite --out {w}/data",
+    "would replace the input",
+    files=(("data/t.csv", GOOD_CSV),),
+)
+case(
+    "render-overwrite-input-npz",
+    "render --trajectories {npz} --overwrite --out {npz}",
+    "would replace the input",
+)
+case(
+    "render-overwrite-root-with-input",
+    "render --trajectories {csv} --fps 10 --overwrite --out {root}",
+    "would replace the input",
+)
+case(
+    "render-overwrite-symlink",
+    "render --trajectories {csv} --fps 10 --overwrite --out {w}/link",
+    "is a file, not a crowdsim sequence folder",
+    setup=lambda w, env: (w / "link").symlink_to(env.seq),
+)
+case(
+    "render-out-under-file",
+    "render --trajectories {csv} --fps 10 --out {afile}/seq",
+    "--out {afile}/seq: {afile} is a file, not a folder",
+)
 case("render-out-dot", "render --trajectories {csv} --fps 10 --out .", "--out must name a folder")
-case("render-out-sysfs", "render --trajectories {csv} --fps 10 --out /sys/crowdsim-battery",
-     "/sys/crowdsim-battery")
-case("render-out-readonly", "render --trajectories {csv} --fps 10 --out {ro}/seq",
-     "--out {ro}/seq: the folder {ro} is not writable", needs="ro")
-case("render-out-full-disk",
-     "render --trajectories {csv} --fps 10 --size 256x256 --out {full}/seq",
-     "no space left on the device", needs="full")
+case(
+    "render-out-sysfs",
+    "render --trajectories {csv} --fps 10 --out /sys/crowdsim-battery",
+    "/sys/crowdsim-battery",
+)
+case(
+    "render-out-readonly",
+    "render --trajectories {csv} --fps 10 --out {ro}/seq",
+    "--out {ro}/seq: the folder {ro} is not writable",
+    needs="ro",
+)
+case(
+    "render-out-full-disk",
+    "render --trajectories {csv} --fps 10 --size 256x256 --out {full}/seq",
+    "no space left on the device",
+    needs="full",
+)
 csv_case("csv-coord-1e12", HDR + "0,1,1e12,0\n1,1,1,0\n", "x 1e12 m is outside")
 csv_case("csv-coord-1e300", HDR + "0,1,0,1e300\n1,1,1,0\n", "y 1e300 m is outside")
 csv_case("csv-coord-neg-big", HDR + "0,1,-200000,0\n", "x -200000 m is outside")
@@ -344,10 +462,16 @@ csv_case("csv-coord-inf", HDR + "0,1,inf,0\n", "x inf is not finite")
 csv_case("csv-coord-nan", HDR + "0,1,nan,0\n", "x nan is not finite")
 csv_case("csv-coord-text", HDR + "0,1,abc,0\n", "x 'abc' is not a number")
 csv_case("csv-coord-empty", HDR + "0,1,,0\n", "x '' is not a number")
-csv_case("csv-id-int64+1", HDR + "0,9223372036854775808,1,1\n0,1,2,2\n",
-         "id 9223372036854775808 is outside the int64 range")
-csv_case("csv-id-huge-merge", HDR + "0,18446744073709551617,1,1\n0,18446744073709551618,2,2\n",
-         "id 18446744073709551617 is outside the int64 range")
+csv_case(
+    "csv-id-int64+1",
+    HDR + "0,9223372036854775808,1,1\n0,1,2,2\n",
+    "id 9223372036854775808 is outside the int64 range",
+)
+csv_case(
+    "csv-id-huge-merge",
+    HDR + "0,18446744073709551617,1,1\n0,18446744073709551618,2,2\n",
+    "id 18446744073709551617 is outside the int64 range",
+)
 csv_case("csv-id-1e19", HDR + "0,1e19,1,1\n", "id 1e19 is outside the int64 range")
 csv_case("csv-id-float-big", HDR + "0,1e17,1,1\n", "id 1e17 is too large to be read exactly")
 csv_case("csv-id-2.5", HDR + "0,2,1,1\n0,2.5,2,2\n", "id 2.5 is not an integer")
@@ -357,92 +481,200 @@ csv_case("csv-frame-2.5", HDR + "0,1,1,1\n2.5,1,2,2\n", "frame 2.5 is not an int
 csv_case("csv-frame-0.1", HDR + "0.1,1,1,1\n", "frame 0.1 is not an integer")
 csv_case("csv-frame-text", HDR + "first,1,1,1\n0,1,1,1\n", "the header must be frame,id,x,y")
 csv_case("csv-frame-inf", HDR + "inf,1,1,1\n", "frame inf is not finite")
-csv_case("csv-frame-2e9", HDR + "0,1,1,1\n2000000000,1,2,2\n",
-         "frames 0..2000000000 x 1 ids")
-csv_case("csv-frame-memory-many-ids",
-         HDR + "".join(f"0,{i},1,1\n" for i in range(2000)) + "400000,1,1,1\n", "needs about")
-csv_case("csv-frame-int64+1", HDR + "9223372036854775808,1,1,1\n",
-         "frame 9223372036854775808 is outside the int64 range")
-csv_case("csv-frame-span-overflow", HDR + "-9223372036854775807,1,1,1\n9223372036854775806,1,1,1\n",
-         "needs about")
+csv_case("csv-frame-2e9", HDR + "0,1,1,1\n2000000000,1,2,2\n", "frames 0..2000000000 x 1 ids")
+csv_case(
+    "csv-frame-memory-many-ids",
+    HDR + "".join(f"0,{i},1,1\n" for i in range(2000)) + "400000,1,1,1\n",
+    "needs about",
+)
+csv_case(
+    "csv-frame-int64+1",
+    HDR + "9223372036854775808,1,1,1\n",
+    "frame 9223372036854775808 is outside the int64 range",
+)
+csv_case(
+    "csv-frame-span-overflow",
+    HDR + "-9223372036854775807,1,1,1\n9223372036854775806,1,1,1\n",
+    "needs about",
+)
 csv_case("csv-extra-column", HDR + "0,1,1,1,7\n", "expected 4 columns frame,id,x,y, got 5")
-csv_case("csv-extra-header", "frame,id,x,y,z\n0,1,1,1,1\n",
-         "the header must be frame,id,x,y, got 'frame,id,x,y,z'")
+csv_case(
+    "csv-extra-header",
+    "frame,id,x,y,z\n0,1,1,1,1\n",
+    "the header must be frame,id,x,y, got 'frame,id,x,y,z'",
+)
 csv_case("csv-few-columns", HDR + "0,1,1\n", "expected 4 columns frame,id,x,y, got 3")
 csv_case("csv-one-column", HDR + "0\n", "got 1")
-csv_case("csv-duplicate", HDR + "0,1,1,1\n1,1,2,2\n0,1,3,3\n",
-         "frame 0, id 1 appears twice (also on line 2)")
+csv_case(
+    "csv-duplicate",
+    HDR + "0,1,1,1\n1,1,2,2\n0,1,3,3\n",
+    "frame 0, id 1 appears twice (also on line 2)",
+)
 csv_case("csv-duplicate-int-float", HDR + "0,1,1,1\n0.0,1.0,3,3\n", "frame 0, id 1 appears twice")
 csv_case("csv-empty", "", "t.csv: no trajectory rows")
 csv_case("csv-header-only", HDR, "t.csv: no trajectory rows")
 csv_case("csv-comments-only", "# nothing\n", "no trajectory rows")
 csv_case("csv-binary", "\x00\x01\x02", "the header must be frame,id,x,y")
-case("csv-undecodable", RCSV, "t.csv: not a text CSV file",
-     files=(("t.csv", b"frame,id,x,y\n\xff\xfe\x00,1,1,1\n"),))
-csv_case("csv-wrong-header", "time,person,x,y\n0,1,1,1\n",
-         "the header must be frame,id,x,y, got 'time,person,x,y'")
+case(
+    "csv-undecodable",
+    RCSV,
+    "t.csv: not a text CSV file",
+    files=(("t.csv", b"frame,id,x,y\n\xff\xfe\x00,1,1,1\n"),),
+)
+csv_case(
+    "csv-wrong-header",
+    "time,person,x,y\n0,1,1,1\n",
+    "the header must be frame,id,x,y, got 'time,person,x,y'",
+)
 
 
 def _npz(name: str, **arrays) -> Callable[[Path, Env], None]:
     def setup(w: Path, env: Env) -> None:
         np.savez(w / name, **arrays)
+
     return setup
 
 
 RNPZ = "render --trajectories {w}/t.npz --out {w}/seq"
-case("npz-text-file", RNPZ, "t.npz: not a crowdsim trajectories .npz (not a zip archive",
-     files=(("t.npz", "frame,id,x,y\n0,1,1,1\n"),))
+case(
+    "npz-text-file",
+    RNPZ,
+    "t.npz: not a crowdsim trajectories .npz (not a zip archive",
+    files=(("t.npz", "frame,id,x,y\n0,1,1,1\n"),),
+)
 case("npz-empty-file", RNPZ, "t.npz: not a crowdsim trajectories .npz", files=(("t.npz", ""),))
-case("npz-truncated-zip", RNPZ, "t.npz: not a crowdsim trajectories .npz",
-     setup=lambda w, env: (w / "t.npz").write_bytes(env.npz.read_bytes()[:60]))
-case("npz-missing-positions", RNPZ, "missing array 'positions'",
-     setup=_npz("t.npz", ids=np.arange(2), dt=np.float64(0.1)))
-case("npz-missing-dt", RNPZ, "missing array 'dt'",
-     setup=_npz("t.npz", positions=np.zeros((2, 2, 2)), ids=np.arange(2)))
-case("npz-positions-2d", RNPZ, "positions must have shape (T, N, 2), got (2, 2)",
-     setup=_npz("t.npz", positions=np.zeros((2, 2)), ids=np.arange(2), dt=np.float64(0.1)))
-case("npz-positions-inf", RNPZ, "x = inf m at row 0, column 0",
-     setup=_npz("t.npz", positions=np.array([[[np.inf, 0.0]]]), ids=np.arange(1),
-                dt=np.float64(0.1)))
-case("npz-positions-1e12", RNPZ, "y = 1e+12 m at row 0, column 0",
-     setup=_npz("t.npz", positions=np.array([[[0.0, 1e12]]]), ids=np.arange(1),
-                dt=np.float64(0.1)))
-case("npz-ids-float", RNPZ, "ids must be integers, got dtype float64",
-     setup=_npz("t.npz", positions=np.zeros((1, 2, 2)), ids=np.array([1.0, 2.5]),
-                dt=np.float64(0.1)))
-case("npz-ids-duplicate", RNPZ, "id 3 appears 2 times",
-     setup=_npz("t.npz", positions=np.zeros((1, 2, 2)), ids=np.array([3, 3]),
-                dt=np.float64(0.1)))
-case("npz-ids-shape", RNPZ, "ids must have shape (2,), got (3,)",
-     setup=_npz("t.npz", positions=np.zeros((1, 2, 2)), ids=np.arange(3), dt=np.float64(0.1)))
-case("npz-dt-0", RNPZ, "dt must be a positive number of seconds, got 0.0",
-     setup=_npz("t.npz", positions=np.zeros((1, 1, 2)), ids=np.arange(1), dt=np.float64(0)))
-case("npz-dt-array", RNPZ, "dt must be one number of seconds",
-     setup=_npz("t.npz", positions=np.zeros((1, 1, 2)), ids=np.arange(1),
-                dt=np.array([0.1, 0.2])))
-case("npz-pickled", RNPZ, "t.npz: not a crowdsim trajectories .npz",
-     setup=lambda w, env: np.savez(w / "t.npz", positions=np.array([{"a": 1}], dtype=object),
-                                   ids=np.arange(1), dt=np.float64(0.1)))
-case("npz-all-nan", RNPZ, "the trajectories contain no present position",
-     setup=_npz("t.npz", positions=np.full((2, 1, 2), np.nan), ids=np.arange(1),
-                dt=np.float64(0.1)))
-case("npz-no-rows", RNPZ, "contain no present position",
-     setup=_npz("t.npz", positions=np.zeros((0, 1, 2)), ids=np.arange(1), dt=np.float64(0.1)))
-case("npz-bad-meta", RNPZ, "array 'meta' is not JSON",
-     setup=_npz("t.npz", positions=np.zeros((1, 1, 2)), ids=np.arange(1), dt=np.float64(0.1),
-                meta=np.str_("{not json")))
-case("npz-attr-shape", RNPZ, "attribute 'radius' must have shape (1,), got (2,)",
-     setup=_npz("t.npz", positions=np.zeros((1, 1, 2)), ids=np.arange(1), dt=np.float64(0.1),
-                attr_radius=np.ones(2)))
-case("npz-is-npy", RNPZ, "t.npz: not a crowdsim trajectories .npz",
-     setup=lambda w, env: (np.save(w / "x.npy", np.zeros(3)),
-                           os.replace(w / "x.npy", w / "t.npz")))
+case(
+    "npz-truncated-zip",
+    RNPZ,
+    "t.npz: not a crowdsim trajectories .npz",
+    setup=lambda w, env: (w / "t.npz").write_bytes(env.npz.read_bytes()[:60]),
+)
+case(
+    "npz-missing-positions",
+    RNPZ,
+    "missing array 'positions'",
+    setup=_npz("t.npz", ids=np.arange(2), dt=np.float64(0.1)),
+)
+case(
+    "npz-missing-dt",
+    RNPZ,
+    "missing array 'dt'",
+    setup=_npz("t.npz", positions=np.zeros((2, 2, 2)), ids=np.arange(2)),
+)
+case(
+    "npz-positions-2d",
+    RNPZ,
+    "positions must have shape (T, N, 2), got (2, 2)",
+    setup=_npz("t.npz", positions=np.zeros((2, 2)), ids=np.arange(2), dt=np.float64(0.1)),
+)
+case(
+    "npz-positions-inf",
+    RNPZ,
+    "x = inf m at row 0, column 0",
+    setup=_npz(
+        "t.npz", positions=np.array([[[np.inf, 0.0]]]), ids=np.arange(1), dt=np.float64(0.1)
+    ),
+)
+case(
+    "npz-positions-1e12",
+    RNPZ,
+    "y = 1e+12 m at row 0, column 0",
+    setup=_npz("t.npz", positions=np.array([[[0.0, 1e12]]]), ids=np.arange(1), dt=np.float64(0.1)),
+)
+case(
+    "npz-ids-float",
+    RNPZ,
+    "ids must be integers, got dtype float64",
+    setup=_npz(
+        "t.npz", positions=np.zeros((1, 2, 2)), ids=np.array([1.0, 2.5]), dt=np.float64(0.1)
+    ),
+)
+case(
+    "npz-ids-duplicate",
+    RNPZ,
+    "id 3 appears 2 times",
+    setup=_npz("t.npz", positions=np.zeros((1, 2, 2)), ids=np.array([3, 3]), dt=np.float64(0.1)),
+)
+case(
+    "npz-ids-shape",
+    RNPZ,
+    "ids must have shape (2,), got (3,)",
+    setup=_npz("t.npz", positions=np.zeros((1, 2, 2)), ids=np.arange(3), dt=np.float64(0.1)),
+)
+case(
+    "npz-dt-0",
+    RNPZ,
+    "dt must be a positive number of seconds, got 0.0",
+    setup=_npz("t.npz", positions=np.zeros((1, 1, 2)), ids=np.arange(1), dt=np.float64(0)),
+)
+case(
+    "npz-dt-array",
+    RNPZ,
+    "dt must be one number of seconds",
+    setup=_npz("t.npz", positions=np.zeros((1, 1, 2)), ids=np.arange(1), dt=np.array([0.1, 0.2])),
+)
+case(
+    "npz-pickled",
+    RNPZ,
+    "t.npz: not a crowdsim trajectories .npz",
+    setup=lambda w, env: np.savez(
+        w / "t.npz",
+        positions=np.array([{"a": 1}], dtype=object),
+        ids=np.arange(1),
+        dt=np.float64(0.1),
+    ),
+)
+case(
+    "npz-all-nan",
+    RNPZ,
+    "the trajectories contain no present position",
+    setup=_npz("t.npz", positions=np.full((2, 1, 2), np.nan), ids=np.arange(1), dt=np.float64(0.1)),
+)
+case(
+    "npz-no-rows",
+    RNPZ,
+    "contain no present position",
+    setup=_npz("t.npz", positions=np.zeros((0, 1, 2)), ids=np.arange(1), dt=np.float64(0.1)),
+)
+case(
+    "npz-bad-meta",
+    RNPZ,
+    "array 'meta' is not JSON",
+    setup=_npz(
+        "t.npz",
+        positions=np.zeros((1, 1, 2)),
+        ids=np.arange(1),
+        dt=np.float64(0.1),
+        meta=np.str_("{not json"),
+    ),
+)
+case(
+    "npz-attr-shape",
+    RNPZ,
+    "attribute 'radius' must have shape (1,), got (2,)",
+    setup=_npz(
+        "t.npz",
+        positions=np.zeros((1, 1, 2)),
+        ids=np.arange(1),
+        dt=np.float64(0.1),
+        attr_radius=np.ones(2),
+    ),
+)
+case(
+    "npz-is-npy",
+    RNPZ,
+    "t.npz: not a crowdsim trajectories .npz",
+    setup=lambda w, env: (np.save(w / "x.npy", np.zeros(3)), os.replace(w / "x.npy", w / "t.npz")),
+)
 case("npz-fps-override-bad", "render --trajectories {npz} --fps 0 --out {w}/seq", "got 0.0")
 
 # --- evaluate ---------------------------------------------------------------------------
 E = "evaluate {res} {seq}"
-case("eval-similarity-inf", f"{E} --similarity-px inf",
-     "--similarity-px must be in (0, 1000] px, got inf")
+case(
+    "eval-similarity-inf",
+    f"{E} --similarity-px inf",
+    "--similarity-px must be in (0, 1000] px, got inf",
+)
 case("eval-similarity-nan", f"{E} --similarity-px nan", "got nan")
 case("eval-similarity-0", f"{E} --similarity-px 0", "got 0.0")
 case("eval-similarity-neg", f"{E} --similarity-px -5", "got -5.0")
@@ -455,14 +687,22 @@ case("eval-seq-is-file", "evaluate {res} {afile}", "afile: no such sequence fold
 case("eval-seq-no-seqinfo", "evaluate {res} {w}", "missing seqinfo.ini")
 case("eval-plot-suffix", f"{E} --plot {{w}}/curve.jpg", "--plot must end in .png")
 case("eval-plot-under-file", f"{E} --plot {{afile}}/curve.png", "afile is a file, not a folder")
-case("eval-plot-is-folder", f"{E} --plot {{w}}/c.png", "c.png: is a folder, not a file",
-     setup=lambda w, env: (w / "c.png").mkdir())
+case(
+    "eval-plot-is-folder",
+    f"{E} --plot {{w}}/c.png",
+    "c.png: is a folder, not a file",
+    setup=lambda w, env: (w / "c.png").mkdir(),
+)
 case("eval-plot-into-seq", f"{E} --plot {{seq}}/curve.png", "would overwrite an input")
-case("eval-plot-sysfs", f"{E} --plot /sys/crowdsim-battery.png",
-     "/sys/crowdsim-battery.png: permission denied")
+case(
+    "eval-plot-sysfs",
+    f"{E} --plot /sys/crowdsim-battery.png",
+    "/sys/crowdsim-battery.png: permission denied",
+)
 case("eval-plot-readonly", f"{E} --plot {{ro}}/c.png", "is not writable", needs="ro")
-case("eval-plot-full-disk", f"{E} --plot {{full}}/c.png", "no space left on the device",
-     needs="full")
+case(
+    "eval-plot-full-disk", f"{E} --plot {{full}}/c.png", "no space left on the device", needs="full"
+)
 
 
 def res_case(id: str, content: str, needle: str, **kw) -> None:
@@ -486,11 +726,13 @@ res_case("eval-res-id-huge", "1,1e30,2,2,8,8\n", "id 1e+30 is not an integer")
 def seq_copy(edit: Callable[[Path], None], keep_checksums: bool) -> Callable[[Path, Env], None]:
     """A damaged copy of the shared sequence; without ``checksums.json`` (like a real MOT
     sequence) unless ``keep_checksums``."""
+
     def setup(w: Path, env: Env) -> None:
         shutil.copytree(env.seq, w / "s")
         if not keep_checksums:
             (w / "s" / "checksums.json").unlink()
         edit(w / "s")
+
     return setup
 
 
@@ -501,12 +743,14 @@ def _ini(key: str, value: str) -> Callable[[Path], None]:
         if not any(ln.startswith(f"{key}=") for ln in lines):
             lines.append(f"{key}={value}")
         (s / "seqinfo.ini").write_text("\n".join(lines) + "\n")
+
     return edit
 
 
 def _gt(text: str) -> Callable[[Path], None]:
     def edit(s: Path) -> None:
         (s / "gt" / "gt.txt").write_text(text)
+
     return edit
 
 
@@ -514,6 +758,7 @@ def _append_gt(text: str) -> Callable[[Path], None]:
     def edit(s: Path) -> None:
         with open(s / "gt" / "gt.txt", "a") as fh:
             fh.write(text)
+
     return edit
 
 
@@ -527,81 +772,177 @@ MOT_SEQ_CASES: list[tuple[str, Callable[[Path], None], str, bool]] = [
     ("seqlength-0", _ini("seqLength", "0"), "'seqLength' must be >= 1, got 0", False),
     ("seqlength-neg", _ini("seqLength", "-4"), "'seqLength' must be >= 1, got -4", False),
     ("seqlength-text", _ini("seqLength", "ten"), "'seqLength' has a bad value 'ten'", False),
-    ("seqlength-missing", lambda s: _ini("seqLength", "")(s) or (s / "seqinfo.ini").write_text(
-        (s / "seqinfo.ini").read_text().replace("seqLength=\n", "")),
-     "missing key 'seqLength'", False),
+    (
+        "seqlength-missing",
+        lambda s: (
+            _ini("seqLength", "")(s)
+            or (s / "seqinfo.ini").write_text(
+                (s / "seqinfo.ini").read_text().replace("seqLength=\n", "")
+            )
+        ),
+        "missing key 'seqLength'",
+        False,
+    ),
     ("imwidth-0", _ini("imWidth", "0"), "'imWidth' must be a finite number > 0, got 0", False),
     ("imwidth-wrong", _ini("imWidth", "640"), "the image is 64x48 px&&imWidth=640", False),
-    ("framerate-nan", _ini("frameRate", "nan"), "'frameRate' must be a finite number > 0, "
-     "got nan", False),
-    ("templatesize-0", _ini("templateSize", "0"), "'templateSize' must be in [2, 256] px, "
-     "got 0", False),
+    (
+        "framerate-nan",
+        _ini("frameRate", "nan"),
+        "'frameRate' must be a finite number > 0, got nan",
+        False,
+    ),
+    (
+        "templatesize-0",
+        _ini("templateSize", "0"),
+        "'templateSize' must be in [2, 256] px, got 0",
+        False,
+    ),
     ("templatesize-5000", _ini("templateSize", "5000"), "got 5000", False),
-    ("boxtype-bad", _ini("boxType", "feet"), "'boxType' must be head or body, got 'feet'",
-     False),
-    ("seqinfo-garbage", lambda s: (s / "seqinfo.ini").write_text("\x00garbage"),
-     "seqinfo.ini: malformed", False),
-    ("gt-beyond-length", _append_gt("99,1,2,2,8,8,1,1,1\n"), "frame 99 is beyond seqLength=6",
-     False),
+    ("boxtype-bad", _ini("boxType", "feet"), "'boxType' must be head or body, got 'feet'", False),
+    (
+        "seqinfo-garbage",
+        lambda s: (s / "seqinfo.ini").write_text("\x00garbage"),
+        "seqinfo.ini: malformed",
+        False,
+    ),
+    (
+        "gt-beyond-length",
+        _append_gt("99,1,2,2,8,8,1,1,1\n"),
+        "frame 99 is beyond seqLength=6",
+        False,
+    ),
     ("gt-duplicate", _append_gt("1,1,2,2,12,12,1,1,1\n"), "frame 1, id 1 appears twice", False),
     ("gt-id-float", _append_gt("2,7.5,2,2,12,12,1,1,1\n"), "id 7.5 is not an integer", False),
-    ("gt-id-huge", _append_gt("2,1e30,2,2,12,12,1,1,1\n"), "id 1e+30 is not an integer "
-     "within int64", False),
+    (
+        "gt-id-huge",
+        _append_gt("2,1e30,2,2,12,12,1,1,1\n"),
+        "id 1e+30 is not an integer within int64",
+        False,
+    ),
     ("gt-text", _gt("1,1,x,2,12,12,1,1,1\n"), "non-numeric value 'x'", False),
     ("gt-frame-0", _gt("0,1,2,2,12,12,1,1,1\n"), "frame must be a positive integer", False),
     ("gt-empty", _gt(""), "no ground truth", False),
     ("img-missing", lambda s: (s / "img1" / "000003.jpg").unlink(), "000003.jpg", False),
     ("img-truncated", _truncate_jpeg, "000003.jpg", True),
-    ("img-replaced", lambda s: shutil.copy(s / "img1" / "000001.jpg", s / "img1" / "000004.jpg"),
-     "000004.jpg: damaged", True),
+    (
+        "img-replaced",
+        lambda s: shutil.copy(s / "img1" / "000001.jpg", s / "img1" / "000004.jpg"),
+        "000004.jpg: damaged",
+        True,
+    ),
 ]
 for _name, _edit, _needle, _keep in MOT_SEQ_CASES:
     _why = ""
     case(f"eval-{_name}", "evaluate {res} {w}/s", _needle, setup=seq_copy(_edit, _keep))
-    case(f"track-{_name}", "track {w}/s --tracker ncc --no-progress --out {w}/r.txt", _needle,
-         setup=seq_copy(_edit, _keep), xfail=_why)
+    case(
+        f"track-{_name}",
+        "track {w}/s --tracker ncc --no-progress --out {w}/r.txt",
+        _needle,
+        setup=seq_copy(_edit, _keep),
+        xfail=_why,
+    )
 
 # --- track ------------------------------------------------------------------------------
 T = "track {seq} --tracker ncc --no-progress"
 case("track-input-missing", "track {w}/none --out {w}/r.txt", "none: no such sequence folder")
 case("track-frames-0", f"{T} --frames 0 --out {{w}}/r.txt", "--frames must be >= 1, got 0")
 case("track-frames-neg", f"{T} --frames -3 --out {{w}}/r.txt", "got -3")
-case("track-template-1", f"{T} --template-size 1 --out {{w}}/r.txt",
-     "--template-size must be in [2, 256] px, got 1")
-case("track-template-5000", f"{T} --template-size 5000 --out {{w}}/r.txt",
-     "--template-size must be in [2, 256] px, got 5000")
+case(
+    "track-template-1",
+    f"{T} --template-size 1 --out {{w}}/r.txt",
+    "--template-size must be in [2, 256] px, got 1",
+)
+case(
+    "track-template-5000",
+    f"{T} --template-size 5000 --out {{w}}/r.txt",
+    "--template-size must be in [2, 256] px, got 5000",
+)
 case("track-tracker-unknown", "track {seq} --tracker magic --out {w}/r.txt", "'magic'")
 case("track-out-under-file", f"{T} --out {{afile}}/r.txt", "afile&&is a file, not a folder")
-case("track-out-is-folder", f"{T} --out {{w}}/r", "r: is a folder, not a file",
-     setup=lambda w, env: (w / "r").mkdir())
-case("track-out-sysfs", f"{T} --out /sys/crowdsim-battery.txt",
-     "/sys/crowdsim-battery.txt: permission denied")
-case("track-out-full-disk", f"{T} --out {{full}}/r.txt", "no space left on the device",
-     needs="full")
-case("track-video-under-file", f"{T} --out {{w}}/r.txt --video {{afile}}/o.mp4",
-     "afile&&is a file, not a folder")
-case("track-evaluate-video", "track {w}/v.mp4 --evaluate --out {w}/r.txt",
-     "--evaluate needs a sequence folder", files=(("v.mp4", b"\0" * 64),))
-case("track-video-garbage", "track {w}/v.mp4 --out {w}/r.txt --init {w}/i.csv",
-     "v.mp4: not a readable video file", files=(("v.mp4", b"\0" * 64), ("i.csv", "id,x,y\n")))
-case("track-init-missing", f"{T} --init {{w}}/none.csv --out {{w}}/r.txt",
-     "none.csv: no such points file")
-case("track-init-header", f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
-     "header must be 'frame,id,x,y' or 'id,x,y'", files=(("i.csv", "a,b,c\n1,2,3\n"),))
-case("track-init-text", f"{T} --init {{w}}/i.csv --out {{w}}/r.txt", "non-numeric value",
-     files=(("i.csv", "id,x,y\n1,a,3\n"),))
-case("track-init-nan", f"{T} --init {{w}}/i.csv --out {{w}}/r.txt", "non-finite value",
-     files=(("i.csv", "id,x,y\n1,nan,3\n"),))
-case("track-init-columns", f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
-     "expected 3 columns, got 4", files=(("i.csv", "id,x,y\n1,2,3,4\n"),))
-case("track-init-unknown-id", f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
-     "ids [77] are unknown", files=(("i.csv", "id,x,y\n77,2,3\n"),))
-case("track-init-id-2.5", f"{T} --init {{w}}/i.csv --out {{w}}/r.txt", "2.5",
-     files=(("i.csv", "id,x,y\n2.5,2,3\n"),))
-case("track-init-duplicate", f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
-     "id 1 is listed more than once", files=(("i.csv", "frame,id,x,y\n1,1,2,3\n1,1,4,5\n"),))
-case("track-init-frame-2.5", f"{T} --init {{w}}/i.csv --out {{w}}/r.txt", "2.5",
-     files=(("i.csv", "frame,id,x,y\n2.5,1,2,3\n"),))
+case(
+    "track-out-is-folder",
+    f"{T} --out {{w}}/r",
+    "r: is a folder, not a file",
+    setup=lambda w, env: (w / "r").mkdir(),
+)
+case(
+    "track-out-sysfs",
+    f"{T} --out /sys/crowdsim-battery.txt",
+    "/sys/crowdsim-battery.txt: permission denied",
+)
+case(
+    "track-out-full-disk", f"{T} --out {{full}}/r.txt", "no space left on the device", needs="full"
+)
+case(
+    "track-video-under-file",
+    f"{T} --out {{w}}/r.txt --video {{afile}}/o.mp4",
+    "afile&&is a file, not a folder",
+)
+case(
+    "track-evaluate-video",
+    "track {w}/v.mp4 --evaluate --out {w}/r.txt",
+    "--evaluate needs a sequence folder",
+    files=(("v.mp4", b"\0" * 64),),
+)
+case(
+    "track-video-garbage",
+    "track {w}/v.mp4 --out {w}/r.txt --init {w}/i.csv",
+    "v.mp4: not a readable video file",
+    files=(("v.mp4", b"\0" * 64), ("i.csv", "id,x,y\n")),
+)
+case(
+    "track-init-missing",
+    f"{T} --init {{w}}/none.csv --out {{w}}/r.txt",
+    "none.csv: no such points file",
+)
+case(
+    "track-init-header",
+    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
+    "header must be 'frame,id,x,y' or 'id,x,y'",
+    files=(("i.csv", "a,b,c\n1,2,3\n"),),
+)
+case(
+    "track-init-text",
+    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
+    "non-numeric value",
+    files=(("i.csv", "id,x,y\n1,a,3\n"),),
+)
+case(
+    "track-init-nan",
+    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
+    "non-finite value",
+    files=(("i.csv", "id,x,y\n1,nan,3\n"),),
+)
+case(
+    "track-init-columns",
+    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
+    "expected 3 columns, got 4",
+    files=(("i.csv", "id,x,y\n1,2,3,4\n"),),
+)
+case(
+    "track-init-unknown-id",
+    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
+    "ids [77] are unknown",
+    files=(("i.csv", "id,x,y\n77,2,3\n"),),
+)
+case(
+    "track-init-id-2.5",
+    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
+    "2.5",
+    files=(("i.csv", "id,x,y\n2.5,2,3\n"),),
+)
+case(
+    "track-init-duplicate",
+    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
+    "id 1 is listed more than once",
+    files=(("i.csv", "frame,id,x,y\n1,1,2,3\n1,1,4,5\n"),),
+)
+case(
+    "track-init-frame-2.5",
+    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
+    "2.5",
+    files=(("i.csv", "frame,id,x,y\n2.5,1,2,3\n"),),
+)
 
 # --- generate ---------------------------------------------------------------------------
 G = "generate --spec {w}/s.toml --out {w}/out --workers 1 --no-progress"
@@ -610,6 +951,7 @@ G = "generate --spec {w}/s.toml --out {w}/out --workers 1 --no-progress"
 def spec_case(id: str, edit: Callable[[str], str], needle: str, **kw) -> None:
     def setup(w: Path, env: Env) -> None:
         (w / "s.toml").write_text(edit(SPEC))
+
     case(id, G, needle, setup=setup, **kw)
 
 
@@ -617,13 +959,20 @@ def _sub(old: str, new: str) -> Callable[[str], str]:
     def edit(text: str) -> str:
         assert old in text, old
         return text.replace(old, new)
+
     return edit
 
 
-spec_case("gen-warmup-1e8", _sub("warmup_steps = 0", "warmup_steps = 100000000"),
-          "warmup_steps must be in [0, 100000], got 100000000")
-spec_case("gen-warmup-neg", _sub("warmup_steps = 0", "warmup_steps = -1"),
-          "warmup_steps must be in [0, 100000], got -1")
+spec_case(
+    "gen-warmup-1e8",
+    _sub("warmup_steps = 0", "warmup_steps = 100000000"),
+    "warmup_steps must be in [0, 100000], got 100000000",
+)
+spec_case(
+    "gen-warmup-neg",
+    _sub("warmup_steps = 0", "warmup_steps = -1"),
+    "warmup_steps must be in [0, 100000], got -1",
+)
 spec_case("gen-warmup-float", _sub("warmup_steps = 0", "warmup_steps = 2.5"), "2.5")
 spec_case("gen-frames-0", _sub("frames = 4", "frames = 0"), "frames must be in [1,")
 spec_case("gen-frames-float", _sub("frames = 4", "frames = 4.5"), "4.5")
@@ -634,45 +983,83 @@ spec_case("gen-name-slash", _sub('name = "tiny"', 'name = "../evil"'), "'../evil
 spec_case("gen-unknown-field", _sub("seed = 1", "seed = 1\nsede = 2"), "unknown field 'sede'")
 spec_case("gen-unknown-scenario", _sub('name = "marathon"', 'name = "nosuch"'), "nosuch")
 spec_case("gen-agents-0", _sub("n_agents = 6", "n_agents = 0"), "n_agents")
-spec_case("gen-template-5000", _sub("template_px = 8", "template_px = 5000"),
-          "appearance.template_px must be an integer in [4, 64], got 5000")
-spec_case("gen-max-width-huge", _sub("max_width = 96", "max_width = 100000"),
-          "camera.max_width must be in [8, 8192], got 100000")
-spec_case("gen-max-width-largest", _sub("max_width = 96", "max_width = 16384\nwidth = 16384\n"
-                                        "height = 16384"), "must be in [8, 8192], got 16384")
+spec_case(
+    "gen-template-5000",
+    _sub("template_px = 8", "template_px = 5000"),
+    "appearance.template_px must be an integer in [4, 64], got 5000",
+)
+spec_case(
+    "gen-max-width-huge",
+    _sub("max_width = 96", "max_width = 100000"),
+    "camera.max_width must be in [8, 8192], got 100000",
+)
+spec_case(
+    "gen-max-width-largest",
+    _sub("max_width = 96", "max_width = 16384\nwidth = 16384\nheight = 16384"),
+    "must be in [8, 8192], got 16384",
+)
 spec_case("gen-toml-broken", _sub("seed = 1", "seed = = 1"), "s.toml")
-spec_case("gen-ppm-1e9", _sub("[camera]", "[camera]\npx_per_m = 1e9"),
-          "camera.px_per_m must be in [0.001, 10000], got 1e+09")
+spec_case(
+    "gen-ppm-1e9",
+    _sub("[camera]", "[camera]\npx_per_m = 1e9"),
+    "camera.px_per_m must be in [0.001, 10000], got 1e+09",
+)
 case("gen-spec-missing", "generate --spec {w}/none.toml --out {w}/out", "none.toml")
-case("gen-frames-flag-0", "generate --spec {spec} --out {w}/out --frames 0",
-     "--frames must be >= 1, got 0")
-case("gen-workers-0", "generate --spec {spec} --out {w}/out --workers 0",
-     "--workers must be >= 1, got 0")
-case("gen-only-without-suite", "generate --spec {spec} --only seq1 --out {w}/out",
-     "--only needs --suite")
+case(
+    "gen-frames-flag-0",
+    "generate --spec {spec} --out {w}/out --frames 0",
+    "--frames must be >= 1, got 0",
+)
+case(
+    "gen-workers-0",
+    "generate --spec {spec} --out {w}/out --workers 0",
+    "--workers must be >= 1, got 0",
+)
+case(
+    "gen-only-without-suite",
+    "generate --spec {spec} --only seq1 --out {w}/out",
+    "--only needs --suite",
+)
 case("gen-only-unknown", "generate --suite ucf9 --only seq99 --out {w}/out", "seq99")
-case("gen-address-local", "generate --spec {spec} --address x:1 --out {w}/out",
-     "--address needs --backend ray")
-case("gen-out-is-file", "generate --spec {spec} --out {afile}",
-     "--out must be a folder, got the file")
-case("gen-out-under-file", "generate --spec {spec} --out {afile}/x",
-     "afile is a file, not a folder")
-case("gen-out-sysfs", "generate --spec {spec} --out /sys/crowdsim-battery",
-     "/sys/crowdsim-battery")
-case("gen-out-readonly", "generate --spec {spec} --out {ro}/out --no-progress",
-     "read-only file system", needs="ro")
-case("gen-out-full-disk", "generate --spec {spec} --out {full}/out --workers 1 --no-progress",
-     "no space left on the device", needs="full")
-case("gen-tmp-lookalike-kept", "generate --spec {spec} --out {w}/out --frames 0",
-     "--frames must be >= 1", files=(("out/.tmp-notes-2024/thesis.txt", "mine\n"),))
+case(
+    "gen-address-local",
+    "generate --spec {spec} --address x:1 --out {w}/out",
+    "--address needs --backend ray",
+)
+case(
+    "gen-out-is-file",
+    "generate --spec {spec} --out {afile}",
+    "--out must be a folder, got the file",
+)
+case(
+    "gen-out-under-file", "generate --spec {spec} --out {afile}/x", "afile is a file, not a folder"
+)
+case("gen-out-sysfs", "generate --spec {spec} --out /sys/crowdsim-battery", "/sys/crowdsim-battery")
+case(
+    "gen-out-readonly",
+    "generate --spec {spec} --out {ro}/out --no-progress",
+    "read-only file system",
+    needs="ro",
+)
+case(
+    "gen-out-full-disk",
+    "generate --spec {spec} --out {full}/out --workers 1 --no-progress",
+    "no space left on the device",
+    needs="full",
+)
+case(
+    "gen-tmp-lookalike-kept",
+    "generate --spec {spec} --out {w}/out --frames 0",
+    "--frames must be >= 1",
+    files=(("out/.tmp-notes-2024/thesis.txt", "mine\n"),),
+)
 
 # --- demo -------------------------------------------------------------------------------
 case("demo-out-is-file", "demo --out {afile}", "afile: is a file, not a folder")
 case("demo-out-under-file", "demo --out {afile}/demo", "afile is a file, not a folder")
 case("demo-out-sysfs", "demo --out /sys/crowdsim-battery", "/sys/crowdsim-battery")
 case("demo-out-readonly", "demo --out {ro}/demo", "read-only file system", needs="ro")
-case("demo-frames-0", "demo --out {w}/d --frames 0 --no-progress",
-     "--frames must be >= 2, got 0")
+case("demo-frames-0", "demo --out {w}/d --frames 0 --no-progress", "--frames must be >= 2, got 0")
 case("demo-frames-text", "demo --out {w}/d --frames few", "'few'")
 
 # --- global -----------------------------------------------------------------------------
@@ -763,8 +1150,7 @@ def env(tmp_path_factory):
 def _params():
     out = []
     for c in CASES:
-        marks = [pytest.mark.xfail(strict=True, reason=c.xfail, run=not c.slow)] \
-            if c.xfail else []
+        marks = [pytest.mark.xfail(strict=True, reason=c.xfail, run=not c.slow)] if c.xfail else []
         out.append(pytest.param(c, id=c.id, marks=marks))
     return out
 
@@ -796,8 +1182,15 @@ def test_battery_is_large_and_unique():
 def summary(root: Path, run_slow: bool = False) -> dict[str, int]:
     """Run every case and count the outcomes (for the closing note of issue 10)."""
     env = build_env(root)
-    counts = {"tried": 0, "clear": 0, "traceback": 0, "silent": 0, "data loss": 0,
-              "unclear": 0, "skipped": 0}
+    counts = {
+        "tried": 0,
+        "clear": 0,
+        "traceback": 0,
+        "silent": 0,
+        "data loss": 0,
+        "unclear": 0,
+        "skipped": 0,
+    }
     try:
         for c in CASES:
             if (c.needs and getattr(env, c.needs) is None) or (c.slow and not run_slow):

@@ -16,8 +16,9 @@ from tracker.testing import make_scene
 
 @pytest.fixture
 def scene():
-    return make_scene([[20, 20], [90, 20], [100, 75], [25, 75]],
-                      [[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=10)
+    return make_scene(
+        [[20, 20], [90, 20], [100, 75], [25, 75]], [[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=10
+    )
 
 
 @pytest.fixture
@@ -28,8 +29,16 @@ def seq(tmp_path, scene):
     for i, f in enumerate(scene.frames, start=1):
         cv2.imwrite(str(d / "img1" / f"{i:06d}.png"), f)
     h, w = scene.frames[0].shape[:2]
-    write_seqinfo(d, name="tiny", frame_rate=25, length=len(scene.frames), width=w, height=h,
-                  template_size=scene.template_size, im_ext=".png")
+    write_seqinfo(
+        d,
+        name="tiny",
+        frame_rate=25,
+        length=len(scene.frames),
+        width=w,
+        height=h,
+        template_size=scene.template_size,
+        im_ext=".png",
+    )
     rows = tracks_to_mot_rows(scene.ids, scene.points, scene.template_size)
     rows[:, 7] = 1  # class: pedestrian
     rows[:, 8] = 1  # visibility
@@ -47,8 +56,23 @@ def _error_line(capsys, command):
 def test_track_then_evaluate(tmp_path, seq, capsys, tracker):
     out = tmp_path / f"{tracker}.txt"
     video = tmp_path / "overlay.mp4"
-    assert main(["track", str(seq), "--tracker", tracker, "--out", str(out), "--video",
-                 str(video), "--evaluate", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "track",
+                str(seq),
+                "--tracker",
+                tracker,
+                "--out",
+                str(out),
+                "--video",
+                str(video),
+                "--evaluate",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     captured = capsys.readouterr()
     assert "acc@15" in captured.out and "frames/s" in captured.err
     assert out.is_file() and video.stat().st_size > 0
@@ -71,11 +95,31 @@ def test_track_video_with_points_csv(tmp_path, scene, capsys):
         vw.write(f)
     vw.release()
     pts = tmp_path / "init.csv"
-    pts.write_text("frame,id,x,y\n" + "".join(
-        f"1,{i},{x:g},{y:g}\n" for i, (x, y) in zip(scene.ids, scene.points[0], strict=True)))
+    pts.write_text(
+        "frame,id,x,y\n"
+        + "".join(
+            f"1,{i},{x:g},{y:g}\n" for i, (x, y) in zip(scene.ids, scene.points[0], strict=True)
+        )
+    )
     out = tmp_path / "res.txt"
-    assert main(["track", str(video), "--tracker", "ncc", "--init", str(pts), "--out",
-                 str(out), "--template-size", "8", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "track",
+                str(video),
+                "--tracker",
+                "ncc",
+                "--init",
+                str(pts),
+                "--out",
+                str(out),
+                "--template-size",
+                "8",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     rows = np.loadtxt(out, delimiter=",")
     assert rows.shape[1] == 10 and set(rows[:, 1].astype(int)) == set(scene.ids.tolist())
     capsys.readouterr()
@@ -97,8 +141,7 @@ def test_track_bad_inputs(tmp_path, seq, capsys):
     (tmp_path / "video.mp4").write_bytes(b"not a video")
     pts = tmp_path / "p.csv"
     pts.write_text("id,x,y\n1,5,5\n")
-    assert main(["track", str(tmp_path / "video.mp4"), "--init", str(pts), "--out",
-                 str(out)]) == 2
+    assert main(["track", str(tmp_path / "video.mp4"), "--init", str(pts), "--out", str(out)]) == 2
     assert "video" in _error_line(capsys, "track")
 
 
@@ -137,8 +180,7 @@ def test_demo_writes_table_curve_and_overlay(tmp_path, capsys):
     for name in ("accuracy_curve.png", "overlay_bqp.mp4", "results_bqp.txt", "results_ncc.txt"):
         assert (out / name).stat().st_size > 0
     summary = json.loads((out / "summary.json").read_text())
-    assert set(summary["results"]) == {"BQP", "BQP-NCC", "PNMC", "NCC", "mean-shift",
-                                       "ByteTrack"}
+    assert set(summary["results"]) == {"BQP", "BQP-NCC", "PNMC", "NCC", "mean-shift", "ByteTrack"}
     # nothing re-entered the CLI: one simulate table, one generation, one tracking table
     assert text.count("scenario  ") == 1 and text.count("method") == 1
     assert summary["results"]["BQP"]["acc@15"] >= 90.0

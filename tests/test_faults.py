@@ -28,8 +28,9 @@ def _walk_csv(path: Path, frames: int, people: int = 12) -> Path:
     i = np.arange(people)[None, :]
     x = (1.0 + 0.05 * t + 0.8 * i).ravel()
     y = (1.0 + 0.5 * (i % 4) + 0 * t).ravel()
-    rows = np.column_stack([np.repeat(np.arange(frames), people), np.tile(np.arange(people),
-                                                                          frames), x, y])
+    rows = np.column_stack(
+        [np.repeat(np.arange(frames), people), np.tile(np.arange(people), frames), x, y]
+    )
     with open(path, "w") as fh:
         fh.write("frame,id,x,y\n")
         np.savetxt(fh, rows, fmt=["%d", "%d", "%.3f", "%.3f"], delimiter=",")
@@ -38,14 +39,32 @@ def _walk_csv(path: Path, frames: int, people: int = 12) -> Path:
 
 def _start_render(csv: Path, out: Path) -> subprocess.Popen:
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    return subprocess.Popen([sys.executable, "-m", "crowdsim.cli", "render", "--trajectories",
-                             str(csv), "--fps", "25", "--size", "640x480", "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            cwd=REPO)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "crowdsim.cli",
+            "render",
+            "--trajectories",
+            str(csv),
+            "--fps",
+            "25",
+            "--size",
+            "640x480",
+            "--out",
+            str(out),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=REPO,
+    )
 
 
-def _wait_for_frames(parent: Path, proc: subprocess.Popen, n: int = 3,
-                     timeout: float = 120.0) -> Path:
+def _wait_for_frames(
+    parent: Path, proc: subprocess.Popen, n: int = 3, timeout: float = 120.0
+) -> Path:
     """The render's temporary folder once it holds ``n`` frames (the render is mid-way)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -59,8 +78,9 @@ def _wait_for_frames(parent: Path, proc: subprocess.Popen, n: int = 3,
     pytest.fail("render did not start writing frames in time")
 
 
-@pytest.mark.parametrize("sig, code, word", [(signal.SIGINT, 130, "interrupted"),
-                                             (signal.SIGTERM, 143, "terminated")])
+@pytest.mark.parametrize(
+    "sig, code, word", [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")]
+)
 def test_render_signal_removes_its_tmp_folder(tmp_path, sig, code, word):
     csv = _walk_csv(tmp_path / "walk.csv", frames=2000)
     out = tmp_path / "seq"
@@ -72,8 +92,7 @@ def test_render_signal_removes_its_tmp_folder(tmp_path, sig, code, word):
     assert time.monotonic() - t0 < 10, "the render did not stop promptly"
     assert proc.returncode == code, err
     lines = [ln for ln in err.strip().splitlines() if ln.strip()]
-    assert lines[-1] == f"crowdsim render: {word}; removed the unfinished temporary folder " \
-        f"of {out}"
+    assert lines[-1] == f"crowdsim render: {word}; removed the unfinished temporary folder of {out}"
     assert "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.csv"]
 
@@ -105,8 +124,11 @@ def tiny_disk(tmp_path):
     mnt.mkdir()
     if not sys.platform.startswith("linux") or os.geteuid() != 0:
         pytest.skip("mounting a tmpfs needs root on Linux")
-    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(mnt)],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(mnt)],
+        capture_output=True,
+        text=True,
+    )
     if proc.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.strip()}")
     yield mnt
@@ -122,8 +144,19 @@ def test_full_disk_simulate_and_render(tiny_disk, tmp_path, capsys):
     keep.write_text("earlier results\n")
     # simulate: 300 agents x 101 steps of float64 positions cannot fit in 256 KiB.
     out = tiny_disk / "crowd.npz"
-    rc = main(["simulate", "marathon", "--agents", "300", "--steps", "100", "--no-progress",
-               "--out", str(out)])
+    rc = main(
+        [
+            "simulate",
+            "marathon",
+            "--agents",
+            "300",
+            "--steps",
+            "100",
+            "--no-progress",
+            "--out",
+            str(out),
+        ]
+    )
     err = capsys.readouterr().err
     assert rc == 2
     assert err.strip() == f"crowdsim simulate: error: {out}: no space left on the device"
@@ -131,8 +164,19 @@ def test_full_disk_simulate_and_render(tiny_disk, tmp_path, capsys):
     # render: 40 frames of 320x240 JPEG noise do not fit either.
     csv = _walk_csv(tmp_path / "walk.csv", frames=40)
     seq = tiny_disk / "seq"
-    rc = main(["render", "--trajectories", str(csv), "--fps", "25", "--size", "320x240",
-               "--out", str(seq)])
+    rc = main(
+        [
+            "render",
+            "--trajectories",
+            str(csv),
+            "--fps",
+            "25",
+            "--size",
+            "320x240",
+            "--out",
+            str(seq),
+        ]
+    )
     err = capsys.readouterr().err
     assert rc == 2
     assert err.strip() == f"crowdsim render: error: {seq}: no space left on the device"

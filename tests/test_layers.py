@@ -24,10 +24,22 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("crowdsim", "tracker", "synth_data", "envs")
-SHARED_BASE = {"crowdsim", "crowdsim.atomic", "crowdsim.checks", "crowdsim.plotting",
-               "crowdsim.progress"}
-SIMULATOR = {"crowdsim.world", "crowdsim.params", "crowdsim.forces", "crowdsim.scenarios",
-             "crowdsim.simulation", "crowdsim.trajectories", "crowdsim.validation"}
+SHARED_BASE = {
+    "crowdsim",
+    "crowdsim.atomic",
+    "crowdsim.checks",
+    "crowdsim.plotting",
+    "crowdsim.progress",
+}
+SIMULATOR = {
+    "crowdsim.world",
+    "crowdsim.params",
+    "crowdsim.forces",
+    "crowdsim.scenarios",
+    "crowdsim.simulation",
+    "crowdsim.trajectories",
+    "crowdsim.validation",
+}
 RENDERER = {"crowdsim.camera", "crowdsim.appearance_model", "crowdsim.render"}
 APPLICATION = ("crowdsim.cli", "crowdsim.commands", "crowdsim.bench", "crowdsim.__main__")
 
@@ -42,7 +54,8 @@ def _module_name(path: Path, root: Path = ROOT) -> str:
 def _is_type_checking(node: ast.If) -> bool:
     t = node.test
     return (isinstance(t, ast.Name) and t.id == "TYPE_CHECKING") or (
-        isinstance(t, ast.Attribute) and t.attr == "TYPE_CHECKING")
+        isinstance(t, ast.Attribute) and t.attr == "TYPE_CHECKING"
+    )
 
 
 def imports_of(path: Path, root: Path = ROOT) -> list[tuple[int, str]]:
@@ -64,7 +77,7 @@ def imports_of(path: Path, root: Path = ROOT) -> list[tuple[int, str]]:
             elif isinstance(child, ast.ImportFrom):
                 base = child.module or ""
                 if child.level:
-                    pkg = here[:len(here) - child.level + 1]
+                    pkg = here[: len(here) - child.level + 1]
                     base = ".".join(pkg + ([base] if base else []))
                 out.append((child.lineno, base))
                 out.extend((child.lineno, f"{base}.{a.name}") for a in child.names)
@@ -123,8 +136,8 @@ def test_checker_sees_each_rule(tmp_path):
     # the walker reports what it is meant to, in a fake tree (never in the real source)
     probes = {
         "tracker/probe.py": "from typing import TYPE_CHECKING\nimport crowdsim.render\n"
-                            "from crowdsim.checks import require_number\n"
-                            "if TYPE_CHECKING:\n    import synth_data.mot\n",
+        "from crowdsim.checks import require_number\n"
+        "if TYPE_CHECKING:\n    import synth_data.mot\n",
         "crowdsim/simulation.py": "from crowdsim.render import SceneRenderer\n",
         "synth_data/probe.py": "from tracker.metrics import evaluate\n",
         "envs/probe.py": "from crowdsim.bench import main\n",
@@ -149,23 +162,40 @@ THIRD_PARTY = "gymnasium, pettingzoo, cv2, numba, pymunk, scipy.sparse, matplotl
 pettingzoo: PYGAME_HIDE_SUPPORT_PROMPT; OpenCV's wheel: QT_QPA_* and LD_LIBRARY_PATH)."""
 
 
-@pytest.mark.parametrize("module", ["envs", "tracker", "crowdsim", "synth_data", "crowdsim.render",
-                                    "crowdsim.simulation", "tracker.bqp.tracker",
-                                    "synth_data.generate", "envs.crowd", "tracker.metrics",
-                                    "crowdsim.plotting", "crowdsim.experiments"])
+@pytest.mark.parametrize(
+    "module",
+    [
+        "envs",
+        "tracker",
+        "crowdsim",
+        "synth_data",
+        "crowdsim.render",
+        "crowdsim.simulation",
+        "tracker.bqp.tracker",
+        "synth_data.generate",
+        "envs.crowd",
+        "tracker.metrics",
+        "crowdsim.plotting",
+        "crowdsim.experiments",
+    ],
+)
 def test_import_sets_no_process_state(module):
-    code = (f"import os, sys, {THIRD_PARTY}; import matplotlib as mpl; "
-            "backend = mpl.rcParams._get_backend_or_none(); "
-            f"before = dict(os.environ); import {module}; "
-            "assert dict(os.environ) == before, set(os.environ.items()) ^ set(before.items()); "
-            "assert 'matplotlib.pyplot' not in sys.modules; "
-            "assert mpl.rcParams._get_backend_or_none() == backend")
+    code = (
+        f"import os, sys, {THIRD_PARTY}; import matplotlib as mpl; "
+        "backend = mpl.rcParams._get_backend_or_none(); "
+        f"before = dict(os.environ); import {module}; "
+        "assert dict(os.environ) == before, set(os.environ.items()) ^ set(before.items()); "
+        "assert 'matplotlib.pyplot' not in sys.modules; "
+        "assert mpl.rcParams._get_backend_or_none() == backend"
+    )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
 
 
 def test_importing_envs_registers_and_imports_nothing_heavy():
-    code = ("import sys, gymnasium, envs; "
-            "assert 'crowdsim/TrackerTuning-v0' in gymnasium.registry; "
-            "heavy = {'torch', 'ray', 'optuna', 'stable_baselines3', 'pymunk', 'cv2', "
-            "'tracker', 'synth_data'} & set(sys.modules); assert not heavy, heavy")
+    code = (
+        "import sys, gymnasium, envs; "
+        "assert 'crowdsim/TrackerTuning-v0' in gymnasium.registry; "
+        "heavy = {'torch', 'ray', 'optuna', 'stable_baselines3', 'pymunk', 'cv2', "
+        "'tracker', 'synth_data'} & set(sys.modules); assert not heavy, heavy"
+    )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)

@@ -31,7 +31,8 @@ def _check_frame(frame: np.ndarray) -> np.ndarray:
     frame = np.asarray(frame)
     if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
         raise ValueError(
-            f"frame must be an (H, W, 3) uint8 BGR image, got {frame.shape} {frame.dtype}")
+            f"frame must be an (H, W, 3) uint8 BGR image, got {frame.shape} {frame.dtype}"
+        )
     return frame
 
 
@@ -143,10 +144,19 @@ class KCFAppearance(AppearanceModel):
     ``alphaf (n, W, W//2+1)`` complex64 dual coefficients.
     """
 
-    def __init__(self, template_size: int, radius: int, update_threshold: float = 0.6,
-                 lam: float = 1e-4, learning_rate: float = 0.05, label_sigma: float = 0.1,
-                 kernel: str = "linear", kernel_sigma: float = 0.2, target_window: float = 0.0,
-                 workers: int = 1):
+    def __init__(
+        self,
+        template_size: int,
+        radius: int,
+        update_threshold: float = 0.6,
+        lam: float = 1e-4,
+        learning_rate: float = 0.05,
+        label_sigma: float = 0.1,
+        kernel: str = "linear",
+        kernel_sigma: float = 0.2,
+        target_window: float = 0.0,
+        workers: int = 1,
+    ):
         super().__init__(template_size, radius, update_threshold)
         if not lam > 0:
             raise ValueError(f"lam must be > 0, got {lam!r}")
@@ -170,7 +180,7 @@ class KCFAppearance(AppearanceModel):
             tw = min(w, max(3, int(round(target_window * self.template_size))))
             inner = np.zeros((w, w), np.float32)
             o = (w - tw) // 2
-            inner[o:o + tw, o:o + tw] = hann2d(tw)
+            inner[o : o + tw, o : o + tw] = hann2d(tw)
             self._train_window = inner * np.float32(1.0 / 255.0)
         sigma = max(0.5, label_sigma * self.template_size)
         self._yf = scipy.fft.rfft2(gaussian_label(w, sigma)).astype(np.complex64)
@@ -188,8 +198,7 @@ class KCFAppearance(AppearanceModel):
     def n(self) -> int:
         return self.xf.shape[0]
 
-    def _features(self, frame: np.ndarray, centers: np.ndarray,
-                  train: bool = False) -> np.ndarray:
+    def _features(self, frame: np.ndarray, centers: np.ndarray, train: bool = False) -> np.ndarray:
         """``(n, C, W, W//2+1)`` spectra of the windows centred at ``centers``.
 
         Training windows use the narrower target window (see ``target_window``).
@@ -206,8 +215,8 @@ class KCFAppearance(AppearanceModel):
 
     def _energy(self, xf: np.ndarray) -> np.ndarray:
         """``(n,)`` squared norm of the windows from their half spectra (Parseval)."""
-        p = _channel_sum(xf.real ** 2 + xf.imag ** 2)
-        return (p * self._colw).sum(axis=(1, 2)) / np.float32(self.window ** 2)
+        p = _channel_sum(xf.real**2 + xf.imag**2)
+        return (p * self._colw).sum(axis=(1, 2)) / np.float32(self.window**2)
 
     def _kernel_f(self, xf: np.ndarray, zf: np.ndarray) -> np.ndarray:
         """Spectrum ``k_hat^{xz}`` of the kernel correlation over all cyclic shifts."""
@@ -217,8 +226,8 @@ class KCFAppearance(AppearanceModel):
         if self.kernel == "linear":
             return (cross / numel).astype(np.complex64)
         xz = scipy.fft.irfft2(cross, s=(w, w), axes=(-2, -1), workers=self.workers)
-        d = (self._energy(xf)[:, None, None] + self._energy(zf)[:, None, None] - 2.0 * xz)
-        k = np.exp(-np.maximum(d, 0.0) / (numel * np.float32(self.kernel_sigma ** 2)))
+        d = self._energy(xf)[:, None, None] + self._energy(zf)[:, None, None] - 2.0 * xz
+        k = np.exp(-np.maximum(d, 0.0) / (numel * np.float32(self.kernel_sigma**2)))
         return scipy.fft.rfft2(k.astype(np.float32), axes=(-2, -1), workers=self.workers)
 
     def _train(self, xf: np.ndarray) -> np.ndarray:
@@ -248,10 +257,11 @@ class KCFAppearance(AppearanceModel):
             return np.zeros((0, k, k), np.float32)
         zf = self._features(frame, centers)
         w = self.window
-        resp = scipy.fft.irfft2(self.alphaf * self._kernel_f(self.xf, zf), s=(w, w),
-                                axes=(-2, -1), workers=self.workers)
+        resp = scipy.fft.irfft2(
+            self.alphaf * self._kernel_f(self.xf, zf), s=(w, w), axes=(-2, -1), workers=self.workers
+        )
         c, r = w // 2, self.radius
-        return np.ascontiguousarray(resp[:, c - r:c + r + 1, c - r:c + r + 1], dtype=np.float32)
+        return np.ascontiguousarray(resp[:, c - r : c + r + 1, c - r : c + r + 1], dtype=np.float32)
 
     def update(self, frame: np.ndarray, centers: np.ndarray, confidence: np.ndarray) -> None:
         frame = _check_frame(frame)
@@ -276,8 +286,9 @@ class NCCAppearance(AppearanceModel):
     call is a few microseconds on these small windows.
     """
 
-    def __init__(self, template_size: int, radius: int, update_threshold: float = 0.6,
-                 update_every: int = 10):
+    def __init__(
+        self, template_size: int, radius: int, update_threshold: float = 0.6, update_every: int = 10
+    ):
         super().__init__(template_size, radius, update_threshold)
         if update_every < 1:
             raise ValueError(f"update_every must be >= 1, got {update_every!r}")
@@ -320,8 +331,9 @@ class NCCAppearance(AppearanceModel):
         s, r = self.template_size, self.radius
         windows = extract_patches(frame, centers - r - s // 2, self.window).transpose(0, 2, 3, 1)
         for i in range(self.n):
-            out[i] = cv2.matchTemplate(np.ascontiguousarray(windows[i]), self.templates[i],
-                                       cv2.TM_CCOEFF_NORMED)
+            out[i] = cv2.matchTemplate(
+                np.ascontiguousarray(windows[i]), self.templates[i], cv2.TM_CCOEFF_NORMED
+            )
         # flat windows/templates give NaN or inf in OpenCV: no information, score 0
         np.nan_to_num(out, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
         np.clip(out, -1.0, 1.0, out=out)
@@ -333,24 +345,42 @@ class NCCAppearance(AppearanceModel):
         if len(confidence) != self.n:
             raise ValueError(f"got {len(confidence)} confidences for {self.n} targets")
         self.age += 1
-        sel = np.flatnonzero((self.age >= self.update_every)
-                             & (confidence >= self.update_threshold))
+        sel = np.flatnonzero(
+            (self.age >= self.update_every) & (confidence >= self.update_threshold)
+        )
         if len(sel) == 0:
             return
         self.templates[sel] = self._templates(frame, np.asarray(centers).reshape(-1, 2)[sel])
         self.age[sel] = 0
 
 
-def make_appearance(kind: str, template_size: int, radius: int, *, update_threshold: float,
-                    lam: float = 1e-4, learning_rate: float = 0.05, label_sigma: float = 0.1,
-                    kernel: str = "linear", kernel_sigma: float = 0.2,
-                    target_window: float = 0.0, update_every: int = 10) -> AppearanceModel:
+def make_appearance(
+    kind: str,
+    template_size: int,
+    radius: int,
+    *,
+    update_threshold: float,
+    lam: float = 1e-4,
+    learning_rate: float = 0.05,
+    label_sigma: float = 0.1,
+    kernel: str = "linear",
+    kernel_sigma: float = 0.2,
+    target_window: float = 0.0,
+    update_every: int = 10,
+) -> AppearanceModel:
     """Build the appearance model named ``kind`` (``"kcf"`` or ``"ncc"``)."""
     if kind == "kcf":
-        return KCFAppearance(template_size, radius, update_threshold, lam=lam,
-                             learning_rate=learning_rate, label_sigma=label_sigma,
-                             kernel=kernel, kernel_sigma=kernel_sigma,
-                             target_window=target_window)
+        return KCFAppearance(
+            template_size,
+            radius,
+            update_threshold,
+            lam=lam,
+            learning_rate=learning_rate,
+            label_sigma=label_sigma,
+            kernel=kernel,
+            kernel_sigma=kernel_sigma,
+            target_window=target_window,
+        )
     if kind == "ncc":
         return NCCAppearance(template_size, radius, update_threshold, update_every=update_every)
     raise ValueError(f"unknown appearance model {kind!r}; expected 'kcf' or 'ncc'")

@@ -75,12 +75,12 @@ def as_points(ids, points, what: str = "targets") -> tuple[np.ndarray, np.ndarra
     if ids.size == 0:
         return np.zeros(0, np.int64), np.zeros((0, 2))
     if ids.ndim != 1 or not np.issubdtype(ids.dtype, np.integer):
-        if ids.ndim == 1 and np.issubdtype(ids.dtype, np.floating) and \
-                np.all(ids == np.round(ids)):
+        if ids.ndim == 1 and np.issubdtype(ids.dtype, np.floating) and np.all(ids == np.round(ids)):
             ids = ids.astype(np.int64)
         else:
-            raise ValueError(f"{what}: ids must be a 1-D integer array, got {ids.dtype} "
-                             f"{ids.shape}")
+            raise ValueError(
+                f"{what}: ids must be a 1-D integer array, got {ids.dtype} {ids.shape}"
+            )
     if points.shape != (len(ids), 2):
         raise ValueError(f"{what}: points must have shape ({len(ids)}, 2), got {points.shape}")
     if not np.isfinite(points).all():
@@ -147,8 +147,9 @@ class Tracker(ABC):
         self._init(frame)
         self._add_targets(frame, ids, points)
 
-    def step(self, frame: np.ndarray, births: Births | None = None) -> tuple[np.ndarray,
-                                                                            np.ndarray]:
+    def step(
+        self, frame: np.ndarray, births: Births | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Track the active targets into ``frame``, then add ``births``.
 
         Returns
@@ -170,9 +171,16 @@ class Tracker(ABC):
         self._tick("total", t0)
         return self.ids.copy(), self.points.copy()
 
-    def track(self, frames: Iterable[np.ndarray], ids, points, template_size: int,
-              births: Mapping[int, Births] | None = None, n_frames: int | None = None,
-              progress: bool = False) -> TrackResult:
+    def track(
+        self,
+        frames: Iterable[np.ndarray],
+        ids,
+        points,
+        template_size: int,
+        births: Mapping[int, Births] | None = None,
+        n_frames: int | None = None,
+        progress: bool = False,
+    ) -> TrackResult:
         """Track a whole sequence.
 
         Parameters
@@ -240,18 +248,22 @@ class Tracker(ABC):
         if cls is None:
             raise ValueError(f"tracker {self.name!r} has no parameters to set")
         if not isinstance(params, cls):
-            raise ValueError(f"tracker {self.name!r} takes {cls.__name__}, got "
-                             f"{type(params).__name__}")
+            raise ValueError(
+                f"tracker {self.name!r} takes {cls.__name__}, got {type(params).__name__}"
+            )
         old = self.params
-        changed = [f.name for f in fields(params)
-                   if getattr(params, f.name) != getattr(old, f.name)]
+        changed = [
+            f.name for f in fields(params) if getattr(params, f.name) != getattr(old, f.name)
+        ]
         if self.frame_shape is None or not changed:
             self.params = params
             return
         fixed = [n for n in changed if n in self.fixed_params]
         if fixed:
-            raise ValueError(f"tracker {self.name!r}: {', '.join(fixed)} cannot change in the "
-                             "middle of a sequence (set it before init())")
+            raise ValueError(
+                f"tracker {self.name!r}: {', '.join(fixed)} cannot change in the "
+                "middle of a sequence (set it before init())"
+            )
         self.params = params
         self._apply_params(old, frozenset(changed))
 
@@ -292,14 +304,17 @@ class Tracker(ABC):
     def _check_frame(self, frame: np.ndarray, first: bool = False) -> np.ndarray:
         frame = np.asarray(frame)
         if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
-            raise ValueError(f"frames must be (H, W, 3) uint8 BGR images, got {frame.shape} "
-                             f"{frame.dtype}")
+            raise ValueError(
+                f"frames must be (H, W, 3) uint8 BGR images, got {frame.shape} {frame.dtype}"
+            )
         if first:
             self.frame_shape = frame.shape
         elif frame.shape != self.frame_shape:
-            raise ValueError(f"frame {self.frame_index + 1} has size {frame.shape[1]}x"
-                             f"{frame.shape[0]}, expected {self.frame_shape[1]}x"
-                             f"{self.frame_shape[0]} (mismatched frame sizes)")
+            raise ValueError(
+                f"frame {self.frame_index + 1} has size {frame.shape[1]}x"
+                f"{frame.shape[0]}, expected {self.frame_shape[1]}x"
+                f"{self.frame_shape[0]} (mismatched frame sizes)"
+            )
         return frame
 
     def _add_targets(self, frame: np.ndarray, ids: np.ndarray, points: np.ndarray) -> None:
@@ -307,15 +322,22 @@ class Tracker(ABC):
             return
         again = [int(i) for i in ids if int(i) in self._seen]
         if again:
-            raise ValueError(f"target ids {again[:5]} were already used in this sequence "
-                             "(ids are never reused)")
+            raise ValueError(
+                f"target ids {again[:5]} were already used in this sequence (ids are never reused)"
+            )
         h, w = self.frame_shape[:2]
-        inside = (points[:, 0] >= 0) & (points[:, 0] <= w - 1) & (points[:, 1] >= 0) & \
-            (points[:, 1] <= h - 1)
+        inside = (
+            (points[:, 0] >= 0)
+            & (points[:, 0] <= w - 1)
+            & (points[:, 1] >= 0)
+            & (points[:, 1] <= h - 1)
+        )
         if not inside.all():
             bad = np.flatnonzero(~inside)[0]
-            raise ValueError(f"target id {int(ids[bad])} starts outside the {w}x{h} image at "
-                             f"({points[bad, 0]:.1f}, {points[bad, 1]:.1f})")
+            raise ValueError(
+                f"target id {int(ids[bad])} starts outside the {w}x{h} image at "
+                f"({points[bad, 0]:.1f}, {points[bad, 1]:.1f})"
+            )
         self._seen.update(int(i) for i in ids)
         self._add(frame, points)
         self.ids = np.concatenate([self.ids, ids])

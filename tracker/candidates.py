@@ -63,8 +63,12 @@ class Candidates:
 
     @classmethod
     def empty(cls, k: int = 1) -> Candidates:
-        return cls(np.zeros((0, k, 2)), np.zeros((0, k)), np.zeros((0, k), np.float32),
-                   np.zeros((0, k), np.int64))
+        return cls(
+            np.zeros((0, k, 2)),
+            np.zeros((0, k)),
+            np.zeros((0, k), np.float32),
+            np.zeros((0, k), np.int64),
+        )
 
 
 def grid_offsets(radius: int) -> np.ndarray:
@@ -86,8 +90,9 @@ def grid_positions(centers: np.ndarray, radius: int) -> np.ndarray:
     return centers[:, None, None, :] + off[None]
 
 
-def _gather(centers: np.ndarray, radius: int, cost_map: np.ndarray, app_map: np.ndarray,
-            cell: np.ndarray) -> Candidates:
+def _gather(
+    centers: np.ndarray, radius: int, cost_map: np.ndarray, app_map: np.ndarray, cell: np.ndarray
+) -> Candidates:
     n = cost_map.shape[0]
     side = 2 * radius + 1
     flat_cost = cost_map.reshape(n, -1)
@@ -96,12 +101,17 @@ def _gather(centers: np.ndarray, radius: int, cost_map: np.ndarray, app_map: np.
     pos = np.asarray(centers, np.float64).reshape(-1, 2)[:, None, :] + off[cell]
     rows = np.arange(n)[:, None]
     assert cell.max(initial=0) < side * side
-    return Candidates(pos, flat_cost[rows, cell].astype(np.float64),
-                      flat_app[rows, cell].astype(np.float32), cell.astype(np.int64))
+    return Candidates(
+        pos,
+        flat_cost[rows, cell].astype(np.float64),
+        flat_app[rows, cell].astype(np.float32),
+        cell.astype(np.int64),
+    )
 
 
-def dense_candidates(centers: np.ndarray, radius: int, cost_map: np.ndarray,
-                     app_map: np.ndarray, stride: int = 1) -> Candidates:
+def dense_candidates(
+    centers: np.ndarray, radius: int, cost_map: np.ndarray, app_map: np.ndarray, stride: int = 1
+) -> Candidates:
     """Every ``stride``-th cell of the search grid (always including the centre).
 
     Parameters
@@ -119,8 +129,7 @@ def dense_candidates(centers: np.ndarray, radius: int, cost_map: np.ndarray,
         raise ValueError(f"stride must be >= 1, got {stride!r}")
     n = cost_map.shape[0]
     side = 2 * radius + 1
-    d = np.concatenate([-np.arange(0, radius + 1, stride)[:0:-1], np.arange(0, radius + 1,
-                                                                            stride)])
+    d = np.concatenate([-np.arange(0, radius + 1, stride)[:0:-1], np.arange(0, radius + 1, stride)])
     iy, ix = np.meshgrid(d + radius, d + radius, indexing="ij")
     cell = np.broadcast_to((iy * side + ix).ravel(), (n, iy.size))
     if n == 0:
@@ -128,9 +137,16 @@ def dense_candidates(centers: np.ndarray, radius: int, cost_map: np.ndarray,
     return _gather(centers, radius, cost_map, app_map, np.ascontiguousarray(cell))
 
 
-def speedup_candidates(centers: np.ndarray, radius: int, cost_map: np.ndarray,
-                       app_map: np.ndarray, rng: np.random.Generator, n_extrema: int = 3,
-                       n_samples: int = 10, window: int = 6) -> Candidates:
+def speedup_candidates(
+    centers: np.ndarray,
+    radius: int,
+    cost_map: np.ndarray,
+    app_map: np.ndarray,
+    rng: np.random.Generator,
+    n_extrema: int = 3,
+    n_samples: int = 10,
+    window: int = 6,
+) -> Candidates:
     """Speed-up sampling of Sec. 6: ``m`` extrema plus ``n_samples`` neighbours of each.
 
     The extrema are the ``m`` lowest local minima of the linear cost map (3x3 neighbourhood);
@@ -152,8 +168,11 @@ def speedup_candidates(centers: np.ndarray, radius: int, cost_map: np.ndarray,
     is_min = cost_map == minimum_filter(cost_map, size=(1, 3, 3), mode="nearest")
     big = (np.abs(flat).max() + 1.0) * 4.0
     key = flat + np.where(is_min.reshape(n, -1), 0.0, big)
-    ext = np.argpartition(key, m - 1, axis=1)[:, :m] if m < key.shape[1] else \
-        np.tile(np.arange(key.shape[1]), (n, 1))
+    ext = (
+        np.argpartition(key, m - 1, axis=1)[:, :m]
+        if m < key.shape[1]
+        else np.tile(np.arange(key.shape[1]), (n, 1))
+    )
     ext = np.take_along_axis(ext, np.argsort(np.take_along_axis(key, ext, 1), 1), 1)
     ey, ex = np.divmod(ext, side)  # (n, m)
     lo = window // 2

@@ -14,8 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def tracks_to_mot_rows(ids: np.ndarray, positions: np.ndarray,
-                       template_size: int) -> np.ndarray:
+def tracks_to_mot_rows(ids: np.ndarray, positions: np.ndarray, template_size: int) -> np.ndarray:
     """``(K, 10)`` MOT result rows for the finite points of ``positions`` ``(T, N, 2)``.
 
     >>> tracks_to_mot_rows(np.array([7]), np.array([[[10.0, 20.0]]]), 8).tolist()
@@ -37,8 +36,9 @@ def tracks_to_mot_rows(ids: np.ndarray, positions: np.ndarray,
     return rows
 
 
-def mot_rows_to_tracks(rows: np.ndarray, length: int | None = None,
-                       source: str = "results") -> tuple[np.ndarray, np.ndarray]:
+def mot_rows_to_tracks(
+    rows: np.ndarray, length: int | None = None, source: str = "results"
+) -> tuple[np.ndarray, np.ndarray]:
     """Box centres of MOT rows as ``(ids (N,), positions (T, N, 2))``, NaN where absent.
 
     ``T = length`` when given (rows beyond it are an error), else the last frame.
@@ -52,8 +52,7 @@ def mot_rows_to_tracks(rows: np.ndarray, length: int | None = None,
     bad = (raw_ids != np.round(raw_ids)) | (np.abs(raw_ids) >= 2.0**63)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"{source}: row {i + 1}: id {raw_ids[i]:g} is not an integer within "
-                         "int64")
+        raise ValueError(f"{source}: row {i + 1}: id {raw_ids[i]:g} is not an integer within int64")
     frames = rows[:, 0].astype(np.int64)
     ids_all = raw_ids.astype(np.int64)
     t_len = int(frames.max()) if length is None else int(length)
@@ -65,8 +64,9 @@ def mot_rows_to_tracks(rows: np.ndarray, length: int | None = None,
     uniq, counts = np.unique(key, return_counts=True)
     if (counts > 1).any():
         k = uniq[counts > 1][0]
-        raise ValueError(f"{source}: id {ids[k % len(ids)]} appears twice in frame "
-                         f"{k // len(ids) + 1}")
+        raise ValueError(
+            f"{source}: id {ids[k % len(ids)]} appears twice in frame {k // len(ids) + 1}"
+        )
     pos = np.full((t_len, len(ids), 2), np.nan)
     pos[frames - 1, col, 0] = rows[:, 2] + rows[:, 4] / 2.0
     pos[frames - 1, col, 1] = rows[:, 3] + rows[:, 5] / 2.0

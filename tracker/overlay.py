@@ -22,8 +22,9 @@ TAIL = 8
 """Frames of trajectory drawn behind each point."""
 
 
-def draw_points(frame: np.ndarray, points: np.ndarray, t: int, size: int, colour,
-                tail: int = TAIL) -> None:
+def draw_points(
+    frame: np.ndarray, points: np.ndarray, t: int, size: int, colour, tail: int = TAIL
+) -> None:
     """Draw, in place on ``frame`` (H, W, 3) uint8 BGR, a ``size`` px box around each point of
     frame ``t`` of ``points`` (T, N, 2) px (NaN = absent) and its last ``tail`` frames."""
     cur = points[t]
@@ -31,10 +32,15 @@ def draw_points(frame: np.ndarray, points: np.ndarray, t: int, size: int, colour
     half = size / 2.0
     for i in np.flatnonzero(ok):
         x, y = cur[i]
-        cv2.rectangle(frame, (int(round(x - half)), int(round(y - half))),
-                      (int(round(x + half)), int(round(y + half))), colour, 1)
+        cv2.rectangle(
+            frame,
+            (int(round(x - half)), int(round(y - half))),
+            (int(round(x + half)), int(round(y + half))),
+            colour,
+            1,
+        )
     if tail > 1 and t > 0:
-        seg = points[max(0, t - tail):t + 1]
+        seg = points[max(0, t - tail) : t + 1]
         good = np.isfinite(seg).all(-1)
         for i in np.flatnonzero(ok):
             pts = seg[good[:, i], i]
@@ -42,10 +48,15 @@ def draw_points(frame: np.ndarray, points: np.ndarray, t: int, size: int, colour
                 cv2.polylines(frame, [np.rint(pts).astype(np.int32)], False, colour, 1)
 
 
-def write_overlay(path: str | os.PathLike[str], frames: Iterable[np.ndarray],
-                  template_size: int, tracks: np.ndarray | None = None,
-                  ground_truth: np.ndarray | None = None, fps: float = 25.0,
-                  tail: int = TAIL) -> Path:
+def write_overlay(
+    path: str | os.PathLike[str],
+    frames: Iterable[np.ndarray],
+    template_size: int,
+    tracks: np.ndarray | None = None,
+    ground_truth: np.ndarray | None = None,
+    fps: float = 25.0,
+    tail: int = TAIL,
+) -> Path:
     """Write ``frames`` with ground truth (green) and tracks (yellow) drawn on top.
 
     Parameters
@@ -68,8 +79,9 @@ def write_overlay(path: str | os.PathLike[str], frames: Iterable[np.ndarray],
             for t, frame in enumerate(frames):
                 if writer is None:
                     h, w = frame.shape[:2]
-                    writer = cv2.VideoWriter(os.fspath(tmp), cv2.VideoWriter_fourcc(*"mp4v"),
-                                             float(fps), (w, h))
+                    writer = cv2.VideoWriter(
+                        os.fspath(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h)
+                    )
                     if not writer.isOpened():
                         raise ValueError(f"{path}: OpenCV cannot write an MP4 video here")
                 img = np.ascontiguousarray(frame).copy()

@@ -66,8 +66,10 @@ class TrackerEntry:
         valid = {f.name for f in fields(cls)}
         unknown = sorted(set(overrides) - valid)
         if unknown:
-            raise ValueError(f"tracker {self.name!r} has no parameter(s) {', '.join(unknown)}; "
-                             f"valid: {', '.join(sorted(valid))}")
+            raise ValueError(
+                f"tracker {self.name!r} has no parameter(s) {', '.join(unknown)}; "
+                f"valid: {', '.join(sorted(valid))}"
+            )
         return cls(**{**self.overrides, **overrides})
 
     def create(self, params: Any = None, **overrides: Any) -> Tracker:
@@ -86,22 +88,55 @@ def _entry(name: str, target: str, params: str, summary: str, **overrides: Any) 
 _BQP = ("tracker.bqp.tracker:BQPTracker", "tracker.bqp.params:BQPParams")
 _NCC = ("tracker.baselines.ncc:NCCTracker", "tracker.baselines.ncc:NCCParams")
 
-TRACKERS: Mapping[str, TrackerEntry] = MappingProxyType({e.name: e for e in (
-    _entry("bqp", *_BQP, "BQP / Frank-Wolfe SWAP, KCF appearance, speed-up sampling (paper 1)"),
-    _entry("bqp-ncc", *_BQP, "BQP / Frank-Wolfe SWAP with NCC template appearance",
-           appearance="ncc"),
-    _entry("bqp-dense", *_BQP, "BQP with dense candidates (no speed-up sampling)",
-           speedup=False),
-    _entry("ncc", *_NCC, "independent NCC template tracker (baseline of both papers)"),
-    _entry("pnmc", "tracker.pnmc.tracker:PNMCTracker", "tracker.pnmc.params:PNMCParams",
-           "prominence + neighbourhood motion concurrence, hierarchical update (paper 2)"),
-    _entry("meanshift", "tracker.baselines.meanshift:MeanShiftTracker", "tracker.baselines."
-           "meanshift:MeanShiftParams", "OpenCV mean-shift on colour histograms (paper 2's MS)"),
-    _entry("bytetrack", "tracker.baselines.detection:ByteTrackTracker", "tracker.baselines."
-           "detection:ByteTrackParams", "ByteTrack on simulated head detections", miss_rate=0.1),
-    _entry("ocsort", "tracker.baselines.detection:OCSORTTracker", "tracker.baselines."
-           "detection:OCSORTParams", "OC-SORT on simulated head detections", miss_rate=0.1),
-)})
+TRACKERS: Mapping[str, TrackerEntry] = MappingProxyType(
+    {
+        e.name: e
+        for e in (
+            _entry(
+                "bqp", *_BQP, "BQP / Frank-Wolfe SWAP, KCF appearance, speed-up sampling (paper 1)"
+            ),
+            _entry(
+                "bqp-ncc",
+                *_BQP,
+                "BQP / Frank-Wolfe SWAP with NCC template appearance",
+                appearance="ncc",
+            ),
+            _entry(
+                "bqp-dense",
+                *_BQP,
+                "BQP with dense candidates (no speed-up sampling)",
+                speedup=False,
+            ),
+            _entry("ncc", *_NCC, "independent NCC template tracker (baseline of both papers)"),
+            _entry(
+                "pnmc",
+                "tracker.pnmc.tracker:PNMCTracker",
+                "tracker.pnmc.params:PNMCParams",
+                "prominence + neighbourhood motion concurrence, hierarchical update (paper 2)",
+            ),
+            _entry(
+                "meanshift",
+                "tracker.baselines.meanshift:MeanShiftTracker",
+                "tracker.baselines.meanshift:MeanShiftParams",
+                "OpenCV mean-shift on colour histograms (paper 2's MS)",
+            ),
+            _entry(
+                "bytetrack",
+                "tracker.baselines.detection:ByteTrackTracker",
+                "tracker.baselines.detection:ByteTrackParams",
+                "ByteTrack on simulated head detections",
+                miss_rate=0.1,
+            ),
+            _entry(
+                "ocsort",
+                "tracker.baselines.detection:OCSORTTracker",
+                "tracker.baselines.detection:OCSORTParams",
+                "OC-SORT on simulated head detections",
+                miss_rate=0.1,
+            ),
+        )
+    }
+)
 """Registry name -> :class:`TrackerEntry`, in the order tables list them."""
 
 
@@ -115,8 +150,9 @@ def get(name: str) -> TrackerEntry:
     try:
         return TRACKERS[name]
     except (KeyError, TypeError):
-        raise ValueError(f"unknown tracker {name!r}; valid trackers: "
-                         f"{', '.join(TRACKERS)}") from None
+        raise ValueError(
+            f"unknown tracker {name!r}; valid trackers: {', '.join(TRACKERS)}"
+        ) from None
 
 
 def make_tracker(tracker: str | Tracker, params: Any = None, **overrides: Any) -> Tracker:

@@ -74,17 +74,29 @@ class TrackRun:
     def summary(self) -> dict[str, Any]:
         """JSON-ready figures: the report without the curve, fps, stage ms, sizes."""
         out = {k: v for k, v in self.report.items() if k != "curve"}
-        out.update(tracker=self.tracker, frames=int(self.result.n_frames),
-                   tracks=int(len(self.result.ids)), fps=float(self.fps),
-                   stage_ms=dict(self.stage_ms), wall_s=float(self.wall_s))
+        out.update(
+            tracker=self.tracker,
+            frames=int(self.result.n_frames),
+            tracks=int(len(self.result.ids)),
+            fps=float(self.fps),
+            stage_ms=dict(self.stage_ms),
+            wall_s=float(self.wall_s),
+        )
         return out
 
 
-def run_tracker(tracker: str | Tracker, source: SequenceLike, *, frames: int | None = None,
-                params: Any = None, metrics: Metrics = "full", strict: bool = False,
-                progress: bool = False,
-                prepare: Callable[[Tracker, Any], Any] | None = None,
-                template_size: int | None = None) -> TrackRun:
+def run_tracker(
+    tracker: str | Tracker,
+    source: SequenceLike,
+    *,
+    frames: int | None = None,
+    params: Any = None,
+    metrics: Metrics = "full",
+    strict: bool = False,
+    progress: bool = False,
+    prepare: Callable[[Tracker, Any], Any] | None = None,
+    template_size: int | None = None,
+) -> TrackRun:
     """Track ``source`` with ``tracker`` (a registry name or a :class:`Tracker`) and score it.
 
     Parameters
@@ -122,28 +134,53 @@ def run_tracker(tracker: str | Tracker, source: SequenceLike, *, frames: int | N
     births = {t: b for t, b in births.items() if t < n}
     t0 = time.perf_counter()
     size = int(template_size or source.template_size)
-    res = trk.track(itertools.islice(source.frames(), n), ids, pts, size,
-                    births=births, n_frames=n, progress=progress)
+    res = trk.track(
+        itertools.islice(source.frames(), n),
+        ids,
+        pts,
+        size,
+        births=births,
+        n_frames=n,
+        progress=progress,
+    )
     wall = time.perf_counter() - t0
     steps = max(res.n_frames - 1, 1)
-    run = TrackRun(tracker=trk.name, result=res, wall_s=wall,
-                   fps=steps / max(res.timings.get("total", 0.0), 1e-9),
-                   stage_ms={k: 1000.0 * v / steps for k, v in res.timings.items()
-                             if k != "total"})
+    run = TrackRun(
+        tracker=trk.name,
+        result=res,
+        wall_s=wall,
+        fps=steps / max(res.timings.get("total", 0.0), 1e-9),
+        stage_ms={k: 1000.0 * v / steps for k, v in res.timings.items() if k != "total"},
+    )
     if metrics == "none":
         return run
     gt_ids, gt_pts = source.gt_points()
     if len(gt_ids) == 0:
         return run
-    gt_pts = gt_pts[:res.n_frames]
+    gt_pts = gt_pts[: res.n_frames]
     if metrics == "full":
-        run.report = evaluate(gt_ids, gt_pts, res.ids, res.positions, strict=strict,
-                              id_mapping=getattr(trk, "id_mapping", "same"))
+        run.report = evaluate(
+            gt_ids,
+            gt_pts,
+            res.ids,
+            res.positions,
+            strict=strict,
+            id_mapping=getattr(trk, "id_mapping", "same"),
+        )
     elif metrics == "accuracy":
-        curve = accuracy_curve(gt_ids, gt_pts, res.ids, res.positions, strict=strict,
-                               id_mapping=getattr(trk, "id_mapping", "same"))
-        run.report = {"acc@5": float(curve[5]), "acc@15": float(curve[15]),
-                      "curve": [{"T": t, "acc": float(a)} for t, a in enumerate(curve)]}
+        curve = accuracy_curve(
+            gt_ids,
+            gt_pts,
+            res.ids,
+            res.positions,
+            strict=strict,
+            id_mapping=getattr(trk, "id_mapping", "same"),
+        )
+        run.report = {
+            "acc@5": float(curve[5]),
+            "acc@15": float(curve[15]),
+            "curve": [{"T": t, "acc": float(a)} for t, a in enumerate(curve)],
+        }
     else:
         raise ValueError(f"metrics must be 'full', 'accuracy' or 'none', got {metrics!r}")
     return run

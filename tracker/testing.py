@@ -24,9 +24,19 @@ from scipy.spatial import cKDTree
 
 from tracker.bqp.qp import BlockQP
 
-PALETTE = np.array([[255, 40, 40], [40, 220, 255], [40, 40, 230], [40, 230, 40],
-                    [230, 40, 230], [240, 240, 40], [200, 200, 200], [20, 120, 250]],
-                   dtype=np.uint8)
+PALETTE = np.array(
+    [
+        [255, 40, 40],
+        [40, 220, 255],
+        [40, 40, 230],
+        [40, 230, 40],
+        [230, 40, 230],
+        [240, 240, 40],
+        [200, 200, 200],
+        [20, 120, 250],
+    ],
+    dtype=np.uint8,
+)
 
 
 @dataclass
@@ -37,8 +47,17 @@ class Scene:
     template_size: int
 
 
-def make_scene(starts, velocities, n_frames: int = 12, shape=(96, 128), size: int = 8,
-               seed: int = 0, colours=None, birth_frames=None, death_frames=None) -> Scene:
+def make_scene(
+    starts,
+    velocities,
+    n_frames: int = 12,
+    shape=(96, 128),
+    size: int = 8,
+    seed: int = 0,
+    colours=None,
+    birth_frames=None,
+    death_frames=None,
+) -> Scene:
     """Two-tone blobs of ``size - 2`` px (dark 2x2 centre) at ``start + t * velocity`` (px).
 
     Target ``i`` is drawn from frame ``birth_frames[i]`` (default 0) up to, not including,
@@ -65,9 +84,9 @@ def make_scene(starts, velocities, n_frames: int = 12, shape=(96, 128), size: in
             if not (0 <= x < w and 0 <= y < h):
                 continue
             pts[t, i] = (x, y)
-            f[max(0, y - half):y + half + 1, max(0, x - half):x + half + 1] = cols[i]
+            f[max(0, y - half) : y + half + 1, max(0, x - half) : x + half + 1] = cols[i]
             # a dark "head" in the middle so that no template is flat (NCC needs variance)
-            f[max(0, y - 1):y + 1, max(0, x - 1):x + 1] = cols[i] // 4
+            f[max(0, y - 1) : y + 1, max(0, x - 1) : x + 1] = cols[i] // 4
         frames.append(f)
     return Scene(frames, np.arange(1, n + 1), pts, size)
 
@@ -128,8 +147,15 @@ class FrameSpec:
             raise ValueError(f"FrameSpec.grid must be >= 1, got {self.grid}")
         if not 0.0 <= self.drop < 1.0:
             raise ValueError(f"FrameSpec.drop must be in [0, 1), got {self.drop}")
-        for name in ("target_size", "spacing", "motion_sigma", "proximity_sigma",
-                     "proximity_cutoff", "group_sigma", "group_cutoff"):
+        for name in (
+            "target_size",
+            "spacing",
+            "motion_sigma",
+            "proximity_sigma",
+            "proximity_cutoff",
+            "group_sigma",
+            "group_cutoff",
+        ):
             if getattr(self, name) <= 0:
                 raise ValueError(f"FrameSpec.{name} must be > 0, got {getattr(self, name)}")
 
@@ -164,8 +190,11 @@ def synthetic_frame_qp(spec: FrameSpec, rng: np.random.Generator) -> BlockQP:
     sigma_g = spec.group_sigma * spec.target_size
     sigma_a = spec.target_size / 4.0
     side = int(np.ceil(np.sqrt(n)))
-    lattice = np.stack(np.meshgrid(np.arange(side), np.arange(side), indexing="ij"),
-                       axis=-1).reshape(-1, 2)[:n].astype(float)
+    lattice = (
+        np.stack(np.meshgrid(np.arange(side), np.arange(side), indexing="ij"), axis=-1)
+        .reshape(-1, 2)[:n]
+        .astype(float)
+    )
     true = (lattice + 0.25 * rng.standard_normal((n, 2))) * spec.spacing
     pred = true + spec.motion_sigma * rng.standard_normal((n, 2))
 
@@ -193,8 +222,8 @@ def synthetic_frame_qp(spec: FrameSpec, rng: np.random.Generator) -> BlockQP:
             sl = slice(block_ptr[i], block_ptr[i + 1])
             look = 0.3 + 0.4 * rng.random()
             resp[sl] = np.maximum(
-                resp[sl], look * np.exp(-np.sum((p[sl] - true[j]) ** 2, axis=1)
-                                        / (2 * sigma_a**2)))
+                resp[sl], look * np.exp(-np.sum((p[sl] - true[j]) ** 2, axis=1) / (2 * sigma_a**2))
+            )
     c_a = -(resp + spec.noise * rng.standard_normal(l))
     c_m = 1.0 - np.exp(-np.sum((p - pred[owner]) ** 2, axis=1) / (2 * spec.motion_sigma**2))
     c = c_a + spec.zeta * c_m
@@ -203,9 +232,16 @@ def synthetic_frame_qp(spec: FrameSpec, rng: np.random.Generator) -> BlockQP:
     pairs = cKDTree(p).query_pairs(spec.proximity_cutoff * sigma, output_type="ndarray")
     pairs = pairs[owner[pairs[:, 0]] != owner[pairs[:, 1]]]
     sv = np.exp(-np.sum((p[pairs[:, 0]] - p[pairs[:, 1]]) ** 2, axis=1) / (2 * sigma**2))
-    S = sp.coo_matrix((np.concatenate([sv, sv]),
-                       (np.concatenate([pairs[:, 0], pairs[:, 1]]),
-                        np.concatenate([pairs[:, 1], pairs[:, 0]]))), shape=(l, l))
+    S = sp.coo_matrix(
+        (
+            np.concatenate([sv, sv]),
+            (
+                np.concatenate([pairs[:, 0], pairs[:, 1]]),
+                np.concatenate([pairs[:, 1], pairs[:, 0]]),
+            ),
+        ),
+        shape=(l, l),
+    )
     Q = spec.w_sp * _normalised_laplacian(S, l, +1.0)
 
     # C_g (Eq. 10): groups of 2-5 nearby targets, an MST per group; Gamma between candidates
@@ -217,8 +253,7 @@ def synthetic_frame_qp(spec: FrameSpec, rng: np.random.Generator) -> BlockQP:
             if in_group[seed_t] or in_group.mean() >= spec.group_fraction:
                 continue
             size = int(rng.integers(2, 6))
-            members = [m for m in tree_t.query(true[seed_t], k=min(size, n))[1]
-                       if not in_group[m]]
+            members = [m for m in tree_t.query(true[seed_t], k=min(size, n))[1] if not in_group[m]]
             if len(members) < 2:
                 continue
             in_group[members] = True
@@ -238,8 +273,9 @@ def synthetic_frame_qp(spec: FrameSpec, rng: np.random.Generator) -> BlockQP:
                 cols += [jj[cc], ii[r]]
                 vals += [gam[keep], gam[keep]]
         if rows:
-            G = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                      np.concatenate(cols))), shape=(l, l))
+            G = sp.coo_matrix(
+                (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(l, l)
+            )
             Q = Q + spec.w_g * _normalised_laplacian(G, l, -1.0)
     Q = sp.csc_matrix(Q)
     Q = (Q + Q.T) * 0.5  # exact symmetry after the float round-off of D^-1/2 S D^-1/2
@@ -303,8 +339,7 @@ def scene_detections(scene: Scene, first: int = 0) -> list[tuple[np.ndarray, np.
     return out
 
 
-def check_set_params(make_tracker: Callable[[Any], Any],
-                     scene: Scene | None = None) -> list[str]:
+def check_set_params(make_tracker: Callable[[Any], Any], scene: Scene | None = None) -> list[str]:
     """Every parameter given through ``set_params`` after ``init`` acts as if given at start.
 
     For each field of the tracker's parameters, tracker X starts with the changed value and
@@ -325,8 +360,10 @@ def check_set_params(make_tracker: Callable[[Any], Any],
     # 16 frames (past the default template refresh of 10), one target faster than the
     # default search radius, textured ground inside the templates: so that search, update
     # and refresh parameters all change the tracks or the confidences
-    sc = scene or make_scene([[12, 20], [60, 30], [100, 70], [30, 70]],
-                             [[5, 1], [0, 2], [-1, 0], [2, -2]], n_frames=16)
+    sc = scene or make_scene(
+        [[12, 20], [60, 30], [100, 70], [30, 70]], [[5, 1], [0, 2], [-1, 0], [2, -2]], n_frames=16
+    )
+
     def make(params: Any) -> Any:
         tr = make_tracker(params)
         if hasattr(tr, "use_detections"):
@@ -358,10 +395,15 @@ def check_set_params(make_tracker: Callable[[Any], Any],
         for t, frame in enumerate(sc.frames[1:], 1):
             xi, xp = x.step(frame)
             yi, yp = y.step(frame)
-            if not (np.array_equal(xi, yi) and np.array_equal(xp, yp)
-                    and np.array_equal(x.confidence, y.confidence)):
-                raise AssertionError(f"{type(y).__name__}: {name}={value!r} given by "
-                                     f"set_params after init differs at frame {t} from the "
-                                     "same value given at start")
+            if not (
+                np.array_equal(xi, yi)
+                and np.array_equal(xp, yp)
+                and np.array_equal(x.confidence, y.confidence)
+            ):
+                raise AssertionError(
+                    f"{type(y).__name__}: {name}={value!r} given by "
+                    f"set_params after init differs at frame {t} from the "
+                    "same value given at start"
+                )
         checked.append(name)
     return checked

@@ -15,11 +15,15 @@ import sys
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "sim": ("crowdsim.bench.sim", "simulator speed vs JuPedSim and PySocialForce (corridor)"),
     "fd": ("crowdsim.bench.fd", "fundamental diagram vs Weidmann and counterflow lanes"),
-    "solver": ("crowdsim.bench.solver",
-               "Frank-Wolfe plain/away/SWAP iterations and FW-SWAP vs Clarabel (relaxed BQP)"),
+    "solver": (
+        "crowdsim.bench.solver",
+        "Frank-Wolfe plain/away/SWAP iterations and FW-SWAP vs Clarabel (relaxed BQP)",
+    ),
     "render": ("crowdsim.bench.render", "renderer frames/s, 1280x720/1k and 1920x1080/10k agents"),
-    "track": ("crowdsim.bench.track",
-              "BQP tracking frames/s at 100/1000 targets, per stage; speed-up vs dense candidates"),
+    "track": (
+        "crowdsim.bench.track",
+        "BQP tracking frames/s at 100/1000 targets, per stage; speed-up vs dense candidates",
+    ),
     "envs": ("crowdsim.bench.envs", "environment steps/s (crowd_v0 at 1,000 agents: arrays, dict)"),
 }
 """Benchmark name -> (module, one-line help)."""

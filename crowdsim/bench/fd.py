@@ -19,25 +19,34 @@ from typing import Any
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--densities", default="0.5,1,1.5,2,2.5,3,3.5,4",
-                        help="corridor densities in /m² (default 0.5,...,4)")
+    parser.add_argument(
+        "--densities",
+        default="0.5,1,1.5,2,2.5,3,3.5,4",
+        help="corridor densities in /m² (default 0.5,...,4)",
+    )
     parser.add_argument("--length", type=float, default=20.0, help="corridor length, m")
     parser.add_argument("--width", type=float, default=5.0, help="corridor width, m")
     parser.add_argument("--warmup", type=float, default=20.0, help="warm-up seconds")
     parser.add_argument("--measure", type=float, default=20.0, help="measured seconds")
-    parser.add_argument("--lane-seconds", type=float, default=40.0,
-                        help="duration of the counterflow run, s")
+    parser.add_argument(
+        "--lane-seconds", type=float, default=40.0, help="duration of the counterflow run, s"
+    )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/out"),
-                        help="folder for fd.png, lanes.png and fd.json")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("benchmarks/out"),
+        help="folder for fd.png, lanes.png and fd.json",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         densities = [float(d) for d in args.densities.split(",") if d.strip()]
     except ValueError:
-        raise ValueError(f"--densities must be comma-separated numbers, "
-                         f"got {args.densities!r}") from None
+        raise ValueError(
+            f"--densities must be comma-separated numbers, got {args.densities!r}"
+        ) from None
     bad = [d for d in densities if not 0 < d <= 6]
     if bad or not densities:
         raise ValueError(f"--densities must lie in (0, 6] /m², got {args.densities!r}")
@@ -48,37 +57,59 @@ def run(args: argparse.Namespace) -> int:
     from crowdsim.atomic import write_text_atomic
     from crowdsim.validation import fundamental_diagram, lane_formation
 
-    points = fundamental_diagram(densities, length=args.length, width=args.width,
-                                 warmup_s=args.warmup, measure_s=args.measure, seed=args.seed,
-                                 progress=True)
+    points = fundamental_diagram(
+        densities,
+        length=args.length,
+        width=args.width,
+        warmup_s=args.warmup,
+        measure_s=args.measure,
+        seed=args.seed,
+        progress=True,
+    )
     lanes = lane_formation(seconds=args.lane_seconds, seed=args.seed)
-    fd_rows = [{"target_density": p.target_density, "density": p.density,
-                "speed": p.speed, "weidmann": p.weidmann, "ratio": p.ratio,
-                "within_20pct": bool(0.8 <= p.ratio <= 1.2), "max_overlap": p.max_overlap}
-               for p in points]
+    fd_rows = [
+        {
+            "target_density": p.target_density,
+            "density": p.density,
+            "speed": p.speed,
+            "weidmann": p.weidmann,
+            "ratio": p.ratio,
+            "within_20pct": bool(0.8 <= p.ratio <= 1.2),
+            "max_overlap": p.max_overlap,
+        }
+        for p in points
+    ]
     n_late = max(1, len(lanes["lane_order"]) // 4)
     report: dict[str, Any] = {
         "benchmark": "fd",
         "fundamental_diagram": fd_rows,
         "all_within_20pct": all(r["within_20pct"] for r in fd_rows),
         "max_overlap": max(r["max_overlap"] for r in fd_rows),
-        "lanes": {**lanes,
-                  "final_lane_order": sum(lanes["lane_order"][-n_late:]) / n_late,
-                  "final_random_mix": sum(lanes["random_mix"][-n_late:]) / n_late},
+        "lanes": {
+            **lanes,
+            "final_lane_order": sum(lanes["lane_order"][-n_late:]) / n_late,
+            "final_random_mix": sum(lanes["random_mix"][-n_late:]) / n_late,
+        },
     }
     args.out.mkdir(parents=True, exist_ok=True)
     _plot(report, args.out)
     write_text_atomic(args.out / "fd.json", json.dumps(report) + "\n")
 
-    print(f"{'rho target':>10} {'rho PedPy':>10} {'v (m/s)':>8} {'Weidmann':>9} {'ratio':>6} "
-          f"{'max ov':>7}")
+    print(
+        f"{'rho target':>10} {'rho PedPy':>10} {'v (m/s)':>8} {'Weidmann':>9} {'ratio':>6} "
+        f"{'max ov':>7}"
+    )
     for r in fd_rows:
         flag = "" if r["within_20pct"] else "  <- outside ±20 %"
-        print(f"{r['target_density']:>10.2f} {r['density']:>10.2f} {r['speed']:>8.3f} "
-              f"{r['weidmann']:>9.3f} {r['ratio']:>6.2f} {r['max_overlap']:>7.3f}{flag}")
+        print(
+            f"{r['target_density']:>10.2f} {r['density']:>10.2f} {r['speed']:>8.3f} "
+            f"{r['weidmann']:>9.3f} {r['ratio']:>6.2f} {r['max_overlap']:>7.3f}{flag}"
+        )
     lane = report["lanes"]
-    print(f"\nlane order after {args.lane_seconds:g} s: {lane['final_lane_order']:.2f} "
-          f"(random mix {lane['final_random_mix']:.2f}, start {lane['lane_order'][0]:.2f})")
+    print(
+        f"\nlane order after {args.lane_seconds:g} s: {lane['final_lane_order']:.2f} "
+        f"(random mix {lane['final_random_mix']:.2f}, start {lane['lane_order'][0]:.2f})"
+    )
     print(f"plots: {args.out / 'fd.png'}, {args.out / 'lanes.png'}")
     print(json.dumps(report))
     return 0
@@ -96,8 +127,13 @@ def _plot(report: dict[str, Any], out: Path) -> None:
     w = weidmann_speed(rho)
     ax.plot(rho, w, "k-", label="Weidmann (1993)")
     ax.fill_between(rho, 0.8 * w, 1.2 * w, color="0.85", label="±20 %")
-    ax.plot([r["density"] for r in rows], [r["speed"] for r in rows], "o", color="tab:red",
-            label="crowdsim (PedPy)")
+    ax.plot(
+        [r["density"] for r in rows],
+        [r["speed"] for r in rows],
+        "o",
+        color="tab:red",
+        label="crowdsim (PedPy)",
+    )
     ax.set_xlabel("density (1/m²)")
     ax.set_ylabel("speed (m/s)")
     ax.set_title("Fundamental diagram, periodic corridor")
@@ -113,4 +149,3 @@ def _plot(report: dict[str, Any], out: Path) -> None:
     ax.set_ylim(0, 1)
     ax.legend()
     save_figure(fig, out / "lanes.png")
-

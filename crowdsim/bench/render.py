@@ -24,15 +24,32 @@ TARGETS: dict[str, float] = {"1280x720:1000": 100.0, "1920x1080:10000": 20.0}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--cases", nargs="+", default=list(DEFAULT_CASES), metavar="WxH:N",
-                        help="frame size and agent count per case (default: the SPEC targets)")
-    parser.add_argument("--frames", type=int, default=100, metavar="N",
-                        help="timed frames per case (default 100)")
-    parser.add_argument("--template-px", type=int, default=10, metavar="PX",
-                        help="person template size in pixels (default 10)")
+    parser.add_argument(
+        "--cases",
+        nargs="+",
+        default=list(DEFAULT_CASES),
+        metavar="WxH:N",
+        help="frame size and agent count per case (default: the SPEC targets)",
+    )
+    parser.add_argument(
+        "--frames", type=int, default=100, metavar="N", help="timed frames per case (default 100)"
+    )
+    parser.add_argument(
+        "--template-px",
+        type=int,
+        default=10,
+        metavar="PX",
+        help="person template size in pixels (default 10)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic crowd")
-    parser.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", dest="knobs",
-                        help="appearance knobs, e.g. body_scale=1.4 (numbers or strings)")
+    parser.add_argument(
+        "--set",
+        nargs="+",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="knobs",
+        help="appearance knobs, e.g. body_scale=1.4 (numbers or strings)",
+    )
 
 
 def _parse_knobs(items: list[str]) -> dict[str, object]:
@@ -60,8 +77,15 @@ def _parse_case(text: str) -> tuple[int, int, int]:
         raise ValueError(f"--cases entries look like 1280x720:1000, got {text!r}") from None
 
 
-def run_case(width: int, height: int, n_agents: int, frames: int, template_px: int,
-             seed: int, knobs: dict[str, object] | None = None) -> dict[str, float | int | str]:
+def run_case(
+    width: int,
+    height: int,
+    n_agents: int,
+    frames: int,
+    template_px: int,
+    seed: int,
+    knobs: dict[str, object] | None = None,
+) -> dict[str, float | int | str]:
     """Time one case; returns a JSON-ready row."""
     import numpy as np
 
@@ -109,15 +133,23 @@ def run_case(width: int, height: int, n_agents: int, frames: int, template_px: i
     fps = frames / t_render
     case = f"{width}x{height}:{n_agents}"
     target = TARGETS.get(case)
-    return {"case": case, "width": width, "height": height, "agents": n_agents,
-            "frames": frames, "fps": round(fps, 1), "ms_per_frame": round(1e3 / fps, 2),
-            "fps_with_visibility": round(frames / t_vis, 1),
-            "cpu_ms_per_frame": round(1e3 * c_render / frames, 2),
-            "jpeg_ms_per_frame": round(1e3 * t_jpeg, 2),
-            "fps_with_jpeg": round(1.0 / (1.0 / fps + t_jpeg), 1),
-            "jpeg_kb_per_frame": round(size / n_enc / 1024, 1),
-            "setup_s": round(t_setup, 2), "target_fps": target,
-            "meets_target": None if target is None else bool(fps >= target)}
+    return {
+        "case": case,
+        "width": width,
+        "height": height,
+        "agents": n_agents,
+        "frames": frames,
+        "fps": round(fps, 1),
+        "ms_per_frame": round(1e3 / fps, 2),
+        "fps_with_visibility": round(frames / t_vis, 1),
+        "cpu_ms_per_frame": round(1e3 * c_render / frames, 2),
+        "jpeg_ms_per_frame": round(1e3 * t_jpeg, 2),
+        "fps_with_jpeg": round(1.0 / (1.0 / fps + t_jpeg), 1),
+        "jpeg_kb_per_frame": round(size / n_enc / 1024, 1),
+        "setup_s": round(t_setup, 2),
+        "target_fps": target,
+        "meets_target": None if target is None else bool(fps >= target),
+    }
 
 
 def run(args: argparse.Namespace) -> int:
@@ -130,22 +162,39 @@ def run(args: argparse.Namespace) -> int:
         if not (8 <= w <= 16384 and 8 <= h <= 16384 and n >= 0):
             raise ValueError(f"--cases: bad case {w}x{h}:{n}")
     knobs = _parse_knobs(args.knobs)
-    rows = [run_case(w, h, n, args.frames, args.template_px, args.seed, knobs)
-            for w, h, n in cases]
-    head = (f"{'case':>18} {'fps':>8} {'fps+vis':>8} {'ms/frame':>9} {'cpu ms':>7} "
-            f"{'+jpeg fps':>10} {'KB/frame':>9} {'target':>9}")
+    rows = [run_case(w, h, n, args.frames, args.template_px, args.seed, knobs) for w, h, n in cases]
+    head = (
+        f"{'case':>18} {'fps':>8} {'fps+vis':>8} {'ms/frame':>9} {'cpu ms':>7} "
+        f"{'+jpeg fps':>10} {'KB/frame':>9} {'target':>9}"
+    )
     print(head)
     print("-" * len(head))
     for r in rows:
-        target = "-" if r["target_fps"] is None else \
-            f"{r['target_fps']:g}{' ok' if r['meets_target'] else ' MISS'}"
-        print(f"{r['case']:>18} {r['fps']:>8} {r['fps_with_visibility']:>8} "
-              f"{r['ms_per_frame']:>9} {r['cpu_ms_per_frame']:>7} "
-              f"{r['fps_with_jpeg']:>10} {r['jpeg_kb_per_frame']:>9} {target:>9}")
-    print("fps = wall-clock frames/s of SceneRenderer.render (JPEG excluded); fps+vis = the "
-          "same with the per-head visibility the writer uses; cpu ms = process CPU time per "
-          "frame (all threads), a guide when other jobs share the cores")
-    print(json.dumps({"benchmark": "render", "template_px": args.template_px, "knobs": knobs,
-                      "cpu_count": os.cpu_count(), "load_avg_1min": os.getloadavg()[0],
-                      "cases": rows}))
+        target = (
+            "-"
+            if r["target_fps"] is None
+            else f"{r['target_fps']:g}{' ok' if r['meets_target'] else ' MISS'}"
+        )
+        print(
+            f"{r['case']:>18} {r['fps']:>8} {r['fps_with_visibility']:>8} "
+            f"{r['ms_per_frame']:>9} {r['cpu_ms_per_frame']:>7} "
+            f"{r['fps_with_jpeg']:>10} {r['jpeg_kb_per_frame']:>9} {target:>9}"
+        )
+    print(
+        "fps = wall-clock frames/s of SceneRenderer.render (JPEG excluded); fps+vis = the "
+        "same with the per-head visibility the writer uses; cpu ms = process CPU time per "
+        "frame (all threads), a guide when other jobs share the cores"
+    )
+    print(
+        json.dumps(
+            {
+                "benchmark": "render",
+                "template_px": args.template_px,
+                "knobs": knobs,
+                "cpu_count": os.cpu_count(),
+                "load_avg_1min": os.getloadavg()[0],
+                "cases": rows,
+            }
+        )
+    )
     return 0

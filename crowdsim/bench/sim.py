@@ -67,8 +67,9 @@ def overlap_stats(pos: np.ndarray, radii: np.ndarray) -> tuple[float, float]:
     if len(pairs) == 0:
         return 0.0, 0.0
     d = np.hypot(*(pos[pairs[:, 0]] - pos[pairs[:, 1]]).T)
-    rel = (radii[pairs[:, 0]] + radii[pairs[:, 1]] - d) / np.minimum(radii[pairs[:, 0]],
-                                                                      radii[pairs[:, 1]])
+    rel = (radii[pairs[:, 0]] + radii[pairs[:, 1]] - d) / np.minimum(
+        radii[pairs[:, 0]], radii[pairs[:, 1]]
+    )
     rel = rel[rel > 0]
     return (float(rel.mean()), float(rel.max())) if len(rel) else (0.0, 0.0)
 
@@ -83,12 +84,22 @@ def _timed(step: Callable[[], Any]) -> float:
     return time.perf_counter() - t0
 
 
-def _result(name: str, n: int, dt: float, wall: float, pos: np.ndarray,
-            radii: np.ndarray, **extra: Any) -> dict[str, Any]:
+def _result(
+    name: str, n: int, dt: float, wall: float, pos: np.ndarray, radii: np.ndarray, **extra: Any
+) -> dict[str, Any]:
     mean_ov, max_ov = overlap_stats(pos, radii)
-    return {"simulator": name, "agents": n, "dt": dt, "steps": STEPS, "wall_s": wall,
-            "steps_per_s": STEPS / wall, "sim_s_per_wall_s": STEPS * dt / wall,
-            "mean_overlap": mean_ov, "max_overlap": max_ov, **extra}
+    return {
+        "simulator": name,
+        "agents": n,
+        "dt": dt,
+        "steps": STEPS,
+        "wall_s": wall,
+        "steps_per_s": STEPS / wall,
+        "sim_s_per_wall_s": STEPS * dt / wall,
+        "mean_overlap": mean_ov,
+        "max_overlap": max_ov,
+        **extra,
+    }
 
 
 # ------------------------------------------------------------------------------ ours
@@ -107,17 +118,23 @@ def _ours_scenario(layout: Layout):
 
         def build(self, rng: np.random.Generator) -> Setup:
             lay = self.layout
-            walls = np.vstack([polyline([(0.0, 0.0), (lay.length, 0.0)]),
-                               polyline([(0.0, lay.width), (lay.length, lay.width)]),
-                               polyline([(0.0, 0.0), (0.0, lay.width)])])
+            walls = np.vstack(
+                [
+                    polyline([(0.0, 0.0), (lay.length, 0.0)]),
+                    polyline([(0.0, lay.width), (lay.length, lay.width)]),
+                    polyline([(0.0, 0.0), (0.0, lay.width)]),
+                ]
+            )
             world = World(walls, (-1.0, -1.0, lay.length + 1.0, lay.width + 1.0))
             exit_gate = [lay.length - 0.5, 0.3, lay.length - 0.5, lay.width - 0.3]
-            agents = AgentBatch.create(lay.positions, lay.radii, np.full(len(lay.radii), V0),
-                                       0, rng, 0.0)
+            agents = AgentBatch.create(
+                lay.positions, lay.radii, np.full(len(lay.radii), V0), 0, rng, 0.0
+            )
             return Setup(world, [Route([exit_gate])], agents, [], {})
 
-    return BenchCorridor(n_agents=len(layout.radii), density=DENSITY, prominent_fraction=0.0,
-                         layout=layout)
+    return BenchCorridor(
+        n_agents=len(layout.radii), density=DENSITY, prominent_fraction=0.0, layout=layout
+    )
 
 
 def run_ours(layout: Layout) -> dict[str, Any]:
@@ -127,8 +144,9 @@ def run_ours(layout: Layout) -> dict[str, Any]:
     wall = _timed(sim.step)
     if sim.state.n != len(layout.radii):
         raise RuntimeError("agents left the benchmark corridor; make it longer")
-    return _result("crowdsim", len(layout.radii), sim.params.dt, wall, sim.state.pos,
-                   sim.state.radius)
+    return _result(
+        "crowdsim", len(layout.radii), sim.params.dt, wall, sim.state.pos, sim.state.radius
+    )
 
 
 # ------------------------------------------------------------------------------ JuPedSim
@@ -139,30 +157,42 @@ def run_jupedsim(layout: Layout, model: str) -> dict[str, Any]:
 
     L, W = layout.length, layout.width
     if model == "sfm":
-        sim = jps.Simulation(model=jps.SocialForceModel(),
-                             geometry=[(0, 0), (L, 0), (L, W), (0, W)], dt=0.01)
+        sim = jps.Simulation(
+            model=jps.SocialForceModel(), geometry=[(0, 0), (L, 0), (L, W), (0, W)], dt=0.01
+        )
     else:
-        sim = jps.Simulation(model=jps.CollisionFreeSpeedModel(),
-                             geometry=[(0, 0), (L, 0), (L, W), (0, W)], dt=0.05)
+        sim = jps.Simulation(
+            model=jps.CollisionFreeSpeedModel(), geometry=[(0, 0), (L, 0), (L, W), (0, W)], dt=0.05
+        )
     exit_id = sim.add_exit_stage([(L - 1.0, 0.0), (L, 0.0), (L, W), (L - 1.0, W)])
     journey = sim.add_journey(jps.JourneyDescription([exit_id]))
     for (x, y), r in zip(layout.positions, layout.radii, strict=True):  # set-up only
         if model == "sfm":
             params = jps.SocialForceModelAgentParameters(
-                position=(float(x), float(y)), orientation=(1.0, 0.0), journey_id=journey,
-                stage_id=exit_id, desired_speed=V0, radius=float(r))
+                position=(float(x), float(y)),
+                orientation=(1.0, 0.0),
+                journey_id=journey,
+                stage_id=exit_id,
+                desired_speed=V0,
+                radius=float(r),
+            )
         else:
             params = jps.CollisionFreeSpeedModelAgentParameters(
-                position=(float(x), float(y)), journey_id=journey, stage_id=exit_id,
-                desired_speed=V0, radius=float(r))
+                position=(float(x), float(y)),
+                journey_id=journey,
+                stage_id=exit_id,
+                desired_speed=V0,
+                radius=float(r),
+            )
         sim.add_agent(params)
     wall = _timed(sim.iterate)
     agents = list(sim.agents())
     pos = np.array([a.position for a in agents])
     radii = np.array([a.model.radius for a in agents])
     name = "JuPedSim SocialForceModel" if model == "sfm" else "JuPedSim CollisionFreeSpeed"
-    return _result(name, len(layout.radii), sim.delta_time(), wall, pos, radii,
-                   version=jps.__version__)
+    return _result(
+        name, len(layout.radii), sim.delta_time(), wall, pos, radii, version=jps.__version__
+    )
 
 
 # ------------------------------------------------------------------------------ PySocialForce
@@ -192,8 +222,10 @@ def run_pysocialforce(layout: Layout, dt: float = 0.4) -> dict[str, Any]:
     obstacles = [[0.0, L, 0.0, 0.0], [0.0, L, W, W]]
     fd, cfg = tempfile.mkstemp(suffix=".toml")
     with os.fdopen(fd, "w") as fh:
-        fh.write(f"[scene]\nenable_group = false\nagent_radius = 0.225\nstep_width = {dt}\n"
-                 "max_speed_multiplier = 1.3\ntau = 0.5\nresolution = 10\n")
+        fh.write(
+            f"[scene]\nenable_group = false\nagent_radius = 0.225\nstep_width = {dt}\n"
+            "max_speed_multiplier = 1.3\ntau = 0.5\nresolution = 10\n"
+        )
     try:
         sim = psf.Simulator(state, groups=None, obstacles=obstacles, config_file=cfg)
     finally:
@@ -202,8 +234,15 @@ def run_pysocialforce(layout: Layout, dt: float = 0.4) -> dict[str, Any]:
     sim.peds.max_speeds = 1.3 * sim.peds.initial_speeds
     wall = _timed(sim.step)
     pos = sim.peds.pos()
-    return _result("PySocialForce", n, dt, wall, pos, np.full(n, 0.225),
-                   version=getattr(psf, "__version__", "1.1"))
+    return _result(
+        "PySocialForce",
+        n,
+        dt,
+        wall,
+        pos,
+        np.full(n, 0.225),
+        version=getattr(psf, "__version__", "1.1"),
+    )
 
 
 # ------------------------------------------------------------------------------ scale run
@@ -211,12 +250,13 @@ def run_pysocialforce(layout: Layout, dt: float = 0.4) -> dict[str, Any]:
 
 def run_scale(n: int) -> dict[str, Any]:
     """Ours alone with ``n`` agents, in a fresh process (for a clean peak-RSS figure)."""
-    code = ("import json,resource,sys;from crowdsim.bench.sim import corridor_layout,run_ours;"
-            f"r=run_ours(corridor_layout({n}));"
-            "r['peak_rss_mb']=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss/1024;"
-            "print(json.dumps(r))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=False)
+    code = (
+        "import json,resource,sys;from crowdsim.bench.sim import corridor_layout,run_ours;"
+        f"r=run_ours(corridor_layout({n}));"
+        "r['peak_rss_mb']=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss/1024;"
+        "print(json.dumps(r))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     if out.returncode != 0:
         raise RuntimeError(f"scale run with {n} agents failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -226,18 +266,33 @@ def run_scale(n: int) -> dict[str, Any]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--sizes", default="1000,5000,10000",
-                        help="agent counts for the side-by-side runs (default 1000,5000,10000)")
-    parser.add_argument("--psf-max", type=int, default=2000,
-                        help="largest count given to PySocialForce, which is O(n²) (default "
-                        "2000; it also runs at this count for the ratio)")
-    parser.add_argument("--scale", type=int, default=0, metavar="N",
-                        help="also run ours alone with N agents and report peak RSS "
-                        "(e.g. 100000)")
-    parser.add_argument("--peers", default="jupedsim,pysocialforce",
-                        help="peers to run: jupedsim, pysocialforce, or none")
-    parser.add_argument("--json-out", default=None, metavar="FILE",
-                        help="also write the JSON to FILE")
+    parser.add_argument(
+        "--sizes",
+        default="1000,5000,10000",
+        help="agent counts for the side-by-side runs (default 1000,5000,10000)",
+    )
+    parser.add_argument(
+        "--psf-max",
+        type=int,
+        default=2000,
+        help="largest count given to PySocialForce, which is O(n²) (default "
+        "2000; it also runs at this count for the ratio)",
+    )
+    parser.add_argument(
+        "--scale",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also run ours alone with N agents and report peak RSS (e.g. 100000)",
+    )
+    parser.add_argument(
+        "--peers",
+        default="jupedsim,pysocialforce",
+        help="peers to run: jupedsim, pysocialforce, or none",
+    )
+    parser.add_argument(
+        "--json-out", default=None, metavar="FILE", help="also write the JSON to FILE"
+    )
 
 
 def _parse_sizes(text: str) -> list[int]:
@@ -281,18 +336,32 @@ def run(args: argparse.Namespace) -> int:
             else:
                 results.append(run_pysocialforce(layout))
         except ImportError as exc:
-            skipped[name] = (f"{exc.name or exc} is not installed: "
-                             "pip install -e '.[bench]'")
+            skipped[name] = f"{exc.name or exc} is not installed: pip install -e '.[bench]'"
     scale = run_scale(args.scale) if args.scale else None
     ratios = []
     for ours in (r for r in results if r["simulator"] == "crowdsim"):
         for peer in results:
             if peer["simulator"] != "crowdsim" and peer["agents"] == ours["agents"]:
-                ratios.append({"agents": ours["agents"], "peer": peer["simulator"],
-                               "ratio": ours["sim_s_per_wall_s"] / peer["sim_s_per_wall_s"]})
-    report = {"benchmark": "sim", "corridor": {"density": DENSITY, "desired_speed": V0,
-                                               "warmup_steps": WARMUP, "timed_steps": STEPS},
-              "results": results, "ratios": ratios, "scale": scale, "skipped": skipped}
+                ratios.append(
+                    {
+                        "agents": ours["agents"],
+                        "peer": peer["simulator"],
+                        "ratio": ours["sim_s_per_wall_s"] / peer["sim_s_per_wall_s"],
+                    }
+                )
+    report = {
+        "benchmark": "sim",
+        "corridor": {
+            "density": DENSITY,
+            "desired_speed": V0,
+            "warmup_steps": WARMUP,
+            "timed_steps": STEPS,
+        },
+        "results": results,
+        "ratios": ratios,
+        "scale": scale,
+        "skipped": skipped,
+    }
     _print_table(report)
     text = json.dumps(report, indent=None)
     print(text)
@@ -305,20 +374,26 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _print_table(report: dict[str, Any]) -> None:
-    head = (f"{'simulator':<28} {'agents':>7} {'dt':>5} {'steps/s':>9} {'sim s/wall s':>12} "
-            f"{'mean ov':>8} {'max ov':>7}")
+    head = (
+        f"{'simulator':<28} {'agents':>7} {'dt':>5} {'steps/s':>9} {'sim s/wall s':>12} "
+        f"{'mean ov':>8} {'max ov':>7}"
+    )
     print(head)
     print("-" * len(head))
     for r in report["results"]:
-        print(f"{r['simulator']:<28} {r['agents']:>7} {r['dt']:>5.2f} {r['steps_per_s']:>9.1f} "
-              f"{r['sim_s_per_wall_s']:>12.3f} {r['mean_overlap']:>8.3f} {r['max_overlap']:>7.3f}")
+        print(
+            f"{r['simulator']:<28} {r['agents']:>7} {r['dt']:>5.2f} {r['steps_per_s']:>9.1f} "
+            f"{r['sim_s_per_wall_s']:>12.3f} {r['mean_overlap']:>8.3f} {r['max_overlap']:>7.3f}"
+        )
     if report["ratios"]:
         print("\nours / peer (simulated seconds per wall second)")
         for q in report["ratios"]:
             print(f"  {q['agents']:>7} agents vs {q['peer']:<28} {q['ratio']:>8.1f}x")
     if report["scale"]:
         s = report["scale"]
-        print(f"\nscale: {s['agents']} agents, {s['steps_per_s']:.1f} steps/s, "
-              f"peak RSS {s['peak_rss_mb']:.0f} MB")
+        print(
+            f"\nscale: {s['agents']} agents, {s['steps_per_s']:.1f} steps/s, "
+            f"peak RSS {s['peak_rss_mb']:.0f} MB"
+        )
     for name, why in report["skipped"].items():
         print(f"skipped {name}: {why}")

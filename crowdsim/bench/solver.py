@@ -48,39 +48,83 @@ CLAIM_SIZE: int = 1000
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--sizes", default="100,300,1000",
-                        help="comma-separated numbers of targets of the synthetic frames "
-                             "(default: %(default)s)")
-    parser.add_argument("--frames", type=int, default=2,
-                        help="synthetic frames (QPs) per size (default: %(default)s)")
+    parser.add_argument(
+        "--sizes",
+        default="100,300,1000",
+        help="comma-separated numbers of targets of the synthetic frames (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--frames",
+        type=int,
+        default=2,
+        help="synthetic frames (QPs) per size (default: %(default)s)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic frames")
-    parser.add_argument("--from-npz", action="append", default=[], metavar="FILE",
-                        help="QPs dumped from real tracking frames (tracker.bqp.qp.save_many); "
-                             "repeatable; replaces the synthetic frames")
-    parser.add_argument("--tracker-frames", type=int, default=0, metavar="N",
-                        help="instead of synthetic QPs, run the BQP tracker for N frames on a "
-                             "rendered crowd of each --sizes (crowdsim.bench.track) and take "
-                             "the QPs of its last --frames frames")
-    parser.add_argument("--tracker-dense", action="store_true",
-                        help="with --tracker-frames: dense candidates instead of the "
-                             "tracker's default speed-up sampling")
-    parser.add_argument("--save-npz", metavar="FILE",
-                        help="also write the benchmarked QPs to FILE (.npz)")
-    parser.add_argument("--eps", type=float, default=0.01,
-                        help="duality-gap stop of every FW variant (paper: 0.01)")
-    parser.add_argument("--max-iter", type=int, default=20_000_000,
-                        help="iteration cap (block steps) of every FW variant")
-    parser.add_argument("--repeats", type=int, default=3,
-                        help="timed runs per FW variant and QP; the median is reported")
-    parser.add_argument("--reference", choices=("clarabel", "osqp", "none"),
-                        default="clarabel", help="interior-point / ADMM reference solver")
-    parser.add_argument("--reference-tol", type=float, default=1e-6,
-                        help="relative/absolute gap tolerance of the reference solver "
-                             "(default: %(default)s; FW's eps=0.01 is ~1e-5 relative here)")
-    parser.add_argument("--reference-max-targets", type=int, default=1000,
-                        help="skip the reference solver above this many targets")
-    parser.add_argument("--out", default=os.path.join("benchmarks", "out"),
-                        help="folder of the convergence plot (default: %(default)s)")
+    parser.add_argument(
+        "--from-npz",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="QPs dumped from real tracking frames (tracker.bqp.qp.save_many); "
+        "repeatable; replaces the synthetic frames",
+    )
+    parser.add_argument(
+        "--tracker-frames",
+        type=int,
+        default=0,
+        metavar="N",
+        help="instead of synthetic QPs, run the BQP tracker for N frames on a "
+        "rendered crowd of each --sizes (crowdsim.bench.track) and take "
+        "the QPs of its last --frames frames",
+    )
+    parser.add_argument(
+        "--tracker-dense",
+        action="store_true",
+        help="with --tracker-frames: dense candidates instead of the "
+        "tracker's default speed-up sampling",
+    )
+    parser.add_argument(
+        "--save-npz", metavar="FILE", help="also write the benchmarked QPs to FILE (.npz)"
+    )
+    parser.add_argument(
+        "--eps", type=float, default=0.01, help="duality-gap stop of every FW variant (paper: 0.01)"
+    )
+    parser.add_argument(
+        "--max-iter",
+        type=int,
+        default=20_000_000,
+        help="iteration cap (block steps) of every FW variant",
+    )
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=3,
+        help="timed runs per FW variant and QP; the median is reported",
+    )
+    parser.add_argument(
+        "--reference",
+        choices=("clarabel", "osqp", "none"),
+        default="clarabel",
+        help="interior-point / ADMM reference solver",
+    )
+    parser.add_argument(
+        "--reference-tol",
+        type=float,
+        default=1e-6,
+        help="relative/absolute gap tolerance of the reference solver "
+        "(default: %(default)s; FW's eps=0.01 is ~1e-5 relative here)",
+    )
+    parser.add_argument(
+        "--reference-max-targets",
+        type=int,
+        default=1000,
+        help="skip the reference solver above this many targets",
+    )
+    parser.add_argument(
+        "--out",
+        default=os.path.join("benchmarks", "out"),
+        help="folder of the convergence plot (default: %(default)s)",
+    )
     parser.add_argument("--no-plot", action="store_true", help="skip the PNG")
 
 
@@ -122,14 +166,15 @@ def _tracker_problems(args: argparse.Namespace) -> list[tuple[str, BlockQP]]:
     from tracker.bqp.tracker import BQPTracker
 
     if args.tracker_frames < args.frames:
-        raise ValueError(f"--tracker-frames ({args.tracker_frames}) must be >= --frames "
-                         f"({args.frames})")
+        raise ValueError(
+            f"--tracker-frames ({args.tracker_frames}) must be >= --frames ({args.frames})"
+        )
     out = []
     for n in _parse_sizes(args.sizes):
         crowd = synthetic_crowd(n, args.tracker_frames + 1, seed=args.seed)
         trk = BQPTracker(BQPParams(speedup=not args.tracker_dense), record_qps=True)
         run_tracker(trk, crowd)
-        qps = trk.recorded_qps[-args.frames:]
+        qps = trk.recorded_qps[-args.frames :]
         first = len(trk.recorded_qps) - len(qps) + 1
         out += [(f"tracker n={n} frame={first + i}", qp) for i, qp in enumerate(qps)]
     return out
@@ -192,9 +237,11 @@ def run(args: argparse.Namespace) -> int:
         ref_solver = SOLVERS[args.reference]
 
     rows = []
-    hdr = (f"{'problem':<26} {'n':>5} {'l':>7} {'nnz(Q)':>9} | "
-           + " ".join(f"{'it ' + v:>9} {'ms':>7}" for v in VARIANTS)
-           + f" | {args.reference:>9} {'ms':>8} {'speedup':>8} {'rel.diff':>9}")
+    hdr = (
+        f"{'problem':<26} {'n':>5} {'l':>7} {'nnz(Q)':>9} | "
+        + " ".join(f"{'it ' + v:>9} {'ms':>7}" for v in VARIANTS)
+        + f" | {args.reference:>9} {'ms':>8} {'speedup':>8} {'rel.diff':>9}"
+    )
     print(hdr)
     print("-" * len(hdr))
     for label, qp in problems:
@@ -202,20 +249,31 @@ def run(args: argparse.Namespace) -> int:
         t = time.perf_counter()
         BlockQP(qp.c, qp.Q, qp.block_ptr)
         build = time.perf_counter() - t
-        row = {"problem": label, "n_targets": qp.n_blocks, "n_vars": qp.n_vars,
-               "nnz_Q": int(qp.Q.nnz), "blockqp_seconds": build, "variants": {}}
+        row = {
+            "problem": label,
+            "n_targets": qp.n_blocks,
+            "n_vars": qp.n_vars,
+            "nnz_Q": int(qp.Q.nnz),
+            "blockqp_seconds": build,
+            "variants": {},
+        }
         for v in VARIANTS:
             res, wall, cpu = _time_fw(qp, params[v], args.repeats)
             row["variants"][v] = {
-                "iterations": res.iterations, "seconds": wall, "cpu_seconds": cpu,
+                "iterations": res.iterations,
+                "seconds": wall,
+                "cpu_seconds": cpu,
                 "converged": res.converged,
-                "objective": res.objective, "gap": res.gap,
-                "rounded_objective": res.rounded_objective, "steps": res.steps,
+                "objective": res.objective,
+                "gap": res.gap,
+                "rounded_objective": res.rounded_objective,
+                "steps": res.steps,
                 "support": int(np.count_nonzero(res.x)),
             }
-        line = (f"{label:<26} {qp.n_blocks:>5} {qp.n_vars:>7} {qp.Q.nnz:>9} | "
-                + " ".join(f"{row['variants'][v]['iterations']:>9} "
-                           f"{row['variants'][v]['seconds'] * 1e3:>7.1f}" for v in VARIANTS))
+        line = f"{label:<26} {qp.n_blocks:>5} {qp.n_vars:>7} {qp.Q.nnz:>9} | " + " ".join(
+            f"{row['variants'][v]['iterations']:>9} {row['variants'][v]['seconds'] * 1e3:>7.1f}"
+            for v in VARIANTS
+        )
         if ref_solver is not None and qp.n_blocks <= args.reference_max_targets:
             t, cpu = time.perf_counter(), time.process_time()
             ref = ref_solver(qp, tol=args.reference_tol)
@@ -223,14 +281,22 @@ def run(args: argparse.Namespace) -> int:
             cpu = time.process_time() - cpu
             sw = row["variants"]["swap"]
             rel = (sw["objective"] - ref.objective) / max(abs(ref.objective), 1e-12)
-            row["reference"] = {"solver": args.reference, "seconds": wall, "cpu_seconds": cpu,
-                                "solve_seconds": ref.solve_time, "status": ref.status,
-                                "iterations": ref.iterations, "objective": ref.objective,
-                                "speedup_swap": wall / sw["seconds"],
-                                "speedup_swap_cpu": cpu / sw["cpu_seconds"],
-                                "rel_objective_diff": rel}
-            line += f" | {ref.status[:9]:>9} {wall * 1e3:>8.0f} {wall / sw['seconds']:>7.0f}x " \
-                    f"{rel:>9.1e}"
+            row["reference"] = {
+                "solver": args.reference,
+                "seconds": wall,
+                "cpu_seconds": cpu,
+                "solve_seconds": ref.solve_time,
+                "status": ref.status,
+                "iterations": ref.iterations,
+                "objective": ref.objective,
+                "speedup_swap": wall / sw["seconds"],
+                "speedup_swap_cpu": cpu / sw["cpu_seconds"],
+                "rel_objective_diff": rel,
+            }
+            line += (
+                f" | {ref.status[:9]:>9} {wall * 1e3:>8.0f} {wall / sw['seconds']:>7.0f}x "
+                f"{rel:>9.1e}"
+            )
         print(line, flush=True)
         rows.append(row)
 
@@ -239,55 +305,83 @@ def run(args: argparse.Namespace) -> int:
     summary = {}
     for n in sizes:
         rs = [r for r in rows if r["n_targets"] == n]
-        s = {f"iterations_{v}": float(np.mean([r["variants"][v]["iterations"] for r in rs]))
-             for v in VARIANTS}
-        s.update({f"ms_{v}": 1e3 * float(np.median([r["variants"][v]["seconds"] for r in rs]))
-                  for v in VARIANTS})
-        s.update({f"cpu_ms_{v}": 1e3 * float(
-            np.median([r["variants"][v]["cpu_seconds"] for r in rs])) for v in VARIANTS})
+        s = {
+            f"iterations_{v}": float(np.mean([r["variants"][v]["iterations"] for r in rs]))
+            for v in VARIANTS
+        }
+        s.update(
+            {
+                f"ms_{v}": 1e3 * float(np.median([r["variants"][v]["seconds"] for r in rs]))
+                for v in VARIANTS
+            }
+        )
+        s.update(
+            {
+                f"cpu_ms_{v}": 1e3 * float(np.median([r["variants"][v]["cpu_seconds"] for r in rs]))
+                for v in VARIANTS
+            }
+        )
         s["ms_blockqp"] = 1e3 * float(np.median([r["blockqp_seconds"] for r in rs]))
         s["all_converged"] = all(r["variants"][v]["converged"] for r in rs for v in VARIANTS)
         # Frames with (almost) no quadratic coupling are solved at the start vertex by every
         # variant: they say nothing about Fig. 13 (None, not False).
         trivial = s["iterations_plain"] <= n
-        s["order_swap_lt_away_lt_plain"] = None if trivial else bool(
-            s["iterations_swap"] < s["iterations_away"] < s["iterations_plain"])
+        s["order_swap_lt_away_lt_plain"] = (
+            None
+            if trivial
+            else bool(s["iterations_swap"] < s["iterations_away"] < s["iterations_plain"])
+        )
         refs = [r["reference"] for r in rs if "reference" in r]
         if refs:
             s["ref_ms"] = 1e3 * float(np.median([r["seconds"] for r in refs]))
             s["speedup_swap_vs_ref"] = float(np.median([r["speedup_swap"] for r in refs]))
-            s["speedup_swap_vs_ref_cpu"] = float(
-                np.median([r["speedup_swap_cpu"] for r in refs]))
-            s["max_abs_rel_objective_diff"] = float(
-                max(abs(r["rel_objective_diff"]) for r in refs))
+            s["speedup_swap_vs_ref_cpu"] = float(np.median([r["speedup_swap_cpu"] for r in refs]))
+            s["max_abs_rel_objective_diff"] = float(max(abs(r["rel_objective_diff"]) for r in refs))
         summary[str(n)] = s
 
     print()
-    print(f"{'n':>5} | " + " ".join(f"{'it ' + v:>9}" for v in VARIANTS)
-          + " | " + " ".join(f"{'ms ' + v:>9}" for v in VARIANTS)
-          + f" | {'order':>5} | {'ref ms':>8} {'speedup':>8} {'cpu':>6} {'rel.diff':>9}")
+    print(
+        f"{'n':>5} | "
+        + " ".join(f"{'it ' + v:>9}" for v in VARIANTS)
+        + " | "
+        + " ".join(f"{'ms ' + v:>9}" for v in VARIANTS)
+        + f" | {'order':>5} | {'ref ms':>8} {'speedup':>8} {'cpu':>6} {'rel.diff':>9}"
+    )
     for n in sizes:
         s = summary[str(n)]
-        ref_txt = (f"{s['ref_ms']:>8.0f} {s['speedup_swap_vs_ref']:>7.0f}x "
-                   f"{s['speedup_swap_vs_ref_cpu']:>5.0f}x {s['max_abs_rel_objective_diff']:>9.1e}"
-                   if "speedup_swap_vs_ref" in s else f"{'-':>8} {'-':>8} {'-':>6} {'-':>9}")
-        print(f"{n:>5} | " + " ".join(f"{s['iterations_' + v]:>9.0f}" for v in VARIANTS)
-              + " | " + " ".join(f"{s['ms_' + v]:>9.1f}" for v in VARIANTS)
-              + f" | {_order_txt(s['order_swap_lt_away_lt_plain']):>5} | {ref_txt}")
-    print("(iterations: mean block steps; ms: median wall; order: swap < away < plain, n/a when "
-          "plain FW needs <= n steps (no coupling); speedup: reference wall / FW-SWAP wall, cpu: "
-          "same on process CPU time; rel.diff: max |f_swap - f_ref| / |f_ref|)")
+        ref_txt = (
+            f"{s['ref_ms']:>8.0f} {s['speedup_swap_vs_ref']:>7.0f}x "
+            f"{s['speedup_swap_vs_ref_cpu']:>5.0f}x {s['max_abs_rel_objective_diff']:>9.1e}"
+            if "speedup_swap_vs_ref" in s
+            else f"{'-':>8} {'-':>8} {'-':>6} {'-':>9}"
+        )
+        print(
+            f"{n:>5} | "
+            + " ".join(f"{s['iterations_' + v]:>9.0f}" for v in VARIANTS)
+            + " | "
+            + " ".join(f"{s['ms_' + v]:>9.1f}" for v in VARIANTS)
+            + f" | {_order_txt(s['order_swap_lt_away_lt_plain']):>5} | {ref_txt}"
+        )
+    print(
+        "(iterations: mean block steps; ms: median wall; order: swap < away < plain, n/a when "
+        "plain FW needs <= n steps (no coupling); speedup: reference wall / FW-SWAP wall, cpu: "
+        "same on process CPU time; rel.diff: max |f_swap - f_ref| / |f_ref|)"
+    )
 
     orders = [summary[str(n)]["order_swap_lt_away_lt_plain"] for n in sizes]
-    claims = {"fig13_order_all_sizes": all(o for o in orders if o is not None)
-              if any(o is not None for o in orders) else None}
+    claims = {
+        "fig13_order_all_sizes": all(o for o in orders if o is not None)
+        if any(o is not None for o in orders)
+        else None
+    }
     big = summary.get(str(CLAIM_SIZE))
     if big is not None and "speedup_swap_vs_ref" in big:
         claims["speedup_at_1000"] = big["speedup_swap_vs_ref"]
         claims["speedup_at_1000_cpu"] = big["speedup_swap_vs_ref_cpu"]
         claims["speedup_at_1000_ok"] = big["speedup_swap_vs_ref"] >= CLAIM_SPEEDUP
         claims["rel_objective_at_1000_ok"] = (
-            big["max_abs_rel_objective_diff"] <= CLAIM_REL_OBJECTIVE)
+            big["max_abs_rel_objective_diff"] <= CLAIM_REL_OBJECTIVE
+        )
 
     plot_path = None
     if not args.no_plot:
@@ -295,9 +389,12 @@ def run(args: argparse.Namespace) -> int:
         rec = {}
         for v in VARIANTS:
             first = next(r for r in rows if r["problem"] == label)["variants"][v]
-            rec[v] = solve(qp, params=FWParams(variant=v, eps=args.eps,
-                                               max_iter=first["iterations"],
-                                               record_history=True))
+            rec[v] = solve(
+                qp,
+                params=FWParams(
+                    variant=v, eps=args.eps, max_iter=first["iterations"], record_history=True
+                ),
+            )
         f_ref = min(r.objective for r in rec.values())
         ref_row = next(r for r in rows if r["problem"] == label).get("reference")
         if ref_row is not None:
@@ -313,21 +410,20 @@ def run(args: argparse.Namespace) -> int:
         "eps": args.eps,
         "reference": args.reference,
         "reference_tol": args.reference_tol,
-        "source": "npz" if args.from_npz else (
-            "tracker" if args.tracker_frames else "synthetic"),
-        "frame_spec": None if args.from_npz or args.tracker_frames else {
-            k: v for k, v in asdict(FrameSpec()).items() if k != "n_targets"},
+        "source": "npz" if args.from_npz else ("tracker" if args.tracker_frames else "synthetic"),
+        "frame_spec": None
+        if args.from_npz or args.tracker_frames
+        else {k: v for k, v in asdict(FrameSpec()).items() if k != "n_targets"},
         "iteration_unit": "block step (one target's simplex per iteration)",
         "timing": "FW: median wall seconds of --repeats solve() calls (BlockQP validation "
-                  "reported apart as blockqp_seconds); reference: one run, wall incl. its "
-                  "matrix assembly and setup (solve_seconds: its solve phase only)",
+        "reported apart as blockqp_seconds); reference: one run, wall incl. its "
+        "matrix assembly and setup (solve_seconds: its solve phase only)",
         "summary": summary,
         "claims": claims,
         "problems": rows,
         "plot": plot_path,
         "build_seconds": build_s,
-        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
-                    "loadavg": load},
+        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "loadavg": load},
     }
     print(json.dumps(report))
     return 0

@@ -29,7 +29,7 @@ PACKED_DENSITY: float = 2.5
 
 def packed_size(n: int, px_per_m: float) -> tuple[int, int]:
     """A 16:9 frame holding ``n`` people at :data:`PACKED_DENSITY`."""
-    scale = math.sqrt(n / PACKED_DENSITY * px_per_m ** 2 / (1280 * 720))
+    scale = math.sqrt(n / PACKED_DENSITY * px_per_m**2 / (1280 * 720))
     return max(64, int(1280 * scale)), max(48, int(720 * scale))
 
 
@@ -53,8 +53,15 @@ def run_ablation(crowd: InMemorySequence) -> list[dict]:
     for label, over in ABLATION:
         for app in ("ncc", "kcf"):
             r = run_tracker(BQPTracker(BQPParams(appearance=app, **over)), crowd)
-            rows.append({"terms": label, "appearance": app, "acc@5": r["acc@5"],
-                         "acc@15": r["acc@15"], "fps": r["fps"]})
+            rows.append(
+                {
+                    "terms": label,
+                    "appearance": app,
+                    "acc@5": r["acc@5"],
+                    "acc@15": r["acc@15"],
+                    "fps": r["fps"],
+                }
+            )
     return rows
 
 
@@ -86,23 +93,39 @@ def run_tracker(tracker, crowd: InMemorySequence) -> dict:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--targets", type=int, nargs="+", default=[100, 1000],
-                        help="crowd sizes for the speed runs")
+    parser.add_argument(
+        "--targets", type=int, nargs="+", default=[100, 1000], help="crowd sizes for the speed runs"
+    )
     parser.add_argument("--frames", type=int, default=30, help="frames per run")
-    parser.add_argument("--sampling-targets", type=int, default=300,
-                        help="crowd size of the dense vs speed-up comparison")
-    parser.add_argument("--sampling-frame", default=None, metavar="WxH",
-                        help="frame size of that comparison (default: packed at 2.5 people/m^2, "
-                        "where the quadratic terms matter)")
+    parser.add_argument(
+        "--sampling-targets",
+        type=int,
+        default=300,
+        help="crowd size of the dense vs speed-up comparison",
+    )
+    parser.add_argument(
+        "--sampling-frame",
+        default=None,
+        metavar="WxH",
+        help="frame size of that comparison (default: packed at 2.5 people/m^2, "
+        "where the quadratic terms matter)",
+    )
     parser.add_argument("--template", type=int, default=12, help="template size, px")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--ablation", action="store_true",
-                        help="also run the term ablation of the paper's Table 3")
-    parser.add_argument("--sequence", default=None, metavar="SEQ_DIR",
-                        help="run the ablation on this MOT sequence (default: a "
-                        "low-contrast synthetic crowd)")
-    parser.add_argument("--quick", action="store_true",
-                        help="small run (50 and 200 targets, 12 frames) for smoke tests")
+    parser.add_argument(
+        "--ablation", action="store_true", help="also run the term ablation of the paper's Table 3"
+    )
+    parser.add_argument(
+        "--sequence",
+        default=None,
+        metavar="SEQ_DIR",
+        help="run the ablation on this MOT sequence (default: a low-contrast synthetic crowd)",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="small run (50 and 200 targets, 12 frames) for smoke tests",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -131,12 +154,20 @@ def run(args: argparse.Namespace) -> int:
             size = (1280, 720)
             if packed:
                 size = packed_size(n, ppm)
-            crowd = synthetic_crowd(n, frames, args.seed, args.template, size=size,
-                                    contrast=0.3 if packed else 1.0,
-                                    noise_sigma=8.0 if packed else 3.0)
-            for label, tr in (("bqp dense", BQPTracker(BQPParams(speedup=False))),
-                              ("bqp speedup", BQPTracker(BQPParams(speedup=True))),
-                              ("ncc", NCCTracker())):
+            crowd = synthetic_crowd(
+                n,
+                frames,
+                args.seed,
+                args.template,
+                size=size,
+                contrast=0.3 if packed else 1.0,
+                noise_sigma=8.0 if packed else 3.0,
+            )
+            for label, tr in (
+                ("bqp dense", BQPTracker(BQPParams(speedup=False))),
+                ("bqp speedup", BQPTracker(BQPParams(speedup=True))),
+                ("ncc", NCCTracker()),
+            ):
                 if packed and label == "bqp dense" and n > 300:
                     continue  # minutes per run; the sampling comparison below covers it
                 r = run_tracker(tr, crowd)
@@ -151,9 +182,18 @@ def run(args: argparse.Namespace) -> int:
         sw, sh = (int(v) for v in args.sampling_frame.lower().split("x"))
     except ValueError:
         raise ValueError(
-            f"--sampling-frame must look like 480x270, got {args.sampling_frame!r}") from None
-    crowd = synthetic_crowd(n_sampling, frames, args.seed + 1, args.template, size=(sw, sh),
-                            contrast=0.3, noise_sigma=8.0, speed=2.6)
+            f"--sampling-frame must look like 480x270, got {args.sampling_frame!r}"
+        ) from None
+    crowd = synthetic_crowd(
+        n_sampling,
+        frames,
+        args.seed + 1,
+        args.template,
+        size=(sw, sh),
+        contrast=0.3,
+        noise_sigma=8.0,
+        speed=2.6,
+    )
     dense = run_tracker(BQPTracker(BQPParams(speedup=False)), crowd)
     fast = run_tracker(BQPTracker(BQPParams(speedup=True)), crowd)
     sampling = {
@@ -175,29 +215,54 @@ def run(args: argparse.Namespace) -> int:
         if args.sequence:
             a_crowd = load_crowd(args.sequence, frames * 4)
         else:  # a hard synthetic crowd: low contrast, strong noise, where terms matter
-            a_crowd = synthetic_crowd(n_sampling, 2 * frames, args.seed + 5, 10, size=(sw, sh),
-                                      contrast=0.1, noise_sigma=12.0, speed=2.6)
+            a_crowd = synthetic_crowd(
+                n_sampling,
+                2 * frames,
+                args.seed + 5,
+                10,
+                size=(sw, sh),
+                contrast=0.1,
+                noise_sigma=12.0,
+                speed=2.6,
+            )
         ablation = run_ablation(a_crowd)
-    head = (f"{'method':<13}{'targets':>8}{'frame':>10}{'fps':>8}{'app ms':>8}{'terms':>8}"
-            f"{'solve':>8}{'acc@5':>8}{'acc@15':>8}")
+    head = (
+        f"{'method':<13}{'targets':>8}{'frame':>10}{'fps':>8}{'app ms':>8}{'terms':>8}"
+        f"{'solve':>8}{'acc@5':>8}{'acc@15':>8}"
+    )
     print(head)
     print("-" * len(head))
     for r in rows:
         frame = f"{r['frame'][0]}x{r['frame'][1]}"
-        print(f"{r['method']:<13}{r['targets']:>8}{frame:>10}{r['fps']:>8.1f}{r['appearance_ms']:>8.1f}"
-              f"{r['terms_ms']:>8.1f}{r['solve_ms']:>8.1f}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%")
-    print(f"speed-up sampling at {n_sampling} targets in {sw}x{sh}: "
-          f"{sampling['speed_ratio_total']:.2f}x "
-          f"end to end, {sampling['speed_ratio_solve']:.2f}x solve, "
-          f"acc@15 {sampling['acc@15_dense']:.1f}% -> {sampling['acc@15_speedup']:.1f}%")
+        print(
+            f"{r['method']:<13}{r['targets']:>8}{frame:>10}{r['fps']:>8.1f}{r['appearance_ms']:>8.1f}"
+            f"{r['terms_ms']:>8.1f}{r['solve_ms']:>8.1f}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%"
+        )
+    print(
+        f"speed-up sampling at {n_sampling} targets in {sw}x{sh}: "
+        f"{sampling['speed_ratio_total']:.2f}x "
+        f"end to end, {sampling['speed_ratio_solve']:.2f}x solve, "
+        f"acc@15 {sampling['acc@15_dense']:.1f}% -> {sampling['acc@15_speedup']:.1f}%"
+    )
     if ablation is not None:
         where = args.sequence or "a low-contrast synthetic crowd (contrast 0.1, noise 12)"
         print(f"\nterm ablation (Table 3) on {where}:")
         print(f"{'terms':<16}{'NCC @5':>8}{'@15':>8}{'KCF @5':>8}{'@15':>8}")
         for i in range(0, len(ablation), 2):
             a, b = ablation[i], ablation[i + 1]
-            print(f"{a['terms']:<16}{a['acc@5']:>7.1f}%{a['acc@15']:>7.1f}%"
-                  f"{b['acc@5']:>7.1f}%{b['acc@15']:>7.1f}%")
-    print(json.dumps({"benchmark": "track", "cpu_count": os.cpu_count(), "runs": rows,
-                      "sampling": sampling, "ablation": ablation}))
+            print(
+                f"{a['terms']:<16}{a['acc@5']:>7.1f}%{a['acc@15']:>7.1f}%"
+                f"{b['acc@5']:>7.1f}%{b['acc@15']:>7.1f}%"
+            )
+    print(
+        json.dumps(
+            {
+                "benchmark": "track",
+                "cpu_count": os.cpu_count(),
+                "runs": rows,
+                "sampling": sampling,
+                "ablation": ablation,
+            }
+        )
+    )
     return 0

@@ -13,14 +13,21 @@ from crowdsim.bench import BENCHMARKS, main
 def register(sub: argparse._SubParsersAction) -> None:
     listing = "\n".join(f"  {name:<8} {help_text}" for name, (_, help_text) in BENCHMARKS.items())
     parser = sub.add_parser(
-        "bench", help="run a benchmark (prints a table and JSON)",
+        "bench",
+        help="run a benchmark (prints a table and JSON)",
         description=f"{__doc__.splitlines()[0]}\n\nbenchmarks:\n{listing}\n\n"
         "`crowdsim bench NAME --help` lists a benchmark's options.",
-        formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("benchmark", metavar="NAME", choices=sorted(BENCHMARKS),
-                        help="benchmark to run: " + ", ".join(BENCHMARKS))
-    parser.add_argument("bench_args", nargs=argparse.REMAINDER, metavar="ARGS",
-                        help="options of the benchmark")
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "benchmark",
+        metavar="NAME",
+        choices=sorted(BENCHMARKS),
+        help="benchmark to run: " + ", ".join(BENCHMARKS),
+    )
+    parser.add_argument(
+        "bench_args", nargs=argparse.REMAINDER, metavar="ARGS", help="options of the benchmark"
+    )
     parser.set_defaults(func=run)
 
 

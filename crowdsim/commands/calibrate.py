@@ -17,18 +17,32 @@ import sys
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("calibrate", help="calibrate a suite's difficulty to the papers' NCC "
-                       "scores (writes the suite's specs)",
-                       description=__doc__.splitlines()[0].replace("``", ""))
-    p.add_argument("--suite", default="ucf9", choices=("ucf9", "galleria", "stress"),
-                   help="suite whose specs are calibrated (default ucf9)")
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate a suite's difficulty to the papers' NCC scores (writes the suite's specs)",
+        description=__doc__.splitlines()[0].replace("``", ""),
+    )
+    p.add_argument(
+        "--suite",
+        default="ucf9",
+        choices=("ucf9", "galleria", "stress"),
+        help="suite whose specs are calibrated (default ucf9)",
+    )
     p.add_argument("--only", nargs="+", metavar="SEQ", help="only these sequences")
-    p.add_argument("--trials", type=int, default=16, metavar="N",
-                   help="Optuna trials per sequence at most (default 16; stops within 1 point)")
+    p.add_argument(
+        "--trials",
+        type=int,
+        default=16,
+        metavar="N",
+        help="Optuna trials per sequence at most (default 16; stops within 1 point)",
+    )
     p.add_argument("--seed", type=int, default=0, help="sampler seed (default 0)")
-    p.add_argument("--out", default=None, metavar="DIR",
-                   help="folder of the resumable studies (calibration.db); default: a new "
-                   "temporary folder")
+    p.add_argument(
+        "--out",
+        default=None,
+        metavar="DIR",
+        help="folder of the resumable studies (calibration.db); default: a new temporary folder",
+    )
     p.set_defaults(func=run)
 
 
@@ -38,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
-    results = calibrate_suite(args.suite, only=args.only, trials=args.trials, out=args.out,
-                              seed=args.seed, log=log)
+    results = calibrate_suite(
+        args.suite, only=args.only, trials=args.trials, out=args.out, seed=args.seed, log=log
+    )
     print(json.dumps(results))
     return 0

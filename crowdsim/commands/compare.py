@@ -18,8 +18,11 @@ from crowdsim.commands._table_args import add_table_arguments, run_table_command
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("compare", help="compare every tracker on a suite (the papers' Table 1)",
-                       description=__doc__.splitlines()[0].replace("``", ""))
+    p = sub.add_parser(
+        "compare",
+        help="compare every tracker on a suite (the papers' Table 1)",
+        description=__doc__.splitlines()[0].replace("``", ""),
+    )
     add_table_arguments(p)
     p.set_defaults(func=run)
 

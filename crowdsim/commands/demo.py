@@ -59,19 +59,35 @@ video = false
 
 
 DEMO_TRACKERS: tuple[tuple[str, str], ...] = (
-    ("BQP", "bqp"), ("BQP-NCC", "bqp-ncc"), ("PNMC", "pnmc"), ("NCC", "ncc"),
-    ("mean-shift", "meanshift"), ("ByteTrack", "bytetrack"),
+    ("BQP", "bqp"),
+    ("BQP-NCC", "bqp-ncc"),
+    ("PNMC", "pnmc"),
+    ("NCC", "ncc"),
+    ("mean-shift", "meanshift"),
+    ("ByteTrack", "bytetrack"),
 )
 """Table label -> registered tracker name, in the order the table lists them."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="run the embedded default job and print its results",
-                       description=__doc__.splitlines()[0].replace("``", ""))
-    p.add_argument("--out", type=Path, default=Path("demo_out"), metavar="DIR",
-                   help="output folder (default ./demo_out)")
-    p.add_argument("--frames", type=int, default=None,
-                   help="truncate the demo sequence to N frames (default: the spec's 100)")
+    p = sub.add_parser(
+        "demo",
+        help="run the embedded default job and print its results",
+        description=__doc__.splitlines()[0].replace("``", ""),
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("demo_out"),
+        metavar="DIR",
+        help="output folder (default ./demo_out)",
+    )
+    p.add_argument(
+        "--frames",
+        type=int,
+        default=None,
+        help="truncate the demo sequence to N frames (default: the spec's 100)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
@@ -106,8 +122,13 @@ def run(args: argparse.Namespace) -> int:
     spec = spec_from_dict(parse_spec_text(DEMO_SPEC, "toml", "demo spec"), "demo spec")
     spec = spec.truncated(args.frames)
     print("\ngenerating the demo sequence ...", flush=True)
-    generate([spec], out / "sequences", overwrite=True, progress=progress,
-             log=lambda msg: print(msg, flush=True))
+    generate(
+        [spec],
+        out / "sequences",
+        overwrite=True,
+        progress=progress,
+        log=lambda msg: print(msg, flush=True),
+    )
     return _track_and_report(out, out / "sequences" / spec.name, progress, t_start)
 
 
@@ -126,8 +147,11 @@ def _track_and_report(out: Path, seq_dir: Path, progress: bool, t_start: float) 
     seq = InMemorySequence.from_source(open_sequence(seq_dir))  # decode the JPEGs once
     gt_ids, gt_pts = seq.gt_points()
     size = seq.template_size
-    print(f"\ntracking {seq.name}: {seq.length} frames {seq.width}x{seq.height}, "
-          f"{len(gt_ids)} people, template {size} px", flush=True)
+    print(
+        f"\ntracking {seq.name}: {seq.length} frames {seq.width}x{seq.height}, "
+        f"{len(gt_ids)} people, template {size} px",
+        flush=True,
+    )
     runs = {}
     files = {}
     for label, name in DEMO_TRACKERS:
@@ -136,34 +160,53 @@ def _track_and_report(out: Path, seq_dir: Path, progress: bool, t_start: float) 
         write_mot(path, tracks_to_mot_rows(run.result.ids, run.result.positions, size))
         runs[label], files[label] = run, str(path)
 
-    head = (f"{'method':<11}{'acc@5':>8}{'acc@15':>8}{'MOTA':>8}{'IDF1':>8}{'HOTA':>8}"
-            f"{'IDSW':>6}{'fps':>8}")
+    head = (
+        f"{'method':<11}{'acc@5':>8}{'acc@15':>8}{'MOTA':>8}{'IDF1':>8}{'HOTA':>8}"
+        f"{'IDSW':>6}{'fps':>8}"
+    )
     print("\n" + head)
     print("-" * len(head))
     for label, run in runs.items():
         r = run.report
-        print(f"{label:<11}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%{r['mota']:>7.1f}%"
-              f"{r['idf1']:>7.1f}%{r['hota']:>7.1f}%{r['idsw']:>6d}{run.fps:>8.1f}")
+        print(
+            f"{label:<11}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%{r['mota']:>7.1f}%"
+            f"{r['idf1']:>7.1f}%{r['hota']:>7.1f}%{r['idsw']:>6d}{run.fps:>8.1f}"
+        )
     stages = ", ".join(f"{k} {v:.1f} ms" for k, v in runs["BQP"].stage_ms.items())
     print(f"BQP per frame: {stages}")
-    print("ByteTrack runs on simulated head detections (miss rate 0.1) and names its own "
-          "tracks; acc@T maps each track to the person it follows in most frames.")
+    print(
+        "ByteTrack runs on simulated head detections (miss rate 0.1) and names its own "
+        "tracks; acc@T maps each track to the person it follows in most frames."
+    )
 
     curve_png = out / "accuracy_curve.png"
-    plot_accuracy({n: [c["acc"] for c in r.report["curve"]] for n, r in runs.items()},
-                  curve_png, title=f"{seq.name}: tracking accuracy vs pixel threshold")
+    plot_accuracy(
+        {n: [c["acc"] for c in r.report["curve"]] for n, r in runs.items()},
+        curve_png,
+        title=f"{seq.name}: tracking accuracy vs pixel threshold",
+    )
     overlay = out / "overlay_bqp.mp4"
-    write_overlay(overlay, seq.frames(), size, tracks=runs["BQP"].result.positions,
-                  ground_truth=gt_pts, fps=seq.frame_rate)
-    summary = {"sequence": str(seq_dir), "frames": seq.length, "people": int(len(gt_ids)),
-               "template_px": int(size),
-               "results": {n: {**r.report, "fps": r.fps, "stage_ms": r.stage_ms}
-                           for n, r in runs.items()},
-               "files": {"accuracy_curve": str(curve_png), "overlay": str(overlay),
-                         "results": files}}
+    write_overlay(
+        overlay,
+        seq.frames(),
+        size,
+        tracks=runs["BQP"].result.positions,
+        ground_truth=gt_pts,
+        fps=seq.frame_rate,
+    )
+    summary = {
+        "sequence": str(seq_dir),
+        "frames": seq.length,
+        "people": int(len(gt_ids)),
+        "template_px": int(size),
+        "results": {n: {**r.report, "fps": r.fps, "stage_ms": r.stage_ms} for n, r in runs.items()},
+        "files": {"accuracy_curve": str(curve_png), "overlay": str(overlay), "results": files},
+    }
     write_text_atomic(out / "summary.json", json.dumps(summary, indent=1))
-    print(f"\naccuracy curve -> {curve_png}\noverlay video  -> {overlay} "
-          f"(ground truth green, BQP tracks yellow)\nresults        -> "
-          f"{out}/results_*.txt, {out / 'summary.json'}")
+    print(
+        f"\naccuracy curve -> {curve_png}\noverlay video  -> {overlay} "
+        f"(ground truth green, BQP tracks yellow)\nresults        -> "
+        f"{out}/results_*.txt, {out / 'summary.json'}"
+    )
     print(f"demo finished in {time.perf_counter() - t_start:.0f} s")
     return 0

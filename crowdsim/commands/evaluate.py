@@ -13,13 +13,20 @@ from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("evaluate", help="score MOT results against a sequence's ground truth",
-                       description=__doc__.splitlines()[0].replace("``", ""))
+    p = sub.add_parser(
+        "evaluate",
+        help="score MOT results against a sequence's ground truth",
+        description=__doc__.splitlines()[0].replace("``", ""),
+    )
     p.add_argument("results", help="MOT results file (frame,id,left,top,w,h,...)")
     p.add_argument("sequence", help="MOT sequence folder with gt/gt.txt")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--similarity-px", type=float, default=15.0,
-                   help="T_sim of the point similarity fed to TrackEval (px)")
+    p.add_argument(
+        "--similarity-px",
+        type=float,
+        default=15.0,
+        help="T_sim of the point similarity fed to TrackEval (px)",
+    )
     p.add_argument("--plot", help="write the accuracy-curve PNG here")
     p.set_defaults(func=run)
 
@@ -41,13 +48,19 @@ def load_results(results: str, seq_dir: str):
         finite = np.isfinite(pts).all(-1)
         xy = pts[finite]
         margin = seq.template_size
-        outside = (xy[:, 0] < -margin) | (xy[:, 0] > seq.width + margin) | \
-            (xy[:, 1] < -margin) | (xy[:, 1] > seq.height + margin)
+        outside = (
+            (xy[:, 0] < -margin)
+            | (xy[:, 0] > seq.width + margin)
+            | (xy[:, 1] < -margin)
+            | (xy[:, 1] > seq.height + margin)
+        )
         if outside.any():
             bad = xy[outside][0]
-            raise ValueError(f"{results}: point ({bad[0]:.1f}, {bad[1]:.1f}) lies outside the "
-                             f"{seq.width}x{seq.height} frames of {seq_dir} (mismatched "
-                             "frame sizes?)")
+            raise ValueError(
+                f"{results}: point ({bad[0]:.1f}, {bad[1]:.1f}) lies outside the "
+                f"{seq.width}x{seq.height} frames of {seq_dir} (mismatched "
+                "frame sizes?)"
+            )
     return seq, gt_ids, gt_pts, ids, pts
 
 
@@ -61,8 +74,9 @@ def check_args(args: argparse.Namespace) -> None:
     from crowdsim.checks import require_output_file
 
     if not (math.isfinite(args.similarity_px) and 0 < args.similarity_px <= MAX_SIMILARITY_PX):
-        raise ValueError(f"--similarity-px must be in (0, {MAX_SIMILARITY_PX:g}] px, "
-                         f"got {args.similarity_px}")
+        raise ValueError(
+            f"--similarity-px must be in (0, {MAX_SIMILARITY_PX:g}] px, got {args.similarity_px}"
+        )
     results = Path(args.results)
     if results.is_dir():
         raise ValueError(f"{args.results}: is a folder, not a MOT results file")
@@ -75,8 +89,7 @@ def check_args(args: argparse.Namespace) -> None:
         require_output_file("--plot", plot)
         seq = Path(args.sequence).resolve()
         if plot.resolve() == results.resolve() or seq in plot.resolve().parents:
-            raise ValueError(f"--plot {args.plot} would overwrite an input; choose another "
-                             "file")
+            raise ValueError(f"--plot {args.plot} would overwrite an input; choose another file")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -88,8 +101,9 @@ def run(args: argparse.Namespace) -> int:
     verify_frames(seq)
     # any result ids: MOTA, IDF1 and HOTA need no correspondence; acc@T uses the ids as they
     # are when they are ground-truth ids, else a majority mapping (tracker.metrics.evaluate)
-    report = evaluate(gt_ids, gt_pts, ids, pts, similarity_scale=args.similarity_px,
-                      id_mapping="auto")
+    report = evaluate(
+        gt_ids, gt_pts, ids, pts, similarity_scale=args.similarity_px, id_mapping="auto"
+    )
     name = Path(args.results).stem
     if args.plot:
         plot_accuracy({name: [c["acc"] for c in report["curve"]]}, args.plot, title=seq.name)
@@ -100,7 +114,9 @@ def run(args: argparse.Namespace) -> int:
     print(format_table({name: report}))
     curve = " ".join(f"{c['acc']:.0f}" for c in report["curve"])
     print(f"accuracy (%) for T = 0..25 px: {curve}")
-    print(f"CLEAR/IDF1 match within {args.similarity_px / 2:g} px (similarity >= 0.5); "
-          f"MOTP {report['motp']:.1f}%, DetA {report['deta']:.1f}%, AssA {report['assa']:.1f}%, "
-          f"MT {report['mt']}, ML {report['ml']}, Frag {report['frag']}")
+    print(
+        f"CLEAR/IDF1 match within {args.similarity_px / 2:g} px (similarity >= 0.5); "
+        f"MOTP {report['motp']:.1f}%, DetA {report['deta']:.1f}%, AssA {report['assa']:.1f}%, "
+        f"MT {report['mt']}, ML {report['ml']}, Frag {report['frag']}"
+    )
     return 0

@@ -40,8 +40,17 @@ BYTES_PER_PIXEL = 64
 BYTES_PER_AGENT_ROW = 128
 """Working set per (frame, agent) cell (positions, pixels, headings, sway, gt); measured
 107 B for 2000 frames x 1000 people."""
-SEQUENCE_ENTRIES = frozenset({"img1", "gt", "seqinfo.ini", "meta.json", "checksums.json",
-                              "video.mp4", ".crowdsim-tmp-owner.json"})
+SEQUENCE_ENTRIES = frozenset(
+    {
+        "img1",
+        "gt",
+        "seqinfo.ini",
+        "meta.json",
+        "checksums.json",
+        "video.mp4",
+        ".crowdsim-tmp-owner.json",
+    }
+)
 """Everything a sequence folder written by crowdsim may hold (the writer's marker is removed
 right after the rename that publishes the folder)."""
 
@@ -55,23 +64,48 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("render", help="render trajectories to a MOTChallenge sequence",
-                       description=__doc__.splitlines()[0].replace("``", ""))
-    p.add_argument("--trajectories", required=True, metavar="FILE",
-                   help=".npz from crowdsim simulate, or a CSV frame,id,x,y in metres")
-    p.add_argument("--fps", type=float, default=None, metavar="F",
-                   help="frame rate of the trajectories, (0, 1000] (required for CSV; "
-                   ".npz knows its dt)")
-    p.add_argument("--px-per-m", type=float, default=None, metavar="S",
-                   help="scale, px/m, in [0.001, 10000]")
-    p.add_argument("--size", type=_size, default=None, metavar="WxH",
-                   help=f"frame size, sides {MIN_SIDE_PX}..{MAX_SIDE_PX} px")
-    p.add_argument("--template-px", type=int, default=12, metavar="PX",
-                   help="person template size in pixels, 4..64 (default 12)")
+    p = sub.add_parser(
+        "render",
+        help="render trajectories to a MOTChallenge sequence",
+        description=__doc__.splitlines()[0].replace("``", ""),
+    )
+    p.add_argument(
+        "--trajectories",
+        required=True,
+        metavar="FILE",
+        help=".npz from crowdsim simulate, or a CSV frame,id,x,y in metres",
+    )
+    p.add_argument(
+        "--fps",
+        type=float,
+        default=None,
+        metavar="F",
+        help="frame rate of the trajectories, (0, 1000] (required for CSV; .npz knows its dt)",
+    )
+    p.add_argument(
+        "--px-per-m", type=float, default=None, metavar="S", help="scale, px/m, in [0.001, 10000]"
+    )
+    p.add_argument(
+        "--size",
+        type=_size,
+        default=None,
+        metavar="WxH",
+        help=f"frame size, sides {MIN_SIDE_PX}..{MAX_SIDE_PX} px",
+    )
+    p.add_argument(
+        "--template-px",
+        type=int,
+        default=12,
+        metavar="PX",
+        help="person template size in pixels, 4..64 (default 12)",
+    )
     p.add_argument("--seed", type=int, default=0, metavar="K", help="rendering seed")
     p.add_argument("--video", action="store_true", help="also write video.mp4")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace an existing crowdsim sequence (or suite) folder SEQ_DIR")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing crowdsim sequence (or suite) folder SEQ_DIR",
+    )
     p.add_argument("--out", required=True, metavar="SEQ_DIR", help="sequence folder to write")
     p.set_defaults(func=run)
 
@@ -81,16 +115,19 @@ def _check_flags(args: argparse.Namespace) -> None:
     if args.fps is not None and not (math.isfinite(args.fps) and 0 < args.fps <= MAX_FPS):
         raise ValueError(f"--fps must be in (0, {MAX_FPS:g}], got {args.fps}")
     lo, hi = PX_PER_M_RANGE
-    if args.px_per_m is not None and not (math.isfinite(args.px_per_m)
-                                          and lo <= args.px_per_m <= hi):
+    if args.px_per_m is not None and not (
+        math.isfinite(args.px_per_m) and lo <= args.px_per_m <= hi
+    ):
         raise ValueError(f"--px-per-m must be in [{lo:g}, {hi:g}], got {args.px_per_m:g}")
     if not 0 <= args.seed < 2**63:
         raise ValueError(f"--seed must be in [0, 2**63), got {args.seed}")
     if args.size is not None:
         w, h = args.size
         if not (MIN_SIDE_PX <= w <= MAX_SIDE_PX and MIN_SIDE_PX <= h <= MAX_SIDE_PX):
-            raise ValueError(f"--size must be between {MIN_SIDE_PX}x{MIN_SIDE_PX} and "
-                             f"{MAX_SIDE_PX}x{MAX_SIDE_PX}, got {w}x{h}")
+            raise ValueError(
+                f"--size must be between {MIN_SIDE_PX}x{MIN_SIDE_PX} and "
+                f"{MAX_SIDE_PX}x{MAX_SIDE_PX}, got {w}x{h}"
+            )
     if not 4 <= args.template_px <= 64:
         raise ValueError(f"--template-px must be in [4, 64], got {args.template_px}")
 
@@ -120,8 +157,10 @@ def is_suite_folder(path: Path) -> bool:
         return False
     if not (isinstance(manifest, dict) and isinstance(manifest.get("sequences"), dict)):
         return False
-    return all(p.name == "manifest.json" or p.name.startswith(".") or is_sequence_folder(p)
-               for p in path.iterdir())
+    return all(
+        p.name == "manifest.json" or p.name.startswith(".") or is_sequence_folder(p)
+        for p in path.iterdir()
+    )
 
 
 def check_output(out: Path, source: Path, overwrite: bool) -> None:
@@ -135,12 +174,16 @@ def check_output(out: Path, source: Path, overwrite: bool) -> None:
     if not overwrite:
         raise ValueError(f"--out {out} already exists; pass --overwrite to replace it")
     if out.is_symlink() or not out.is_dir():
-        raise ValueError(f"--out {out} is a file, not a crowdsim sequence folder; refusing to "
-                         "replace it with --overwrite")
+        raise ValueError(
+            f"--out {out} is a file, not a crowdsim sequence folder; refusing to "
+            "replace it with --overwrite"
+        )
     if not (is_sequence_folder(out) or is_suite_folder(out)):
-        raise ValueError(f"--out {out} is not a crowdsim sequence or suite folder (no "
-                         "seqinfo.ini + gt/ + meta.json of ours, or other files inside); "
-                         "refusing to replace it with --overwrite")
+        raise ValueError(
+            f"--out {out} is not a crowdsim sequence or suite folder (no "
+            "seqinfo.ini + gt/ + meta.json of ours, or other files inside); "
+            "refusing to replace it with --overwrite"
+        )
 
 
 def estimate_bytes(width: int, height: int, n_frames: int, n_agents: int) -> int:
@@ -164,8 +207,13 @@ def load_trajectories(path: Path, fps: float | None):
     if path.suffix == ".npz":
         traj = Trajectories.load(path)
         if fps is not None and abs(fps - traj.fps) > 1e-9:
-            traj = Trajectories(positions=traj.positions, ids=traj.ids, dt=1.0 / fps,
-                                attributes=traj.attributes, meta=traj.meta)
+            traj = Trajectories(
+                positions=traj.positions,
+                ids=traj.ids,
+                dt=1.0 / fps,
+                attributes=traj.attributes,
+                meta=traj.meta,
+            )
     elif path.suffix == ".csv":
         if fps is None:
             raise ValueError("--fps is required for CSV trajectories")
@@ -200,20 +248,25 @@ def run(args: argparse.Namespace) -> int:
     if scale is None and args.size is None:
         scale = default_px_per_m(args.template_px)
     camera = Camera.fit(traj.extent(), px_per_m=scale, size=args.size, seed=args.seed)
-    if not (MIN_SIDE_PX <= camera.width <= MAX_SIDE_PX
-            and MIN_SIDE_PX <= camera.height <= MAX_SIDE_PX):  # pragma: no cover - fit clips
+    if not (
+        MIN_SIDE_PX <= camera.width <= MAX_SIDE_PX and MIN_SIDE_PX <= camera.height <= MAX_SIDE_PX
+    ):  # pragma: no cover - fit clips
         raise ValueError(f"frame size {camera.width}x{camera.height} is outside the limits")
-    require_memory(f"rendering {traj.n_steps} frames of {camera.width}x{camera.height} px with "
-                   f"{traj.n_agents} people", estimate_bytes(camera.width, camera.height,
-                                                             traj.n_steps, traj.n_agents))
+    require_memory(
+        f"rendering {traj.n_steps} frames of {camera.width}x{camera.height} px with "
+        f"{traj.n_agents} people",
+        estimate_bytes(camera.width, camera.height, traj.n_steps, traj.n_agents),
+    )
     pix = camera.project(traj.positions[traj.present])
     if not camera.visible(pix).any():
         xmin, ymin, xmax, ymax = traj.extent()
-        raise ValueError(f"--px-per-m {camera.px_per_m:g}: no trajectory point falls inside "
-                         f"the {camera.width}x{camera.height} frame (the people span "
-                         f"{(xmax - xmin) * camera.px_per_m:.3g} x "
-                         f"{(ymax - ymin) * camera.px_per_m:.3g} px); lower --px-per-m or "
-                         "enlarge --size")
+        raise ValueError(
+            f"--px-per-m {camera.px_per_m:g}: no trajectory point falls inside "
+            f"the {camera.width}x{camera.height} frame (the people span "
+            f"{(xmax - xmin) * camera.px_per_m:.3g} x "
+            f"{(ymax - ymin) * camera.px_per_m:.3g} px); lower --px-per-m or "
+            "enlarge --size"
+        )
     meta = {"source": str(path), "seed": args.seed, "fps": traj.fps}
     out.parent.mkdir(parents=True, exist_ok=True)
     for p in clean_stale_tmp(out.parent):
@@ -221,13 +274,23 @@ def run(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGTERM, _on_sigterm) if _main_thread() else None
     try:
         with progress_bar(total=traj.n_steps, unit="frame", desc="rendering") as bar:
-            entry = write_sequence(out, traj, camera=camera, appearance=appearance,
-                                   seed=args.seed, meta=meta, video=args.video,
-                                   overwrite=args.overwrite, progress=bar.update)
+            entry = write_sequence(
+                out,
+                traj,
+                camera=camera,
+                appearance=appearance,
+                seed=args.seed,
+                meta=meta,
+                video=args.video,
+                overwrite=args.overwrite,
+                progress=bar.update,
+            )
     except (KeyboardInterrupt, _Terminated) as exc:
         how = "terminated" if isinstance(exc, _Terminated) else "interrupted"
-        print(f"crowdsim render: {how}; removed the unfinished temporary folder of {out}",
-              file=sys.stderr)
+        print(
+            f"crowdsim render: {how}; removed the unfinished temporary folder of {out}",
+            file=sys.stderr,
+        )
         return 130 if how == "interrupted" else 143
     except OSError as exc:  # name --out, not the hidden temporary folder (or nothing)
         name = "" if exc.filename is None else Path(os.fsdecode(exc.filename)).name
@@ -237,8 +300,10 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
-    print(f"wrote {out}: {entry['frames']} frames {camera.width}x{camera.height} "
-          f"at {camera.px_per_m:.2f} px/m")
+    print(
+        f"wrote {out}: {entry['frames']} frames {camera.width}x{camera.height} "
+        f"at {camera.px_per_m:.2f} px/m"
+    )
     return 0
 
 

@@ -41,28 +41,66 @@ def _is_float(text: str) -> bool:
 def register(sub: argparse._SubParsersAction) -> None:
     from crowdsim.scenarios import SCENARIOS  # light: no numba compile at import
 
-    p = sub.add_parser("simulate", help="simulate a scenario, write trajectories (.npz)",
-                       description=DESCRIPTION,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("scenario", metavar="SCENARIO",
-                   help=f"one of: {', '.join(SCENARIOS)}")
-    p.add_argument("--agents", type=int, default=200, metavar="N",
-                   help="agents placed at the start, 1..100000 (default 200)")
-    p.add_argument("--density", type=float, default=None, metavar="RHO",
-                   help="initial density in persons/m², (0, 6] (default: the scenario's)")
-    p.add_argument("--steps", type=int, default=250, metavar="S",
-                   help="time steps to simulate (default 250)")
-    p.add_argument("--dt", type=float, default=0.04, metavar="SECONDS",
-                   help="time step in seconds, (0, 0.2] (default 0.04 = 25 frames/s)")
+    p = sub.add_parser(
+        "simulate",
+        help="simulate a scenario, write trajectories (.npz)",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("scenario", metavar="SCENARIO", help=f"one of: {', '.join(SCENARIOS)}")
+    p.add_argument(
+        "--agents",
+        type=int,
+        default=200,
+        metavar="N",
+        help="agents placed at the start, 1..100000 (default 200)",
+    )
+    p.add_argument(
+        "--density",
+        type=float,
+        default=None,
+        metavar="RHO",
+        help="initial density in persons/m², (0, 6] (default: the scenario's)",
+    )
+    p.add_argument(
+        "--steps", type=int, default=250, metavar="S", help="time steps to simulate (default 250)"
+    )
+    p.add_argument(
+        "--dt",
+        type=float,
+        default=0.04,
+        metavar="SECONDS",
+        help="time step in seconds, (0, 0.2] (default 0.04 = 25 frames/s)",
+    )
     p.add_argument("--seed", type=int, default=0, metavar="K", help="random seed (default 0)")
-    p.add_argument("--out", type=Path, default=None, metavar="FILE.npz",
-                   help="trajectory file to write (atomically); omit to only print the table")
-    p.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
-                   help="also draw the trajectories over the walls as a PNG")
-    p.add_argument("--set", dest="scenario_params", action="append", metavar="NAME=VALUE",
-                   help="scenario parameter, e.g. --set width=8 (repeatable)")
-    p.add_argument("--param", dest="model_params", action="append", metavar="NAME=VALUE",
-                   help="social-force parameter, e.g. --param tau=0.4 (repeatable)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        metavar="FILE.npz",
+        help="trajectory file to write (atomically); omit to only print the table",
+    )
+    p.add_argument(
+        "--plot",
+        type=Path,
+        default=None,
+        metavar="FILE.png",
+        help="also draw the trajectories over the walls as a PNG",
+    )
+    p.add_argument(
+        "--set",
+        dest="scenario_params",
+        action="append",
+        metavar="NAME=VALUE",
+        help="scenario parameter, e.g. --set width=8 (repeatable)",
+    )
+    p.add_argument(
+        "--param",
+        dest="model_params",
+        action="append",
+        metavar="NAME=VALUE",
+        help="social-force parameter, e.g. --param tau=0.4 (repeatable)",
+    )
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.set_defaults(func=run)
 
@@ -92,8 +130,10 @@ def check_args(args: argparse.Namespace) -> None:
         raise ValueError(f"--out must end in .npz, got {str(args.out)!r}")
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise ValueError(f"--plot must end in .png, got {str(args.plot)!r}")
-    require_memory(f"--steps {args.steps} x --agents {args.agents}",
-                   float(BYTES_PER_AGENT_STEP) * (args.steps + 1) * args.agents)
+    require_memory(
+        f"--steps {args.steps} x --agents {args.agents}",
+        float(BYTES_PER_AGENT_STEP) * (args.steps + 1) * args.agents,
+    )
     if args.out is not None:
         require_output_file("--out", args.out)
     if args.plot is not None:
@@ -111,8 +151,11 @@ def run(args: argparse.Namespace) -> int:
 
     scenario_kw = parse_assignments(args.scenario_params, "--set")
     model_kw = parse_assignments(args.model_params, "--param")
-    for flag, key, own in (("--set", "n_agents", "--agents"), ("--set", "density", "--density"),
-                           ("--param", "dt", "--dt")):
+    for flag, key, own in (
+        ("--set", "n_agents", "--agents"),
+        ("--set", "density", "--density"),
+        ("--param", "dt", "--dt"),
+    ):
         if key in (scenario_kw if flag == "--set" else model_kw):
             raise ValueError(f"{flag} {key}: use {own} instead")
     scenario_kw["n_agents"] = args.agents
@@ -130,8 +173,12 @@ def run(args: argparse.Namespace) -> int:
     if args.plot is not None:
         from crowdsim.plotting import plot_trajectories
 
-        plot_trajectories(traj, sim.world.walls, args.plot,
-                          title=f"{scenario.name}: {traj.n_agents} agents, seed {args.seed}")
+        plot_trajectories(
+            traj,
+            sim.world.walls,
+            args.plot,
+            title=f"{scenario.name}: {traj.n_agents} agents, seed {args.seed}",
+        )
     print(summary_table(sim, traj, args.steps, wall, args.out, args.plot))
     return 0
 

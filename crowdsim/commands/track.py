@@ -25,32 +25,62 @@ def register(sub: argparse._SubParsersAction) -> None:
     from tracker.registry import TRACKERS
 
     listing = "; ".join(f"{name}: {e.summary}" for name, e in TRACKERS.items())
-    p = sub.add_parser("track", help="track a sequence or video with any registered tracker, "
-                       "write MOT results", description=__doc__.splitlines()[0].replace("``", ""))
+    p = sub.add_parser(
+        "track",
+        help="track a sequence or video with any registered tracker, write MOT results",
+        description=__doc__.splitlines()[0].replace("``", ""),
+    )
     p.add_argument("input", help="MOT sequence folder or video file")
-    p.add_argument("--tracker", default="bqp", metavar="NAME",
-                   help=f"registered tracker (default bqp). {listing}")
-    p.add_argument("--set", action="append", metavar="NAME=VALUE",
-                   help="tracker parameter, e.g. --set zeta=0.5 (repeatable)")
+    p.add_argument(
+        "--tracker",
+        default="bqp",
+        metavar="NAME",
+        help=f"registered tracker (default bqp). {listing}",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="NAME=VALUE",
+        help="tracker parameter, e.g. --set zeta=0.5 (repeatable)",
+    )
     p.add_argument("--out", required=True, help="MOT results file to write")
     p.add_argument("--init", help="points CSV (frame,id,x,y or id,x,y); required for a video")
     p.add_argument("--video", help="write an overlay MP4 (gt green, tracks yellow)")
-    p.add_argument("--evaluate", action="store_true",
-                   help="print the accuracy table against the sequence's ground truth")
-    p.add_argument("--template-size", type=int, default=None,
-                   help=f"template (head) size in px, 2..{MAX_TEMPLATE_PX} (default: from "
-                   "seqinfo.ini, or 12)")
+    p.add_argument(
+        "--evaluate",
+        action="store_true",
+        help="print the accuracy table against the sequence's ground truth",
+    )
+    p.add_argument(
+        "--template-size",
+        type=int,
+        default=None,
+        help=f"template (head) size in px, 2..{MAX_TEMPLATE_PX} (default: from seqinfo.ini, or 12)",
+    )
     p.add_argument("--frames", type=int, default=None, help="track only the first N frames")
-    p.add_argument("--appearance", choices=("kcf", "ncc"), default=None,
-                   help="appearance model of a BQP tracker (same as --set appearance=...)")
-    p.add_argument("--dense", action="store_true",
-                   help="BQP with dense candidates instead of the default speed-up sampling "
-                   "(same as --tracker bqp-dense)")
+    p.add_argument(
+        "--appearance",
+        choices=("kcf", "ncc"),
+        default=None,
+        help="appearance model of a BQP tracker (same as --set appearance=...)",
+    )
+    p.add_argument(
+        "--dense",
+        action="store_true",
+        help="BQP with dense candidates instead of the default speed-up sampling "
+        "(same as --tracker bqp-dense)",
+    )
     tuned = p.add_mutually_exclusive_group()
-    tuned.add_argument("--params", metavar="JSON",
-                       help="BQP with tuned static parameters (best_params.json of crowdsim tune)")
-    tuned.add_argument("--policy", metavar="ZIP",
-                       help="BQP driven by an adaptive policy (model.zip of crowdsim train)")
+    tuned.add_argument(
+        "--params",
+        metavar="JSON",
+        help="BQP with tuned static parameters (best_params.json of crowdsim tune)",
+    )
+    tuned.add_argument(
+        "--policy",
+        metavar="ZIP",
+        help="BQP driven by an adaptive policy (model.zip of crowdsim train)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -116,25 +146,41 @@ def run(args: argparse.Namespace) -> int:
         from envs.tuners import tuned_tracker
 
         if not name.startswith("bqp"):
-            raise ValueError("--params and --policy set the parameters of a BQP tracker, "
-                             f"not of --tracker {name}")
+            raise ValueError(
+                "--params and --policy set the parameters of a BQP tracker, "
+                f"not of --tracker {name}"
+            )
         tracker, feed, what = tuned_tracker(src, args.params, args.policy, over)
         print(f"tracking with {what}", file=sys.stderr)
-    run = run_tracker(tracker, feed, frames=args.frames, template_size=size,
-                      metrics="full" if args.evaluate else "none",
-                      progress=not args.no_progress, prepare=attach_detections)
+    run = run_tracker(
+        tracker,
+        feed,
+        frames=args.frames,
+        template_size=size,
+        metrics="full" if args.evaluate else "none",
+        progress=not args.no_progress,
+        prepare=attach_detections,
+    )
     result = run.result
     write_mot(out, tracks_to_mot_rows(result.ids, result.positions, size))
     stages = ", ".join(f"{k} {v:.1f} ms" for k, v in run.stage_ms.items())
-    print(f"{run.tracker}: {result.n_frames} frames, {len(result.ids)} targets, "
-          f"{run.fps:.1f} frames/s ({stages} per frame) -> {out}", file=sys.stderr)
+    print(
+        f"{run.tracker}: {result.n_frames} frames, {len(result.ids)} targets, "
+        f"{run.fps:.1f} frames/s ({stages} per frame) -> {out}",
+        file=sys.stderr,
+    )
     if args.video:
         from tracker.overlay import write_overlay
 
         gt_pts = src.gt_points()[1] if is_folder else None
-        write_overlay(args.video, itertools.islice(src.frames(), result.n_frames), size,
-                      tracks=result.positions, ground_truth=gt_pts,
-                      fps=getattr(src, "frame_rate", 25.0))
+        write_overlay(
+            args.video,
+            itertools.islice(src.frames(), result.n_frames),
+            size,
+            tracks=result.positions,
+            ground_truth=gt_pts,
+            fps=getattr(src, "frame_rate", 25.0),
+        )
         print(f"overlay -> {args.video}", file=sys.stderr)
     if args.evaluate:
         print(format_table({run.tracker: run.report}))

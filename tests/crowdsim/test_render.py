@@ -25,13 +25,22 @@ def walkers(n_frames: int = 12, dt: float = 0.04) -> Trajectories:
     t = np.arange(n_frames)[:, None, None] * dt
     pos = start[None] + vel[None] * t
     pos[:3, 5] = np.nan  # agent 5 enters at row 3
-    return Trajectories(positions=pos, ids=np.arange(10, 16), dt=dt,
-                        attributes={"prominent": np.array([0, 0, 1, 0, 0, 0], bool)})
+    return Trajectories(
+        positions=pos,
+        ids=np.arange(10, 16),
+        dt=dt,
+        attributes={"prominent": np.array([0, 0, 1, 0, 0, 0], bool)},
+    )
 
 
-PARAMS = AppearanceParams(template_px=12, shadow=0.0, noise_sigma=2.0, ground_texture=4.0,
-                          ground_bgr=(60, 170, 60),  # far from every hair colour
-                          prominent_fraction=0.0)
+PARAMS = AppearanceParams(
+    template_px=12,
+    shadow=0.0,
+    noise_sigma=2.0,
+    ground_texture=4.0,
+    ground_bgr=(60, 170, 60),  # far from every hair colour
+    prominent_fraction=0.0,
+)
 CAMERA = Camera(px_per_m=24.0, width=256, height=176, center=(5.0, 3.5))
 
 
@@ -47,7 +56,7 @@ def test_plant_and_recover_heads_through_disk(tmp_path):
     np.testing.assert_allclose(points, CAMERA.project(traj.positions), atol=2e-3)
     empty = SceneRenderer(CAMERA, PARAMS, seed=3, fps=traj.fps)
     half = 7
-    yy, xx = np.mgrid[-half:half + 1, -half:half + 1]
+    yy, xx = np.mgrid[-half : half + 1, -half : half + 1]
     errors = []
     for t, frame in enumerate(seq.frames()):
         assert frame.shape == (176, 256, 3) and frame.dtype == np.uint8
@@ -59,14 +68,14 @@ def test_plant_and_recover_heads_through_disk(tmp_path):
             u, v = points[t, n]
             cu, cv = int(round(u)), int(round(v))
             assert diff[cv, cu] > 60, "no person drawn at the gt head point"
-            win = diff[cv - half:cv + half + 1, cu - half:cu + half + 1]
+            win = diff[cv - half : cv + half + 1, cu - half : cu + half + 1]
             w = np.where(win > 30, win, 0.0)
             centroid = np.array([(w * (xx + cu)).sum(), (w * (yy + cv)).sum()]) / w.sum()
             errors.append(np.hypot(*(centroid - (u, v))))
         # Nothing is drawn far away from every person.
         far = np.ones_like(diff, bool)
         for u, v in points[t][np.isfinite(points[t, :, 0])]:
-            far[max(0, int(v) - 10):int(v) + 11, max(0, int(u) - 10):int(u) + 11] = False
+            far[max(0, int(v) - 10) : int(v) + 11, max(0, int(u) - 10) : int(u) + 11] = False
         assert np.percentile(diff[far], 99) < 30
     # The person's centroid sits on the head; shoulders and face bias it a little.
     assert max(errors) < 1.5 and np.mean(errors) < 0.75
@@ -105,11 +114,14 @@ def test_prominent_attribute_gets_distinct_colours():
     np.testing.assert_array_equal(tracks.appearance >= n_var, traj.attributes["prominent"])
 
 
-@pytest.mark.parametrize("points", [
-    np.zeros((0, 2)),  # empty crowd
-    np.array([[np.nan, np.nan]]),  # absent agent
-    np.array([[-3.0, 5.0], [255.5, 175.5], [1e6, -1e6]]),  # partly and far outside
-])
+@pytest.mark.parametrize(
+    "points",
+    [
+        np.zeros((0, 2)),  # empty crowd
+        np.array([[np.nan, np.nan]]),  # absent agent
+        np.array([[-3.0, 5.0], [255.5, 175.5], [1e6, -1e6]]),  # partly and far outside
+    ],
+)
 def test_edge_cases_render_without_error(points):
     r = SceneRenderer(CAMERA, PARAMS, seed=0, fps=25.0)
     frame = r.render(0, points, np.zeros(len(points)), np.zeros(len(points), int))
@@ -118,8 +130,9 @@ def test_edge_cases_render_without_error(points):
 
 def test_jitter_moves_ground_and_people_together():
     cam = Camera(px_per_m=24.0, width=128, height=96, center=(0.0, 0.0), jitter_px=3.0, seed=2)
-    params = AppearanceParams(template_px=12, noise_sigma=0.0, illumination_drift=0.0,
-                              ground_texture=20.0)
+    params = AppearanceParams(
+        template_px=12, noise_sigma=0.0, illumination_drift=0.0, ground_texture=20.0
+    )
     r = SceneRenderer(cam, params, seed=0, fps=25.0)
     none = (np.zeros((0, 2)), np.zeros(0), np.zeros(0, int))
     offsets = cam.jitter(30)
@@ -128,8 +141,8 @@ def test_jitter_moves_ground_and_people_together():
     dx, dy = (np.rint(offsets[t]) - np.rint(offsets[0])).astype(int)
     assert dx != 0
     m = 12
-    shifted = b[m + dy:96 - m + dy, m + dx:128 - m + dx]
-    np.testing.assert_allclose(shifted, a[m:96 - m, m:128 - m], atol=1.0)
+    shifted = b[m + dy : 96 - m + dy, m + dx : 128 - m + dx]
+    np.testing.assert_allclose(shifted, a[m : 96 - m, m : 128 - m], atol=1.0)
 
 
 def test_gt_rows_are_head_boxes_inside_the_frame():
@@ -187,13 +200,17 @@ def test_illumination_drifts_and_motion_blur_smooths():
     r = SceneRenderer(cam, lit, seed=0, fps=25.0)
     means = [r.render(t, *none).mean() for t in range(25)]
     assert max(means) / min(means) > 1.15  # +-20 % over one period
-    flat = SceneRenderer(cam, AppearanceParams(illumination_drift=0.0, noise_sigma=0.0), seed=0,
-                         fps=25.0)
+    flat = SceneRenderer(
+        cam, AppearanceParams(illumination_drift=0.0, noise_sigma=0.0), seed=0, fps=25.0
+    )
     assert np.ptp([flat.render(t, *none).mean() for t in range(5)]) < 1e-9
     sharp = SceneRenderer(cam, AppearanceParams(ground_texture=30.0), seed=0, fps=25.0)
-    blurred = SceneRenderer(cam, AppearanceParams(ground_texture=30.0, motion_blur_px=7.0),
-                            seed=0, fps=25.0)
+    blurred = SceneRenderer(
+        cam, AppearanceParams(ground_texture=30.0, motion_blur_px=7.0), seed=0, fps=25.0
+    )
     a, b = sharp.render(0, *none), blurred.render(0, *none)
-    assert np.abs(np.diff(b.astype(float), axis=1)).mean() < \
-        0.7 * np.abs(np.diff(a.astype(float), axis=1)).mean()
+    assert (
+        np.abs(np.diff(b.astype(float), axis=1)).mean()
+        < 0.7 * np.abs(np.diff(a.astype(float), axis=1)).mean()
+    )
     np.testing.assert_array_equal(b, blurred.render(0, *none))

@@ -16,8 +16,9 @@ def test_untilted_camera_is_an_affine_top_down_map():
 
 
 def test_tilt_keeps_the_centre_and_shrinks_the_far_top():
-    cam = Camera(px_per_m=10.0, width=200, height=200, center=(0.0, 0.0), tilt_deg=30,
-                 distance_m=20.0)
+    cam = Camera(
+        px_per_m=10.0, width=200, height=200, center=(0.0, 0.0), tilt_deg=30, distance_m=20.0
+    )
     np.testing.assert_allclose(cam.project(np.zeros(2)), [100, 100])
     top, mid, bottom = cam.scale_at(np.array([[0.0, -5.0], [0.0, 0.0], [0.0, 5.0]]))
     assert top < mid < bottom
@@ -40,8 +41,9 @@ def test_jitter_is_seeded_smooth_and_has_the_requested_size():
     np.testing.assert_array_equal(a[:100], cam.jitter(100))  # prefix-stable
     assert 1.5 < a.std() < 2.5
     assert np.abs(np.diff(a, axis=0)).mean() < a.std()  # correlated frame to frame
-    assert not np.array_equal(a, Camera(px_per_m=10.0, width=64, height=64, jitter_px=2.0,
-                                        seed=6).jitter(4000))
+    assert not np.array_equal(
+        a, Camera(px_per_m=10.0, width=64, height=64, jitter_px=2.0, seed=6).jitter(4000)
+    )
     assert not Camera(px_per_m=10.0, width=64, height=64).jitter(10).any()
 
 
@@ -54,10 +56,16 @@ def test_fit_covers_the_extent():
     assert cam.px_per_m == pytest.approx(12.0)
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    ({"px_per_m": 0.0}, "px_per_m"), ({"width": 3}, "width"), ({"tilt_deg": 75.0}, "tilt_deg"),
-    ({"jitter_px": -1.0}, "jitter_px"), ({"center": (0.0, float("nan"))}, "center"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"px_per_m": 0.0}, "px_per_m"),
+        ({"width": 3}, "width"),
+        ({"tilt_deg": 75.0}, "tilt_deg"),
+        ({"jitter_px": -1.0}, "jitter_px"),
+        ({"center": (0.0, float("nan"))}, "center"),
+    ],
+)
 def test_bad_camera_values_name_the_field(kwargs, field):
     base = {"px_per_m": 10.0, "width": 64, "height": 64}
     base.update(kwargs)
@@ -67,8 +75,9 @@ def test_bad_camera_values_name_the_field(kwargs, field):
 
 def test_jitter_frames_sets_how_fast_the_camera_shakes():
     def lag1(frames):
-        a = Camera(px_per_m=10.0, width=64, height=64, jitter_px=2.0, seed=5,
-                   jitter_frames=frames).jitter(4000)[:, 0]
+        a = Camera(
+            px_per_m=10.0, width=64, height=64, jitter_px=2.0, seed=5, jitter_frames=frames
+        ).jitter(4000)[:, 0]
         assert 1.5 < a.std() < 2.5  # same size of shake
         return np.corrcoef(a[:-1], a[1:])[0, 1]
 

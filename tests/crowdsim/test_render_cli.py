@@ -20,16 +20,25 @@ def _main(argv):
 
 def _traj():
     t = np.arange(8)[:, None] * 0.1
-    pos = np.stack([np.column_stack([1.0 + t[:, 0], 1.0 + 0 * t[:, 0]]),
-                    np.column_stack([3.0 + 0 * t[:, 0], 2.0 + t[:, 0]])], axis=1)
+    pos = np.stack(
+        [
+            np.column_stack([1.0 + t[:, 0], 1.0 + 0 * t[:, 0]]),
+            np.column_stack([3.0 + 0 * t[:, 0], 2.0 + t[:, 0]]),
+        ],
+        axis=1,
+    )
     return Trajectories(positions=pos, ids=np.array([0, 5]), dt=0.1)
 
 
 def test_render_csv_with_defaults_fits_the_extent(tmp_path):
     csv = _traj().to_csv(tmp_path / "walk.csv")
     out = tmp_path / "seq"
-    assert _main(["render", "--trajectories", str(csv), "--fps", "10", "--seed", "3",
-                  "--out", str(out)]) == 0
+    assert (
+        _main(
+            ["render", "--trajectories", str(csv), "--fps", "10", "--seed", "3", "--out", str(out)]
+        )
+        == 0
+    )
     seq = read_sequence(out)
     assert seq.length == 8 and seq.frame_rate == 10.0 and seq.template_size == 12
     ids, pts = seq.gt_points()
@@ -42,8 +51,22 @@ def test_render_csv_with_defaults_fits_the_extent(tmp_path):
 def test_render_npz_with_size_and_scale(tmp_path):
     npz = _traj().save(tmp_path / "walk.npz")
     out = tmp_path / "seq"
-    assert _main(["render", "--trajectories", str(npz), "--px-per-m", "20", "--size", "160x96",
-                  "--out", str(out)]) == 0
+    assert (
+        _main(
+            [
+                "render",
+                "--trajectories",
+                str(npz),
+                "--px-per-m",
+                "20",
+                "--size",
+                "160x96",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     seq = read_sequence(out)
     assert (seq.width, seq.height, seq.frame_rate) == (160, 96, 10.0)
     ids, pts = seq.gt_points()
@@ -54,15 +77,19 @@ def test_render_npz_with_size_and_scale(tmp_path):
     assert _main(["render", "--trajectories", str(npz), "--overwrite", "--out", str(out)]) == 0
 
 
-@pytest.mark.parametrize("extra, message", [
-    ([], "--fps is required for CSV"),
-    (["--fps", "0"], "--fps must be in (0, 1000], got 0"),
-    (["--fps", "10", "--px-per-m", "-2"], "--px-per-m must be in [0.001, 10000], got -2"),
-])
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        ([], "--fps is required for CSV"),
+        (["--fps", "0"], "--fps must be in (0, 1000], got 0"),
+        (["--fps", "10", "--px-per-m", "-2"], "--px-per-m must be in [0.001, 10000], got -2"),
+    ],
+)
 def test_render_bad_flags_exit_2_with_one_line(tmp_path, capsys, extra, message):
     csv = _traj().to_csv(tmp_path / "walk.csv")
-    assert _main(["render", "--trajectories", str(csv), *extra, "--out",
-                  str(tmp_path / "seq")]) == 2
+    assert (
+        _main(["render", "--trajectories", str(csv), *extra, "--out", str(tmp_path / "seq")]) == 2
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
 
@@ -70,8 +97,10 @@ def test_render_bad_flags_exit_2_with_one_line(tmp_path, capsys, extra, message)
 def test_render_malformed_csv_names_the_line(tmp_path, capsys):
     bad = tmp_path / "bad.csv"
     bad.write_text("frame,id,x,y\n0,1,0.5,0.5\n1,1,abc,0.5\n")
-    assert _main(["render", "--trajectories", str(bad), "--fps", "10", "--out",
-                  str(tmp_path / "seq")]) == 2
+    assert (
+        _main(["render", "--trajectories", str(bad), "--fps", "10", "--out", str(tmp_path / "seq")])
+        == 2
+    )
     assert "bad.csv:3" in capsys.readouterr().err
     assert not (tmp_path / "seq").exists()
 
@@ -80,8 +109,12 @@ def _dead_pid() -> int:
     import subprocess
     import sys
 
-    proc = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
-                          capture_output=True, text=True, check=True)
+    proc = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     return int(proc.stdout)
 
 
@@ -111,8 +144,11 @@ def test_overwrite_replaces_only_our_folders(tmp_path, capsys):
     thesis = tmp_path / "thesis"
     thesis.mkdir()
     (thesis / "thesis.tex").write_text("\\chapter{One}")
-    for out, needle in ((thesis, "is not a crowdsim sequence"), (csv, "would replace the input"),
-                        (tmp_path, "would replace the input")):
+    for out, needle in (
+        (thesis, "is not a crowdsim sequence"),
+        (csv, "would replace the input"),
+        (tmp_path, "would replace the input"),
+    ):
         capsys.readouterr()
         assert _main([*argv, "--overwrite", "--out", str(out)]) == 2
         assert needle in capsys.readouterr().err
@@ -131,15 +167,29 @@ def test_render_removes_a_killed_renders_tmp_folder_only(tmp_path, capsys):
     stale = tmp_path / f"{TMP_PREFIX}seq-{pid}-0badf00d"
     (stale / "img1").mkdir(parents=True)
     (stale / "img1" / "000001.jpg").write_bytes(b"partial")
-    (stale / TMP_MARKER).write_text(json.dumps({"pid": pid, "host": socket.gethostname(),
-                                                "target": "seq", "created": 0.0}))
+    (stale / TMP_MARKER).write_text(
+        json.dumps({"pid": pid, "host": socket.gethostname(), "target": "seq", "created": 0.0})
+    )
     lookalike = tmp_path / f"{TMP_PREFIX}notes-2024"  # no marker: the user's
     lookalike.mkdir()
     (lookalike / "thesis.txt").write_text("mine")
-    assert _main(["render", "--trajectories", str(csv), "--fps", "10", "--size", "64x48",
-                  "--out", str(tmp_path / "seq")]) == 0
+    assert (
+        _main(
+            [
+                "render",
+                "--trajectories",
+                str(csv),
+                "--fps",
+                "10",
+                "--size",
+                "64x48",
+                "--out",
+                str(tmp_path / "seq"),
+            ]
+        )
+        == 0
+    )
     assert f"removed {stale}" in capsys.readouterr().err
     assert not stale.exists()
     assert (lookalike / "thesis.txt").read_text() == "mine"
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        ["walk.csv", "seq", lookalike.name])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["walk.csv", "seq", lookalike.name])

@@ -17,9 +17,17 @@ from synth_data.spec import spec_from_dict
 from synth_data.writer import write_sequence
 
 # A clean scene: flat green ground, no noise, no drift, no shadow, so pixels are the people.
-CLEAN = dict(template_px=12, shadow=0.0, noise_sigma=0.0, ground_texture=0.0,
-             illumination_drift=0.0, sway_deg=0.0, ground_bgr=(60, 170, 60), orientation_bins=8,
-             prominent_fraction=0.0)
+CLEAN = dict(
+    template_px=12,
+    shadow=0.0,
+    noise_sigma=0.0,
+    ground_texture=0.0,
+    illumination_drift=0.0,
+    sway_deg=0.0,
+    ground_bgr=(60, 170, 60),
+    orientation_bins=8,
+    prominent_fraction=0.0,
+)
 CAM = Camera(px_per_m=24.0, width=240, height=160, center=(5.0, 10.0 / 3.0))
 NONE = (np.zeros((0, 2)), np.zeros(0), np.zeros(0, int))
 
@@ -31,8 +39,15 @@ def grid(spacing_px: float, n_side: int, cam: Camera = CAM) -> np.ndarray:
     return np.column_stack([uu.ravel(), vv.ravel()])
 
 
-def draw(params: AppearanceParams, pts: np.ndarray, heading: float = 0.0, seed: int = 0,
-         appearance: np.ndarray | None = None, t: int = 0, cam: Camera = CAM) -> np.ndarray:
+def draw(
+    params: AppearanceParams,
+    pts: np.ndarray,
+    heading: float = 0.0,
+    seed: int = 0,
+    appearance: np.ndarray | None = None,
+    t: int = 0,
+    cam: Camera = CAM,
+) -> np.ndarray:
     r = SceneRenderer(cam, params, seed=seed, fps=25.0)
     n = len(pts)
     app = np.arange(n) % params.n_appearances if appearance is None else appearance
@@ -69,16 +84,19 @@ def test_tight_clusters_shrink_clothing_spread_and_decay_favours_one_cluster():
     p = AppearanceParams(n_clusters=3, cluster_decay=0.1)
     np.testing.assert_allclose(cluster_weights(p), np.array([1, 0.1, 0.01]) / 1.11)
     traj = Trajectories(positions=np.zeros((1, 2000, 2)), ids=np.arange(2000), dt=0.04)
-    app = prepare_agents(traj, CAM, AppearanceParams(cluster_decay=0.1, prominent_fraction=0.0),
-                         seed=0).appearance
+    app = prepare_agents(
+        traj, CAM, AppearanceParams(cluster_decay=0.1, prominent_fraction=0.0), seed=0
+    ).appearance
     assert 0.87 < np.mean(app < 4) < 0.93  # cluster 0 holds its 1 / 1.11 share
 
 
 # ----------------------------------------------------------------------- packing
 def test_body_scale_closes_the_ground_between_densely_packed_people():
     pts = grid(13.0, 7)  # heads about one template (12 px) apart
-    inner = np.s_[int(CAM.height / 2 - 30):int(CAM.height / 2 + 30),
-                  int(CAM.width / 2 - 30):int(CAM.width / 2 + 30)]
+    inner = np.s_[
+        int(CAM.height / 2 - 30) : int(CAM.height / 2 + 30),
+        int(CAM.width / 2 - 30) : int(CAM.width / 2 + 30),
+    ]
     gap = {}
     for scale in (1.0, 1.4, 1.8):
         img = draw(AppearanceParams(**CLEAN, body_scale=scale), pts)
@@ -91,8 +109,9 @@ def test_body_scale_closes_the_ground_between_densely_packed_people():
 
 # ----------------------------------------------------------------------- occlusion
 def test_nearer_person_covers_the_farther_one_and_visibility_measures_it():
-    cam = Camera(px_per_m=24.0, width=160, height=160, center=(0.0, 0.0), tilt_deg=40.0,
-                 distance_m=20.0)
+    cam = Camera(
+        px_per_m=24.0, width=160, height=160, center=(0.0, 0.0), tilt_deg=40.0, distance_m=20.0
+    )
     params = AppearanceParams(**{**CLEAN, "body_scale": 1.3})
     r = SceneRenderer(cam, params, seed=0, fps=25.0)
     far = np.array([80.0, 70.0])
@@ -151,18 +170,22 @@ def template_ncc(params: AppearanceParams) -> list[float]:
 
     def patch(t):
         u, v = np.rint(tracks.pixels[t, 0]).astype(int)
-        return r.render_tracks(tracks, t)[v - h:v + h, u - h:u + h].astype(np.float32)
+        return r.render_tracks(tracks, t)[v - h : v + h, u - h : u + h].astype(np.float32)
 
     first = patch(0)
-    return [float(cv2.matchTemplate(patch(t), first, cv2.TM_CCOEFF_NORMED)[0, 0])
-            for t in range(1, 51)]
+    return [
+        float(cv2.matchTemplate(patch(t), first, cv2.TM_CCOEFF_NORMED)[0, 0]) for t in range(1, 51)
+    ]
 
 
 def test_gait_and_head_turns_make_a_frame_one_template_drift():
     still = template_ncc(AppearanceParams(**CLEAN))
     assert min(still) > 0.999  # without the knobs the template does not change
-    moving = template_ncc(AppearanceParams(**CLEAN, arm_swing=0.3, gait_bob=0.1,
-                                           head_turn_deg=45.0, head_turn_period_s=1.0))
+    moving = template_ncc(
+        AppearanceParams(
+            **CLEAN, arm_swing=0.3, gait_bob=0.1, head_turn_deg=45.0, head_turn_period_s=1.0
+        )
+    )
     assert np.mean(moving) < 0.95 and min(moving) < 0.9
     assert moving[49] < 0.99  # frame 50 against frame 1
 
@@ -177,8 +200,9 @@ def test_poses_follow_the_walked_distance_and_hold_when_standing():
     assert params.n_poses == 4
     assert set(np.unique(pose[:, 0])) == {0, 1, 2, 3}  # about two strides walked
     assert len(np.unique(pose[:, 1])) == 1
-    turns = prepare_agents(traj, CAM, AppearanceParams(head_turn_deg=30.0,
-                                                       head_turn_period_s=1.0), seed=0).pose
+    turns = prepare_agents(
+        traj, CAM, AppearanceParams(head_turn_deg=30.0, head_turn_period_s=1.0), seed=0
+    ).pose
     assert set(np.unique(turns)) == {0, 1, 2}
 
 
@@ -193,7 +217,7 @@ def test_static_distractors_add_head_sized_blobs_that_stay_put():
     changed = (np.abs(a.astype(int) - plain).sum(axis=2) > 40).astype(np.uint8)
     n, _, stats, _ = cv2.connectedComponentsWithStats(changed)
     areas = stats[1:, cv2.CC_STAT_AREA]
-    expected = 1.0 * cam.width * cam.height / 24.0 ** 2  # ~67 items
+    expected = 1.0 * cam.width * cam.height / 24.0**2  # ~67 items
     assert 0.5 * expected < n - 1 < 1.5 * expected
     assert 4 <= np.median(areas) <= 60  # head-sized, not speckle and not slabs
 
@@ -232,13 +256,15 @@ def test_defocus_blurs_edges():
     assert abs(sharp.mean() - soft.mean()) < 1.0  # blurs, does not darken
 
 
-@pytest.mark.parametrize("codec, fourccs, ratio", [
-    ("h264", ("h264", "avc1"), 2.0),
-    # MPEG-4 part 2 bottoms out at its coarsest quantiser: low rates change less.
-    ("mpeg4", ("fmp4", "mp4v"), 1.03),
-])
-def test_video_codec_artefacts_reach_the_frames_a_tracker_reads(tmp_path, codec, fourccs,
-                                                               ratio):
+@pytest.mark.parametrize(
+    "codec, fourccs, ratio",
+    [
+        ("h264", ("h264", "avc1"), 2.0),
+        # MPEG-4 part 2 bottoms out at its coarsest quantiser: low rates change less.
+        ("mpeg4", ("fmp4", "mp4v"), 1.03),
+    ],
+)
+def test_video_codec_artefacts_reach_the_frames_a_tracker_reads(tmp_path, codec, fourccs, ratio):
     pytest.importorskip("av")
     traj, cam = walker(12)
     cam = Camera(px_per_m=24.0, width=160, height=96, center=(0.0, 0.0))
@@ -261,8 +287,9 @@ def test_video_codec_artefacts_reach_the_frames_a_tracker_reads(tmp_path, codec,
     assert err[2000.0] > 1.0  # 4:2:0 chroma and the codec, beyond the JPEG step
     # A video-only sequence is read from video.mp4 and gives the same (decoded) frames.
     p = AppearanceParams(**base, video_kbps=20.0, video_codec=codec)
-    write_sequence(tmp_path / "only", traj, camera=cam, appearance=p, seed=0, images=False,
-                   video=True)
+    write_sequence(
+        tmp_path / "only", traj, camera=cam, appearance=p, seed=0, images=False, video=True
+    )
     only = read_sequence(tmp_path / "only")
     assert not (tmp_path / "only" / "img1").exists()
     frames = np.stack(list(only.frames())).astype(float)
@@ -273,32 +300,72 @@ def test_video_codec_artefacts_reach_the_frames_a_tracker_reads(tmp_path, codec,
 
 
 # ----------------------------------------------------------------------- validation
-@pytest.mark.parametrize("field, value", [
-    ("dark_hair_fraction", 1.5), ("hair_spread", -1.0), ("cluster_decay", 0.0),
-    ("body_scale", 3.0), ("arm_swing", -0.1), ("gait_bob", 0.9), ("head_turn_deg", 120.0),
-    ("head_turn_period_s", 0.0), ("distractor_density", -1.0), ("moving_shadow_density", 11.0),
-    ("moving_shadow_m", 0.0), ("flicker", 0.7), ("defocus_px", float("nan")),
-    ("video_kbps", -5.0), ("video_codec", "vp9"), ("heads_on_top", 1),
-])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("dark_hair_fraction", 1.5),
+        ("hair_spread", -1.0),
+        ("cluster_decay", 0.0),
+        ("body_scale", 3.0),
+        ("arm_swing", -0.1),
+        ("gait_bob", 0.9),
+        ("head_turn_deg", 120.0),
+        ("head_turn_period_s", 0.0),
+        ("distractor_density", -1.0),
+        ("moving_shadow_density", 11.0),
+        ("moving_shadow_m", 0.0),
+        ("flicker", 0.7),
+        ("defocus_px", float("nan")),
+        ("video_kbps", -5.0),
+        ("video_codec", "vp9"),
+        ("heads_on_top", 1),
+    ],
+)
 def test_bad_knob_values_name_the_field(field, value):
     with pytest.raises(ValueError, match=f"appearance.{field}"):
         AppearanceParams(**{field: value})
 
 
 def test_knobs_load_from_a_spec_and_defaults_are_off():
-    spec = spec_from_dict({"name": "k", "seed": 1, "frames": 3,
-                           "scenario": {"name": "marathon", "n_agents": 5},
-                           "appearance": {"dark_hair_fraction": 0.9, "body_scale": 1.3,
-                                          "video_kbps": 1500, "video_codec": "h264"}})
+    spec = spec_from_dict(
+        {
+            "name": "k",
+            "seed": 1,
+            "frames": 3,
+            "scenario": {"name": "marathon", "n_agents": 5},
+            "appearance": {
+                "dark_hair_fraction": 0.9,
+                "body_scale": 1.3,
+                "video_kbps": 1500,
+                "video_codec": "h264",
+            },
+        }
+    )
     assert spec.appearance.body_scale == 1.3 and spec.appearance.video_kbps == 1500
     with pytest.raises(ValueError, match="appearance.video_codec"):
-        spec_from_dict({"name": "k", "seed": 1, "frames": 3,
-                        "scenario": {"name": "marathon", "n_agents": 5},
-                        "appearance": {"video_codec": 264}})
+        spec_from_dict(
+            {
+                "name": "k",
+                "seed": 1,
+                "frames": 3,
+                "scenario": {"name": "marathon", "n_agents": 5},
+                "appearance": {"video_codec": 264},
+            }
+        )
     d = AppearanceParams()
-    assert (d.dark_hair_fraction, d.body_scale, d.arm_swing, d.gait_bob, d.head_turn_deg,
-            d.distractor_density, d.moving_shadow_density, d.flicker, d.defocus_px,
-            d.video_kbps, d.n_poses) == (0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1)
+    assert (
+        d.dark_hair_fraction,
+        d.body_scale,
+        d.arm_swing,
+        d.gait_bob,
+        d.head_turn_deg,
+        d.distractor_density,
+        d.moving_shadow_density,
+        d.flicker,
+        d.defocus_px,
+        d.video_kbps,
+        d.n_poses,
+    ) == (0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1)
     assert math.isclose(cluster_weights(d)[0], 4 / 7)
 
 
@@ -323,7 +390,8 @@ def test_heads_on_top_lets_only_heads_hide_heads():
     assert out[True, 1.5][0] < 0.5 and out[True, 1.5][1] == 1.0
     alone = np.empty(1)
     SceneRenderer(cam, AppearanceParams(**CLEAN, heads_on_top=True), seed=0, fps=25.0).render(
-        0, far[None], np.zeros(1), np.zeros(1, int), visibility=alone)
+        0, far[None], np.zeros(1), np.zeros(1, int), visibility=alone
+    )
     assert alone[0] == 1.0
 
 
@@ -334,8 +402,7 @@ def test_in_memory_codec_round_trip_matches_the_written_h264_video(tmp_path):
     traj, _ = walker(8)
     cam = Camera(px_per_m=24.0, width=96, height=64, center=(-1.5, 0.0))
     p = AppearanceParams(template_px=12, video_kbps=50.0)
-    write_sequence(tmp_path / "s", traj, camera=cam, appearance=p, seed=0, images=False,
-                   video=True)
+    write_sequence(tmp_path / "s", traj, camera=cam, appearance=p, seed=0, images=False, video=True)
     on_disk = np.stack(list(read_sequence(tmp_path / "s").frames()))
     tracks = prepare_agents(traj, cam, p, seed=0)
     r = SceneRenderer(cam, p, seed=0, fps=25.0)

@@ -14,8 +14,23 @@ from crowdsim.trajectories import Trajectories
 
 def test_simulate_writes_npz_contract(tmp_path, capsys):
     out = tmp_path / "m.npz"
-    rc = main(["simulate", "marathon", "--agents", "30", "--steps", "12", "--seed", "3",
-               "--out", str(out), "--plot", str(tmp_path / "m.png"), "--no-progress"])
+    rc = main(
+        [
+            "simulate",
+            "marathon",
+            "--agents",
+            "30",
+            "--steps",
+            "12",
+            "--seed",
+            "3",
+            "--out",
+            str(out),
+            "--plot",
+            str(tmp_path / "m.png"),
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     assert (tmp_path / "m.png").stat().st_size > 1000
     table = capsys.readouterr().out
@@ -28,34 +43,57 @@ def test_simulate_writes_npz_contract(tmp_path, capsys):
         for attr in ("group", "prominent", "anomaly", "radius", "desired_speed"):
             assert data[f"attr_{attr}"].shape == (pos.shape[1],)
     again = tmp_path / "again.npz"
-    main(["simulate", "marathon", "--agents", "30", "--steps", "12", "--seed", "3",
-          "--out", str(again), "--no-progress"])
+    main(
+        [
+            "simulate",
+            "marathon",
+            "--agents",
+            "30",
+            "--steps",
+            "12",
+            "--seed",
+            "3",
+            "--out",
+            str(again),
+            "--no-progress",
+        ]
+    )
     a, b = Trajectories.load(out), Trajectories.load(again)
     assert np.array_equal(a.positions, b.positions, equal_nan=True)
     assert not list(tmp_path.glob(".*"))  # no temporary file left behind
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["simulate", "parade"], "unknown scenario 'parade'"),
-    (["simulate", "marathon", "--agents", "-4"], "--agents must be in [1, 100000], got -4"),
-    (["simulate", "marathon", "--agents", "0"], "--agents must be in [1, 100000], got 0"),
-    (["simulate", "marathon", "--density", "7"], "--density must be in (0, 6]"),
-    (["simulate", "marathon", "--dt", "0"], "--dt must be in (0, 0.2] seconds, got 0.0"),
-    (["simulate", "marathon", "--dt", "nan"], "--dt must be in (0, 0.2] seconds, got nan"),
-    (["simulate", "marathon", "--param", "tau=nan"],
-     "SocialForceParams.tau must be a finite number > 0, got nan"),
-    (["simulate", "marathon", "--set", "road_width=nan"], "road_width must be finite"),
-    (["simulate", "marathon", "--set", "bogus=1"], "bogus"),
-    (["simulate", "marathon", "--out", "x.csv"], "--out must end in .npz"),
-    (["simulate", "marathon", "--plot", "x.jpg"], "--plot must end in .png"),
-    (["simulate", "marathon", "--param", "dt=0.02"], "--param dt: use --dt instead"),
-    (["simulate", "marathon", "--set", "n_agents=5"], "--set n_agents: use --agents instead"),
-    (["simulate", "marathon", "--param", "contact_substeps=2.5"],
-     "contact_substeps must be an integer >= 1, got 2.5"),
-])
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["simulate", "parade"], "unknown scenario 'parade'"),
+        (["simulate", "marathon", "--agents", "-4"], "--agents must be in [1, 100000], got -4"),
+        (["simulate", "marathon", "--agents", "0"], "--agents must be in [1, 100000], got 0"),
+        (["simulate", "marathon", "--density", "7"], "--density must be in (0, 6]"),
+        (["simulate", "marathon", "--dt", "0"], "--dt must be in (0, 0.2] seconds, got 0.0"),
+        (["simulate", "marathon", "--dt", "nan"], "--dt must be in (0, 0.2] seconds, got nan"),
+        (
+            ["simulate", "marathon", "--param", "tau=nan"],
+            "SocialForceParams.tau must be a finite number > 0, got nan",
+        ),
+        (["simulate", "marathon", "--set", "road_width=nan"], "road_width must be finite"),
+        (["simulate", "marathon", "--set", "bogus=1"], "bogus"),
+        (["simulate", "marathon", "--out", "x.csv"], "--out must end in .npz"),
+        (["simulate", "marathon", "--plot", "x.jpg"], "--plot must end in .png"),
+        (["simulate", "marathon", "--param", "dt=0.02"], "--param dt: use --dt instead"),
+        (["simulate", "marathon", "--set", "n_agents=5"], "--set n_agents: use --agents instead"),
+        (
+            ["simulate", "marathon", "--param", "contact_substeps=2.5"],
+            "contact_substeps must be an integer >= 1, got 2.5",
+        ),
+    ],
+)
 def test_simulate_bad_input_exit_2_one_line(argv, needle):
-    proc = subprocess.run([sys.executable, "-m", "crowdsim.cli", *argv, "--steps", "1",
-                           "--no-progress"], capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "crowdsim.cli", *argv, "--steps", "1", "--no-progress"],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and "Traceback" not in proc.stderr
@@ -110,8 +148,24 @@ def test_bench_sim_prints_table_and_json(capsys):
 
 
 def test_bench_fd_writes_plots(tmp_path, capsys):
-    argv = ["bench", "fd", "--densities", "1", "--length", "8", "--width", "3", "--warmup", "2",
-            "--measure", "2", "--lane-seconds", "2", "--out", str(tmp_path)]
+    argv = [
+        "bench",
+        "fd",
+        "--densities",
+        "1",
+        "--length",
+        "8",
+        "--width",
+        "3",
+        "--warmup",
+        "2",
+        "--measure",
+        "2",
+        "--lane-seconds",
+        "2",
+        "--out",
+        str(tmp_path),
+    ]
     assert main(argv) == 0
     report = _last_json(capsys.readouterr().out)
     assert report["fundamental_diagram"][0]["target_density"] == 1.0
@@ -120,6 +174,9 @@ def test_bench_fd_writes_plots(tmp_path, capsys):
 
 
 def test_bench_bad_flags_are_user_errors():
-    proc = subprocess.run([sys.executable, "-m", "crowdsim.cli", "bench", "fd", "--densities",
-                           "9"], capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "crowdsim.cli", "bench", "fd", "--densities", "9"],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2 and "--densities must lie in (0, 6]" in proc.stderr

@@ -13,8 +13,15 @@ from crowdsim.validation import max_overlap
 
 def single_walker(**params) -> Simulation:
     """One agent in a wide periodic corridor: no wall or neighbour within the cutoff."""
-    sc = make_scenario("counterflow", n_agents=1, density=0.05, width=30.0,
-                       right_fraction=1.0, periodic=True, inflow=False)
+    sc = make_scenario(
+        "counterflow",
+        n_agents=1,
+        density=0.05,
+        width=30.0,
+        right_fraction=1.0,
+        periodic=True,
+        inflow=False,
+    )
     sim = Simulation(sc, seed=3, params=SocialForceParams(**params), record=True)
     sim.set_state(pos=[[sim.world.period / 2, 15.0]])  # 15 m from both walls
     return sim
@@ -43,8 +50,15 @@ def test_free_walker_never_exceeds_speed_cap():
 
 def test_head_on_pair_passes_without_overlap():
     """Two agents walking at each other on one line avoid each other and both get past."""
-    sc = make_scenario("counterflow", n_agents=2, density=0.004, width=25.0,
-                       right_fraction=0.5, periodic=True, inflow=False)
+    sc = make_scenario(
+        "counterflow",
+        n_agents=2,
+        density=0.004,
+        width=25.0,
+        right_fraction=0.5,
+        periodic=True,
+        inflow=False,
+    )
     sim = Simulation(sc, seed=0)
     st = sim.state
     period = sim.world.period
@@ -65,8 +79,15 @@ def test_head_on_pair_passes_without_overlap():
 
 def test_wall_is_never_crossed():
     """Agents pushed against a wall by their goal stay inside the corridor."""
-    sc = make_scenario("counterflow", n_agents=60, density=3.0, width=3.0, right_fraction=1.0,
-                       periodic=True, inflow=False)
+    sc = make_scenario(
+        "counterflow",
+        n_agents=60,
+        density=3.0,
+        width=3.0,
+        right_fraction=1.0,
+        periodic=True,
+        inflow=False,
+    )
     sim = Simulation(sc, seed=1)
     sim.routes.direction[0] = [0.6, 0.8]  # everybody walks diagonally into the upper wall
     for _ in range(150):
@@ -95,7 +116,8 @@ def test_different_seeds_differ():
     a = Simulation(sc, seed=1).run(10)
     b = Simulation(sc, seed=2).run(10)
     assert a.positions.shape != b.positions.shape or not np.array_equal(
-        a.positions, b.positions, equal_nan=True)
+        a.positions, b.positions, equal_nan=True
+    )
 
 
 @pytest.mark.parametrize("name", sorted(SCENARIOS))
@@ -158,8 +180,9 @@ def test_groups_keep_formation():
 
 
 def test_anomalies_behave_as_labelled():
-    sc = make_scenario("anomalies", n_agents=150, density=0.8, anomaly_fraction=0.3,
-                       kinds=("against", "stop"))
+    sc = make_scenario(
+        "anomalies", n_agents=150, density=0.8, anomaly_fraction=0.3, kinds=("against", "stop")
+    )
     sim = Simulation(sc, seed=4)
     traj = sim.run(150)
     vel = traj.velocities()

@@ -72,8 +72,16 @@ def test_wall_grid_gives_the_same_forces_as_one_cell_with_every_wall():
     pos = rng.uniform(0.3, 39.7, (n, 2))
     vel = rng.normal(0, 0.5, (n, 2))
     e = np.tile([1.0, 0.0], (n, 1))
-    args = (pos, vel, np.full(n, 0.2), np.full(n, 1.3), e, np.full(n, -1), walls,
-            SocialForceParams())
+    args = (
+        pos,
+        vel,
+        np.full(n, 0.2),
+        np.full(n, 1.3),
+        e,
+        np.full(n, -1),
+        walls,
+        SocialForceParams(),
+    )
     binned = social_force(*args, wall_grid=WallGrid(walls, 1.5))
     one_cell = social_force(*args, wall_grid=WallGrid(walls, 1.5, cell=200.0))
     np.testing.assert_array_equal(binned, one_cell)
@@ -86,8 +94,9 @@ def test_headway_caps_speed_behind_a_standing_body():
     vel = np.array([[1.0, 0.0], [0.0, 0.0]])
     e = np.array([[1.0, 0.0], [1.0, 0.0]])
     r = np.array([0.22, 0.22])
-    acc = social_force(pos, vel, r, np.array([1.3, 0.0]), e, np.array([-1, -1]),
-                       np.zeros((0, 5)), p)
+    acc = social_force(
+        pos, vel, r, np.array([1.3, 0.0]), e, np.array([-1, -1]), np.zeros((0, 5)), p
+    )
     gap = 0.75 - p.headway_depth * 0.44
     v_next = np.hypot(*(vel[0] + acc[0] * p.dt))
     assert v_next == pytest.approx(1.3 / p.headway_ref_speed * gap / p.headway_time, rel=1e-9)
@@ -95,6 +104,14 @@ def test_headway_caps_speed_behind_a_standing_body():
 
 def test_no_agents_no_walls():
     p = SocialForceParams()
-    out = social_force(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0),
-                       np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 5)), p)
+    out = social_force(
+        np.zeros((0, 2)),
+        np.zeros((0, 2)),
+        np.zeros(0),
+        np.zeros(0),
+        np.zeros((0, 2)),
+        np.zeros(0, np.int64),
+        np.zeros((0, 5)),
+        p,
+    )
     assert out.shape == (0, 2)

@@ -10,12 +10,14 @@ from crowdsim.scenarios import SCENARIOS, make_scenario
 from crowdsim.simulation import Simulation
 from crowdsim.validation import max_overlap
 
-scenes = st.fixed_dictionaries({
-    "name": st.sampled_from(sorted(SCENARIOS)),
-    "n_agents": st.integers(1, 60),
-    "density": st.floats(0.2, 4.0),
-    "seed": st.integers(0, 2**31 - 1),
-})
+scenes = st.fixed_dictionaries(
+    {
+        "name": st.sampled_from(sorted(SCENARIOS)),
+        "n_agents": st.integers(1, 60),
+        "density": st.floats(0.2, 4.0),
+        "seed": st.integers(0, 2**31 - 1),
+    }
+)
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -22,8 +22,9 @@ def test_weidmann_reference_values():
 @pytest.mark.slow
 def test_fundamental_diagram_small_case_within_20_percent_of_weidmann():
     """Periodic corridor at 1 and 3 /m², measured with PedPy, follows Weidmann within ±20 %."""
-    points = fundamental_diagram([1.0, 3.0], length=14.0, width=4.0, warmup_s=10.0,
-                                 measure_s=10.0, seed=0)
+    points = fundamental_diagram(
+        [1.0, 3.0], length=14.0, width=4.0, warmup_s=10.0, measure_s=10.0, seed=0
+    )
     for p in points:
         assert p.density == pytest.approx(p.target_density, rel=0.1)
         assert 0.8 <= p.ratio <= 1.2, (p.target_density, p.speed, p.weidmann)
@@ -32,8 +33,14 @@ def test_fundamental_diagram_small_case_within_20_percent_of_weidmann():
 
 def test_pure_hm95_is_faster_than_weidmann_at_high_density():
     """Without the headway rule dense crowds stay far too fast: the rule is what calibrates."""
-    (p,) = fundamental_diagram([3.0], length=14.0, width=4.0, warmup_s=6.0, measure_s=4.0,
-                               params=SocialForceParams(headway_time=0.0))
+    (p,) = fundamental_diagram(
+        [3.0],
+        length=14.0,
+        width=4.0,
+        warmup_s=6.0,
+        measure_s=4.0,
+        params=SocialForceParams(headway_time=0.0),
+    )
     assert p.ratio > 1.5
 
 
@@ -55,18 +62,21 @@ def test_max_overlap_exact():
     assert max_overlap(pos, radius[:2], period=10.0) == pytest.approx(0.04 / 0.2)
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    ({"n_agents": 0}, "n_agents"),
-    ({"n_agents": -5}, "n_agents"),
-    ({"n_agents": 100_001}, "n_agents"),
-    ({"n_agents": 2.5}, "n_agents"),
-    ({"n_agents": 5.0}, "n_agents"),
-    ({"density": 6.5}, "density"),
-    ({"density": 0.0}, "density"),
-    ({"density": math.nan}, "density"),
-    ({"prominent_fraction": math.nan}, "prominent_fraction"),
-    ({"radius": (0.3, 0.2)}, "radius"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"n_agents": 0}, "n_agents"),
+        ({"n_agents": -5}, "n_agents"),
+        ({"n_agents": 100_001}, "n_agents"),
+        ({"n_agents": 2.5}, "n_agents"),
+        ({"n_agents": 5.0}, "n_agents"),
+        ({"density": 6.5}, "density"),
+        ({"density": 0.0}, "density"),
+        ({"density": math.nan}, "density"),
+        ({"prominent_fraction": math.nan}, "prominent_fraction"),
+        ({"radius": (0.3, 0.2)}, "radius"),
+    ],
+)
 def test_bad_scenario_parameters_name_field_and_value(kwargs, field):
     for name in ("marathon", "counterflow"):
         with pytest.raises(ValueError, match=field):
@@ -82,11 +92,19 @@ def test_unknown_scenario_and_parameter():
         make_scenario("marathon", road_width=float("nan"))
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    ({"dt": 0.0}, "dt"), ({"dt": -0.1}, "dt"), ({"tau": math.nan}, "tau"),
-    ({"V0": -1.0}, "V0"), ({"fov_deg": 400.0}, "fov_deg"), ({"c": 2.0}, "c"),
-    ({"potential": "cubic"}, "potential"), ({"sigma": math.inf}, "sigma"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"dt": 0.0}, "dt"),
+        ({"dt": -0.1}, "dt"),
+        ({"tau": math.nan}, "tau"),
+        ({"V0": -1.0}, "V0"),
+        ({"fov_deg": 400.0}, "fov_deg"),
+        ({"c": 2.0}, "c"),
+        ({"potential": "cubic"}, "potential"),
+        ({"sigma": math.inf}, "sigma"),
+    ],
+)
 def test_bad_model_parameters(kwargs, field):
     with pytest.raises(ValueError, match=field):
         SocialForceParams(**kwargs)
@@ -122,7 +140,6 @@ def test_scenarios_span_one_to_many_agents(name):
 
 def test_large_crowd_builds_and_steps():
     """10,000 agents build and step (speed itself is measured in `crowdsim bench sim`)."""
-    sim = Simulation(make_scenario("commuters", n_agents=10_000, density=2.0), seed=0,
-                     record=False)
+    sim = Simulation(make_scenario("commuters", n_agents=10_000, density=2.0), seed=0, record=False)
     sim.run(2)
     assert sim.state.n >= 9_900 and np.isfinite(sim.state.pos).all()

@@ -43,9 +43,11 @@ def test_good_toml_and_equivalent_yaml(tmp_path):
     assert (spec.name, spec.seed, spec.frames, spec.fps) == ("tiny", 4, 10, 25.0)
     assert spec.scenario == {"name": "crossing", "n_agents": 10, "density": 1.0}
     assert spec.appearance.template_px == 8 and spec.camera["tilt_deg"] == 10.0
-    yaml_text = ("name: tiny\nseed: 4\nframes: 10\nfps: 25.0\n"
-                 "scenario: {name: crossing, n_agents: 10, density: 1.0}\n"
-                 "camera: {tilt_deg: 10.0}\nappearance: {template_px: 8, noise_sigma: 2.0}\n")
+    yaml_text = (
+        "name: tiny\nseed: 4\nframes: 10\nfps: 25.0\n"
+        "scenario: {name: crossing, n_agents: 10, density: 1.0}\n"
+        "camera: {tilt_deg: 10.0}\nappearance: {template_px: 8, noise_sigma: 2.0}\n"
+    )
     assert load_spec(write(tmp_path, yaml_text, "s.yaml")).digest() == spec.digest()
 
 
@@ -53,28 +55,32 @@ def test_digest_ignores_calibration_but_not_knobs(tmp_path):
     spec = load_spec(write(tmp_path, GOOD))
     other = load_spec(write(tmp_path, GOOD.replace("33.0", "40.0"), "b.toml"))
     assert other.digest() == spec.digest()
-    noisier = load_spec(write(tmp_path, GOOD.replace("noise_sigma = 2.0", "noise_sigma = 5.0"),
-                              "c.toml"))
+    noisier = load_spec(
+        write(tmp_path, GOOD.replace("noise_sigma = 2.0", "noise_sigma = 5.0"), "c.toml")
+    )
     assert noisier.digest() != spec.digest()
     assert spec.truncated(3).frames == 3 and spec.truncated(100).frames == 10
     assert spec.truncated(3).digest() != spec.digest()
 
 
-@pytest.mark.parametrize("old, new, field, value", [
-    ("seed = 4", "seed = -1", "seed", "-1"),
-    ("seed = 4", 'seed = "four"', "seed", "'four'"),
-    ("frames = 10", "frames = 0", "frames", "0"),
-    ('name = "tiny"', 'name = "a/b"', "name", "'a/b'"),
-    ("tilt_deg = 10.0", "tilt_deg = 75.0", "camera.tilt_deg", "75"),
-    ("tilt_deg = 10.0", "tlit_deg = 10.0", "camera.tlit_deg", "did you mean 'tilt_deg'"),
-    ("template_px = 8", "template_px = 2", "appearance.template_px", "2"),
-    ("template_px = 8", 'template_px = "big"', "appearance.template_px", "'big'"),
-    ("noise_sigma = 2.0", "noise_sigma = 500.0", "appearance.noise_sigma", "500.0"),
-    ('name = "crossing"', 'name = "disco"', "scenario", "'disco'"),
-    ("n_agents = 10", "n_agents = 0", "n_agents", "0"),
-    ("density = 1.0", "densty = 1.0", "scenario", "densty"),
-    ("fps = 25.0", "fps = 25.0\ncolour = 1", "colour", ""),
-])
+@pytest.mark.parametrize(
+    "old, new, field, value",
+    [
+        ("seed = 4", "seed = -1", "seed", "-1"),
+        ("seed = 4", 'seed = "four"', "seed", "'four'"),
+        ("frames = 10", "frames = 0", "frames", "0"),
+        ('name = "tiny"', 'name = "a/b"', "name", "'a/b'"),
+        ("tilt_deg = 10.0", "tilt_deg = 75.0", "camera.tilt_deg", "75"),
+        ("tilt_deg = 10.0", "tlit_deg = 10.0", "camera.tlit_deg", "did you mean 'tilt_deg'"),
+        ("template_px = 8", "template_px = 2", "appearance.template_px", "2"),
+        ("template_px = 8", 'template_px = "big"', "appearance.template_px", "'big'"),
+        ("noise_sigma = 2.0", "noise_sigma = 500.0", "appearance.noise_sigma", "500.0"),
+        ('name = "crossing"', 'name = "disco"', "scenario", "'disco'"),
+        ("n_agents = 10", "n_agents = 0", "n_agents", "0"),
+        ("density = 1.0", "densty = 1.0", "scenario", "densty"),
+        ("fps = 25.0", "fps = 25.0\ncolour = 1", "colour", ""),
+    ],
+)
 def test_bad_fields_name_file_field_and_value(tmp_path, old, new, field, value):
     path = write(tmp_path, GOOD.replace(old, new, 1), "bad_spec.toml")
     with pytest.raises(ValueError) as info:
@@ -100,8 +106,15 @@ def test_missing_fields_and_syntax_errors(tmp_path):
 
 
 UCF9 = {  # SPEC §4: frames / people / template px
-    1: (840, 152, 14), 2: (134, 235, 16), 3: (144, 175, 14), 4: (492, 747, 16),
-    5: (464, 171, 8), 6: (133, 600, 10), 7: (494, 73, 10), 8: (126, 58, 10), 9: (249, 57, 10),
+    1: (840, 152, 14),
+    2: (134, 235, 16),
+    3: (144, 175, 14),
+    4: (492, 747, 16),
+    5: (464, 171, 8),
+    6: (133, 600, 10),
+    7: (494, 73, 10),
+    8: (126, 58, 10),
+    9: (249, 57, 10),
 }
 PAPER_NCC = [49, 85, 58, 52, 33, 52, 50, 86, 33]
 
@@ -111,12 +124,24 @@ def test_ucf9_matches_the_spec_table():
     assert [s.name for s in specs] == [f"seq{i}" for i in range(1, 10)]
     for i, spec in enumerate(specs, 1):
         frames, people, tpl = UCF9[i]
-        assert (spec.frames, spec.scenario["n_agents"], spec.appearance.template_px) == \
-            (frames, people, tpl)
+        assert (spec.frames, spec.scenario["n_agents"], spec.appearance.template_px) == (
+            frames,
+            people,
+            tpl,
+        )
         assert spec.calibration["paper_ncc_15px"] == PAPER_NCC[i - 1]
     kinds = [s.scenario["name"] for s in specs]
-    assert kinds == ["commuters", "circulation", "marathon", "marathon", "marathon", "marathon",
-                     "station", "station", "crossing"]
+    assert kinds == [
+        "commuters",
+        "circulation",
+        "marathon",
+        "marathon",
+        "marathon",
+        "marathon",
+        "station",
+        "station",
+        "crossing",
+    ]
     assert specs[6].camera["tilt_deg"] > 0
     assert len({s.seed for s in specs}) == 9
 

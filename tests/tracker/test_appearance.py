@@ -8,8 +8,11 @@ import pytest
 from tracker.appearance import KCFAppearance, NCCAppearance, extract_patches, make_appearance
 from tracker.testing import make_scene
 
-MODELS = [KCFAppearance, NCCAppearance,
-          lambda s, r, **kw: KCFAppearance(s, r, target_window=1.6, **kw)]
+MODELS = [
+    KCFAppearance,
+    NCCAppearance,
+    lambda s, r, **kw: KCFAppearance(s, r, target_window=1.6, **kw),
+]
 
 
 def _shifted_scene():
@@ -52,9 +55,10 @@ def test_kcf_batch_equals_single_target_models():
     sb = batch.scores(sc.frames[1], centers)
     for i in range(3):
         single = KCFAppearance(14, 7)
-        single.add(sc.frames[0], centers[i:i + 1])
-        np.testing.assert_allclose(single.scores(sc.frames[1], centers[i:i + 1])[0], sb[i],
-                                   rtol=1e-4, atol=1e-5)
+        single.add(sc.frames[0], centers[i : i + 1])
+        np.testing.assert_allclose(
+            single.scores(sc.frames[1], centers[i : i + 1])[0], sb[i], rtol=1e-4, atol=1e-5
+        )
 
 
 @pytest.mark.parametrize("cls", MODELS)

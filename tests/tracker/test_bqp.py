@@ -13,8 +13,12 @@ from tracker.testing import make_scene
 
 def _convoy(n_frames=24):
     # a coherent group of three walking right, one walker going left far below
-    return make_scene([[10, 20], [22, 20], [16, 30], [110, 80]],
-                      [[2, 0], [2, 0], [2, 0], [-2, 0]], n_frames=n_frames, shape=(96, 160))
+    return make_scene(
+        [[10, 20], [22, 20], [16, 30], [110, 80]],
+        [[2, 0], [2, 0], [2, 0], [-2, 0]],
+        n_frames=n_frames,
+        shape=(96, 160),
+    )
 
 
 def test_frame_qps_are_block_simplex_problems():
@@ -42,8 +46,9 @@ def test_groups_refresh_every_tau_frames():
     g = tr.groups
     assert g[0] == g[1] == g[2] >= 0 and g[3] == -1
     assert len(tr.tree_edges) == 2  # spanning tree of three targets
-    d = np.linalg.norm(sc.points[10, tr.tree_edges[:, 0]] - sc.points[10, tr.tree_edges[:, 1]],
-                       axis=1)
+    d = np.linalg.norm(
+        sc.points[10, tr.tree_edges[:, 0]] - sc.points[10, tr.tree_edges[:, 1]], axis=1
+    )
     np.testing.assert_allclose(tr.tree_lengths, d)
     for t in range(11, 24):
         tr.step(sc.frames[t])

@@ -14,12 +14,12 @@ from tracker.bqp.qp import BlockQP, load_many, save_many
 clarabel = pytest.importorskip("clarabel")
 from tracker.bqp.qp_baselines import solve_clarabel, solve_osqp  # noqa: E402
 
-FAST = settings(max_examples=40, deadline=None,
-                suppress_health_check=[HealthCheck.too_slow])
+FAST = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
-def random_qp(seed: int, n: int, kmax: int, density: float = 0.3, rank: int = 4,
-              diag: float = 0.05) -> BlockQP:
+def random_qp(
+    seed: int, n: int, kmax: int, density: float = 0.3, rank: int = 4, diag: float = 0.05
+) -> BlockQP:
     """Random PSD instance: Q = M M^T (sparse, low rank) + diag I, blocks of 1..kmax."""
     rng = np.random.default_rng(seed)
     sizes = rng.integers(1, kmax + 1, size=n)
@@ -45,8 +45,10 @@ def check_result(qp: BlockQP, res: FWResult, eps: float) -> None:
         assert res.gap <= eps
     # The reported gap is the exact FW duality gap at x.
     g = qp.gradient(res.x)
-    exact = sum(float(g[lo:hi] @ res.x[lo:hi] - g[lo:hi].min())
-                for lo, hi in zip(qp.block_ptr[:-1], qp.block_ptr[1:], strict=True))
+    exact = sum(
+        float(g[lo:hi] @ res.x[lo:hi] - g[lo:hi].min())
+        for lo, hi in zip(qp.block_ptr[:-1], qp.block_ptr[1:], strict=True)
+    )
     assert res.gap == pytest.approx(exact, abs=1e-9)
     for b in range(n):  # rounding = argmax per block
         lo, hi = qp.block_ptr[b], qp.block_ptr[b + 1]
@@ -55,13 +57,17 @@ def check_result(qp: BlockQP, res: FWResult, eps: float) -> None:
 
 # ---------------------------------------------------------------------------- properties
 @FAST
-@given(seed=st.integers(0, 2**31 - 1), n=st.integers(0, 12), kmax=st.integers(1, 7),
-       variant=st.sampled_from(VARIANTS), eps=st.sampled_from([1e-2, 1e-4, 1e-7]))
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    n=st.integers(0, 12),
+    kmax=st.integers(1, 7),
+    variant=st.sampled_from(VARIANTS),
+    eps=st.sampled_from([1e-2, 1e-4, 1e-7]),
+)
 def test_feasible_monotone_and_gap(seed, n, kmax, variant, eps):
     qp = random_qp(seed, n, kmax)
     x0 = default_start(qp)
-    res = solve(qp, params=FWParams(variant=variant, eps=eps, max_iter=20_000,
-                                    record_history=True))
+    res = solve(qp, params=FWParams(variant=variant, eps=eps, max_iter=20_000, record_history=True))
     check_result(qp, res, eps)
     # Plain FW converges sublinearly when the optimum lies on a face: no guarantee there.
     assert res.converged or (variant == "plain" and res.iterations == 20_000)
@@ -132,8 +138,7 @@ def test_hand_built_two_targets_known_optimum():
     # Relaxed optimum by hand: x = (a, 1-a), y = (b, 1-b); f is a 2-variable quadratic.
     grid = np.linspace(0, 1, 2001)
     A, B = np.meshgrid(grid, grid, indexing="ij")
-    f = (-A - B - 0.5 * (1 - B) + 2 * w * A * B
-         + w * (A**2 + (1 - A) ** 2 + B**2 + (1 - B) ** 2))
+    f = -A - B - 0.5 * (1 - B) + 2 * w * A * B + w * (A**2 + (1 - A) ** 2 + B**2 + (1 - B) ** 2)
     assert res.objective == pytest.approx(f.min(), abs=1e-6)
     ref = solve_clarabel(qp)
     assert res.objective == pytest.approx(ref.objective, abs=1e-7)
@@ -227,8 +232,9 @@ def test_unknown_variant(variant):
         FWParams(variant=variant)
 
 
-@pytest.mark.parametrize("kw", [{"eps": -1.0}, {"eps": float("nan")}, {"max_iter": -1},
-                                {"max_iter": 2.5}])
+@pytest.mark.parametrize(
+    "kw", [{"eps": -1.0}, {"eps": float("nan")}, {"max_iter": -1}, {"max_iter": 2.5}]
+)
 def test_bad_params(kw):
     with pytest.raises(ValueError, match=next(iter(kw))):
         FWParams(**kw)
@@ -240,14 +246,17 @@ def test_non_symmetric_q():
         BlockQP(np.zeros(2), Q, np.array([0, 2]))
 
 
-@pytest.mark.parametrize("bp, msg", [
-    ([0, 1], r"block_ptr\[-1\]"),
-    ([1, 3], r"block_ptr\[0\]"),
-    ([0, 2, 2, 3], "non-empty"),
-    ([0, 3, 1, 3], "non-empty"),
-    ([[0, 3]], "block_ptr must be 1-D"),
-    ([0.5, 3], "block_ptr must be integers"),
-])
+@pytest.mark.parametrize(
+    "bp, msg",
+    [
+        ([0, 1], r"block_ptr\[-1\]"),
+        ([1, 3], r"block_ptr\[0\]"),
+        ([0, 2, 2, 3], "non-empty"),
+        ([0, 3, 1, 3], "non-empty"),
+        ([[0, 3]], "block_ptr must be 1-D"),
+        ([0.5, 3], "block_ptr must be integers"),
+    ],
+)
 def test_bad_block_ptr(bp, msg):
     with pytest.raises(ValueError, match=msg):
         BlockQP(np.zeros(3), sp.identity(3, format="csc"), np.array(bp))
@@ -264,12 +273,15 @@ def test_bad_q_and_c():
         BlockQP(np.zeros((2, 1)), sp.identity(2, format="csc"), np.array([0, 2]))
 
 
-@pytest.mark.parametrize("x0, msg", [
-    ([0.5, 0.4, 0.5, 0.5], "x0 must sum to 1"),
-    ([1.5, -0.5, 1.0, 0.0], "x0 must be >= 0"),
-    ([1.0, 0.0, 1.0], r"x0 must have shape"),
-    ([np.nan, 1.0, 1.0, 0.0], "x0 must be finite"),
-])
+@pytest.mark.parametrize(
+    "x0, msg",
+    [
+        ([0.5, 0.4, 0.5, 0.5], "x0 must sum to 1"),
+        ([1.5, -0.5, 1.0, 0.0], "x0 must be >= 0"),
+        ([1.0, 0.0, 1.0], r"x0 must have shape"),
+        ([np.nan, 1.0, 1.0, 0.0], "x0 must be finite"),
+    ],
+)
 def test_infeasible_x0(x0, msg):
     qp = BlockQP(np.zeros(4), sp.identity(4, format="csc"), np.array([0, 2, 4]))
     with pytest.raises(ValueError, match=msg):
@@ -278,14 +290,16 @@ def test_infeasible_x0(x0, msg):
 
 def test_q_is_canonicalised_and_never_densified():
     # Duplicate entries are summed and rows sorted (the kernels binary-search columns).
-    Q = sp.csc_matrix((np.array([1.0, 1.0, 2.0]), np.array([0, 0, 1]), np.array([0, 2, 3])),
-                      shape=(2, 2))
+    Q = sp.csc_matrix(
+        (np.array([1.0, 1.0, 2.0]), np.array([0, 0, 1]), np.array([0, 2, 3])), shape=(2, 2)
+    )
     qp = BlockQP(np.zeros(2), Q, np.array([0, 2]))
     assert sp.issparse(qp.Q) and qp.Q.nnz == 2 and qp.Q[0, 0] == 2.0
     assert qp.Q.has_canonical_format
     # Unsorted rows and CSR / COO input are accepted too.
-    Q = sp.csc_matrix((np.array([1.0, 0.5, 0.5, 1.0]), np.array([1, 0, 1, 0]),
-                       np.array([0, 2, 4])), shape=(2, 2))
+    Q = sp.csc_matrix(
+        (np.array([1.0, 0.5, 0.5, 1.0]), np.array([1, 0, 1, 0]), np.array([0, 2, 4])), shape=(2, 2)
+    )
     Q.has_sorted_indices = False
     for M in (Q, Q.tocsr(), Q.tocoo()):
         qp = BlockQP(np.array([0.0, 1.0]), M, np.array([0, 2]))
@@ -303,8 +317,18 @@ def test_bench_solver_smoke(tmp_path, capsys):
         return bench_main("solver", argv)
 
     npz = tmp_path / "frames.npz"
-    args = ["--sizes", "8,12", "--frames", "1", "--repeats", "1", "--out", str(tmp_path),
-            "--save-npz", str(npz)]
+    args = [
+        "--sizes",
+        "8,12",
+        "--frames",
+        "1",
+        "--repeats",
+        "1",
+        "--out",
+        str(tmp_path),
+        "--save-npz",
+        str(npz),
+    ]
     assert main(args) == 0
     report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert set(report["summary"]) == {"8", "12"}
@@ -312,8 +336,7 @@ def test_bench_solver_smoke(tmp_path, capsys):
         assert s["all_converged"] and s["max_abs_rel_objective_diff"] < 1e-3
     assert (tmp_path / "solver_convergence.png").stat().st_size > 0
     # Dumped frames come back through --from-npz with the same results.
-    assert main(["--from-npz", str(npz), "--repeats", "1", "--no-plot",
-                 "--reference", "none"]) == 0
+    assert main(["--from-npz", str(npz), "--repeats", "1", "--no-plot", "--reference", "none"]) == 0
     again = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert again["source"] == "npz"
     for n in ("8", "12"):
@@ -341,8 +364,22 @@ def test_bench_solver_on_tracker_frames(capsys):
     def main(argv):
         return bench_main("solver", argv)
 
-    assert main(["--tracker-frames", "3", "--frames", "2", "--sizes", "6", "--repeats", "1",
-                 "--no-plot"]) == 0
+    assert (
+        main(
+            [
+                "--tracker-frames",
+                "3",
+                "--frames",
+                "2",
+                "--sizes",
+                "6",
+                "--repeats",
+                "1",
+                "--no-plot",
+            ]
+        )
+        == 0
+    )
     report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert report["source"] == "tracker" and len(report["problems"]) == 2
     assert report["summary"]["6"]["all_converged"]

@@ -17,8 +17,11 @@ from tracker.baselines.meanshift import (
 from tracker.registry import make_tracker
 from tracker.testing import make_scene
 
-SCENE = dict(starts=[[20, 20], [90, 20], [100, 75], [25, 75]],
-             velocities=[[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=12)
+SCENE = dict(
+    starts=[[20, 20], [90, 20], [100, 75], [25, 75]],
+    velocities=[[2, 1], [-2, 1], [-2, 0], [1, -1]],
+    n_frames=12,
+)
 
 
 def _scene():
@@ -48,8 +51,7 @@ def test_histograms_and_bins():
 
 def test_registry_determinism_and_edge_cases():
     sc = _scene()
-    a, b = (make_tracker("meanshift").track(sc.frames, sc.ids, sc.points[0], 8)
-            for _ in range(2))
+    a, b = (make_tracker("meanshift").track(sc.frames, sc.ids, sc.points[0], 8) for _ in range(2))
     np.testing.assert_array_equal(a.positions, b.positions)
     res = MeanShiftTracker().track(sc.frames[:3], [], np.zeros((0, 2)), 8)
     assert res.positions.shape == (3, 0, 2)
@@ -58,18 +60,33 @@ def test_registry_determinism_and_edge_cases():
     assert np.abs(res.positions - one.points).max() <= 2
     flat = [np.full((60, 80, 3), 100, np.uint8)] * 5
     res = MeanShiftTracker().track(flat, [1, 2], np.array([[20.0, 20.0], [60.0, 40.0]]), 8)
-    np.testing.assert_array_equal(res.positions, np.broadcast_to(res.positions[0],
-                                                                 res.positions.shape))
+    np.testing.assert_array_equal(
+        res.positions, np.broadcast_to(res.positions[0], res.positions.shape)
+    )
 
 
-CHANGES = {"color_space": "hsv", "bins": 4, "search_factor": 3.0, "max_iter": 1,
-           "epsilon": 5.0, "update_every": 1, "update_threshold": 0.99,
-           "lost_confidence": 0.99, "max_lost": 1}
+CHANGES = {
+    "color_space": "hsv",
+    "bins": 4,
+    "search_factor": 3.0,
+    "max_iter": 1,
+    "epsilon": 5.0,
+    "update_every": 1,
+    "update_threshold": 0.99,
+    "lost_confidence": 0.99,
+    "max_lost": 1,
+}
 
 
 def _snapshot(t: MeanShiftTracker) -> tuple:
-    return (t.points.tobytes(), t.confidence.tobytes(), t.hists.tobytes(), t.radius,
-            t.templates.tobytes(), t.age.tobytes())
+    return (
+        t.points.tobytes(),
+        t.confidence.tobytes(),
+        t.hists.tobytes(),
+        t.radius,
+        t.templates.tobytes(),
+        t.age.tobytes(),
+    )
 
 
 def _run(params, switch_to, frames, p0):
@@ -98,10 +115,20 @@ def test_every_parameter_takes_effect_mid_sequence():
             assert switched != base, name  # and it changes what the tracker does
 
 
-@pytest.mark.parametrize("field,value", [
-    ("color_space", "lab"), ("bins", 1), ("bins", 300), ("bins", 8.5), ("search_factor", 1.0),
-    ("max_iter", 0), ("epsilon", 0.0), ("update_every", 0), ("update_threshold", 1.5),
-])
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("color_space", "lab"),
+        ("bins", 1),
+        ("bins", 300),
+        ("bins", 8.5),
+        ("search_factor", 1.0),
+        ("max_iter", 0),
+        ("epsilon", 0.0),
+        ("update_every", 0),
+        ("update_threshold", 1.5),
+    ],
+)
 def test_bad_params_name_field_and_value(field, value):
     with pytest.raises(ValueError, match=rf"MeanShiftParams\.{field} .*got {value!r}"):
         MeanShiftParams(**{field: value})

@@ -21,9 +21,15 @@ from tracker.testing import PALETTE, make_scene
 SIZE = 8
 
 
-def draw(paths: np.ndarray, colours: np.ndarray, shape=(112, 144), seed: int = 0,
-         occlude: dict[int, int] | None = None, occluder: int = 21,
-         textured: bool = False) -> list[np.ndarray]:
+def draw(
+    paths: np.ndarray,
+    colours: np.ndarray,
+    shape=(112, 144),
+    seed: int = 0,
+    occlude: dict[int, int] | None = None,
+    occluder: int = 21,
+    textured: bool = False,
+) -> list[np.ndarray]:
     """Frames of ``make_scene``-style blobs at ``paths`` ``(T, n, 2)`` int px.
 
     ``occlude[i] = t0``: from frame ``t0`` target ``i`` is covered by a square of side
@@ -33,8 +39,11 @@ def draw(paths: np.ndarray, colours: np.ndarray, shape=(112, 144), seed: int = 0
     rng = np.random.default_rng(seed)
     h, w = shape
     bg = rng.integers(70, 130, (h, w, 3)).astype(np.uint8)
-    cover = rng.integers(0, 255, (occluder, occluder, 3)).astype(np.uint8) if textured \
+    cover = (
+        rng.integers(0, 255, (occluder, occluder, 3)).astype(np.uint8)
+        if textured
         else np.full((occluder, occluder, 3), 100, np.uint8)
+    )
     half = (SIZE - 2) // 2
     frames = []
     for t in range(paths.shape[0]):
@@ -42,10 +51,10 @@ def draw(paths: np.ndarray, colours: np.ndarray, shape=(112, 144), seed: int = 0
         for i, (x, y) in enumerate(paths[t]):
             if occlude and i in occlude and t >= occlude[i]:
                 o = occluder // 2
-                f[y - o:y + o + 1, x - o:x + o + 1] = cover
+                f[y - o : y + o + 1, x - o : x + o + 1] = cover
                 continue
-            f[y - half:y + half + 1, x - half:x + half + 1] = colours[i]
-            f[y - 1:y + 1, x - 1:x + 1] = colours[i] // 4
+            f[y - half : y + half + 1, x - half : x + half + 1] = colours[i]
+            f[y - 1 : y + 1, x - 1 : x + 1] = colours[i] // 4
         frames.append(f)
     return frames
 
@@ -53,8 +62,7 @@ def draw(paths: np.ndarray, colours: np.ndarray, shape=(112, 144), seed: int = 0
 def turning_group(n_frames: int = 14, turn: int = 6) -> np.ndarray:
     """``(T, 7, 2)`` int: a centre and a hexagonal ring (radius 18 px) moving right at 2
     px/frame, then (from frame ``turn``) down at 2 px/frame."""
-    ring = 18 * np.stack([np.cos(np.arange(6) * np.pi / 3), np.sin(np.arange(6) * np.pi / 3)],
-                         1)
+    ring = 18 * np.stack([np.cos(np.arange(6) * np.pi / 3), np.sin(np.arange(6) * np.pi / 3)], 1)
     start = np.rint(np.concatenate([[[0.0, 0.0]], ring]) + [50, 40]).astype(np.int64)
     step = np.array([[2, 0] if t < turn else [0, 2] for t in range(n_frames - 1)])
     offset = np.concatenate([[[0, 0]], np.cumsum(step, 0)])
@@ -72,8 +80,9 @@ def track(tracker, frames, points0, births=None):
 
 # ---------------------------------------------------------------------------- exact scenes
 def test_exact_recovery_on_tiny_scenes():
-    sc = make_scene([[20, 20], [90, 20], [100, 75], [25, 75]],
-                    [[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=12)
+    sc = make_scene(
+        [[20, 20], [90, 20], [100, 75], [25, 75]], [[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=12
+    )
     res = PNMCTracker().track(sc.frames, sc.ids, sc.points[0], sc.template_size)
     np.testing.assert_array_equal(res.positions, sc.points)
     # a packed group (neighbours 12 px apart, inside each other's neighbourhoods)
@@ -87,10 +96,15 @@ def test_exact_recovery_on_tiny_scenes():
 
 
 def test_registry_and_determinism():
-    sc = make_scene([[20, 20], [40, 22], [60, 24], [30, 60]], [[1, 1], [1, 1], [1, 1], [-1, 0]],
-                    n_frames=8)
-    runs = [make_tracker("pnmc", queen_mode="random", seed=3).track(
-        sc.frames, sc.ids, sc.points[0], SIZE) for _ in range(2)]
+    sc = make_scene(
+        [[20, 20], [40, 22], [60, 24], [30, 60]], [[1, 1], [1, 1], [1, 1], [-1, 0]], n_frames=8
+    )
+    runs = [
+        make_tracker("pnmc", queen_mode="random", seed=3).track(
+            sc.frames, sc.ids, sc.points[0], SIZE
+        )
+        for _ in range(2)
+    ]
     np.testing.assert_array_equal(runs[0].positions, runs[1].positions)
     assert isinstance(make_tracker("pnmc"), PNMCTracker)
 
@@ -128,14 +142,16 @@ def test_select_queens_on_templates():
 
 def test_fit_gmm_recovers_separated_clusters():
     rng = np.random.default_rng(0)
-    x = np.concatenate([rng.normal([20, 20, 20], 3, (400, 3)),
-                        rng.normal([200, 100, 50], 3, (100, 3))])
+    x = np.concatenate(
+        [rng.normal([20, 20, 20], 3, (400, 3)), rng.normal([200, 100, 50], 3, (100, 3))]
+    )
     gm = fit_gmm(x, 2, np.random.default_rng(0), iterations=50, reg=1e-3)
     order = np.argsort(gm.means[:, 0])
     np.testing.assert_allclose(gm.means[order], [[20, 20, 20], [200, 100, 50]], atol=1.0)
     np.testing.assert_allclose(gm.weights[order], [0.8, 0.2], atol=0.01)
-    np.testing.assert_allclose(np.sqrt(np.diagonal(gm.covariances[order], axis1=1, axis2=2)),
-                               3.0, rtol=0.3)
+    np.testing.assert_allclose(
+        np.sqrt(np.diagonal(gm.covariances[order], axis1=1, axis2=2)), 3.0, rtol=0.3
+    )
     labels = gm.predict(x)
     assert (labels[:400] == order[0]).all() and (labels[400:] == order[1]).all()
 
@@ -170,7 +186,7 @@ def test_delayed_update_puts_low_confidence_last():
     track(t, frames[:9], paths[0].astype(float))
     q = np.flatnonzero(t.queens)
     assert 0 not in q and len(q) >= 1
-    np.testing.assert_array_equal(np.sort(t.update_order[:len(q)]), q)  # queens first
+    np.testing.assert_array_equal(np.sort(t.update_order[: len(q)]), q)  # queens first
     # the occluded centre went to the back of the queue: updated after most of its ring
     assert t.delayed[0] >= 1 and list(t.update_order).index(0) >= 4
     assert t.confidence[0] < 0.9 <= t.confidence[1:].min()
@@ -240,29 +256,74 @@ def test_batched_ncc_matches_the_definition():
 
 # ---------------------------------------------------------------------------- parameters
 CHANGES = {
-    "search_factor": 3.0, "tau": 0.5, "prior_sigma": 0.2, "weight_scale": 20.0,
-    "neighbour_radius": 1.0, "use_neighbours": False, "use_flow": False, "n_clusters": 3,
-    "min_cluster_pixels": 200, "queen_fraction": 0.5, "fill_fraction": 0.3,
-    "queen_order": "mass", "queen_mode": "random", "queen_every": 2, "gmm_iterations": 2,
-    "gmm_samples": 50, "gmm_reg": 400.0, "flow_patch": 6, "flow_spacing": 3,
-    "flow_frames": 3, "flow_search": 0.25, "flow_radius": 2.0, "flow_min_ncc": 0.95,
-    "update_every": 2, "update_threshold": 0.95, "seed": 5, "lost_confidence": 0.99,
+    "search_factor": 3.0,
+    "tau": 0.5,
+    "prior_sigma": 0.2,
+    "weight_scale": 20.0,
+    "neighbour_radius": 1.0,
+    "use_neighbours": False,
+    "use_flow": False,
+    "n_clusters": 3,
+    "min_cluster_pixels": 200,
+    "queen_fraction": 0.5,
+    "fill_fraction": 0.3,
+    "queen_order": "mass",
+    "queen_mode": "random",
+    "queen_every": 2,
+    "gmm_iterations": 2,
+    "gmm_samples": 50,
+    "gmm_reg": 400.0,
+    "flow_patch": 6,
+    "flow_spacing": 3,
+    "flow_frames": 3,
+    "flow_search": 0.25,
+    "flow_radius": 2.0,
+    "flow_min_ncc": 0.95,
+    "update_every": 2,
+    "update_threshold": 0.95,
+    "seed": 5,
+    "lost_confidence": 0.99,
     "max_lost": 0,
 }
 # fields whose change must alter what the tracker does on the occlusion scene below
-MATTERS = {"search_factor", "tau", "prior_sigma", "use_neighbours",
-           "queen_fraction", "queen_mode", "flow_patch", "flow_spacing", "flow_frames",
-           "flow_search", "flow_min_ncc", "update_every", "update_threshold",
-           "lost_confidence"}
+MATTERS = {
+    "search_factor",
+    "tau",
+    "prior_sigma",
+    "use_neighbours",
+    "queen_fraction",
+    "queen_mode",
+    "flow_patch",
+    "flow_spacing",
+    "flow_frames",
+    "flow_search",
+    "flow_min_ncc",
+    "update_every",
+    "update_threshold",
+    "lost_confidence",
+}
 
 
 def _snapshot(t: PNMCTracker) -> tuple:
     f = t.flow
-    return (t.points.tobytes(), t.confidence.tobytes(), t.queens.tobytes(),
-            t.velocity.tobytes(), t.update_order.tobytes(), t.delayed.tobytes(),
-            t.used_flow.tobytes(), t.radius, t.model.update_every, t.model.update_threshold,
-            t.model.templates.tobytes(), f.patch, f.spacing, f.search, f.min_ncc,
-            f.buffer.maxlen)
+    return (
+        t.points.tobytes(),
+        t.confidence.tobytes(),
+        t.queens.tobytes(),
+        t.velocity.tobytes(),
+        t.update_order.tobytes(),
+        t.delayed.tobytes(),
+        t.used_flow.tobytes(),
+        t.radius,
+        t.model.update_every,
+        t.model.update_threshold,
+        t.model.templates.tobytes(),
+        f.patch,
+        f.spacing,
+        f.search,
+        f.min_ncc,
+        f.buffer.maxlen,
+    )
 
 
 def _run(params: PNMCParams, switch_to: PNMCParams | None, frames, p0) -> list[tuple]:
@@ -318,8 +379,12 @@ def test_zero_one_and_flat():
 
 
 def test_births_reselect_queens_and_copy_is_independent():
-    sc = make_scene([[20, 20], [60, 30], [100, 40]], [[1, 0], [1, 0], [-1, 0]], n_frames=6,
-                    birth_frames=[0, 0, 3])
+    sc = make_scene(
+        [[20, 20], [60, 30], [100, 40]],
+        [[1, 0], [1, 0], [-1, 0]],
+        n_frames=6,
+        birth_frames=[0, 0, 3],
+    )
     t = PNMCTracker(PNMCParams(queen_every=1))
     births = {3: (np.array([3]), sc.points[3, 2:3])}
     res = track(t, sc.frames, sc.points[0, :2], births=births)
@@ -330,12 +395,27 @@ def test_births_reselect_queens_and_copy_is_independent():
     assert t.frame_index == 5
 
 
-@pytest.mark.parametrize("field,value", [
-    ("tau", 1.0), ("tau", -0.1), ("prior_sigma", 0.0), ("search_factor", 1.0),
-    ("n_clusters", 0), ("n_clusters", 2.5), ("queen_fraction", 0.0), ("fill_fraction", 1.5),
-    ("queen_order", "size"), ("queen_mode", "all"), ("use_flow", "yes"), ("flow_patch", 1),
-    ("flow_frames", 1), ("weight_scale", float("nan")), ("update_every", 0), ("seed", -1),
-])
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("tau", 1.0),
+        ("tau", -0.1),
+        ("prior_sigma", 0.0),
+        ("search_factor", 1.0),
+        ("n_clusters", 0),
+        ("n_clusters", 2.5),
+        ("queen_fraction", 0.0),
+        ("fill_fraction", 1.5),
+        ("queen_order", "size"),
+        ("queen_mode", "all"),
+        ("use_flow", "yes"),
+        ("flow_patch", 1),
+        ("flow_frames", 1),
+        ("weight_scale", float("nan")),
+        ("update_every", 0),
+        ("seed", -1),
+    ],
+)
 def test_bad_params_name_field_and_value(field, value):
     with pytest.raises(ValueError, match=rf"PNMCParams\.{field} .*got {value!r}"):
         PNMCParams(**{field: value})

@@ -47,10 +47,24 @@ def test_neighbourhood_cost_uses_neighbour_velocities_eq7():
 def _history(n_frames=10):
     # group A moves right, group B moves left, C stands still, D is far away moving right
     t = np.arange(n_frames)[:, None]
-    xs = np.concatenate([10 + 2 * t + np.array([0, 8, 16]), 60 - 2 * t + np.array([0, 8, 16]),
-                         np.full((n_frames, 1), 40.0), 300 + 2 * t], axis=1)
-    ys = np.concatenate([np.full((n_frames, 3), 10.0), np.full((n_frames, 3), 30.0),
-                         np.full((n_frames, 1), 20.0), np.full((n_frames, 1), 10.0)], axis=1)
+    xs = np.concatenate(
+        [
+            10 + 2 * t + np.array([0, 8, 16]),
+            60 - 2 * t + np.array([0, 8, 16]),
+            np.full((n_frames, 1), 40.0),
+            300 + 2 * t,
+        ],
+        axis=1,
+    )
+    ys = np.concatenate(
+        [
+            np.full((n_frames, 3), 10.0),
+            np.full((n_frames, 3), 30.0),
+            np.full((n_frames, 1), 20.0),
+            np.full((n_frames, 1), 10.0),
+        ],
+        axis=1,
+    )
     return np.stack([xs, ys], axis=-1)
 
 
@@ -92,14 +106,14 @@ def _dense_reference(cand, sigma, cutoff, edges=None, lengths=None):
     tgt = np.repeat(np.arange(n), k)
     d = np.linalg.norm(p[:, None] - p[None], axis=-1)
     if edges is None:
-        w = np.exp(-d ** 2 / (2 * sigma ** 2)) * (d <= cutoff * sigma)
+        w = np.exp(-(d**2) / (2 * sigma**2)) * (d <= cutoff * sigma)
         w[tgt[:, None] == tgt[None]] = 0
     else:
         w = np.zeros_like(d)
         for (a, b), e in zip(edges, lengths, strict=True):
             ia, ib = np.flatnonzero(tgt == a), np.flatnonzero(tgt == b)
             dev = d[np.ix_(ia, ib)] - e
-            blk = np.exp(-dev ** 2 / (2 * sigma ** 2)) * (np.abs(dev) <= cutoff * sigma)
+            blk = np.exp(-(dev**2) / (2 * sigma**2)) * (np.abs(dev) <= cutoff * sigma)
             w[np.ix_(ia, ib)] = blk
             w[np.ix_(ib, ia)] = blk.T
     deg = w.sum(1)
@@ -173,8 +187,7 @@ def test_dense_and_speedup_candidates():
     off = samp - ext[:, :, None]
     assert (off >= -3).all() and (off <= 2).all()
     assert (np.abs(s.positions - centers[:, None]) <= r).all()
-    empty = speedup_candidates(np.zeros((0, 2)), r, np.zeros((0, 7, 7)), np.zeros((0, 7, 7)),
-                               rng)
+    empty = speedup_candidates(np.zeros((0, 2)), r, np.zeros((0, 7, 7)), np.zeros((0, 7, 7)), rng)
     assert empty.n == 0 and empty.k == 33
 
 
@@ -209,36 +222,48 @@ def test_grouping_with_relative_offsets():
             for j in range(5):
                 dev = np.linalg.norm(p[a * 5 + i] - p[b * 5 + j] - e)
                 if dev <= 6.0:
-                    w[a * 5 + i, b * 5 + j] = w[b * 5 + j, a * 5 + i] = np.exp(-dev ** 2 / 18)
+                    w[a * 5 + i, b * 5 + j] = w[b * 5 + j, a * 5 + i] = np.exp(-(dev**2) / 18)
     deg = w.sum(1)
     inv = np.where(deg > 0, 1 / np.sqrt(np.where(deg > 0, deg, 1)), 0)
-    np.testing.assert_allclose(q, np.diag((deg > 0) * 1.0) - inv[:, None] * w * inv[None],
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        q, np.diag((deg > 0) * 1.0) - inv[:, None] * w * inv[None], atol=1e-12
+    )
 
 
 def test_regularised_laplacian_keeps_weak_couplings_weak():
     far = np.array([[[0.0, 0.0]], [[5.9, 0.0]]])  # one barely-similar pair (S ~ 0.14)
     plain = proximity_matrix(far, 3.0, 2.0).toarray()
     reg = proximity_matrix(far, 3.0, 2.0, tau=1.0).toarray()
-    s = np.exp(-5.9 ** 2 / 18)
+    s = np.exp(-(5.9**2) / 18)
     assert plain[0, 1] == pytest.approx(1.0)  # plain normalisation: full strength
     assert reg[0, 1] == pytest.approx(s / (s + 1.0))
     assert reg[0, 0] == pytest.approx(s / (s + 1.0))
     rng = np.random.default_rng(5)
     cand = rng.uniform(0, 20, (4, 5, 2))
-    for q in (proximity_matrix(cand, 3.0, 2.0, tau=1.0),
-              grouping_matrix(cand, np.array([[0, 1], [1, 2]]), np.array([5.0, 7.0]), 3.0, 2.0,
-                              tau=1.0)):
+    for q in (
+        proximity_matrix(cand, 3.0, 2.0, tau=1.0),
+        grouping_matrix(cand, np.array([[0, 1], [1, 2]]), np.array([5.0, 7.0]), 3.0, 2.0, tau=1.0),
+    ):
         assert np.linalg.eigvalsh(q.toarray()).min() > -1e-9
 
 
 def test_quadratic_matrix_is_canonical_csc():
     rng = np.random.default_rng(6)
     cand = rng.uniform(0, 30, (6, 7, 2))
-    q = quadratic_matrix(cand, 0.3, 3.0, 2.0, 1.0, np.array([[0, 2], [2, 5], [1, 4]]),
-                         np.array([4.0, 6.0, 9.0]), 2.0, 2.0, 1.0)
+    q = quadratic_matrix(
+        cand,
+        0.3,
+        3.0,
+        2.0,
+        1.0,
+        np.array([[0, 2], [2, 5], [1, 4]]),
+        np.array([4.0, 6.0, 9.0]),
+        2.0,
+        2.0,
+        1.0,
+    )
     for col in range(q.shape[1]):
-        rows = q.indices[q.indptr[col]:q.indptr[col + 1]]
+        rows = q.indices[q.indptr[col] : q.indptr[col + 1]]
         assert (np.diff(rows) > 0).all()  # sorted, no duplicates
     ref = q.copy()
     ref.has_sorted_indices = False

@@ -69,14 +69,18 @@ def test_set_params_takes_effect_for_every_parameter(name):
 
 def test_tracks_end_where_people_vanish_in_view(make):
     factory, name = make
-    sc = make_scene([[20, 20], [110, 20], [100, 70], [30, 70]],
-                    [[2, 1], [0, 1], [-1, 0], [1, -1]], n_frames=20, death_frames=[20, 8, 20, 20])
+    sc = make_scene(
+        [[20, 20], [110, 20], [100, 70], [30, 70]],
+        [[2, 1], [0, 1], [-1, 0], [1, -1]],
+        n_frames=20,
+        death_frames=[20, 8, 20, 20],
+    )
     tr = factory()
     res = _track(tr, sc)
     max_lost = tr.params.max_lost
     assert max_lost > 0
     # id 2 vanishes at frame 8 on textured ground: its track ends max_lost frames later
-    assert np.isnan(res.positions[8 + max_lost:, 1]).all()
+    assert np.isnan(res.positions[8 + max_lost :, 1]).all()
     assert_positions(name, res.positions[:8, 1], sc.points[:8, 1])
     for j in (0, 2, 3):
         assert_positions(name, res.positions[:, j], sc.points[:, j])
@@ -97,8 +101,9 @@ def _track(tracker: Tracker, sc, births=None) -> TrackResult:
 
 def test_exact_positions_on_hand_built_scene(make):
     factory, name = make
-    sc = make_scene([[20, 20], [90, 20], [100, 75], [25, 75]],
-                    [[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=12)
+    sc = make_scene(
+        [[20, 20], [90, 20], [100, 75], [25, 75]], [[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=12
+    )
     res = _track(factory(), sc)
     assert isinstance(res, TrackResult)
     assert res.positions.shape == (12, 4, 2)
@@ -132,15 +137,20 @@ def test_targets_at_the_border(make):
 
 def test_leaving_targets_are_terminated_and_births_added(make):
     factory, name = make
-    sc = make_scene([[110, 30], [30, 60], [60, 20]], [[3, 0], [1, 0], [0, 2]], n_frames=14,
-                    shape=(96, 128), birth_frames=[0, 0, 5])
+    sc = make_scene(
+        [[110, 30], [30, 60], [60, 20]],
+        [[3, 0], [1, 0], [0, 2]],
+        n_frames=14,
+        shape=(96, 128),
+        birth_frames=[0, 0, 5],
+    )
     births = {5: (sc.ids[2:], sc.points[5, 2:])}
     tr = factory()
     res = _track(tr, sc, births=births)
     np.testing.assert_array_equal(res.ids, sc.ids)
     gone = np.flatnonzero(np.isnan(sc.points[:, 0, 0]))[0]  # id 1 leaves on the right
     lag = tr.params.max_lost if name in TOLERANCE_PX else 0
-    assert np.isnan(res.positions[gone + 1 + lag:, 0]).all()
+    assert np.isnan(res.positions[gone + 1 + lag :, 0]).all()
     assert np.isnan(res.positions[:5, 2]).all()
     assert_positions(name, res.positions[5:, 2], sc.points[5:, 2])
     assert_positions(name, res.positions[:, 1], sc.points[:, 1])
@@ -181,8 +191,9 @@ def test_deterministic(make):
 def crowd():
     from synth_data.sequence import synthetic_crowd
 
-    return synthetic_crowd(150, 20, seed=3, template_px=10, size=(320, 240), contrast=0.2,
-                           noise_sigma=10, speed=2.6)
+    return synthetic_crowd(
+        150, 20, seed=3, template_px=10, size=(320, 240), contrast=0.2, noise_sigma=10, speed=2.6
+    )
 
 
 def test_plant_and_recover_accuracy_floor(make, crowd):

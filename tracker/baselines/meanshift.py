@@ -56,8 +56,11 @@ def histograms(idx: np.ndarray, n_bins: int) -> np.ndarray:
     """``(n, n_bins)`` float64 normalised (sum 1) histograms of ``idx`` ``(n, ...)`` bins."""
     n = idx.shape[0]
     flat = idx.reshape(n, -1)
-    counts = np.bincount((flat + np.arange(n)[:, None] * n_bins).ravel(),
-                         minlength=n * n_bins).reshape(n, n_bins).astype(np.float64)
+    counts = (
+        np.bincount((flat + np.arange(n)[:, None] * n_bins).ravel(), minlength=n * n_bins)
+        .reshape(n, n_bins)
+        .astype(np.float64)
+    )
     return counts / np.maximum(counts.sum(1, keepdims=True), 1.0)
 
 
@@ -161,8 +164,7 @@ class MeanShiftTracker(Tracker):
             return np.zeros((0, self.n_bins))
         s = patches_bgr.shape[1]
         conv = self._convert(np.ascontiguousarray(patches_bgr.reshape(-1, s, 3)))
-        idx = bin_index(conv.reshape(patches_bgr.shape), self.params.color_space,
-                        self.params.bins)
+        idx = bin_index(conv.reshape(patches_bgr.shape), self.params.color_space, self.params.bins)
         return histograms(idx, self.n_bins)
 
     def _patches(self, frame: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -200,8 +202,11 @@ class MeanShiftTracker(Tracker):
         top = np.maximum(self.hists.max(1, keepdims=True), 1e-12)
         back = np.rint(255.0 * np.take_along_axis(self.hists / top, idx.reshape(n, -1), 1))
         back = back.reshape(n, side, side).astype(np.uint8)
-        criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, int(p.max_iter),
-                    float(p.epsilon))
+        criteria = (
+            cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT,
+            int(p.max_iter),
+            float(p.epsilon),
+        )
         win_tl = np.empty((n, 2), np.int64)
         for i in range(n):  # OpenCV moves one window at a time
             _, (x, y, _, _) = cv2.meanShift(back[i], (r, r, s, s), criteria)

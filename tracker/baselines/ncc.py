@@ -64,8 +64,9 @@ class NCCTracker(Tracker):
 
     def _init(self, frame: np.ndarray) -> None:
         p = self.params
-        self.model = NCCAppearance(self.template_size, 1, p.update_threshold,
-                                   update_every=p.update_every)
+        self.model = NCCAppearance(
+            self.template_size, 1, p.update_threshold, update_every=p.update_every
+        )
         self._set_radius()
 
     def _set_radius(self) -> None:
@@ -94,8 +95,9 @@ class NCCTracker(Tracker):
         flat = scores.reshape(n, -1)
         pos = centers[:, None, :] + self._offsets[None]
         # the centre of a match must stay inside the image
-        outside = (pos[..., 0] < 0) | (pos[..., 0] > w - 1) | (pos[..., 1] < 0) | \
-            (pos[..., 1] > h - 1)
+        outside = (
+            (pos[..., 0] < 0) | (pos[..., 0] > w - 1) | (pos[..., 1] < 0) | (pos[..., 1] > h - 1)
+        )
         best = np.where(outside, -np.inf, flat).argmax(1)
         new = pos[np.arange(n), best].astype(np.float64)
         conf = flat[np.arange(n), best]

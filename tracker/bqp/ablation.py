@@ -31,5 +31,8 @@ APPEARANCES: tuple[tuple[str, str], ...] = (("NCC", "ncc"), ("KCF", "kcf"))
 
 def ablation_rows() -> list[tuple[str, dict[str, Any]]]:
     """``(label, overrides)`` for every combination and appearance, in Table 3's order."""
-    return [(f"{label} ({app_label})", {**over, "appearance": app})
-            for label, over in ABLATION for app_label, app in APPEARANCES]
+    return [
+        (f"{label} ({app_label})", {**over, "appearance": app})
+        for label, over in ABLATION
+        for app_label, app in APPEARANCES
+    ]

@@ -101,12 +101,15 @@ class FWParams:
     def __post_init__(self) -> None:
         if self.variant not in _VARIANT_CODE:
             raise ValueError(
-                f"FWParams.variant must be one of {', '.join(VARIANTS)}; got {self.variant!r}")
-        if not (isinstance(self.eps, (int, float)) and math.isfinite(self.eps)
-                and self.eps >= 0):
+                f"FWParams.variant must be one of {', '.join(VARIANTS)}; got {self.variant!r}"
+            )
+        if not (isinstance(self.eps, (int, float)) and math.isfinite(self.eps) and self.eps >= 0):
             raise ValueError(f"FWParams.eps must be a finite number >= 0; got {self.eps!r}")
-        if isinstance(self.max_iter, bool) or not isinstance(self.max_iter, (int, np.integer)) \
-                or self.max_iter < 0:
+        if (
+            isinstance(self.max_iter, bool)
+            or not isinstance(self.max_iter, (int, np.integer))
+            or self.max_iter < 0
+        ):
             raise ValueError(f"FWParams.max_iter must be an integer >= 0; got {self.max_iter!r}")
 
 
@@ -330,8 +333,9 @@ def _vertex_objective(indptr, indices, data, c, block_ptr, choice):
 
 
 @njit(cache=True)
-def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max_iter,
-             hist_f, hist_gap):
+def _fw_loop(
+    indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max_iter, hist_f, hist_gap
+):
     """The shared FW / away / SWAP loop; ``x`` is updated in place.
 
     Returns ``(iterations, converged, gap, f(x), counts)`` with ``gap`` and ``f`` computed
@@ -362,8 +366,7 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
     record = hist_f.shape[0] > 0
 
     in_ptr, in_rows, in_vals = _intra_block(indptr, indices, data, block_ptr, block_of)
-    total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps,
-                     tree, size)
+    total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps, tree, size)
     fresh = True
     f = 0.0
     for j in range(l):
@@ -377,8 +380,9 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
         if total <= eps:
             # The incrementally kept gradient drifts; confirm on exact values before stopping.
             if not fresh:
-                total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx,
-                                 gaps, tree, size)
+                total = _rebuild(
+                    indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps, tree, size
+                )
                 fresh = True
             if total <= eps:
                 converged = True
@@ -437,8 +441,9 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
             # statistics once, then stop rather than spin until max_iter.
             if fresh:
                 break
-            total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx,
-                             gaps, tree, size)
+            total = _rebuild(
+                indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps, tree, size
+            )
             fresh = True
             continue
 
@@ -537,8 +542,9 @@ def _fw_loop(indptr, indices, data, c, block_ptr, block_of, x, variant, eps, max
             hist_gap[it] = total
 
     if not fresh:
-        total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps,
-                         tree, size)
+        total = _rebuild(
+            indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps, tree, size
+        )
         converged = total <= eps
     f = 0.0
     for j in range(l):
@@ -561,8 +567,7 @@ def round_choice(qp: BlockQP, x: np.ndarray) -> np.ndarray:
     return _block_argext(np.ascontiguousarray(x, dtype=np.float64), qp.block_ptr, True)
 
 
-def solve(qp: BlockQP, x0: np.ndarray | None = None,
-          params: FWParams | None = None) -> FWResult:
+def solve(qp: BlockQP, x0: np.ndarray | None = None, params: FWParams | None = None) -> FWResult:
     """Minimise ``qp`` over its product of simplices with Frank-Wolfe (plain/away/SWAP).
 
     Parameters
@@ -592,25 +597,44 @@ def solve(qp: BlockQP, x0: np.ndarray | None = None,
     n = qp.n_blocks
     if n == 0:
         hist = np.zeros(1) if params.record_history else None
-        return FWResult(x=x, choice=np.zeros(0, dtype=np.int64), objective=0.0,
-                        rounded_objective=0.0, gap=0.0, iterations=0, converged=True,
-                        history=hist, gap_history=None if hist is None else hist.copy(),
-                        steps=dict.fromkeys(STEP_KINDS, 0))
+        return FWResult(
+            x=x,
+            choice=np.zeros(0, dtype=np.int64),
+            objective=0.0,
+            rounded_objective=0.0,
+            gap=0.0,
+            iterations=0,
+            converged=True,
+            history=hist,
+            gap_history=None if hist is None else hist.copy(),
+            steps=dict.fromkeys(STEP_KINDS, 0),
+        )
     m = params.max_iter + 1 if params.record_history else 0
     hist_f = np.zeros(m)
     hist_gap = np.zeros(m)
     Q = qp.Q
     it, converged, gap, f, counts = _fw_loop(
-        Q.indptr, Q.indices, Q.data, qp.c, qp.block_ptr, qp.block_of, x,
-        _VARIANT_CODE[params.variant], float(params.eps), int(params.max_iter), hist_f,
-        hist_gap)
+        Q.indptr,
+        Q.indices,
+        Q.data,
+        qp.c,
+        qp.block_ptr,
+        qp.block_of,
+        x,
+        _VARIANT_CODE[params.variant],
+        float(params.eps),
+        int(params.max_iter),
+        hist_f,
+        hist_gap,
+    )
     choice = _block_argext(x, qp.block_ptr, True)
     return FWResult(
         x=x,
         choice=choice,
         objective=float(f),
-        rounded_objective=float(_vertex_objective(Q.indptr, Q.indices, Q.data, qp.c,
-                                                  qp.block_ptr, choice)),
+        rounded_objective=float(
+            _vertex_objective(Q.indptr, Q.indices, Q.data, qp.c, qp.block_ptr, choice)
+        ),
         gap=float(gap),
         iterations=int(it),
         converged=bool(converged),

@@ -186,13 +186,39 @@ class BQPParams:
 
     def __post_init__(self) -> None:
         own = "BQPParams"
-        nonneg = ("zeta", "eta", "w_sp", "w_g", "min_group_speed", "border_penalty",
-                  "laplacian_tau", "kcf_target_window")
-        positive = ("kcf_lambda", "kcf_label_sigma", "kcf_kernel_sigma", "motion_sigma",
-                    "neighbour_scale", "group_radius", "proximity_sigma", "proximity_cutoff",
-                    "group_sigma", "group_cutoff", "fw_eps")
-        counts = ("ncc_update_every", "n_neighbours", "group_refresh", "candidate_stride",
-                  "n_extrema", "n_samples", "sample_window", "fw_max_iter")
+        nonneg = (
+            "zeta",
+            "eta",
+            "w_sp",
+            "w_g",
+            "min_group_speed",
+            "border_penalty",
+            "laplacian_tau",
+            "kcf_target_window",
+        )
+        positive = (
+            "kcf_lambda",
+            "kcf_label_sigma",
+            "kcf_kernel_sigma",
+            "motion_sigma",
+            "neighbour_scale",
+            "group_radius",
+            "proximity_sigma",
+            "proximity_cutoff",
+            "group_sigma",
+            "group_cutoff",
+            "fw_eps",
+        )
+        counts = (
+            "ncc_update_every",
+            "n_neighbours",
+            "group_refresh",
+            "candidate_stride",
+            "n_extrema",
+            "n_samples",
+            "sample_window",
+            "fw_max_iter",
+        )
         for name in nonneg:
             require_number(own, name, getattr(self, name), lo=0)
         for name in positive:
@@ -204,10 +230,8 @@ class BQPParams:
         require_number(own, "max_lost", self.max_lost, lo=0, integer=True)
         require_number(own, "lost_confidence", self.lost_confidence, lo=-1, hi=1)
         require_number(own, "update_threshold", self.update_threshold, lo=0, hi=1)
-        require_number(own, "kcf_learning_rate", self.kcf_learning_rate, lo=0, hi=1,
-                       lo_open=True)
-        require_number(own, "velocity_smoothing", self.velocity_smoothing, lo=0, hi=1,
-                       hi_open=True)
+        require_number(own, "kcf_learning_rate", self.kcf_learning_rate, lo=0, hi=1, lo_open=True)
+        require_number(own, "velocity_smoothing", self.velocity_smoothing, lo=0, hi=1, hi_open=True)
         require_number(own, "coherence_threshold", self.coherence_threshold, lo=-1, hi=1)
         require_number(own, "search_factor", self.search_factor, lo=1, lo_open=True)
         require_choice(own, "appearance", self.appearance, APPEARANCE_MODELS)

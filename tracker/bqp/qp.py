@@ -133,19 +133,20 @@ class BlockQP:
         if bp[0] != 0:
             raise ValueError(f"BlockQP.block_ptr[0] must be 0, got {bp[0]}")
         if bp[-1] != l:
-            raise ValueError(
-                f"BlockQP.block_ptr[-1] must equal len(c) = {l}, got {bp[-1]}")
+            raise ValueError(f"BlockQP.block_ptr[-1] must equal len(c) = {l}, got {bp[-1]}")
         sizes = np.diff(bp)
         if np.any(sizes <= 0):
             b = int(np.flatnonzero(sizes <= 0)[0])
             raise ValueError(
                 f"BlockQP.block_ptr must be strictly increasing (every block non-empty); "
-                f"block {b} has size {sizes[b]}")
+                f"block {b} has size {sizes[b]}"
+            )
 
         if not sp.issparse(self.Q):
             raise ValueError(
                 f"BlockQP.Q must be a scipy.sparse matrix (dense l x l is never used), "
-                f"got {type(self.Q).__name__}")
+                f"got {type(self.Q).__name__}"
+            )
         if self.Q.shape != (l, l):
             raise ValueError(f"BlockQP.Q must have shape ({l}, {l}), got {self.Q.shape}")
         if np.iscomplexobj(self.Q.data) or not np.issubdtype(self.Q.dtype, np.number):
@@ -171,7 +172,8 @@ class BlockQP:
                 f"BlockQP.Q must be symmetric; max |Q - Q^T| = {diff.data[i]:.3g} at "
                 f"({diff.row[i]}, {diff.col[i]}): Q[{diff.row[i]}, {diff.col[i]}] = "
                 f"{Q[diff.row[i], diff.col[i]]:.6g}, Q[{diff.col[i]}, {diff.row[i]}] = "
-                f"{Q[diff.col[i], diff.row[i]]:.6g}")
+                f"{Q[diff.col[i], diff.row[i]]:.6g}"
+            )
 
         self.c = c
         self.Q = Q
@@ -218,8 +220,7 @@ class BlockQP:
         bad = (choice < 0) | (choice >= sizes)
         if np.any(bad):
             b = int(np.flatnonzero(bad)[0])
-            raise ValueError(
-                f"choice[{b}] = {choice[b]} is outside block {b} of size {sizes[b]}")
+            raise ValueError(f"choice[{b}] = {choice[b]} is outside block {b} of size {sizes[b]}")
         x = np.zeros(self.n_vars)
         x[self.block_ptr[:-1] + choice] = 1.0
         return x
@@ -250,8 +251,8 @@ class BlockQP:
         if np.any(np.abs(sums - 1.0) > tol):
             b = int(np.argmax(np.abs(sums - 1.0)))
             raise ValueError(
-                f"{name} must sum to 1 in every block (infeasible); block {b} sums to "
-                f"{sums[b]:.6g}")
+                f"{name} must sum to 1 in every block (infeasible); block {b} sums to {sums[b]:.6g}"
+            )
         if self.n_blocks:
             x /= np.repeat(sums, self.block_sizes)
         return x
@@ -276,8 +277,13 @@ class BlockQP:
         l = c.shape[0] if c.ndim == 1 else -1
         try:
             Q = sp.csc_matrix(
-                (arrays[f"{prefix}Q_data"], arrays[f"{prefix}Q_indices"],
-                 arrays[f"{prefix}Q_indptr"]), shape=(l, l))
+                (
+                    arrays[f"{prefix}Q_data"],
+                    arrays[f"{prefix}Q_indices"],
+                    arrays[f"{prefix}Q_indptr"],
+                ),
+                shape=(l, l),
+            )
         except (ValueError, TypeError) as exc:
             raise ValueError(f"QP file field {prefix}Q_* is corrupt: {exc}") from exc
         return cls(c, Q, np.asarray(arrays[f"{prefix}block_ptr"]))

@@ -63,7 +63,8 @@ def block_sum_matrix(qp: BlockQP) -> sp.csc_matrix:
     """(n, l) sparse matrix ``B`` with ``(B x)_b = sum of x over block b``."""
     l = qp.n_vars
     return sp.csc_matrix(
-        (np.ones(l), qp.block_of, np.arange(l + 1, dtype=np.int64)), shape=(qp.n_blocks, l))
+        (np.ones(l), qp.block_of, np.arange(l + 1, dtype=np.int64)), shape=(qp.n_blocks, l)
+    )
 
 
 def _finish(qp: BlockQP, x: np.ndarray, status: str, iterations: int, t: float) -> QPSolution:
@@ -72,8 +73,9 @@ def _finish(qp: BlockQP, x: np.ndarray, status: str, iterations: int, t: float) 
         sums = qp.block_sums(x)
         sums[sums <= 0] = 1.0
         x = x / np.repeat(sums, qp.block_sizes)
-    return QPSolution(x=x, objective=qp.objective(x), status=status, iterations=iterations,
-                      solve_time=t)
+    return QPSolution(
+        x=x, objective=qp.objective(x), status=status, iterations=iterations, solve_time=t
+    )
 
 
 def solve_clarabel(qp: BlockQP, tol: float = 1e-8, verbose: bool = False) -> QPSolution:
@@ -89,16 +91,18 @@ def solve_clarabel(qp: BlockQP, tol: float = 1e-8, verbose: bool = False) -> QPS
     settings.verbose = verbose
     settings.tol_gap_abs = tol
     settings.tol_gap_rel = tol
-    solver = clarabel.DefaultSolver(P, qp.c, A, b,
-                                    [clarabel.ZeroConeT(n), clarabel.NonnegativeConeT(l)],
-                                    settings)
+    solver = clarabel.DefaultSolver(
+        P, qp.c, A, b, [clarabel.ZeroConeT(n), clarabel.NonnegativeConeT(l)], settings
+    )
     sol = solver.solve()
-    return _finish(qp, np.asarray(sol.x), str(sol.status), int(sol.iterations),
-                   float(sol.solve_time))
+    return _finish(
+        qp, np.asarray(sol.x), str(sol.status), int(sol.iterations), float(sol.solve_time)
+    )
 
 
-def solve_osqp(qp: BlockQP, tol: float = 1e-6, verbose: bool = False,
-               max_iter: int = 20_000) -> QPSolution:
+def solve_osqp(
+    qp: BlockQP, tol: float = 1e-6, verbose: bool = False, max_iter: int = 20_000
+) -> QPSolution:
     """Solve ``qp`` with OSQP (first-order ADMM; absolute/relative tolerances ``tol``)."""
     osqp = _import("osqp")
     l, n = qp.n_vars, qp.n_blocks
@@ -109,11 +113,22 @@ def solve_osqp(qp: BlockQP, tol: float = 1e-6, verbose: bool = False,
     lo = np.concatenate([np.ones(n), np.zeros(l)])
     hi = np.concatenate([np.ones(n), np.full(l, np.inf)])
     prob = osqp.OSQP()
-    prob.setup(P, qp.c, A, lo, hi, eps_abs=tol, eps_rel=tol, verbose=verbose,
-               max_iter=max_iter, polishing=True)
+    prob.setup(
+        P,
+        qp.c,
+        A,
+        lo,
+        hi,
+        eps_abs=tol,
+        eps_rel=tol,
+        verbose=verbose,
+        max_iter=max_iter,
+        polishing=True,
+    )
     res = prob.solve(raise_error=False)
-    return _finish(qp, np.asarray(res.x), str(res.info.status), int(res.info.iter),
-                   float(res.info.solve_time))
+    return _finish(
+        qp, np.asarray(res.x), str(res.info.status), int(res.info.iter), float(res.info.solve_time)
+    )
 
 
 SOLVERS = {"clarabel": solve_clarabel, "osqp": solve_osqp}

@@ -60,9 +60,14 @@ def motion_cost(grid: np.ndarray, prediction: np.ndarray, sigma: float) -> np.nd
     return -np.exp((dx * dx + dy * dy) * (-0.5 / (sigma * sigma)))
 
 
-def neighbourhood_cost(grid: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
-                       neighbours: np.ndarray, weights: np.ndarray,
-                       sigma: float) -> np.ndarray:
+def neighbourhood_cost(
+    grid: np.ndarray,
+    positions: np.ndarray,
+    velocities: np.ndarray,
+    neighbours: np.ndarray,
+    weights: np.ndarray,
+    sigma: float,
+) -> np.ndarray:
     """Eq. 7: ``c_nm,i = -sum_j w_j N(p_i + p_dot_j, Sigma)`` on every grid cell.
 
     Parameters
@@ -98,8 +103,9 @@ def neighbourhood_cost(grid: np.ndarray, positions: np.ndarray, velocities: np.n
     return out
 
 
-def coherent_groups(history: np.ndarray, radius: float, threshold: float,
-                    min_speed: float = 0.0) -> np.ndarray:
+def coherent_groups(
+    history: np.ndarray, radius: float, threshold: float, min_speed: float = 0.0
+) -> np.ndarray:
     """Cluster targets into coherent-motion groups (Sec. 4, Fig. 4).
 
     Two targets are linked when they are at most ``radius`` px apart in the last row of
@@ -153,8 +159,9 @@ def coherent_groups(history: np.ndarray, radius: float, threshold: float,
     return labels
 
 
-def neighbours_in_groups(positions: np.ndarray, labels: np.ndarray, k: int, radius: float,
-                         scale: float) -> tuple[np.ndarray, np.ndarray]:
+def neighbours_in_groups(
+    positions: np.ndarray, labels: np.ndarray, k: int, radius: float, scale: float
+) -> tuple[np.ndarray, np.ndarray]:
     """The ``N_i`` of Eq. 7 and their weights (Eq. 8).
 
     Up to ``k`` nearest targets of the same coherent group within ``radius`` px. Weights are
@@ -173,27 +180,27 @@ def neighbours_in_groups(positions: np.ndarray, labels: np.ndarray, k: int, radi
     if len(member) < 2:
         return nbr, w
     kk = min(k + 1, len(member))
-    dist, j = cKDTree(positions[member]).query(positions[member], k=kk,
-                                               distance_upper_bound=radius)
+    dist, j = cKDTree(positions[member]).query(positions[member], k=kk, distance_upper_bound=radius)
     dist, j = dist[:, 1:], j[:, 1:]  # drop self
     found = j < len(member)
     jj = np.where(found, member[np.minimum(j, len(member) - 1)], -1)
     same = found & (labels[np.maximum(jj, 0)] == labels[member][:, None])
     jj = np.where(same, jj, -1)
     # stable softmax of -d^2/scale^2 over the valid neighbours
-    logits = np.where(same, -(dist / scale) ** 2, -np.inf)
+    logits = np.where(same, -((dist / scale) ** 2), -np.inf)
     mx = logits.max(1, keepdims=True)
     with np.errstate(invalid="ignore"):
         e = np.where(same, np.exp(logits - np.where(np.isfinite(mx), mx, 0.0)), 0.0)
     tot = e.sum(1, keepdims=True)
     ww = np.divide(e, tot, out=np.zeros_like(e), where=tot > 0)
-    nbr[member, :kk - 1] = jj
-    w[member, :kk - 1] = ww
+    nbr[member, : kk - 1] = jj
+    w[member, : kk - 1] = ww
     return nbr, w
 
 
-def group_trees(positions: np.ndarray, labels: np.ndarray,
-                radius: float) -> tuple[np.ndarray, np.ndarray]:
+def group_trees(
+    positions: np.ndarray, labels: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Minimum spanning tree of each coherent group (the pictorial structure of Eq. 10).
 
     Members of a group are joined by edges of length ``|p_i - p_j|`` when within ``radius``
@@ -223,8 +230,9 @@ def group_trees(positions: np.ndarray, labels: np.ndarray,
 
 
 @njit(cache=True)
-def _pair_value(cand, a, i, b, j, flag, rx, ry, mode_g, inv_s, reach2_s, inv_g, reach2_g,
-                values=True):
+def _pair_value(
+    cand, a, i, b, j, flag, rx, ry, mode_g, inv_s, reach2_s, inv_g, reach2_g, values=True
+):
     """``(S, Gamma)`` between candidate ``i`` of target ``a`` and ``j`` of target ``b``.
 
     0 where the pair is not linked (``flag`` bit 0: proximity, bit 1: tree edge) or beyond
@@ -254,8 +262,24 @@ def _pair_value(cand, a, i, b, j, flag, rx, ry, mode_g, inv_s, reach2_s, inv_g, 
 
 
 @njit(cache=True)
-def _pair_entries_kernel(cand, box, pa, pb, flags, ref, mode_g, inv_s, reach2_s, inv_g,
-                         reach2_g, rows, cols, s_out, g_out, fill):
+def _pair_entries_kernel(
+    cand,
+    box,
+    pa,
+    pb,
+    flags,
+    ref,
+    mode_g,
+    inv_s,
+    reach2_s,
+    inv_g,
+    reach2_g,
+    rows,
+    cols,
+    s_out,
+    g_out,
+    fill,
+):
     """Count (``fill`` False) or write the linked candidate pairs of the target pairs.
 
     Entries come out in the order (pair, i, j); with pairs sorted by ``(a, b)``, ``a < b``,
@@ -274,8 +298,22 @@ def _pair_entries_kernel(cand, box, pa, pb, flags, ref, mode_g, inv_s, reach2_s,
                 continue
         for i in range(k):
             for j in range(k):
-                s, g = _pair_value(cand, a, i, b, j, flags[p], ref[p, 0], ref[p, 1], mode_g,
-                                   inv_s, reach2_s, inv_g, reach2_g, fill)
+                s, g = _pair_value(
+                    cand,
+                    a,
+                    i,
+                    b,
+                    j,
+                    flags[p],
+                    ref[p, 0],
+                    ref[p, 1],
+                    mode_g,
+                    inv_s,
+                    reach2_s,
+                    inv_g,
+                    reach2_g,
+                    fill,
+                )
                 if s > 0.0 or g > 0.0:
                     if fill:
                         rows[m] = a * k + i
@@ -330,8 +368,7 @@ def proximity_pairs(cand: np.ndarray, reach: float) -> np.ndarray:
     centre = cand.mean(axis=1)
     off = cand - centre[:, None]
     spread = float(np.sqrt((off[..., 0] ** 2 + off[..., 1] ** 2).max()))
-    return cKDTree(centre).query_pairs(reach + 2 * spread,
-                                       output_type="ndarray").astype(np.int64)
+    return cKDTree(centre).query_pairs(reach + 2 * spread, output_type="ndarray").astype(np.int64)
 
 
 def _merged_pairs(n: int, pairs: np.ndarray, edges: np.ndarray, ref: np.ndarray):
@@ -360,13 +397,27 @@ def _merged_pairs(n: int, pairs: np.ndarray, edges: np.ndarray, ref: np.ndarray)
     flags = np.bitwise_or.reduceat(flag, start)
     refs = np.add.reduceat(r, start, axis=0)  # a pair is at most once a tree edge
     ukey = key[start]
-    return ukey // n, ukey % n, flags.astype(np.int64), np.ascontiguousarray(refs), \
-        (2 if vec else 1)
+    return (
+        ukey // n,
+        ukey % n,
+        flags.astype(np.int64),
+        np.ascontiguousarray(refs),
+        (2 if vec else 1),
+    )
 
 
-def quadratic_matrix(cand: np.ndarray, w_sp: float, sp_sigma: float, sp_cutoff: float,
-                     w_g: float, edges: np.ndarray, lengths: np.ndarray, g_sigma: float,
-                     g_cutoff: float, tau: float = 0.0) -> sp.csc_matrix:
+def quadratic_matrix(
+    cand: np.ndarray,
+    w_sp: float,
+    sp_sigma: float,
+    sp_cutoff: float,
+    w_g: float,
+    edges: np.ndarray,
+    lengths: np.ndarray,
+    g_sigma: float,
+    g_cutoff: float,
+    tau: float = 0.0,
+) -> sp.csc_matrix:
     """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over candidates ``cand (n, k, 2)``, ``(l, l)`` CSC.
 
     ``C_sp = (D_s + tau I)^-1/2 (D_s + S) (D_s + tau I)^-1/2`` with ``S`` of Eq. 9 between
@@ -385,7 +436,7 @@ def quadratic_matrix(cand: np.ndarray, w_sp: float, sp_sigma: float, sp_cutoff: 
     reach_s = sp_cutoff * sp_sigma
     pairs = proximity_pairs(cand, reach_s) if w_sp > 0 else np.zeros((0, 2), np.int64)
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-    lengths = np.asarray(lengths, dtype=np.float64)[:len(edges)]
+    lengths = np.asarray(lengths, dtype=np.float64)[: len(edges)]
     if w_g <= 0:
         edges = np.zeros((0, 2), np.int64)
         lengths = np.zeros(0)
@@ -393,8 +444,19 @@ def quadratic_matrix(cand: np.ndarray, w_sp: float, sp_sigma: float, sp_cutoff: 
         return sp.csc_matrix((size, size))
     pa, pb, flags, ref, mode_g = _merged_pairs(n, pairs, edges, lengths)
     box = np.concatenate([cand.min(axis=1), cand.max(axis=1)], axis=1)  # (n, 4) x0 y0 x1 y1
-    args = (cand, box, pa, pb, flags, ref, mode_g, 1.0 / (2.0 * sp_sigma * sp_sigma), reach_s ** 2,
-            1.0 / (2.0 * g_sigma * g_sigma), (g_cutoff * g_sigma) ** 2)
+    args = (
+        cand,
+        box,
+        pa,
+        pb,
+        flags,
+        ref,
+        mode_g,
+        1.0 / (2.0 * sp_sigma * sp_sigma),
+        reach_s**2,
+        1.0 / (2.0 * g_sigma * g_sigma),
+        (g_cutoff * g_sigma) ** 2,
+    )
     e_i = np.zeros(0, np.int64)
     e_f = np.zeros(0)
     m = _pair_entries_kernel(*args, e_i, e_i, e_f, e_f, False)
@@ -429,19 +491,27 @@ def _degree_norm(deg: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
     return norm, diag
 
 
-def proximity_matrix(cand: np.ndarray, sigma: float, cutoff: float,
-                     tau: float = 0.0) -> sp.csc_matrix:
+def proximity_matrix(
+    cand: np.ndarray, sigma: float, cutoff: float, tau: float = 0.0
+) -> sp.csc_matrix:
     """Spatial-proximity matrix ``C_sp = I + D^-1/2 S D^-1/2`` (Eq. 9, signless; see module).
 
     ``cand`` is ``(n, k, 2)``; ``S_ij = exp(-|p_i - p_j|^2 / 2 sigma^2)`` between candidates of
     different targets, dropped beyond ``cutoff * sigma`` px. Returns ``(l, l)`` CSC, ``l = nk``.
     """
-    return quadratic_matrix(cand, 1.0, sigma, cutoff, 0.0, np.zeros((0, 2), np.int64),
-                            np.zeros(0), 1.0, 1.0, tau)
+    return quadratic_matrix(
+        cand, 1.0, sigma, cutoff, 0.0, np.zeros((0, 2), np.int64), np.zeros(0), 1.0, 1.0, tau
+    )
 
 
-def grouping_matrix(cand: np.ndarray, edges: np.ndarray, lengths: np.ndarray, sigma: float,
-                    cutoff: float, tau: float = 0.0) -> sp.csc_matrix:
+def grouping_matrix(
+    cand: np.ndarray,
+    edges: np.ndarray,
+    lengths: np.ndarray,
+    sigma: float,
+    cutoff: float,
+    tau: float = 0.0,
+) -> sp.csc_matrix:
     """Grouping matrix ``C_g = I - D^-1/2 Gamma D^-1/2`` (Eq. 10) over candidates ``(n, k, 2)``.
 
     ``lengths (E,)``: ``Gamma_ij = exp(-(|p_i - p_j| - e_ij)^2 / 2 sigma^2)`` (Eq. 10), dropped

@@ -83,9 +83,17 @@ class BQPTracker(Tracker):
     fixed_params = frozenset({"history"})
     """The position history is an array of ``history`` frames; its length is set at init."""
 
-    _REBUILD_APPEARANCE = frozenset({"appearance", "search_factor", "kcf_label_sigma",
-                                     "kcf_kernel", "kcf_target_window", "kcf_lambda",
-                                     "kcf_kernel_sigma"})
+    _REBUILD_APPEARANCE = frozenset(
+        {
+            "appearance",
+            "search_factor",
+            "kcf_label_sigma",
+            "kcf_kernel",
+            "kcf_target_window",
+            "kcf_lambda",
+            "kcf_kernel_sigma",
+        }
+    )
     """Fields that change the shape, the kind or the training of the appearance models:
     changing one of them mid-sequence re-learns every target's model from the last frame at
     its current position (so a change right after init acts as if given at start)."""
@@ -106,10 +114,18 @@ class BQPTracker(Tracker):
         p = self.params
         self.radius = search_radius(self.template_size, p.search_factor)
         return make_appearance(
-            p.appearance, self.template_size, self.radius, update_threshold=p.update_threshold,
-            lam=p.kcf_lambda, learning_rate=p.kcf_learning_rate, label_sigma=p.kcf_label_sigma,
-            kernel=p.kcf_kernel, kernel_sigma=p.kcf_kernel_sigma,
-            target_window=p.kcf_target_window, update_every=p.ncc_update_every)
+            p.appearance,
+            self.template_size,
+            self.radius,
+            update_threshold=p.update_threshold,
+            lam=p.kcf_lambda,
+            learning_rate=p.kcf_learning_rate,
+            label_sigma=p.kcf_label_sigma,
+            kernel=p.kcf_kernel,
+            kernel_sigma=p.kcf_kernel_sigma,
+            target_window=p.kcf_target_window,
+            update_every=p.ncc_update_every,
+        )
 
     def _apply_params(self, old: BQPParams, changed: frozenset[str]) -> None:
         p = self.params
@@ -191,16 +207,27 @@ class BQPTracker(Tracker):
         if p.zeta > 0:
             cost += p.zeta * motion_cost(grid, pred, sigma_m)
         if p.eta > 0:
-            nbr, wts = neighbours_in_groups(self.points, self.groups, p.n_neighbours,
-                                            self._px(p.group_radius), self._px(p.neighbour_scale))
-            cost += p.eta * neighbourhood_cost(grid, self.points, self.velocities, nbr, wts,
-                                               sigma_m)
-        outside = (grid[..., 0] < 0) | (grid[..., 0] > w - 1) | (grid[..., 1] < 0) | \
-            (grid[..., 1] > h - 1)
+            nbr, wts = neighbours_in_groups(
+                self.points,
+                self.groups,
+                p.n_neighbours,
+                self._px(p.group_radius),
+                self._px(p.neighbour_scale),
+            )
+            cost += p.eta * neighbourhood_cost(
+                grid, self.points, self.velocities, nbr, wts, sigma_m
+            )
+        outside = (
+            (grid[..., 0] < 0)
+            | (grid[..., 0] > w - 1)
+            | (grid[..., 1] < 0)
+            | (grid[..., 1] > h - 1)
+        )
         cost += p.border_penalty * outside
         if p.speedup:
-            cands = speedup_candidates(centers, self.radius, cost, app, self.rng, p.n_extrema,
-                                       p.n_samples, p.sample_window)
+            cands = speedup_candidates(
+                centers, self.radius, cost, app, self.rng, p.n_extrema, p.n_samples, p.sample_window
+            )
         else:
             cands = dense_candidates(centers, self.radius, cost, app, p.candidate_stride)
         self._tick("terms", t0)
@@ -210,9 +237,18 @@ class BQPTracker(Tracker):
         """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over the candidates, ``(l, l)`` CSC."""
         p = self.params
         ref = self.tree_offsets if p.group_offsets else self.tree_lengths
-        return quadratic_matrix(cands.positions, p.w_sp, self._px(p.proximity_sigma),
-                                p.proximity_cutoff, p.w_g, self.tree_edges, ref,
-                                self._px(p.group_sigma), p.group_cutoff, p.laplacian_tau)
+        return quadratic_matrix(
+            cands.positions,
+            p.w_sp,
+            self._px(p.proximity_sigma),
+            p.proximity_cutoff,
+            p.w_g,
+            self.tree_edges,
+            ref,
+            self._px(p.group_sigma),
+            p.group_cutoff,
+            p.laplacian_tau,
+        )
 
     def _step(self, frame: np.ndarray) -> np.ndarray:
         from tracker.bqp.frank_wolfe import FWParams, solve
@@ -227,8 +263,9 @@ class BQPTracker(Tracker):
         qp = BlockQP(cands.cost.ravel(), q, cands.block_ptr)
         if self.record_qps:
             self.recorded_qps.append(qp)
-        res = solve(qp, params=FWParams(variant=p.fw_variant, eps=p.fw_eps,
-                                        max_iter=p.fw_max_iter * n))
+        res = solve(
+            qp, params=FWParams(variant=p.fw_variant, eps=p.fw_eps, max_iter=p.fw_max_iter * n)
+        )
         self.solver_iterations += res.iterations
         self.n_candidates += cands.n * cands.k
         rows = np.arange(n)
@@ -256,8 +293,8 @@ class BQPTracker(Tracker):
         p = self.params
         pos = self.points if positions is None else positions
         self.since_refresh = 0
-        self.groups = coherent_groups(self.history, self._px(p.group_radius),
-                                      p.coherence_threshold, p.min_group_speed)
-        self.tree_edges, self.tree_lengths = group_trees(pos, self.groups,
-                                                         self._px(p.group_radius))
+        self.groups = coherent_groups(
+            self.history, self._px(p.group_radius), p.coherence_threshold, p.min_group_speed
+        )
+        self.tree_edges, self.tree_lengths = group_trees(pos, self.groups, self._px(p.group_radius))
         self.tree_offsets = pos[self.tree_edges[:, 0]] - pos[self.tree_edges[:, 1]]

@@ -57,9 +57,9 @@ def batched_ncc(templates: np.ndarray, windows: np.ndarray) -> np.ndarray:
     # p^2 shifted products, each one vectorised op over all patches, channels and offsets
     for dy in range(p):
         for dx in range(p):
-            num += windows[:, :, dy:dy + k, dx:dx + k] * t0[:, :, dy, dx, None, None]
-            s1 += wsum[:, dy:dy + k, dx:dx + k]
-            s2 += wsq[:, dy:dy + k, dx:dx + k]
+            num += windows[:, :, dy : dy + k, dx : dx + k] * t0[:, :, dy, dx, None, None]
+            s1 += wsum[:, dy : dy + k, dx : dx + k]
+            s2 += wsq[:, dy : dy + k, dx : dx + k]
     num = num.sum(1)
     var = np.maximum(s2 - s1 * s1 / npx, 0.0)
     den = np.sqrt(var * tn[:, None, None])
@@ -145,17 +145,24 @@ class InstantaneousFlow:
         Tracks whose NCC falls below this in any step (or that cross a flat patch) are dropped.
     """
 
-    def __init__(self, patch: int = 4, spacing: int = 4, frames: int = 5, search: int = 3,
-                 min_ncc: float = 0.5):
+    def __init__(
+        self,
+        patch: int = 4,
+        spacing: int = 4,
+        frames: int = 5,
+        search: int = 3,
+        min_ncc: float = 0.5,
+    ):
         if patch < 2 or spacing < 1 or frames < 2 or search < 1:
-            raise ValueError(f"bad flow geometry: patch {patch}, spacing {spacing}, "
-                             f"frames {frames}, search {search}")
+            raise ValueError(
+                f"bad flow geometry: patch {patch}, spacing {spacing}, "
+                f"frames {frames}, search {search}"
+            )
         self.patch, self.spacing, self.search = int(patch), int(spacing), int(search)
         self.min_ncc = float(min_ncc)
         self.buffer: deque[np.ndarray] = deque(maxlen=int(frames))
         # per frame pair (buffer[j], buffer[j+1]): computed?, displacement (dx, dy), NCC
-        self.pairs: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = \
-            deque(maxlen=int(frames) - 1)
+        self.pairs: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=int(frames) - 1)
         self._shape: tuple[int, int] = (0, 0)
         self._reset_tracks()
 
@@ -165,13 +172,18 @@ class InstantaneousFlow:
         return self.patch + self.spacing + (self.buffer.maxlen or 1) * self.search
 
     def _grid_shape(self, h: int, w: int) -> tuple[int, int]:
-        return (max(0, (h - self.patch) // self.spacing + 1),
-                max(0, (w - self.patch) // self.spacing + 1))
+        return (
+            max(0, (h - self.patch) // self.spacing + 1),
+            max(0, (w - self.patch) // self.spacing + 1),
+        )
 
     def _new_pair(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         gh, gw = self._shape
-        return (np.zeros((gh, gw), bool), np.zeros((gh, gw, 2), np.int64),
-                np.zeros((gh, gw), np.float32))
+        return (
+            np.zeros((gh, gw), bool),
+            np.zeros((gh, gw, 2), np.int64),
+            np.zeros((gh, gw), np.float32),
+        )
 
     def _reset_tracks(self) -> None:
         gh, gw = self._shape
@@ -180,14 +192,15 @@ class InstantaneousFlow:
         self._vel = np.zeros((gh, gw, 2))
         self._last = np.zeros((gh, gw, 2))  # track position in the frame before the newest
 
-    def reconfigure(self, patch: int, spacing: int, frames: int, search: int,
-                    min_ncc: float) -> None:
+    def reconfigure(
+        self, patch: int, spacing: int, frames: int, search: int, min_ncc: float
+    ) -> None:
         """New geometry; the newest ``frames`` buffered frames are kept, the caches cleared."""
         old_pad = self.pad
         old = list(self.buffer)
         self.__init__(patch, spacing, frames, search, min_ncc)
-        for f in old[-int(frames):]:
-            inner = f[:, old_pad:f.shape[1] - old_pad, old_pad:f.shape[2] - old_pad]
+        for f in old[-int(frames) :]:
+            inner = f[:, old_pad : f.shape[1] - old_pad, old_pad : f.shape[2] - old_pad]
             self._append(inner[0])
 
     def push(self, frame: np.ndarray) -> None:
@@ -231,10 +244,11 @@ class InstantaneousFlow:
         rr, cc = np.divmod(cells, self._shape[1])
         p, r = self.patch, self.search
         tl = np.stack([cc, rr], 1) * self.spacing
-        frames = list(self.buffer)[-len(self.pairs) - 1:]
-        best, top = ncc_argmax(np.ascontiguousarray(self._gather(frames[j], tl, p)),
-                               np.ascontiguousarray(self._gather(frames[j + 1], tl - r,
-                                                                 p + 2 * r)))
+        frames = list(self.buffer)[-len(self.pairs) - 1 :]
+        best, top = ncc_argmax(
+            np.ascontiguousarray(self._gather(frames[j], tl, p)),
+            np.ascontiguousarray(self._gather(frames[j + 1], tl - r, p + 2 * r)),
+        )
         dy, dx = np.divmod(best, 2 * r + 1)
         disp[rr, cc] = np.stack([dx - r, dy - r], 1)
         score[rr, cc] = top

@@ -66,8 +66,9 @@ class GaussianMixture:
         _, logdet = np.linalg.slogdet(self.covariances)
         return -0.5 * (np.maximum(maha, 0.0) + logdet[None] + 3.0 * math.log(2.0 * math.pi))
 
-    def log_responsibilities(self, x: np.ndarray, outer: np.ndarray | None = None
-                             ) -> tuple[np.ndarray, np.ndarray]:
+    def log_responsibilities(
+        self, x: np.ndarray, outer: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``(N, k)`` log posterior of each component and ``(N,)`` log-likelihood of ``x``."""
         lp = self._log_gauss(x, outer) + np.log(np.maximum(self.weights, 1e-300))[None]
         top = lp.max(1, keepdims=True)
@@ -79,8 +80,8 @@ class GaussianMixture:
         x = np.asarray(x, np.float64).reshape(-1, 3)
         out = np.empty(len(x), np.int64)
         for a in range(0, len(x), batch):
-            lr, _ = self.log_responsibilities(x[a:a + batch])
-            out[a:a + batch] = lr.argmax(1)
+            lr, _ = self.log_responsibilities(x[a : a + batch])
+            out[a : a + batch] = lr.argmax(1)
         return out
 
     @property
@@ -104,8 +105,7 @@ def _kmeanspp(x: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
     return centers
 
 
-def _m_step(r: np.ndarray, x: np.ndarray, outer: np.ndarray, eye: np.ndarray
-            ) -> GaussianMixture:
+def _m_step(r: np.ndarray, x: np.ndarray, outer: np.ndarray, eye: np.ndarray) -> GaussianMixture:
     """Maximisation step from responsibilities ``r`` ``(N, k)``; ``outer`` is ``x x^T``."""
     k = r.shape[1]
     nk = r.sum(0) + 1e-12
@@ -116,9 +116,16 @@ def _m_step(r: np.ndarray, x: np.ndarray, outer: np.ndarray, eye: np.ndarray
     return GaussianMixture(nk / nk.sum(), means, cov)
 
 
-def fit_gmm(x: np.ndarray, k: int, rng: np.random.Generator, *, iterations: int = 30,
-            reg: float = 1.0, tol: float = 1e-4,
-            kmeans_iterations: int = 5) -> GaussianMixture:
+def fit_gmm(
+    x: np.ndarray,
+    k: int,
+    rng: np.random.Generator,
+    *,
+    iterations: int = 30,
+    reg: float = 1.0,
+    tol: float = 1e-4,
+    kmeans_iterations: int = 5,
+) -> GaussianMixture:
     """Fit a full-covariance Gaussian mixture to ``x`` ``(N, 3)`` by EM.
 
     Parameters
@@ -183,8 +190,15 @@ def cluster_order_key(mass: np.ndarray, volume: np.ndarray, order: str) -> np.nd
     raise ValueError(f"unknown cluster order {order!r}; expected one of {QUEEN_ORDERS}")
 
 
-def back_assign(labels: np.ndarray, owner: np.ndarray, rank: np.ndarray, n_templates: int,
-                pixels: int, queen_fraction: float, fill_fraction: float) -> np.ndarray:
+def back_assign(
+    labels: np.ndarray,
+    owner: np.ndarray,
+    rank: np.ndarray,
+    n_templates: int,
+    pixels: int,
+    queen_fraction: float,
+    fill_fraction: float,
+) -> np.ndarray:
     """Algorithm 1's back-assignment: ``(n_templates,)`` bool, the queens.
 
     Parameters
@@ -220,11 +234,19 @@ def back_assign(labels: np.ndarray, owner: np.ndarray, rank: np.ndarray, n_templ
     return filled[:, c].copy()
 
 
-def select_queens(templates: np.ndarray, rng: np.random.Generator, *, n_clusters: int = 100,
-                  min_cluster_pixels: int = 20, queen_fraction: float = 0.1,
-                  fill_fraction: float = 2.0 / 3.0, order: str = "density",
-                  iterations: int = 30, max_samples: int = 10000,
-                  reg: float = 1.0) -> np.ndarray:
+def select_queens(
+    templates: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    n_clusters: int = 100,
+    min_cluster_pixels: int = 20,
+    queen_fraction: float = 0.1,
+    fill_fraction: float = 2.0 / 3.0,
+    order: str = "density",
+    iterations: int = 30,
+    max_samples: int = 10000,
+    reg: float = 1.0,
+) -> np.ndarray:
     """Queens among ``templates`` ``(n, s, s, 3)`` uint8 (Algorithm 1); ``(n,)`` bool.
 
     ``k = min(n_clusters, N // min_cluster_pixels)`` components for ``N = n s^2`` features
@@ -238,8 +260,7 @@ def select_queens(templates: np.ndarray, rng: np.random.Generator, *, n_clusters
     x = templates.reshape(n * pixels, 3).astype(np.float64)
     owner = np.repeat(np.arange(n), pixels)
     k = max(1, min(n_clusters, len(x) // max(1, min_cluster_pixels)))
-    fit = x if len(x) <= max_samples else x[np.sort(rng.choice(len(x), max_samples,
-                                                               replace=False))]
+    fit = x if len(x) <= max_samples else x[np.sort(rng.choice(len(x), max_samples, replace=False))]
     gm = fit_gmm(fit, k, rng, iterations=iterations, reg=reg)
     labels = gm.predict(x)
     mass = np.bincount(labels, minlength=gm.k)

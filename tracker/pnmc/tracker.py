@@ -82,11 +82,24 @@ from tracker.pnmc.queens import select_queens
 _PS_FLOOR = 1e-3
 """Smallest weight of ``p_S`` (a previous confidence of 0 would switch the self prior off)."""
 
-_QUEEN_FIELDS = frozenset({"queen_every", "n_clusters", "min_cluster_pixels", "queen_fraction",
-                           "fill_fraction", "queen_order", "queen_mode", "gmm_iterations",
-                           "gmm_samples", "gmm_reg", "seed"})
-_FLOW_FIELDS = frozenset({"flow_patch", "flow_spacing", "flow_frames", "flow_search",
-                          "flow_min_ncc"})
+_QUEEN_FIELDS = frozenset(
+    {
+        "queen_every",
+        "n_clusters",
+        "min_cluster_pixels",
+        "queen_fraction",
+        "fill_fraction",
+        "queen_order",
+        "queen_mode",
+        "gmm_iterations",
+        "gmm_samples",
+        "gmm_reg",
+        "seed",
+    }
+)
+_FLOW_FIELDS = frozenset(
+    {"flow_patch", "flow_spacing", "flow_frames", "flow_search", "flow_min_ncc"}
+)
 
 
 class PNMCTracker(Tracker):
@@ -116,14 +129,16 @@ class PNMCTracker(Tracker):
     # ------------------------------------------------------------------ state
     def _init(self, frame: np.ndarray) -> None:
         p = self.params
-        self.model = NCCAppearance(self.template_size, 1, p.update_threshold,
-                                   update_every=p.update_every)
+        self.model = NCCAppearance(
+            self.template_size, 1, p.update_threshold, update_every=p.update_every
+        )
         self._set_radius()
-        self.flow = InstantaneousFlow(p.flow_patch, p.flow_spacing, p.flow_frames,
-                                      self._flow_search(), p.flow_min_ncc)
+        self.flow = InstantaneousFlow(
+            p.flow_patch, p.flow_spacing, p.flow_frames, self._flow_search(), p.flow_min_ncc
+        )
         self.flow.push(frame)
         self.queens = np.zeros(0, bool)
-        self._queens_at = -(10 ** 9)  # frame of the last queen selection
+        self._queens_at = -(10**9)  # frame of the last queen selection
         self._queens_due = False
         self.velocity = np.zeros((0, 2))
         self.obs = np.zeros(0)
@@ -146,8 +161,9 @@ class PNMCTracker(Tracker):
         self.model.update_every = int(p.update_every)
         self._set_radius()
         if changed & _FLOW_FIELDS:
-            self.flow.reconfigure(p.flow_patch, p.flow_spacing, p.flow_frames,
-                                  self._flow_search(), p.flow_min_ncc)
+            self.flow.reconfigure(
+                p.flow_patch, p.flow_spacing, p.flow_frames, self._flow_search(), p.flow_min_ncc
+            )
         if changed & _QUEEN_FIELDS:
             self._select_queens()
 
@@ -160,17 +176,24 @@ class PNMCTracker(Tracker):
         if p.queen_mode == "random":
             q = np.zeros(n, bool)
             if n:
-                q[rng.choice(n, max(1, math.ceil(p.queen_fraction * n - 1e-9)),
-                             replace=False)] = True
+                q[rng.choice(n, max(1, math.ceil(p.queen_fraction * n - 1e-9)), replace=False)] = (
+                    True
+                )
             self.queens = q
             return
         # templates are BGR; the mixture is indifferent to the channel order
-        self.queens = select_queens(self.model.templates, rng, n_clusters=p.n_clusters,
-                                    min_cluster_pixels=p.min_cluster_pixels,
-                                    queen_fraction=p.queen_fraction,
-                                    fill_fraction=p.fill_fraction, order=p.queen_order,
-                                    iterations=p.gmm_iterations, max_samples=p.gmm_samples,
-                                    reg=p.gmm_reg)
+        self.queens = select_queens(
+            self.model.templates,
+            rng,
+            n_clusters=p.n_clusters,
+            min_cluster_pixels=p.min_cluster_pixels,
+            queen_fraction=p.queen_fraction,
+            fill_fraction=p.fill_fraction,
+            order=p.queen_order,
+            iterations=p.gmm_iterations,
+            max_samples=p.gmm_samples,
+            reg=p.gmm_reg,
+        )
 
     def _add(self, frame: np.ndarray, points: np.ndarray) -> None:
         m = len(points)
@@ -258,8 +281,8 @@ class PNMCTracker(Tracker):
 
         def map_estimate(i: int, mus: np.ndarray, ws: np.ndarray) -> tuple[int, float]:
             # prior = sum_j w_j N(mu_j, sigma^2 I) on the grid, separable in x and y
-            ex = np.exp(-(gx[i][None, :] - mus[:, 0:1]) ** 2 / sig2)
-            ey = np.exp(-(gy[i][None, :] - mus[:, 1:2]) ** 2 / sig2)
+            ex = np.exp(-((gx[i][None, :] - mus[:, 0:1]) ** 2) / sig2)
+            ey = np.exp(-((gy[i][None, :] - mus[:, 1:2]) ** 2) / sig2)
             post = lik[i] * ((ey * ws[:, None]).T @ ex)  # Eq. 4 / 8
             b = int(post.argmax())
             if post.flat[b] <= 0.0:  # prior underflow: appearance alone
@@ -287,14 +310,14 @@ class PNMCTracker(Tracker):
                 queued[seeds[seed_at]] = True
             i = queue.popleft()
             visits[i] += 1
-            row = nbr[indptr[i]:indptr[i + 1]]
-            mus = pred[i:i + 1]
-            ws = ws_self[i:i + 1]
+            row = nbr[indptr[i] : indptr[i + 1]]
+            mus = pred[i : i + 1]
+            ws = ws_self[i : i + 1]
             if not (self.queens[i] and visits[i] == 1):
                 done = updated[row]
                 if done.any():  # Eq. 2: lambda_j = 1 for the neighbours already updated
                     mus = np.concatenate([mus, prev[i] + (new[row[done]] - prev[row[done]])])
-                    ws = np.concatenate([ws, wts[indptr[i]:indptr[i + 1]][done]])
+                    ws = np.concatenate([ws, wts[indptr[i] : indptr[i + 1]][done]])
             b, c = map_estimate(i, mus, ws)
             via_flow = False
             if c < tau[i] and p.use_flow:
@@ -305,8 +328,10 @@ class PNMCTracker(Tracker):
                         dist = np.sqrt(((fpos - prev[i]) ** 2).sum(1))
                         e = np.exp(-(dist - dist.min()) / p.weight_scale)
                         flow_map[i] = map_estimate(
-                            i, np.concatenate([pred[i:i + 1], prev[i] + fvel]),
-                            np.concatenate([ws_self[i:i + 1], e / e.sum()]))
+                            i,
+                            np.concatenate([pred[i : i + 1], prev[i] + fvel]),
+                            np.concatenate([ws_self[i : i + 1], e / e.sum()]),
+                        )
                 fb, fc = flow_map[i]
                 if fc > c:
                     b, c, via_flow = fb, fc, True
