@@ -7,17 +7,18 @@ independent NCC tracker's accuracy at 15 px lands on the paper's figure. The kno
 written back into the spec file (comments and the rest of the file kept), with the achieved
 score, so ``crowdsim generate`` reproduces the calibrated sequence exactly.
 
-Search space: two scalars in [0, 1], each moving a group of knobs from the spec's own value
-(0) to a hard end (1), linearly:
+Search space: one difficulty ``d`` in [0, 1] moving two groups of knobs from the spec's own
+values (0) to hard ends (1), linearly:
 
 * ``scene`` (:data:`SCENE_KNOBS`) -- look-alike heads and clothing, packed bodies, gait,
   arm swing and head turns, clutter and moving shadows;
 * ``camera`` (:data:`CAMERA_KNOBS`) -- sensor noise, defocus, flicker, motion blur, shake,
   JPEG quality and H.264 compression.
 
-The NCC score falls nearly monotonically along each, so a few trials reach the target; the
-score of a trial is measured exactly as ``crowdsim compare`` measures it (the sequence is
-generated to disk, JPEG and codec included, and tracked from its MOT folder).
+The NCC score falls nearly monotonically with ``d``, so the study places its trials by
+bracketing (:func:`next_difficulty`) and reaches the target within a point in a handful of
+trials. A trial is scored exactly as ``crowdsim compare`` scores it: the sequence is
+generated to disk (JPEG and codec included) and tracked from its MOT folder.
 """
 
 from __future__ import annotations
@@ -129,66 +130,102 @@ def ncc_score(spec: Any, workdir: str | os.PathLike[str]) -> float:
     return float(run.report["acc@15"])
 
 
+def next_difficulty(points: list[tuple[float, float]], target: float) -> float | None:
+    """The next difficulty to try, by safeguarded regula falsi on ``(difficulty, score)``.
+
+    The NCC score falls (noisily) as the difficulty rises. The bracket is the hardest tried
+    point still above the target and the easiest at or below it; the next point interpolates
+    the scores linearly inside it, kept 10 % away from either end so that the bracket always
+    shrinks. ``None`` when nothing is left to try (the spec as written is already harder than
+    the target, or the bracket is narrower than 1e-3).
+
+    >>> next_difficulty([], 50.0)
+    0.0
+    >>> next_difficulty([(0.0, 70.0)], 50.0)
+    1.0
+    >>> round(next_difficulty([(0.0, 70.0), (1.0, 30.0)], 50.0), 3)
+    0.5
+    >>> next_difficulty([(0.0, 40.0)], 50.0) is None
+    True
+    """
+    if not points:
+        return 0.0
+    easy = [p for p in points if p[1] > target]
+    hard = [p for p in points if p[1] <= target]
+    if not easy:
+        return None
+    lo_d, lo_s = max(easy)
+    if not hard:
+        return 1.0 if lo_d < 1.0 else None
+    hi_d, hi_s = min(hard)
+    if hi_d - lo_d < 1e-3:
+        return None
+    f = (lo_s - target) / max(lo_s - hi_s, 1e-9)
+    f = min(max(f, 0.1), 0.9)
+    return lo_d + f * (hi_d - lo_d)
+
+
 def calibrate_spec(
     spec: Any,
     target: float,
     *,
-    trials: int = 16,
-    seed: int = 0,
+    trials: int = 12,
     storage: str | None = None,
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
-    """Search ``scene`` and ``camera`` so that NCC scores ``target`` % at 15 px.
+    """Search the difficulty (``scene = camera = d``) so that NCC scores ``target`` % at 15 px.
 
-    The study lives in ``storage`` (an Optuna URL; SQLite makes it resumable after a kill).
-    Returns ``{"scene", "camera", "ncc_15px", "error", "trials", "values"}`` of the best trial.
+    Each trial of an Optuna study (in ``storage``, an Optuna URL: SQLite makes it resumable
+    after a kill) is placed by :func:`next_difficulty`; the study stops once a trial lands
+    within :data:`TOLERANCE` points. Returns ``{"difficulty", "ncc_15px", "error", "trials",
+    "values"}`` of the best trial.
     """
-    try:
-        import optuna
-    except ImportError:  # pragma: no cover - optuna is a core dependency of calibration
-        raise ValueError("crowdsim calibrate needs Optuna: pip install optuna") from None
+    import optuna
+
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    sampler = optuna.samplers.TPESampler(seed=seed, n_startup_trials=4)
     study = optuna.create_study(
         study_name=f"calibrate-{spec.name}-{spec.digest()[:12]}",
         storage=storage,
-        sampler=sampler,
         direction="minimize",
         load_if_exists=True,
     )
-    if not study.trials:
-        # start from the spec as written and from the middle of the space
-        study.enqueue_trial({"scene": 0.0, "camera": 0.0})
-        study.enqueue_trial({"scene": 0.5, "camera": 0.5})
+
+    def points() -> list[tuple[float, float]]:
+        return [
+            (t.params["difficulty"], t.user_attrs["ncc_15px"])
+            for t in study.trials
+            if t.state == optuna.trial.TrialState.COMPLETE
+        ]
+
     with tempfile.TemporaryDirectory(prefix="crowdsim-calibrate-") as work:
 
         def objective(trial: Any) -> float:
-            s = trial.suggest_float("scene", 0.0, 1.0)
-            c = trial.suggest_float("camera", 0.0, 1.0)
-            score = ncc_score(apply_knobs(spec, knob_values(spec, s, c)), work)
+            d = trial.suggest_float("difficulty", 0.0, 1.0)
+            score = ncc_score(apply_knobs(spec, knob_values(spec, d, d)), work)
             trial.set_user_attr("ncc_15px", score)
             log(
-                f"{spec.name}: trial {trial.number}: scene {s:.2f} camera {c:.2f} -> NCC "
+                f"{spec.name}: trial {trial.number}: difficulty {d:.3f} -> NCC "
                 f"{score:.1f}% (target {target:g})"
             )
             return abs(score - target)
 
-        def stop(study: Any, trial: Any) -> None:
-            if study.best_value <= TOLERANCE:
-                study.stop()
-
-        done = len([t for t in study.trials if t.state.is_finished()])
-        if done < trials and not (done and study.best_value <= TOLERANCE):
-            study.optimize(objective, n_trials=trials - done, callbacks=[stop])
+        while len(points()) < trials:
+            done = points()
+            if done and min(abs(s - target) for _, s in done) <= TOLERANCE:
+                break
+            d = next_difficulty(done, target)
+            if d is None:
+                break
+            study.enqueue_trial({"difficulty": d})
+            study.optimize(objective, n_trials=1)
     best = study.best_trial
-    s, c = best.params["scene"], best.params["camera"]
+    d = best.params["difficulty"]
     return {
-        "scene": round(s, 4),
-        "camera": round(c, 4),
+        "difficulty": round(d, 4),
         "ncc_15px": round(best.user_attrs["ncc_15px"], 2),
         "error": round(best.value, 2),
-        "trials": len(study.trials),
-        "values": knob_values(spec, s, c),
+        "trials": len(points()),
+        "values": knob_values(spec, d, d),
     }
 
 
@@ -271,8 +308,7 @@ def write_calibration(path: str | os.PathLike[str], result: dict[str, Any]) -> N
         text,
         "calibration",
         {
-            "scene": result["scene"],
-            "camera": result["camera"],
+            "difficulty": result["difficulty"],
             "achieved_ncc_15px": result["ncc_15px"],
             "trials": result["trials"],
             "note": "knobs set by crowdsim calibrate (NCC tracker, acc@15 on the full sequence)",
@@ -291,9 +327,8 @@ def calibrate_suite(
     suite: str,
     *,
     only: list[str] | None = None,
-    trials: int = 16,
+    trials: int = 12,
     out: str | os.PathLike[str] | None = None,
-    seed: int = 0,
     log: Callable[[str], None] = print,
 ) -> dict[str, dict[str, Any]]:
     """Calibrate every sequence of ``suite`` with a paper NCC figure; write specs and README.
@@ -315,11 +350,11 @@ def calibrate_suite(
         target = float(spec.calibration["paper_ncc_15px"])
         # search from the uncalibrated knobs, so a rerun searches the same space
         base = _uncalibrated(spec)
-        res = calibrate_spec(base, target, trials=trials, seed=seed, storage=storage, log=log)
+        res = calibrate_spec(base, target, trials=trials, storage=storage, log=log)
         write_calibration(spec.source or suite_dir(suite) / f"{spec.name}.toml", res)
         log(
-            f"{spec.name}: NCC {res['ncc_15px']:.1f}% (paper {target:g}%), scene "
-            f"{res['scene']:.2f}, camera {res['camera']:.2f}, {res['trials']} trials"
+            f"{spec.name}: NCC {res['ncc_15px']:.1f}% (paper {target:g}%), difficulty "
+            f"{res['difficulty']:.3f}, {res['trials']} trials"
         )
         results[spec.name] = {
             "paper_ncc_15px": target,
@@ -355,8 +390,8 @@ def write_suite_readme(suite: str) -> Path:
 
     rows = [
         "| sequence | scene | people | template px | paper NCC @15 | calibrated NCC @15 |"
-        " scene | camera |",
-        "|---|---|---|---|---|---|---|---|",
+        " difficulty |",
+        "|---|---|---|---|---|---|---|",
     ]
     for s in suite_specs(suite):
         c = s.calibration
@@ -365,7 +400,7 @@ def write_suite_readme(suite: str) -> Path:
             f"| {s.name} | {s.scenario.get('name', '')} | "
             f"{s.scenario.get('n_agents', '')} | {s.appearance.template_px} | "
             f"{c.get('paper_ncc_15px', '')} | {'' if got is None else got} | "
-            f"{c.get('scene', '')} | {c.get('camera', '')} |"
+            f"{c.get('difficulty', '')} |"
         )
     text = (
         f"# Suite `{suite}`\n\nCounterparts of the papers' sequences. `crowdsim calibrate "

@@ -3,7 +3,8 @@
 ``crowdsim calibrate --suite ucf9 [--only SEQ ...] [--trials N] [--out DIR]``
 
 For each sequence with a paper NCC figure, an Optuna study moves the spec's appearance and
-camera knobs (never its motion) until the independent NCC tracker scores that figure at
+camera knobs (never its motion) along one difficulty scale, bracketing the target, until the
+independent NCC tracker scores that figure at
 15 px, then writes the knobs and the achieved score into the spec file and the suite's
 README (see :mod:`crowdsim.calibration`). Studies live in ``DIR/calibration.db`` (SQLite):
 a killed run resumes.
