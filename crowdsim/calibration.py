@@ -314,7 +314,7 @@ def write_calibration(path: str | os.PathLike[str], result: dict[str, Any]) -> N
             "note": "knobs set by crowdsim calibrate (NCC tracker, acc@15 on the full sequence)",
         },
     )
-    tmp = path.with_name(f".{path.name}.calibrate")
+    tmp = path.with_name(f".{path.stem}.calibrate{path.suffix}")
     tmp.write_text(text)
     try:
         load_spec(tmp)  # never write a spec that does not load

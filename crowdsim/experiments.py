@@ -76,8 +76,10 @@ def ablation_rows() -> tuple[Row, ...]:
 
 def paper_numbers(suite: str) -> dict[str, dict[str, dict[str, float]]]:
     """The papers' figures for ``suite`` (``{table: {column: {sequence: %}}}``), or ``{}``."""
-    from synth_data.suites import suite_dir
+    from synth_data.suites import SUITE_NAMES, suite_dir
 
+    if suite not in SUITE_NAMES:
+        return {}
     path = suite_dir(suite) / "paper.json"
     if not path.is_file():
         return {}
@@ -109,7 +111,7 @@ def _cell_key(seq: str, row: Row, frames: int | None) -> str:
 
 def run_table(
     rows: Sequence[Row],
-    suite: str,
+    suite: str | Sequence[Any],
     out: str | os.PathLike[str],
     *,
     only: list[str] | None = None,
@@ -127,8 +129,8 @@ def run_table(
     Parameters
     ----------
     rows : sequence of Row
-    suite : str
-        A suite name (:data:`synth_data.suites.SUITE_NAMES`).
+    suite : str or list of SequenceSpec
+        A suite name (:data:`synth_data.suites.SUITE_NAMES`), or the specs themselves.
     out : path
         Output folder: ``sequences/``, ``cells.json``, ``table.md``, ``table.csv``,
         ``curves/<sequence>.png``.
@@ -152,7 +154,11 @@ def run_table(
     for row in rows:
         get(row.tracker).make_params(**row.overrides)  # unknown names fail before any work
     out = Path(out)
-    specs = suite_specs(suite, only)
+    if isinstance(suite, str):
+        specs = suite_specs(suite, only)
+    else:
+        specs = [sp for sp in suite if not only or sp.name in only]
+        suite = "specs"
     if frames is not None:
         specs = [replace(s, frames=min(s.frames, frames)) for s in specs]
     seq_root = out / "sequences"

@@ -33,11 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--trials",
         type=int,
-        default=16,
+        default=12,
         metavar="N",
-        help="Optuna trials per sequence at most (default 16; stops within 1 point)",
+        help="Optuna trials per sequence at most (default 12; stops within 1 point)",
     )
-    p.add_argument("--seed", type=int, default=0, help="sampler seed (default 0)")
     p.add_argument(
         "--out",
         default=None,
@@ -53,8 +52,6 @@ def run(args: argparse.Namespace) -> int:
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
-    results = calibrate_suite(
-        args.suite, only=args.only, trials=args.trials, out=args.out, seed=args.seed, log=log
-    )
+    results = calibrate_suite(args.suite, only=args.only, trials=args.trials, out=args.out, log=log)
     print(json.dumps(results))
     return 0
