@@ -102,8 +102,9 @@ class Job:
     size : float
         Progress units of the job (e.g. its frames); the bar's total is the sum.
     progress_kw : str, optional
-        When given, ``fn`` receives under this keyword a callable ``advance(n)`` that moves
-        the progress bar by ``n`` units while the job runs (also from pool workers).
+        When given, ``fn`` receives under this keyword a callable ``advance(n, **status)``
+        that moves the progress bar by ``n`` units while the job runs (also from pool
+        workers); ``status`` (e.g. ``best="91.2%"``) is shown beside the bar.
     """
 
     key: str
@@ -232,14 +233,15 @@ def _worker_init(parent_pid: int, queue: Any, user_init: Callable[[], None] | No
 
 
 class _Advance:
-    """Picklable ``advance(n)`` for a job in a pool worker: sends ``(key, n)`` to the parent."""
+    """Picklable ``advance(n, **status)`` for a job in a pool worker: sends
+    ``(key, n, status)`` to the parent."""
 
     def __init__(self, key: str) -> None:
         self.key = key
 
-    def __call__(self, n: float = 1) -> None:
+    def __call__(self, n: float = 1, **status: Any) -> None:
         if _QUEUE is not None:
-            _QUEUE.put((self.key, n))
+            _QUEUE.put((self.key, n, status))
 
 
 def _call_in_worker(job: Job) -> Any:
@@ -273,7 +275,9 @@ class _Progress:
         self.sizes = {j.key: j.size for j in jobs}
         self.seen: dict[str, float] = {}
 
-    def advance(self, key: str, n: float) -> None:
+    def advance(self, key: str, n: float, status: dict[str, Any] | None = None) -> None:
+        if status:
+            self.bar.set_postfix(status, refresh=False)
         room = self.sizes.get(key, 0.0) - self.seen.get(key, 0.0)
         n = min(n, room)
         if n > 0:
@@ -421,7 +425,7 @@ def _run_inline(
     for job in todo:
         kwargs = dict(job.kwargs)
         if job.progress_kw:
-            kwargs[job.progress_kw] = lambda n=1, key=job.key: bar.advance(key, n)
+            kwargs[job.progress_kw] = lambda n=1, key=job.key, **st: bar.advance(key, n, st)
         try:
             result = job.fn(*job.args, **kwargs)
         except Exception as exc:  # noqa: BLE001 - reported with the key
@@ -434,12 +438,12 @@ def _drain(queue: Any, bar: _Progress) -> None:
 
     while True:
         try:
-            key, n = queue.get_nowait()
+            key, n, status = queue.get_nowait()
         except queue_mod.Empty:
             return
         except (EOFError, OSError, ValueError):  # queue closed
             return
-        bar.advance(key, n)
+        bar.advance(key, n, status)
 
 
 def _stop_pool(pool: Any) -> None:

@@ -278,18 +278,22 @@ def open_storage(url: str) -> Any:
     from optuna.storages import RDBStorage
 
     retry = getattr(optuna.storages, "RetryHeartbeatStaleTrialCallback", None)
+    # several workers share one SQLite file: wait for its lock instead of failing at once
+    engine = {"connect_args": {"timeout": 120}} if url.startswith("sqlite:") else None
     try:
         with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna's words
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
             if retry is not None:  # optuna >= 4.9
                 return RDBStorage(
                     url,
+                    engine_kwargs=engine,
                     heartbeat_interval=30,
                     grace_period=90,
                     heartbeat_stale_trial_callback=retry(max_retry=1),
                 )
             return RDBStorage(
                 url,
+                engine_kwargs=engine,
                 heartbeat_interval=30,
                 grace_period=90,
                 failed_trial_callback=optuna.storages.RetryFailedTrialCallback(max_retry=1),
@@ -438,22 +442,42 @@ def _objective_fn(objective: Objective, space: ParamSpace) -> Callable[[Any], fl
 
 
 def _worker(
-    url: str, name: str, objective: Objective, sampler: str, seed: int, trials: int
-) -> None:
-    """One optimisation process: runs trials until the study holds ``trials`` complete ones."""
+    url: str,
+    name: str,
+    objective: Objective,
+    sampler: str,
+    seed: int,
+    trials: int,
+    advance: Callable[..., None] | None = None,
+) -> int:
+    """One optimisation process: runs trials until the study holds ``trials`` complete ones.
+
+    ``advance(1, best=...)`` (from :func:`crowdsim.jobs.run_jobs`) moves the shared progress
+    bar after each trial this worker finishes. Returns the number of trials it ran.
+    """
     from optuna.study import MaxTrialsCallback
     from optuna.trial import TrialState
 
     study = open_study(url, name, objective, sampler, seed, trials)
     if len(complete_trials(study)) >= trials:
-        return
+        return 0
+    ran = 0
+
+    def tick(study: Any, trial: Any) -> None:
+        nonlocal ran
+        ran += 1
+        if advance is not None:
+            ts = complete_trials(study)
+            advance(1, best=f"{max(t.value for t in ts):.2f}%" if ts else "n/a")
+
     study.optimize(
         _objective_fn(objective, objective.space()),
         n_trials=None,
-        callbacks=[MaxTrialsCallback(trials, states=(TrialState.COMPLETE,))],
+        callbacks=[MaxTrialsCallback(trials, states=(TrialState.COMPLETE,)), tick],
         gc_after_trial=False,
         show_progress_bar=False,
     )
+    return ran
 
 
 def _run_local(
@@ -465,68 +489,37 @@ def _run_local(
     trials: int,
     workers: int,
     progress: bool,
+    out: Path,
 ) -> None:
-    import multiprocessing as mp
-
-    from crowdsim.progress import progress_bar
+    """``workers`` optimisation processes on :func:`crowdsim.jobs.run_jobs` (in this process
+    for one): they share the study, so each stops when it holds ``trials`` complete trials.
+    The runner's manifest (``OUT/tune_jobs.json``) records a worker once it has finished; a
+    killed run leaves none recorded and a rerun starts them again on the same study."""
+    from crowdsim.jobs import Job, run_jobs
 
     study = open_study(url, name, objective, sampler, seed, trials)
-    done = len(complete_trials(study))
-    bar = progress_bar(total=trials, desc="tune", unit="trial", enabled=progress, leave=True)
-    bar.update(done)
-
-    def refresh() -> None:
-        ts = complete_trials(study)
-        bar.update(max(0, min(trials, len(ts)) - bar.n))
-        if ts:
-            bar.set_postfix(best=f"{max(t.value for t in ts):.2f}%")
-
-    refresh()
-    if done >= trials:
-        bar.close()
+    left = trials - len(complete_trials(study))
+    if left <= 0:
         return
-    procs = []
-    try:
-        if workers > 1:
-            ctx = mp.get_context("spawn")
-            procs = [
-                ctx.Process(
-                    target=_worker,
-                    args=(url, name, objective, sampler, seed + 1 + i, trials),
-                    daemon=True,
-                )
-                for i in range(workers - 1)
-            ]
-            for p in procs:
-                p.start()
-        from optuna.study import MaxTrialsCallback
-        from optuna.trial import TrialState
-
-        study.optimize(
-            _objective_fn(objective, objective.space()),
-            n_trials=None,
-            callbacks=[
-                MaxTrialsCallback(trials, states=(TrialState.COMPLETE,)),
-                lambda s, t: refresh(),
-            ],
-            gc_after_trial=False,
-            show_progress_bar=False,
+    share = [left // workers + (i < left % workers) for i in range(workers)]
+    jobs = [
+        Job(
+            f"{name}/to-{trials}/worker-{i + 1}-of-{workers}",
+            _worker,
+            (url, name, objective, sampler, seed + i, trials),
+            size=max(share[i], 1),
+            progress_kw="advance",
         )
-        while any(p.is_alive() for p in procs):
-            time.sleep(0.5)
-            refresh()
-        bad = [p.exitcode for p in procs if p.exitcode not in (0, None)]
-        if bad:
-            raise RuntimeError(
-                f"{len(bad)} tuning worker(s) failed (exit codes {bad}); "
-                "finished trials are kept, rerun to resume"
-            )
-        refresh()
-    finally:
-        for p in procs:
-            if p.is_alive():
-                p.terminate()
-        bar.close()
+        for i in range(workers)
+    ]
+    run_jobs(
+        jobs,
+        out / "tune_jobs.json",
+        workers=workers,
+        progress=progress,
+        desc="tune",
+        unit="trial",
+    )
 
 
 def _run_ray(
@@ -749,7 +742,7 @@ def tune(
                 url, study_name, objective, sampler, seed, trials, workers, address, out, progress
             )
         else:
-            _run_local(url, study_name, objective, sampler, seed, trials, workers, progress)
+            _run_local(url, study_name, objective, sampler, seed, trials, workers, progress, out)
             st = open_study(url, study_name, objective, sampler, seed, trials)
         ts = complete_trials(st)
         best = max(ts, key=lambda t: t.value)
