@@ -758,39 +758,19 @@ class SceneRenderer:
                 base_id = self._owner_next
                 self._owner_next += len(sel)
             on_top = self.params.heads_on_top
-            _stamp(
-                out2,
-                self._cover3,
-                self._alpha3,
-                bank.solid,
-                self._spans3,
-                self._tiles,
-                idx,
-                ap[order],
-                x0,
-                y0,
-                self._noise2,
-                ny,
-                3 * nx,
-                nscale,
-                g0,
-                gx,
-                gy,
-                rows,
-                first,
-                last,
-                owner,
-                base_id,
-                use_owner and not on_top,
-            )
+            passes = [(self._alpha3, bank.solid, self._spans3, self._tiles, not on_top)]
             if on_top:  # heads are the highest point: only other heads can hide them
+                passes.append(
+                    (self._head_alpha3, self._head_solid, self._head_spans3, self._head_tiles, True)
+                )
+            for alpha, solid, spans, tiles, owns in passes:
                 _stamp(
                     out2,
                     self._cover3,
-                    self._head_alpha3,
-                    self._head_solid,
-                    self._head_spans3,
-                    self._head_tiles,
+                    alpha,
+                    solid,
+                    spans,
+                    tiles,
                     idx,
                     ap[order],
                     x0,
@@ -807,7 +787,7 @@ class SceneRenderer:
                     last,
                     owner,
                     base_id,
-                    use_owner,
+                    use_owner and owns,
                 )
             if use_owner and len(sel):
                 vis = np.empty(len(sel), np.float32)
