@@ -116,14 +116,7 @@ def require_output_file(flag: str, path: str | os.PathLike[str]) -> Path:
     p = Path(path)
     if p.is_dir():
         raise ValueError(f"{flag} {p}: is a folder, not a file")
-    for parent in p.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise ValueError(f"{flag} {p}: {parent} is a file, not a folder")
-            if not os.access(parent, os.W_OK | os.X_OK):
-                raise ValueError(f"{flag} {p}: the folder {parent} is not writable")
-            break
-    return p
+    return require_output_dir(flag, p)
 
 
 def require_output_dir(flag: str, path: str | os.PathLike[str]) -> Path:

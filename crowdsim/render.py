@@ -428,33 +428,17 @@ def _draw_distractors(
         elif kind == "litter":  # a small blob of clothing-like colour
             axes = (int(round(0.8 * r * ss)), int(round(0.5 * r * ss)))
             colour = palette[picks[k]] + shades[k]
-            cv2.ellipse(
-                base,
-                c,
-                axes,
-                float(angles[k]),
-                0,
-                360,
-                tuple(float(v) for v in colour),
-                -1,
-                cv2.LINE_AA,
-                4,
-            )
+            _filled_ellipse(base, c, axes, float(angles[k]), colour)
         else:  # a painted dash
             axes = (int(round(0.45 * s * sizes[k] * ss)), int(round(0.08 * s * ss)))
-            colour = np.full(3, 225.0 + shades[k])
-            cv2.ellipse(
-                base,
-                c,
-                axes,
-                float(angles[k]),
-                0,
-                360,
-                tuple(float(v) for v in colour),
-                -1,
-                cv2.LINE_AA,
-                4,
-            )
+            _filled_ellipse(base, c, axes, float(angles[k]), np.full(3, 225.0 + shades[k]))
+
+
+def _filled_ellipse(img: np.ndarray, centre, axes, angle: float, colour) -> None:
+    """An anti-aliased filled ellipse at 4 bits of sub-pixel precision (as the circles)."""
+    cv2.ellipse(
+        img, centre, axes, angle, 0, 360, tuple(float(v) for v in colour), -1, cv2.LINE_AA, 4
+    )
 
 
 def make_ground(

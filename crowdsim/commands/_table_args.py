@@ -1,9 +1,31 @@
-"""Flags shared by ``crowdsim compare`` and ``crowdsim ablation`` (one place, one wording)."""
+"""Flags shared by the commands that fan work out (one place, one wording).
+
+:func:`add_jobs_arguments`: ``--workers``, ``--backend``, ``--address`` of the jobs runner
+(:mod:`crowdsim.jobs`), for ``generate``, ``compare`` and ``ablation``;
+:func:`add_table_arguments`: everything ``compare`` and ``ablation`` take.
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
+
+
+def add_jobs_arguments(p: argparse.ArgumentParser, workers_help: str, workers: int | None) -> None:
+    """``--workers N``, ``--backend local|ray``, ``--address ADDR`` (see :mod:`crowdsim.jobs`)."""
+    p.add_argument("--workers", type=int, default=workers, metavar="N", help=workers_help)
+    p.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="local process pool (default) or Ray tasks",
+    )
+    p.add_argument(
+        "--address",
+        default=None,
+        metavar="ADDR",
+        help="Ray cluster address (default: start a local Ray instance)",
+    )
 
 
 def add_table_arguments(p: argparse.ArgumentParser) -> None:
@@ -20,25 +42,7 @@ def add_table_arguments(p: argparse.ArgumentParser) -> None:
         metavar="N",
         help="truncate every sequence to its first N frames (quick runs)",
     )
-    p.add_argument(
-        "--workers",
-        type=int,
-        default=1,
-        metavar="N",
-        help="parallel cells (local processes or Ray tasks; default 1)",
-    )
-    p.add_argument(
-        "--backend",
-        choices=("local", "ray"),
-        default="local",
-        help="local process pool (default) or Ray tasks",
-    )
-    p.add_argument(
-        "--address",
-        default=None,
-        metavar="ADDR",
-        help="Ray cluster address (default: a local Ray instance)",
-    )
+    add_jobs_arguments(p, "parallel cells (local processes or Ray tasks; default 1)", 1)
     p.add_argument(
         "--out",
         required=True,

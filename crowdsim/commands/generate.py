@@ -20,6 +20,8 @@ import os
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from crowdsim.commands._table_args import add_jobs_arguments
+
     p = sub.add_parser(
         "generate",
         help="generate synthetic benchmark sequences (MOT layout)",
@@ -40,24 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--only", nargs="+", metavar="SEQ", help="with --suite: only these sequences")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--frames", type=int, metavar="N", help="truncate every sequence to N frames")
-    p.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        metavar="N",
-        help="parallel sequences (default: CPU count, at most the sequence count)",
-    )
-    p.add_argument(
-        "--backend",
-        choices=("local", "ray"),
-        default="local",
-        help="local process pool (default) or Ray tasks",
-    )
-    p.add_argument(
-        "--address",
-        default=None,
-        metavar="ADDR",
-        help="Ray cluster address (default: start a local Ray instance)",
+    add_jobs_arguments(
+        p, "parallel sequences (default: CPU count, at most the sequence count)", None
     )
     p.add_argument(
         "--overwrite",
