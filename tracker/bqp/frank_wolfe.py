@@ -54,12 +54,12 @@ Rounding (Eq. 14) is the argmax of ``x`` within each block.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 
+from crowdsim.checks import require_choice, require_number
 from tracker.bqp.qp import BlockQP
 
 VARIANTS: tuple[str, ...] = ("plain", "away", "swap")
@@ -72,7 +72,7 @@ STEP_KINDS: tuple[str, ...] = ("fw", "away", "swap", "drop")
 """Kinds counted in :attr:`FWResult.steps` (``drop``: away/SWAP steps that emptied ``alpha_y``)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class FWParams:
     """Parameters of the Frank-Wolfe solver (paper Sec. 5, Alg. 2).
 
@@ -99,18 +99,9 @@ class FWParams:
     record_history: bool = False
 
     def __post_init__(self) -> None:
-        if self.variant not in _VARIANT_CODE:
-            raise ValueError(
-                f"FWParams.variant must be one of {', '.join(VARIANTS)}; got {self.variant!r}"
-            )
-        if not (isinstance(self.eps, (int, float)) and math.isfinite(self.eps) and self.eps >= 0):
-            raise ValueError(f"FWParams.eps must be a finite number >= 0; got {self.eps!r}")
-        if (
-            isinstance(self.max_iter, bool)
-            or not isinstance(self.max_iter, (int, np.integer))
-            or self.max_iter < 0
-        ):
-            raise ValueError(f"FWParams.max_iter must be an integer >= 0; got {self.max_iter!r}")
+        require_choice("FWParams", "variant", self.variant, VARIANTS)
+        require_number("FWParams", "eps", self.eps, lo=0)
+        require_number("FWParams", "max_iter", self.max_iter, lo=0, integer=True)
 
 
 @dataclass
