@@ -19,7 +19,6 @@ import argparse
 import json
 import math
 import os
-import time
 
 from synth_data.sequence import InMemorySequence, load_crowd, synthetic_crowd  # noqa: F401
 
@@ -33,26 +32,15 @@ def packed_size(n: int, px_per_m: float) -> tuple[int, int]:
     return max(64, int(1280 * scale)), max(48, int(720 * scale))
 
 
-ABLATION: tuple[tuple[str, dict], ...] = (
-    ("B", {"zeta": 0.0, "eta": 0.0, "w_sp": 0.0, "w_g": 0.0}),
-    ("B+Mo", {"eta": 0.0, "w_sp": 0.0, "w_g": 0.0}),
-    ("B+Mo+SP", {"eta": 0.0, "w_g": 0.0}),
-    ("B+Mo+Gr", {"eta": 0.0, "w_sp": 0.0}),
-    ("B+Mo+Gr+NMo", {"w_sp": 0.0}),
-    ("B+Mo+SP+Gr+NMo", {}),
-)
-"""The term ablation of the paper's Table 3: overrides of :class:`BQPParams` per row."""
-
-
 def run_ablation(crowd: InMemorySequence) -> list[dict]:
     """Table 3: accuracy of every term combination, with KCF and with NCC appearance."""
-    from tracker.bqp.params import BQPParams
-    from tracker.bqp.tracker import BQPTracker
+    from tracker.bqp.ablation import ABLATION, APPEARANCES
+    from tracker.registry import make_tracker
 
     rows = []
     for label, over in ABLATION:
-        for app in ("ncc", "kcf"):
-            r = run_tracker(BQPTracker(BQPParams(appearance=app, **over)), crowd)
+        for _, app in APPEARANCES:
+            r = run_tracker(make_tracker("bqp", appearance=app, **over), crowd)
             rows.append(
                 {
                     "terms": label,
@@ -66,29 +54,26 @@ def run_ablation(crowd: InMemorySequence) -> list[dict]:
 
 
 def run_tracker(tracker, crowd: InMemorySequence) -> dict:
-    """Track ``crowd`` (births from ground truth); returns fps, per-stage ms and accuracy."""
-    from tracker.metrics import accuracy_curve
+    """Track ``crowd`` with :func:`tracker.runner.run_tracker` (births from ground truth);
+    returns the targets, fps, per-stage ms and the accuracy at 5 and 15 px."""
+    from tracker.runner import run_tracker as run
 
-    (ids, pts), births = crowd.births()
-    gt_ids, gt_pts = crowd.gt_points()
-    t0 = time.perf_counter()
-    res = tracker.track(crowd.frames(), ids, pts, crowd.template_size, births=births)
-    wall = time.perf_counter() - t0
+    r = run(tracker, crowd, metrics="accuracy")
+    res, trk = r.result, tracker
     steps = max(res.n_frames - 1, 1)
-    curve = accuracy_curve(gt_ids, gt_pts, res.ids, res.positions)
     out = {
-        "targets": int(len(ids)),
+        "targets": int(len(crowd.births()[0][0])),
         "frames": int(res.n_frames),
-        "fps": steps / res.timings.get("total", wall),
-        "wall_s": wall,
-        "acc@5": float(curve[5]),
-        "acc@15": float(curve[15]),
+        "fps": r.fps,
+        "wall_s": r.wall_s,
+        "acc@5": r.report["acc@5"],
+        "acc@15": r.report["acc@15"],
     }
     for k in ("appearance", "terms", "solve"):
-        out[f"{k}_ms"] = 1000.0 * res.timings.get(k, 0.0) / steps
-    if hasattr(tracker, "n_candidates"):
-        out["candidates_per_target"] = tracker.n_candidates / max(1, steps * len(ids))
-        out["solver_iterations_per_frame"] = tracker.solver_iterations / steps
+        out[f"{k}_ms"] = r.stage_ms.get(k, 0.0)
+    if hasattr(trk, "n_candidates"):
+        out["candidates_per_target"] = trk.n_candidates / max(1, steps * out["targets"])
+        out["solver_iterations_per_frame"] = trk.solver_iterations / steps
     return out
 
 
@@ -129,9 +114,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tracker.baselines.ncc import NCCTracker
-    from tracker.bqp.params import BQPParams
-    from tracker.bqp.tracker import BQPTracker
+    from tracker.registry import make_tracker
 
     targets, frames, n_sampling = args.targets, args.frames, args.sampling_targets
     if args.quick:
@@ -140,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("need --frames >= 2 and crowd sizes >= 1")
     # warm the numba solver so compilation is not timed
     warm = synthetic_crowd(4, 3, args.seed, args.template, size=(160, 120))
-    run_tracker(BQPTracker(), warm)
+    run_tracker(make_tracker("bqp"), warm)
 
     rows = []
     speed_runs = []
@@ -164,9 +147,9 @@ def run(args: argparse.Namespace) -> int:
                 noise_sigma=8.0 if packed else 3.0,
             )
             for label, tr in (
-                ("bqp dense", BQPTracker(BQPParams(speedup=False))),
-                ("bqp speedup", BQPTracker(BQPParams(speedup=True))),
-                ("ncc", NCCTracker()),
+                ("bqp dense", make_tracker("bqp-dense")),
+                ("bqp speedup", make_tracker("bqp")),
+                ("ncc", make_tracker("ncc")),
             ):
                 if packed and label == "bqp dense" and n > 300:
                     continue  # minutes per run; the sampling comparison below covers it
@@ -194,8 +177,8 @@ def run(args: argparse.Namespace) -> int:
         noise_sigma=8.0,
         speed=2.6,
     )
-    dense = run_tracker(BQPTracker(BQPParams(speedup=False)), crowd)
-    fast = run_tracker(BQPTracker(BQPParams(speedup=True)), crowd)
+    dense = run_tracker(make_tracker("bqp-dense"), crowd)
+    fast = run_tracker(make_tracker("bqp"), crowd)
     sampling = {
         "targets": n_sampling,
         "frame": [sw, sh],
