@@ -105,8 +105,16 @@ def run_cell(
 
 
 def _cell_key(seq: str, row: Row, frames: int | None) -> str:
-    over = ",".join(f"{k}={v}" for k, v in sorted(row.overrides.items()))
-    return f"{seq}|{row.tracker}|{over}|frames={frames or 'all'}"
+    """The manifest key of a cell: sequence, tracker, its complete parameters (a digest, so
+    that a changed default is not mistaken for a finished cell) and the frame count."""
+    import dataclasses
+    import hashlib
+
+    from tracker.registry import get
+
+    params = dataclasses.asdict(get(row.tracker).make_params(**row.overrides))
+    digest = hashlib.sha256(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
+    return f"{seq}|{row.tracker}|params={digest}|frames={frames or 'all'}"
 
 
 def run_table(

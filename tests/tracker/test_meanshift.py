@@ -73,7 +73,7 @@ CHANGES = {
     "epsilon": 5.0,
     "update_every": 1,
     "update_threshold": 0.99,
-    "lost_confidence": 0.99,
+    "lost_ratio": 0.99,
     "max_lost": 1,
 }
 

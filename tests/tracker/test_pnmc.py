@@ -282,7 +282,7 @@ CHANGES = {
     "update_every": 2,
     "update_threshold": 0.95,
     "seed": 5,
-    "lost_confidence": 0.99,
+    "lost_ratio": 0.99,
     "max_lost": 0,
 }
 # fields whose change must alter what the tracker does on the occlusion scene below
@@ -300,7 +300,7 @@ MATTERS = {
     "flow_min_ncc",
     "update_every",
     "update_threshold",
-    "lost_confidence",
+    "lost_ratio",
 }
 
 

@@ -32,23 +32,23 @@ class NCCParams:
         Templates are refreshed only when the NCC score of the match is at least this.
     update_every : int
         Frames between template refreshes (paper: 10).
-    lost_confidence, max_lost : float, int
-        The track ends when the NCC score of its match stays below ``lost_confidence`` for
-        ``max_lost`` frames in a row (0 = only when it leaves the image); as
-        :class:`tracker.bqp.params.BQPParams`.
+    lost_ratio, max_lost : float, int
+        The track ends when the NCC score of its match stays below ``lost_ratio`` times
+        its usual score for ``max_lost`` frames in a row (0 = only when it leaves the image);
+        as :class:`tracker.bqp.params.BQPParams`.
     """
 
     search_factor: float = 2.0
     update_threshold: float = 0.6
     update_every: int = 10
-    lost_confidence: float = 0.3
+    lost_ratio: float = 0.4
     max_lost: int = 5
 
     def __post_init__(self) -> None:
         require_number("NCCParams", "search_factor", self.search_factor, lo=1, lo_open=True)
         require_number("NCCParams", "update_threshold", self.update_threshold, lo=0, hi=1)
         require_number("NCCParams", "update_every", self.update_every, lo=1, integer=True)
-        require_number("NCCParams", "lost_confidence", self.lost_confidence, lo=-1, hi=1)
+        require_number("NCCParams", "lost_ratio", self.lost_ratio, lo=0, hi=1)
         require_number("NCCParams", "max_lost", self.max_lost, lo=0, integer=True)
 
 

@@ -89,10 +89,10 @@ class PNMCParams:
         least this.
     seed : int
         Seed of the mixture initialisation and of random queens.
-    lost_confidence, max_lost : float, int
+    lost_ratio, max_lost : float, int
         The track ends when its update confidence ``(gamma + 1) / 2`` stays below
-        ``lost_confidence`` for ``max_lost`` frames in a row (0 = only when it leaves the
-        image); 0.65 is the NCC baseline's ``gamma < 0.3`` on this scale.
+        ``lost_ratio`` times its usual value for ``max_lost`` frames in a row (0 = only when
+        it leaves the image).
     """
 
     search_factor: float = 2.0
@@ -121,7 +121,7 @@ class PNMCParams:
     update_every: int = 10
     update_threshold: float = 0.8
     seed: int = 0
-    lost_confidence: float = 0.65
+    lost_ratio: float = 0.75
     max_lost: int = 5
 
     def __post_init__(self) -> None:
@@ -152,5 +152,5 @@ class PNMCParams:
         require_number(o, "update_every", self.update_every, lo=1, integer=True)
         require_number(o, "update_threshold", self.update_threshold, lo=0, hi=1)
         require_number(o, "seed", self.seed, lo=0, integer=True)
-        require_number(o, "lost_confidence", self.lost_confidence, lo=0, hi=1)
+        require_number(o, "lost_ratio", self.lost_ratio, lo=0, hi=1)
         require_number(o, "max_lost", self.max_lost, lo=0, integer=True)
