@@ -5,14 +5,12 @@ from __future__ import annotations
 import csv
 import io
 import json
-import shutil
 
 import pytest
 
 from crowdsim import calibration, experiments
 from crowdsim.experiments import Row, run_table
 from synth_data.spec import load_spec, spec_from_dict
-from synth_data.suites import suite_dir
 
 
 def tiny(name: str = "tiny", frames: int = 8, **appearance):
@@ -117,38 +115,58 @@ def test_difficulty_makes_ncc_worse_and_calibration_lands_on_the_target(tmp_path
     assert again["difficulty"] == res["difficulty"]
 
 
+SPEC_TEXT = """# a hand-written spec: comments and layout must survive calibration
+name = "lobby"
+seed = 8
+frames = 12
+
+[scenario]
+name = "station"  # people leave through doors
+n_agents = 20
+
+[camera]
+max_width = 320
+
+[appearance]
+template_px = 10
+noise_sigma = 4.0  # sensor
+
+[calibration]
+paper_ncc_15px = 86.0
+"""
+
+
 def test_write_calibration_keeps_the_file_and_records_the_base(tmp_path):
-    path = tmp_path / "seq8.toml"
-    shutil.copy(suite_dir("ucf9") / "seq8.toml", path)
+    path = tmp_path / "lobby.toml"
+    path.write_text(SPEC_TEXT)
     before = load_spec(path)
-    text_before = path.read_text()
     values = calibration.knob_values(before, 0.4, 0.4)
     calibration.write_calibration(
         path, {"difficulty": 0.4, "ncc_15px": 85.5, "trials": 5, "values": values}
     )
+    text = path.read_text()
+    assert text.startswith("# a hand-written spec") and "# people leave through doors" in text
+    assert "noise_sigma = " in text and "# sensor" in text  # replaced in place, comment kept
     after = load_spec(path)
     for (section, name), v in values.items():
         got = getattr(after.appearance, name) if section == "appearance" else after.camera[name]
         assert got == pytest.approx(v)
     assert after.calibration["achieved_ncc_15px"] == 85.5
+    assert after.calibration["paper_ncc_15px"] == 86.0
     assert after.scenario == before.scenario and after.seed == before.seed  # motion untouched
-    first_line = text_before.splitlines()[0]
-    assert path.read_text().startswith(first_line)  # comments kept
-    # the base (pre-calibration) values are recorded once and restore the original knobs
+    # the values before the first calibration are recorded once and restore the knobs
     calibration.write_calibration(
         path,
         {
             "difficulty": 0.9,
             "ncc_15px": 40.0,
             "trials": 2,
-            "values": calibration.knob_values(before, 0.9, 0.9),
+            "values": calibration.knob_values(after, 0.9, 0.9),
         },
     )
     restored = calibration._uncalibrated(load_spec(path))
     assert restored.appearance == before.appearance
-    assert {k: restored.camera.get(k, 0.0) for k in ("jitter_px",)} == {
-        k: before.camera.get(k, 0.0) for k in ("jitter_px",)
-    }
+    assert restored.camera.get("jitter_px", 0.0) == before.camera.get("jitter_px", 0.0)
 
 
 def test_knob_values_are_validated():
