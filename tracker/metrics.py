@@ -330,8 +330,11 @@ def format_table(results: dict[str, dict[str, Any]]) -> str:
 def plot_accuracy(
     curves: dict[str, np.ndarray], path: str | os.PathLike[str], title: str = ""
 ) -> None:
-    """Accuracy vs pixel threshold, one line per method (the papers' Fig. 9-10), as PNG."""
-    fig, ax = new_figure(figsize=(5, 3.6), dpi=120)
+    """Accuracy vs pixel threshold, one line per method (the papers' Fig. 9-10), as PNG.
+
+    Up to four methods share the plot with their legend; more get the legend beside it."""
+    beside = len(curves) > 4
+    fig, ax = new_figure(figsize=(7.2 if beside else 5, 3.6), dpi=120)
     for name, curve in curves.items():
         curve = np.asarray(curve, dtype=np.float64)
         ax.plot(THRESHOLDS[: len(curve)], curve, marker="o", markersize=3, label=name)
@@ -340,7 +343,10 @@ def plot_accuracy(
     ax.set_xlim(0, THRESHOLDS[-1])
     ax.set_ylim(0, 100)
     ax.grid(alpha=0.3)
-    ax.legend(loc="lower right")
+    if beside:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize="small")
+    else:
+        ax.legend(loc="lower right")
     if title:
         ax.set_title(title)
     save_figure(fig, path, dpi=120)
