@@ -895,54 +895,22 @@ case(
     f"{T} --init {{w}}/none.csv --out {{w}}/r.txt",
     "none.csv: no such points file",
 )
-case(
-    "track-init-header",
-    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
-    "header must be 'frame,id,x,y' or 'id,x,y'",
-    files=(("i.csv", "a,b,c\n1,2,3\n"),),
+
+
+def init_case(id: str, content: str, needle: str) -> None:
+    case(id, f"{T} --init {{w}}/i.csv --out {{w}}/r.txt", needle, files=(("i.csv", content),))
+
+
+init_case("track-init-header", "a,b,c\n1,2,3\n", "header must be 'frame,id,x,y' or 'id,x,y'")
+init_case("track-init-text", "id,x,y\n1,a,3\n", "non-numeric value")
+init_case("track-init-nan", "id,x,y\n1,nan,3\n", "non-finite value")
+init_case("track-init-columns", "id,x,y\n1,2,3,4\n", "expected 3 columns, got 4")
+init_case("track-init-unknown-id", "id,x,y\n77,2,3\n", "ids [77] are unknown")
+init_case("track-init-id-2.5", "id,x,y\n2.5,2,3\n", "2.5")
+init_case(
+    "track-init-duplicate", "frame,id,x,y\n1,1,2,3\n1,1,4,5\n", "id 1 is listed more than once"
 )
-case(
-    "track-init-text",
-    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
-    "non-numeric value",
-    files=(("i.csv", "id,x,y\n1,a,3\n"),),
-)
-case(
-    "track-init-nan",
-    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
-    "non-finite value",
-    files=(("i.csv", "id,x,y\n1,nan,3\n"),),
-)
-case(
-    "track-init-columns",
-    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
-    "expected 3 columns, got 4",
-    files=(("i.csv", "id,x,y\n1,2,3,4\n"),),
-)
-case(
-    "track-init-unknown-id",
-    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
-    "ids [77] are unknown",
-    files=(("i.csv", "id,x,y\n77,2,3\n"),),
-)
-case(
-    "track-init-id-2.5",
-    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
-    "2.5",
-    files=(("i.csv", "id,x,y\n2.5,2,3\n"),),
-)
-case(
-    "track-init-duplicate",
-    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
-    "id 1 is listed more than once",
-    files=(("i.csv", "frame,id,x,y\n1,1,2,3\n1,1,4,5\n"),),
-)
-case(
-    "track-init-frame-2.5",
-    f"{T} --init {{w}}/i.csv --out {{w}}/r.txt",
-    "2.5",
-    files=(("i.csv", "frame,id,x,y\n2.5,1,2,3\n"),),
-)
+init_case("track-init-frame-2.5", "frame,id,x,y\n2.5,1,2,3\n", "2.5")
 
 # --- generate ---------------------------------------------------------------------------
 G = "generate --spec {w}/s.toml --out {w}/out --workers 1 --no-progress"
