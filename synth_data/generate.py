@@ -54,21 +54,9 @@ from crowdsim.jobs import (
     read_manifest,
 )
 from crowdsim.jobs import run_jobs as _run_jobs
-from synth_data.scene import (  # noqa: F401 - re-exported: the old home of these names
-    EXTENT_PERCENTILE,
-    SETTLE_S,
-    Scene,
-    camera_for,
-    crowd_extent,
-    simulate,
-)
+from synth_data.scene import Scene
 from synth_data.spec import SequenceSpec
-from synth_data.writer import (  # noqa: F401 - clean_stale_tmp re-exported
-    TMP_PREFIX,
-    clean_stale_tmp,
-    verify_sequence,
-    write_sequence,
-)
+from synth_data.writer import clean_stale_tmp, verify_sequence, write_sequence
 
 MANIFEST = "manifest.json"
 MANIFEST_SECTION = "sequences"

@@ -20,7 +20,7 @@ import json
 import math
 import os
 
-from synth_data.sequence import InMemorySequence, load_crowd, synthetic_crowd  # noqa: F401
+from synth_data.sequence import InMemorySequence, load_crowd, synthetic_crowd
 
 PACKED_DENSITY: float = 2.5
 """People per square metre of the packed speed runs."""

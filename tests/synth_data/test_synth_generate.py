@@ -357,7 +357,7 @@ def test_sigkill_of_the_parent_leaves_no_worker_and_a_rerun_completes(tmp_path):
 @pytest.mark.parametrize("sig, workers", [(signal.SIGINT, 2), (signal.SIGTERM, 1)])
 def test_signal_stops_promptly_removes_temporaries_and_says_so(tmp_path, sig, workers):
     out = tmp_path / "out"
-    cmd = _gen(out, _spec_files(tmp_path, ["i1", "i2", "i3"], 300), workers)
+    cmd = _gen(out, _spec_files(tmp_path, ["i1", "i2", "i3"], 900), workers)
     proc = subprocess.Popen(
         cmd, cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
