@@ -37,8 +37,8 @@ def _walk_csv(path: Path, frames: int, people: int = 12) -> Path:
     return path
 
 
-def _start_render(csv: Path, out: Path) -> subprocess.Popen:
-    env = dict(os.environ, PYTHONPATH=str(REPO))
+def _start_render(csv: Path, out: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
+    env = env or dict(os.environ, PYTHONPATH=str(REPO))
     return subprocess.Popen(
         [
             sys.executable,
@@ -81,10 +81,10 @@ def _wait_for_frames(
 @pytest.mark.parametrize(
     "sig, code, word", [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")]
 )
-def test_render_signal_removes_its_tmp_folder(tmp_path, sig, code, word):
+def test_render_signal_removes_its_tmp_folder(tmp_path, sig, code, word, slow_jpeg_env):
     csv = _walk_csv(tmp_path / "walk.csv", frames=2000)
     out = tmp_path / "seq"
-    proc = _start_render(csv, out)
+    proc = _start_render(csv, out, slow_jpeg_env)
     _wait_for_frames(tmp_path, proc)
     t0 = time.monotonic()
     proc.send_signal(sig)
@@ -97,10 +97,10 @@ def test_render_signal_removes_its_tmp_folder(tmp_path, sig, code, word):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.csv"]
 
 
-def test_render_sigkill_then_rerun_cleans_up_and_completes(tmp_path):
+def test_render_sigkill_then_rerun_cleans_up_and_completes(tmp_path, slow_jpeg_env):
     csv = _walk_csv(tmp_path / "walk.csv", frames=2000)
     out = tmp_path / "seq"
-    proc = _start_render(csv, out)
+    proc = _start_render(csv, out, slow_jpeg_env)
     tmp = _wait_for_frames(tmp_path, proc)
     proc.kill()
     proc.wait(timeout=30)

@@ -152,12 +152,12 @@ def test_cli_truncates_refuses_overwrite_with_exit_2_and_reports_bad_specs(tmp_p
     )
 
 
-def test_killed_worker_then_rerun_completes_with_right_checksums(tmp_path):
+def test_killed_worker_then_rerun_completes_with_right_checksums(tmp_path, slow_jpeg_env):
     specs = []
     for k in (1, 2):
         p = tmp_path / f"s{k}.toml"
         p.write_text(
-            f'name = "s{k}"\nseed = {k}\nframes = 400\n[scenario]\nname = "crossing"\n'
+            f'name = "s{k}"\nseed = {k}\nframes = 200\n[scenario]\nname = "crossing"\n'
             "n_agents = 12\ndensity = 1.0\n[camera]\npx_per_m = 10.0\n"
             "[appearance]\ntemplate_px = 8\n"
         )
@@ -174,8 +174,9 @@ def test_killed_worker_then_rerun_completes_with_right_checksums(tmp_path):
         "--no-progress",
         *specs,
     ]
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        cmd, cwd=ROOT, env=slow_jpeg_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
     victim = None
     try:
         deadline = time.monotonic() + 120
@@ -198,10 +199,10 @@ def test_killed_worker_then_rerun_completes_with_right_checksums(tmp_path):
     for d in out.iterdir():
         if d.is_dir() and not d.name.startswith(TMP_PREFIX):
             assert (d / "checksums.json").is_file()
-    rerun = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, timeout=300)
+    rerun = subprocess.run(cmd, cwd=ROOT, env=_env(), capture_output=True, timeout=300)
     assert rerun.returncode == 0, rerun.stderr.decode()
     manifest = assert_manifest_verified(out, ["s1", "s2"])
-    assert all(e["frames"] == 400 for e in manifest["sequences"].values())
+    assert all(e["frames"] == 200 for e in manifest["sequences"].values())
 
 
 def test_ray_backend(tmp_path):
@@ -328,10 +329,10 @@ def test_two_concurrent_runs_into_one_folder_keep_every_manifest_entry(tmp_path)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
-def test_sigkill_of_the_parent_leaves_no_worker_and_a_rerun_completes(tmp_path):
+def test_sigkill_of_the_parent_leaves_no_worker_and_a_rerun_completes(tmp_path, slow_jpeg_env):
     out = tmp_path / "out"
-    cmd = _gen(out, _spec_files(tmp_path, ["k1", "k2"], 600), 2)
-    proc = subprocess.Popen(cmd, cwd=ROOT, env=_env(), stderr=subprocess.PIPE)
+    cmd = _gen(out, _spec_files(tmp_path, ["k1", "k2"], 300), 2)
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=slow_jpeg_env, stderr=subprocess.PIPE)
     try:
         workers = _busy_writers(out, proc, 2)
         assert proc.pid not in workers
@@ -355,11 +356,18 @@ def test_sigkill_of_the_parent_leaves_no_worker_and_a_rerun_completes(tmp_path):
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 @pytest.mark.parametrize("sig, workers", [(signal.SIGINT, 2), (signal.SIGTERM, 1)])
-def test_signal_stops_promptly_removes_temporaries_and_says_so(tmp_path, sig, workers):
+def test_signal_stops_promptly_removes_temporaries_and_says_so(
+    tmp_path, slow_jpeg_env, sig, workers
+):
     out = tmp_path / "out"
-    cmd = _gen(out, _spec_files(tmp_path, ["i1", "i2", "i3"], 900), workers)
+    cmd = _gen(out, _spec_files(tmp_path, ["i1", "i2", "i3"], 300), workers)
     proc = subprocess.Popen(
-        cmd, cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        cmd,
+        cwd=ROOT,
+        env=slow_jpeg_env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     try:
         writers = _busy_writers(out, proc, workers)

@@ -1,0 +1,41 @@
+"""Fixtures shared across the test folders."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+_SLOW_JPEG = """\
+import time
+
+import crowdsim.render as _render
+
+_encode = _render.encode_jpeg
+
+
+def _slow_encode(*args, **kwargs):
+    time.sleep({delay})
+    return _encode(*args, **kwargs)
+
+
+_render.encode_jpeg = _slow_encode
+"""
+
+
+@pytest.fixture()
+def slow_jpeg_env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """An environment for subprocesses in which every JPEG takes 30 ms more to encode.
+
+    A ``sitecustomize`` module on ``PYTHONPATH`` slows :func:`crowdsim.render.encode_jpeg` in
+    every Python process started with it, spawned pool workers included. Tests that stop a
+    render or a generation mid-sequence use it, so they catch the writers mid-way by design
+    instead of by winning a race against a fast machine (unthrottled, a 600-frame sequence took
+    1.5 s on CI and finished before the test saw it).
+    """
+    site = tmp_path_factory.mktemp("slow-jpeg-site")  # outside the test's tmp_path
+    (site / "sitecustomize.py").write_text(_SLOW_JPEG.format(delay=0.03))
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(site), str(ROOT)]))
