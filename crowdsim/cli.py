@@ -32,6 +32,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "crowdsim.commands.ablation",
     "crowdsim.commands.tune",
     "crowdsim.commands.train",
+    "crowdsim.commands.heldout",
     "crowdsim.commands.bench",
     "crowdsim.commands.demo",
 )

@@ -36,6 +36,7 @@ import numpy as np
 from crowdsim.atomic import atomic_path, write_text_atomic
 from crowdsim.checks import require_choice, require_number
 from envs.episodes import EpisodeSource, make_episodes
+from envs.heldout import HELDOUT_SEED, evaluate_heldout, write_heldout
 from envs.param_space import ParamSpace
 
 STUDY_FILE = "study.db"
@@ -43,8 +44,6 @@ DEFAULT_STUDY_NAME = "crowdsim-tune"
 SAMPLERS: tuple[str, ...] = ("tpe", "cmaes")
 BACKENDS: tuple[str, ...] = ("local", "ray")
 ALGOS: tuple[str, ...] = ("ppo", "sac")
-HELDOUT_SEED = 1
-"""Episode stream (or suite re-seed offset) of the held-out sequences; tuning uses stream 0."""
 POLICY_META = "crowdsim.json"
 """Entry added to ``model.zip``: the algorithm and the environment settings it was trained on."""
 
@@ -654,47 +653,6 @@ def plot_importances(study: Any, path: Path) -> tuple[Path, dict[str, float]]:
     return save_figure(fig, path, dpi=110), {k: float(v) for k, v in imp.items()}
 
 
-def evaluate_heldout(
-    objective: Objective,
-    param_sets: dict[str, Any],
-    n: int,
-    metrics: str = "full",
-    progress: bool = False,
-) -> dict[str, Any]:
-    """Score parameter sets on ``n`` held-out sequences (never seen while tuning).
-
-    Returns ``{"sequences": [{"name", "description", name: {acc@5, acc@15, hota...}}],
-    "summary": {name: {metric: {"mean", "std"}}}}``.
-    """
-    from crowdsim.progress import progress_bar
-    from tracker.runner import run_tracker
-
-    src = objective.episodes(heldout=True)
-    count = min(n, len(src)) if objective.suite is not None else n
-    rows = []
-    keys = ("acc@5", "acc@15", "hota", "mota", "idf1")
-    for i in progress_bar(range(count), desc="held-out", unit="seq", enabled=progress):
-        seq = src.episode(i)
-        spec = src.spec(i)
-        row: dict[str, Any] = {
-            "name": getattr(seq, "name", str(i)),
-            "description": getattr(spec, "description", str(spec)),
-            "seed": getattr(spec, "seed", None),
-        }
-        for label, params in param_sets.items():
-            run = run_tracker(objective.tracker, seq, params=params, metrics=metrics)
-            row[label] = {k: float(run.report[k]) for k in keys if k in run.report}
-        rows.append(row)
-    summary = {}
-    for label in param_sets:
-        summary[label] = {}
-        for k in keys:
-            vals = [r[label][k] for r in rows if k in r[label]]
-            if vals:
-                summary[label][k] = {"mean": float(np.mean(vals)), "std": float(np.std(vals))}
-    return {"sequences": rows, "summary": summary, "threshold_px": objective.threshold_px}
-
-
 def tune(
     objective: Objective,
     *,
@@ -769,8 +727,7 @@ def tune(
                 metrics=heldout_metrics,
                 progress=progress,
             )
-            write_text_atomic(out / "heldout.json", json.dumps(result.heldout, indent=2) + "\n")
-            files["heldout"] = str(out / "heldout.json")
+            files.update(write_heldout(result.heldout, out))
         doc = {
             "format": 1,
             "tracker": objective.tracker,
@@ -1044,7 +1001,7 @@ def tuned_tracker(
     """
     from dataclasses import replace
 
-    from tracker.registry import get, make_tracker
+    from tracker.registry import make_tracker
 
     if (params is None) == (policy is None):
         raise ValueError("give exactly one of --params and --policy")
@@ -1054,14 +1011,28 @@ def tuned_tracker(
         if overrides:
             p = replace(p, **overrides)
         return make_tracker(name, p), source, f"{name} with the parameters of {params}"
-    from envs.tracker_tuning import PolicyControlled, make_observed_tracker
-
     model, meta = load_policy(policy)
+    trk, ctl, what = policy_tracker(source, model, meta, overrides)
+    return trk, ctl, f"{what}, from {policy}"
+
+
+def policy_tracker(
+    source: Any, model: Any, meta: dict[str, Any], overrides: dict[str, Any] | None = None
+) -> tuple[Any, Any, str]:
+    """``(observed tracker, source under the policy, description)`` for a loaded policy.
+
+    ``model, meta`` come from :func:`load_policy` (load once, track many sequences). The
+    tracker starts from the space's default action; the policy sets its parameters every
+    ``k_frames`` frames (deterministically), as in training.
+    """
+    from envs.tracker_tuning import PolicyControlled, make_observed_tracker
+    from tracker.registry import get
+
     kwargs = meta.get("env_kwargs", {})
     name = kwargs.get("tracker", "bqp")
-    base = get(name).make_params(**overrides)
+    base = get(name).make_params(**dict(overrides or {}))
     space = ParamSpace(extended=bool(kwargs.get("extended", False)), base=base)
     trk = make_observed_tracker(name, space.to_params(space.default_action))
     k = int(kwargs.get("k_frames", 25))
     ctl = PolicyControlled(source, trk, model, space, k_frames=k)
-    return trk, ctl, f"{name} with the {meta['algo'].upper()} policy of {policy} (every {k} frames)"
+    return trk, ctl, f"{name} with the {meta['algo'].upper()} policy (every {k} frames)"

@@ -10,8 +10,9 @@ study lives in ``DIR/study.db`` (SQLite) unless ``--study`` names a shared one (
 ``postgresql://`` URL or a journal file, for several machines); rerunning the same command
 resumes it: ``--trials`` is the total of finished trials wanted. Writes ``DIR/best_params.json``
 (for ``crowdsim track --params``), ``DIR/history.png``, ``DIR/importance.png`` and
-``DIR/heldout.json``: the best parameters against the paper defaults on held-out sequences
-(other seeds than the tuning ones). See :mod:`envs.tuners`.
+``DIR/heldout.json`` / ``.md`` / ``.png``: the best parameters against the paper defaults on
+``--heldout`` held-out seeds per sequence or scenario family (never tuned on; ``crowdsim
+heldout`` scores a trained policy beside them). See :mod:`envs.tuners`.
 """
 
 from __future__ import annotations
@@ -81,7 +82,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=int,
         default=3,
         metavar="N",
-        help="held-out sequences to score best vs defaults on (0: skip)",
+        help="held-out seeds per sequence or scenario family to score the best parameters "
+        "against the defaults on (default 3; 0: skip; see crowdsim heldout)",
     )
     p.add_argument(
         "--threshold",
@@ -143,15 +145,11 @@ def run(args: argparse.Namespace) -> int:
         f"(paper defaults {default})"
     )
     print("best: " + ", ".join(f"{k}={v:.4g}" for k, v in res.best_params.items()))
-    summ = res.heldout.get("summary", {})
-    if summ:
-        print(f"held-out ({len(res.heldout['sequences'])} sequences, mean +- std):")
-        keys = [k for k in ("acc@5", "acc@15", "hota") if k in summ.get("defaults", {})]
-        print(f"{'':10}" + "".join(f"{k:>18}" for k in keys))
-        for label in ("defaults", "tuned"):
-            cells = "".join(
-                f"{summ[label][k]['mean']:>11.2f} +- {summ[label][k]['std']:<4.1f}" for k in keys
-            )
-            print(f"{label:10}{cells}")
+    if res.heldout:
+        from envs.heldout import heldout_table
+
+        n = len(res.heldout["sequences"])
+        print(f"held-out ({n} sequences, {args.heldout} per family, mean ± std):")
+        print(heldout_table(res.heldout), end="")
     print(f"-> {res.files['best_params']}")
     return 0

@@ -1,0 +1,169 @@
+"""``crowdsim heldout``: score the paper defaults, tuned parameters and policies on held-out
+sequences.
+
+``crowdsim heldout (--suite NAME | --scenarios DIST) [--only SEQ ...] [--frames N] [--seeds S]
+[--params [LABEL=]FILE ...] [--policy [LABEL=]FILE ...] --out DIR``
+
+Draws ``--seeds`` held-out sequences per family (each ``--only`` sequence of a built-in suite
+re-seeded, or each scenario family of a distribution) from seed streams that ``crowdsim tune``
+and ``crowdsim train`` never use, and tracks every one with the BQP tracker's paper defaults,
+with each ``best_params.json`` of ``crowdsim tune`` and with each ``model.zip`` of ``crowdsim
+train`` (the policy sets the parameters every K frames). Writes ``DIR/heldout.json`` (every
+sequence's acc@5, acc@15, HOTA, MOTA, IDF1; mean and std per family and overall),
+``DIR/heldout.md`` (the table it prints) and ``DIR/heldout.png``. See :mod:`envs.heldout`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "heldout",
+        help="score defaults, tuned parameters and policies on held-out sequences",
+        description=__doc__.split("\n\n")[0].replace("``", "").replace("\n", " "),
+    )
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument(
+        "--suite",
+        metavar="NAME",
+        help="built-in suite (ucf9, galleria) or a folder of MOT sequences",
+    )
+    src.add_argument(
+        "--scenarios",
+        metavar="DIST",
+        help="scenario distribution: 'all', a comma list (marathon,crossing) or a "
+        "JSON/TOML file of ScenarioDistribution fields",
+    )
+    p.add_argument("--only", nargs="+", metavar="SEQ", help="with a built-in suite: these")
+    p.add_argument(
+        "--heldout-only",
+        nargs="+",
+        metavar="SEQ",
+        help="with a suite folder: score on these (a folder cannot be re-seeded)",
+    )
+    p.add_argument("--frames", type=int, metavar="N", help="frames per sequence")
+    p.add_argument(
+        "--seeds",
+        type=int,
+        default=5,
+        metavar="S",
+        help="held-out sequences per family (default 5)",
+    )
+    p.add_argument(
+        "--params",
+        nargs="+",
+        default=[],
+        metavar="[LABEL=]FILE",
+        help="best_params.json of crowdsim tune (label default: tuned)",
+    )
+    p.add_argument(
+        "--policy",
+        nargs="+",
+        default=[],
+        metavar="[LABEL=]FILE",
+        help="model.zip of crowdsim train (label default: policy)",
+    )
+    p.add_argument(
+        "--no-defaults", action="store_true", help="leave the paper defaults out of the table"
+    )
+    p.add_argument("--tracker", default="bqp", help="BQP variant from the tracker registry")
+    p.add_argument(
+        "--metrics",
+        choices=("full", "accuracy"),
+        default="full",
+        help="full: acc@5/15, HOTA, MOTA, IDF1 (default); accuracy: acc@5/15 only (fast)",
+    )
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    p.set_defaults(func=run)
+
+
+def _labelled(items: list[str], default: str, flag: str) -> dict[str, str]:
+    """``[LABEL=]FILE`` arguments -> ``{label: file}`` (``default``, ``default-2``, ...)."""
+    out: dict[str, str] = {}
+    for k, item in enumerate(items):
+        label, sep, path = item.partition("=")
+        if not sep:
+            label, path = (default if k == 0 else f"{default}-{k + 1}"), item
+        if not label or not path:
+            raise ValueError(f"{flag}: expected [LABEL=]FILE, got {item!r}")
+        if label in out:
+            raise ValueError(f"{flag}: label {label!r} given twice")
+        out[label] = path
+    return out
+
+
+def _check_out(out: Path) -> None:
+    """Refuse a ``heldout.json`` in ``out`` that this command did not write."""
+    prev = out / "heldout.json"
+    if not prev.exists():
+        return
+    try:
+        doc = json.loads(prev.read_text())
+        ours = isinstance(doc, dict) and "seeds_per_family" in doc and "families" in doc
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        ours = False
+    if not ours:
+        raise ValueError(
+            f"--out: {prev} exists and is not a crowdsim heldout result; "
+            "refusing to replace it (choose another folder)"
+        )
+
+
+def run(args: argparse.Namespace) -> int:
+    from envs.heldout import evaluate_heldout, heldout_table, write_heldout
+    from envs.tuners import Objective, load_params
+
+    if args.only and not args.suite:
+        raise ValueError("--only needs --suite (name scenarios in --scenarios)")
+    if args.frames is not None and args.frames < 2:
+        raise ValueError(f"--frames must be >= 2, got {args.frames}")
+    if args.seeds < 1:
+        raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
+    objective = Objective(
+        suite=args.suite,
+        scenarios=args.scenarios,
+        only=args.only or (),
+        heldout_only=args.heldout_only or (),
+        frames=args.frames,
+        tracker=args.tracker,
+    )
+    param_sets = {}
+    if not args.no_defaults:
+        param_sets["defaults"] = objective.space().base
+    for label, path in _labelled(args.params, "tuned", "--params").items():
+        name, params = load_params(path)
+        if name != args.tracker:
+            raise ValueError(
+                f"--params {path}: parameters of the {name!r} tracker, but --tracker is "
+                f"{args.tracker!r} (add --tracker {name})"
+            )
+        param_sets[label] = params
+    policies = _labelled(args.policy, "policy", "--policy")
+    clash = set(param_sets) & set(policies)
+    if clash:
+        raise ValueError(f"--policy: label {sorted(clash)[0]!r} is also a --params label")
+    if not param_sets and not policies:
+        raise ValueError("nothing to score: give --params or --policy (or drop --no-defaults)")
+    out = Path(args.out)
+    _check_out(out)
+    objective.episodes(heldout=True)  # validate suite / scenarios / --only before any work
+    result = evaluate_heldout(
+        objective,
+        param_sets,
+        args.seeds,
+        policies=policies,
+        metrics=args.metrics,
+        progress=not args.no_progress,
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    files = write_heldout(result, out)
+    n = len(result["sequences"])
+    print(f"{n} held-out sequences ({args.seeds} per family), mean ± std:")
+    print(heldout_table(result), end="")
+    print(f"-> {files['heldout']}, {files['heldout_table']}, {files['heldout_plot']}")
+    return 0

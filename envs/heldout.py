@@ -1,0 +1,262 @@
+"""Held-out scoring: static parameter sets and adaptive policies on sequences never tuned on.
+
+What the tuning evidence rests on. :func:`heldout_episodes` draws ``seeds`` held-out sequences
+**per family** (a built-in suite's sequence re-seeded ``seeds`` times, or a scenario
+distribution's episodes until every scenario family has ``seeds``) from seed streams disjoint
+from the tuning stream. :func:`evaluate_heldout` tracks each with every parameter set (the
+paper defaults, a ``best_params.json``) and every policy (a ``model.zip`` of ``crowdsim
+train``) and reports acc@5, acc@15, HOTA, MOTA and IDF1 per sequence, per family and overall
+(mean and standard deviation). :func:`plot_heldout` draws the per-family means as a PNG and
+:func:`heldout_table` as Markdown.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+import numpy as np
+
+from crowdsim.checks import require_number
+from envs.episodes import make_episodes
+
+HELDOUT_SEED = 1
+"""First held-out stream (scenario distributions) or re-seed offset (built-in suites); tuning
+uses stream 0, held-out seed ``j`` uses ``HELDOUT_SEED + j``."""
+
+METRICS = ("acc@5", "acc@15", "hota", "mota", "idf1")
+"""Scores kept per sequence (``acc@T`` in % of points within T px; the rest TrackEval's)."""
+
+_MAX_DRAWS_PER_SEED = 40
+"""A scenario family that has not come up after ``40 * families * seeds`` draws is missing."""
+
+
+def heldout_episodes(
+    objective: Any, seeds: int, skipped: list[str] | None = None
+) -> Iterator[tuple[str, Any, Any]]:
+    """``(family, sequence, spec)`` of the held-out sequences of ``objective``, built lazily.
+
+    Built-in suite: each tuned sequence (``objective.only``, default all) re-seeded with
+    offsets ``HELDOUT_SEED .. HELDOUT_SEED + seeds - 1``; the family is the sequence's name.
+    Scenario distribution: episodes of stream ``HELDOUT_SEED`` until each scenario family has
+    ``seeds`` with someone to track (an episode whose camera sees nobody is passed over and
+    its name appended to ``skipped``). Suite folder: the ``objective.heldout_only`` sequences
+    once each (a folder cannot be re-seeded).
+    """
+    require_number("heldout", "seeds", seeds, lo=1, integer=True)
+    from synth_data.suites import SUITE_NAMES
+
+    if objective.suite is not None and str(objective.suite) not in SUITE_NAMES:
+        src = objective.episodes(heldout=True)
+        for i, name in enumerate(src.names()):
+            yield name, src.episode(i), src.spec(i)
+        return
+    if objective.suite is not None:
+        for j in range(seeds):
+            src = make_episodes(
+                suite=objective.suite,
+                only=objective.only or None,
+                frames=objective.frames,
+                seed=HELDOUT_SEED + j,
+            )
+            for i in range(len(src)):
+                yield src.spec(i).name, src.episode(i), src.spec(i)
+        return
+    src = objective.episodes(heldout=True)
+    families = tuple(src.dist.scenarios)
+    counts = dict.fromkeys(families, 0)
+    for i in range(_MAX_DRAWS_PER_SEED * len(families) * seeds):
+        spec = src.spec(i)
+        family = spec.scenario["name"]
+        if counts.get(family, seeds) >= seeds:
+            continue
+        seq = src.episode(i)
+        if len(seq.gt_points()[0]) == 0:
+            if skipped is not None:
+                skipped.append(spec.name)
+            continue
+        counts[family] += 1
+        yield family, seq, spec
+        if all(c >= seeds for c in counts.values()):
+            return
+    missing = [f for f, c in counts.items() if c < seeds]
+    raise ValueError(
+        f"held-out: scenario families {missing} gave fewer than {seeds} sequences with "
+        "someone in view (more agents or a higher density would help)"
+    )
+
+
+def heldout_count(objective: Any, seeds: int) -> int:
+    """How many sequences :func:`heldout_episodes` yields (without building any)."""
+    from synth_data.suites import SUITE_NAMES
+
+    if objective.suite is None:
+        return len(objective.episodes(heldout=True).dist.scenarios) * seeds
+    if str(objective.suite) not in SUITE_NAMES:
+        return len(objective.episodes(heldout=True))
+    return len(make_episodes(suite=objective.suite, only=objective.only or None)) * seeds
+
+
+def _policy_runner(policy: Any) -> Any:
+    """``source -> (tracker, controlled source)`` for a ``model.zip`` path (loaded once) or a
+    loaded ``(model, meta)`` pair."""
+    from envs.tuners import load_policy, policy_tracker
+
+    model, meta = policy if isinstance(policy, tuple) else load_policy(policy)
+
+    def make(source: Any) -> tuple[Any, Any]:
+        trk, ctl, _ = policy_tracker(source, model, meta)
+        return trk, ctl
+
+    return make
+
+
+def _stats(values: list[float]) -> dict[str, float]:
+    return {"mean": float(np.mean(values)), "std": float(np.std(values)), "n": len(values)}
+
+
+def evaluate_heldout(
+    objective: Any,
+    param_sets: Mapping[str, Any],
+    seeds: int,
+    policies: Mapping[str, Any] | None = None,
+    metrics: str = "full",
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Score parameter sets and policies on held-out sequences (never seen while tuning).
+
+    Parameters
+    ----------
+    objective : envs.tuners.Objective
+        Where the sequences come from (its tracker, frames and threshold too).
+    param_sets : mapping
+        ``label -> params`` of ``objective.tracker`` (e.g. ``{"defaults": ..., "tuned": ...}``).
+    seeds : int
+        Held-out sequences per family (see :func:`heldout_episodes`).
+    policies : mapping, optional
+        ``label -> model.zip`` of ``crowdsim train`` (or a ``(model, meta)`` pair of
+        :func:`envs.tuners.load_policy`): the policy sets the parameters every ``k_frames``
+        frames, deterministically, as ``crowdsim track --policy`` does.
+    metrics : {"full", "accuracy"}
+        ``"accuracy"`` keeps acc@5 / acc@15 only (fast).
+
+    Returns
+    -------
+    dict
+        ``{"sequences": [{"family", "name", "seed", "description", label: {metric: value}}],
+        "families": {family: {label: {metric: {"mean", "std", "n"}}}},
+        "summary": {label: {metric: {"mean", "std", "n"}}}, "labels", "seeds_per_family",
+        "threshold_px"}``; the spread is the standard deviation over sequences.
+    """
+    from crowdsim.progress import progress_bar
+    from tracker.runner import run_tracker
+
+    runners = {label: _policy_runner(pol) for label, pol in (policies or {}).items()}
+    labels = [*param_sets, *runners]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"held-out: labels must be distinct, got {labels}")
+    rows: list[dict[str, Any]] = []
+    skipped: list[str] = []
+    episodes = progress_bar(
+        heldout_episodes(objective, seeds, skipped),
+        total=heldout_count(objective, seeds),
+        desc="held-out",
+        unit="seq",
+        enabled=progress,
+    )
+    for family, seq, spec in episodes:
+        row: dict[str, Any] = {
+            "family": family,
+            "name": getattr(seq, "name", family),
+            "seed": getattr(spec, "seed", None),
+            "description": getattr(spec, "description", "") or "",
+        }
+        for label, params in param_sets.items():
+            run = run_tracker(objective.tracker, seq, params=params, metrics=metrics)
+            row[label] = {k: float(run.report[k]) for k in METRICS if k in run.report}
+        for label, make in runners.items():
+            trk, ctl = make(seq)
+            run = run_tracker(trk, ctl, metrics=metrics)
+            row[label] = {k: float(run.report[k]) for k in METRICS if k in run.report}
+        rows.append(row)
+    families: dict[str, dict[str, Any]] = {}
+    for fam in dict.fromkeys(r["family"] for r in rows):
+        mine = [r for r in rows if r["family"] == fam]
+        families[fam] = {
+            label: {k: _stats([r[label][k] for r in mine]) for k in METRICS if k in mine[0][label]}
+            for label in labels
+        }
+    summary = {
+        label: {k: _stats([r[label][k] for r in rows]) for k in METRICS if k in rows[0][label]}
+        for label in labels
+    }
+    return {
+        "labels": labels,
+        "seeds_per_family": int(seeds),
+        "threshold_px": objective.threshold_px,
+        "sequences": rows,
+        "skipped_empty": skipped,
+        "families": families,
+        "summary": summary,
+    }
+
+
+def heldout_table(
+    result: Mapping[str, Any], keys: tuple[str, ...] = ("acc@5", "acc@15", "hota")
+) -> str:
+    """Markdown: one row per family and label, then the overall rows (mean +- std)."""
+    labels = result["labels"]
+    keys = tuple(k for k in keys if k in result["summary"][labels[0]])
+    head = "| family | n | " + " | ".join(["method", *keys]) + " |"
+    lines = [head, "|" + "---|" * (3 + len(keys))]
+
+    def cells(block: Mapping[str, Any]) -> str:
+        return " | ".join(f"{block[k]['mean']:.1f} ± {block[k]['std']:.1f}" for k in keys)
+
+    for fam, by_label in [*result["families"].items(), ("all", result["summary"])]:
+        for label in labels:
+            n = by_label[label][keys[0]]["n"]
+            lines.append(f"| {fam} | {n} | {label} | {cells(by_label[label])} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_heldout(result: Mapping[str, Any], path: Any, key: str = "acc@5") -> Any:
+    """Per-family mean of ``key`` for every label, with the spread as error bars, PNG."""
+    from crowdsim.plotting import new_figure, save_figure
+
+    labels = result["labels"]
+    fams = [*result["families"], "all"]
+    blocks = [*result["families"].values(), result["summary"]]
+    width = 0.8 / max(len(labels), 1)
+    fig, ax = new_figure(figsize=(max(5.0, 1.1 * len(fams) + 2), 3.8))
+    x = np.arange(len(fams))
+    for j, label in enumerate(labels):
+        mean = [b[label][key]["mean"] for b in blocks]
+        std = [b[label][key]["std"] for b in blocks]
+        ax.bar(
+            x + (j - (len(labels) - 1) / 2) * width, mean, width, yerr=std, capsize=2, label=label
+        )
+    ax.set_xticks(x, fams)
+    ax.set_ylabel(f"{key} (%)")
+    n = result["seeds_per_family"]
+    ax.set_title(f"held-out sequences ({n} seeds per family; bars: mean, whiskers: std)")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(loc="lower right", fontsize=8)
+    return save_figure(fig, path, dpi=110)
+
+
+def write_heldout(result: Mapping[str, Any], out: Any) -> dict[str, str]:
+    """Write ``heldout.json``, ``heldout.md`` (:func:`heldout_table`) and ``heldout.png``
+    (:func:`plot_heldout`) into ``out``, each atomically; ``{kind: path}``."""
+    import json
+    from pathlib import Path
+
+    from crowdsim.atomic import write_text_atomic
+
+    out = Path(out)
+    files = {
+        "heldout": write_text_atomic(out / "heldout.json", json.dumps(result, indent=2) + "\n"),
+        "heldout_table": write_text_atomic(out / "heldout.md", heldout_table(result)),
+        "heldout_plot": plot_heldout(result, out / "heldout.png"),
+    }
+    return {k: str(v) for k, v in files.items()}

@@ -1,0 +1,148 @@
+"""Held-out scoring: seeds per family from streams never tuned on, exact scores against the
+runner, policies beside static parameters, and the ``crowdsim heldout`` command."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from crowdsim.cli import main
+from envs.heldout import evaluate_heldout, heldout_count, heldout_episodes, heldout_table
+from envs.param_space import ParamSpace
+from envs.tuners import Objective
+from synth_data.suites import suite_specs
+from tracker.runner import run_tracker
+
+TINY = {
+    "scenarios": ["counterflow", "crossing"],
+    "agents": [6, 8],
+    "frames": 10,
+    "warmup_steps": 4,
+    "template_px": [10],
+    "max_width": 160,
+    "max_height": 120,
+}
+
+
+def objective(**kw):
+    return Objective(scenarios=dict(TINY), train_episodes=2, **kw)
+
+
+class ConstantPolicy:
+    """A stand-in for a stable-baselines3 model: always the same action."""
+
+    def __init__(self, action):
+        self.action = np.asarray(action, np.float32)
+
+    def predict(self, obs, deterministic=True):
+        return self.action, None
+
+
+def policy(action, k_frames=4):
+    return ConstantPolicy(action), {"algo": "ppo", "env_kwargs": {"k_frames": k_frames}}
+
+
+def test_scenario_families_get_their_seeds_from_a_stream_never_tuned_on():
+    obj = objective()
+    skipped = []
+    drawn = list(heldout_episodes(obj, 3, skipped))
+    fams = [f for f, _, _ in drawn]
+    assert sorted(fams) == ["counterflow"] * 3 + ["crossing"] * 3
+    assert all(len(seq.gt_points()[0]) > 0 for _, seq, _ in drawn)
+    assert skipped  # 6-8 people crossing a small frame: some episodes see nobody
+    specs = [spec for _, _, spec in drawn]
+    assert all(s.scenario["name"] == f for s, f in zip(specs, fams, strict=True))
+    tuning = obj.episodes()
+    tuned_seeds = {tuning.spec(i).seed for i in range(200)}
+    assert not tuned_seeds & {s.seed for s in specs}
+    assert len({s.seed for s in specs}) == 6
+    again = [(f, spec) for f, _, spec in heldout_episodes(obj, 3)]
+    assert again == list(zip(fams, specs, strict=True))  # deterministic
+
+
+def test_builtin_suite_sequences_are_reseeded_per_held_out_seed():
+    obj = Objective(suite="ucf9", only=("seq8", "seq2"), frames=3)
+    assert heldout_count(obj, 2) == 4
+    drawn = [(f, spec) for f, _, spec in heldout_episodes(obj, 2)]
+    orig = {s.name: s.seed for s in suite_specs("ucf9", ["seq2", "seq8"])}
+    assert sorted(f for f, _ in drawn) == ["seq2", "seq2", "seq8", "seq8"]
+    for fam, spec in drawn:
+        assert spec.name == fam and spec.frames == 3
+        assert spec.seed - orig[fam] in (1, 2)  # tuning uses offset 0
+    assert len({(f, s.seed) for f, s in drawn}) == 4
+
+
+def test_scores_equal_the_runner_and_a_default_action_policy_equals_the_defaults():
+    obj = objective()
+    base = obj.space().base
+    space = ParamSpace(base=base)
+    other = space.to_params(np.array([0.8, -0.8, 0.5, -0.5, 0.9]))
+    res = evaluate_heldout(
+        obj,
+        {"defaults": base, "other": other},
+        2,
+        policies={"zero": policy(np.zeros(5)), "far": policy([0.8, -0.8, 0.5, -0.5, 0.9], 100)},
+        metrics="accuracy",
+    )
+    assert res["labels"] == ["defaults", "other", "zero", "far"]
+    assert len(res["sequences"]) == 4 and res["seeds_per_family"] == 2
+    for (fam, seq, spec), row in zip(heldout_episodes(obj, 2), res["sequences"], strict=True):
+        assert row["family"] == fam and row["seed"] == spec.seed
+        direct = run_tracker("bqp", seq, params=base, metrics="accuracy").report
+        assert row["defaults"]["acc@5"] == direct["acc@5"]
+        assert row["zero"] == row["defaults"]  # action 0 is the paper defaults
+        # a policy acting once per 100 frames sets its parameters before frame 1: as static
+        assert row["far"] == row["other"]
+    assert any(r["other"] != r["defaults"] for r in res["sequences"])
+    for fam, block in res["families"].items():
+        vals = [r["other"]["acc@15"] for r in res["sequences"] if r["family"] == fam]
+        assert block["other"]["acc@15"] == {
+            "mean": pytest.approx(np.mean(vals)),
+            "std": pytest.approx(np.std(vals)),
+            "n": 2,
+        }
+    table = heldout_table(res)
+    assert table.count("\n") == 2 + 3 * 4  # header, rule, (2 families + all) x 4 labels
+    assert "| all | 4 | far |" in table
+
+
+def test_heldout_command_scores_a_params_file_and_refuses_bad_input(tmp_path, capsys):
+    params = tmp_path / "best_params.json"
+    params.write_text(json.dumps({"tracker": "bqp", "params": {"zeta": 0.5, "eta": 0.1}}))
+    scen = tmp_path / "dist.json"
+    scen.write_text(json.dumps(TINY))
+    out = tmp_path / "h"
+    base = ["heldout", "--scenarios", str(scen), "--seeds", "1", "--no-progress"]
+    argv = [*base, "--params", f"mine={params}", "--metrics", "accuracy", "--out", str(out)]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "2 held-out sequences (1 per family)" in printed and "| all | 2 | mine |" in printed
+    doc = json.loads((out / "heldout.json").read_text())
+    assert doc["labels"] == ["defaults", "mine"] and set(doc["families"]) == {
+        "counterflow",
+        "crossing",
+    }
+    assert (out / "heldout.png").stat().st_size > 0 and (out / "heldout.md").is_file()
+    assert main(argv) == 0  # its own result is replaced
+
+    def refused(extra, needle):
+        assert main([*base, *extra]) == 2
+        err = capsys.readouterr().err
+        assert needle in err and "Traceback" not in err, err
+
+    refused(["--no-defaults", "--out", str(out)], "nothing to score")
+    refused(["--seeds", "0", "--out", str(out)], "--seeds must be >= 1, got 0")
+    refused(["--params", "a=", "--out", str(out)], "expected [LABEL=]FILE, got 'a='")
+    refused(["--params", f"x={params}", f"x={params}", "--out", str(out)], "label 'x' given twice")
+    refused(["--params", str(params), "--policy", "tuned=m.zip", "--out", str(out)], "also a")
+    ncc = tmp_path / "ncc.json"
+    ncc.write_text(json.dumps({"tracker": "ncc", "params": {}}))
+    refused(["--params", str(ncc), "--out", str(out)], "parameters of the 'ncc' tracker")
+    refused(["--policy", str(tmp_path / "none.zip"), "--out", str(out)], "none.zip")
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "heldout.json").write_text('{"my": "notes"}')
+    refused(["--out", str(theirs)], "is not a crowdsim heldout result")
+    assert (theirs / "heldout.json").read_text() == '{"my": "notes"}'
