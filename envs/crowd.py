@@ -652,5 +652,9 @@ def train_shared_policy(
         **dict(ppo_kwargs or {}),
     }
     model = PPO("MlpPolicy", venv, **options)
+    if not options["verbose"]:
+        from stable_baselines3.common.logger import Logger
+
+        model.set_logger(Logger(None, []))  # else SB3 leaves an empty /tmp/SB3-<time> folder
     model.learn(total_timesteps=int(total_timesteps), callback=RewardCurve())
     return model, curve

@@ -893,6 +893,9 @@ def train(
             verbose=0,
             device="cpu",
         )
+    from stable_baselines3.common.logger import Logger
+
+    model.set_logger(Logger(None, []))  # else SB3 leaves an empty /tmp/SB3-<time> folder
     t0 = time.perf_counter()
     try:
         model.learn(total_timesteps=steps, callback=Curve())

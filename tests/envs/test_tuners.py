@@ -9,7 +9,9 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import pytest
 
@@ -239,6 +241,7 @@ def test_train_ppo_saves_a_policy_that_tracks(tmp_path):
     from envs.tuners import train
     from tracker.runner import run_tracker
 
+    sb3_dirs = set(Path(tempfile.gettempdir()).glob("SB3-*"))
     doc = train(
         "ppo",
         out=tmp_path,
@@ -251,6 +254,7 @@ def test_train_ppo_saves_a_policy_that_tracks(tmp_path):
     assert len(doc["episodes"]) >= 3  # 3 steps per 12-frame episode
     assert all(0 <= e["reward_per_step"] <= 100 for e in doc["episodes"])
     assert (tmp_path / "learning_curve.png").stat().st_size > 0
+    assert set(Path(tempfile.gettempdir()).glob("SB3-*")) == sb3_dirs  # no logger litter
     model, meta = load_policy(tmp_path / "model.zip")
     assert meta["algo"] == "ppo" and meta["env_kwargs"]["k_frames"] == 5
     d = ScenarioDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in TINY.items()})
