@@ -145,8 +145,12 @@ def evaluate_heldout(
     dict
         ``{"sequences": [{"family", "name", "seed", "description", label: {metric: value}}],
         "families": {family: {label: {metric: {"mean", "std", "n"}}}},
-        "summary": {label: {metric: {"mean", "std", "n"}}}, "labels", "seeds_per_family",
-        "threshold_px"}``; the spread is the standard deviation over sequences.
+        "summary": {label: {metric: {"mean", "std", "n"}}}, "paired": {label: {metric:
+        {"mean", "std", "better", "worse", "n"}}}, "reference", "labels", "seeds_per_family",
+        "threshold_px"}``; the spread is the standard deviation over sequences. ``paired``
+        holds each label's per-sequence difference to the first label (the ``reference``,
+        usually the defaults): its mean and spread, and on how many sequences it is better
+        or worse.
     """
     from crowdsim.progress import progress_bar
     from tracker.runner import run_tracker
@@ -190,8 +194,23 @@ def evaluate_heldout(
         label: {k: _stats([r[label][k] for r in rows]) for k in METRICS if k in rows[0][label]}
         for label in labels
     }
+    ref = labels[0]
+    paired = {}
+    for label in labels[1:]:
+        paired[label] = {}
+        for k in summary[ref]:
+            d = np.array([r[label][k] - r[ref][k] for r in rows])
+            paired[label][k] = {
+                "mean": float(d.mean()),
+                "std": float(d.std()),
+                "better": int((d > 0).sum()),
+                "worse": int((d < 0).sum()),
+                "n": len(d),
+            }
     return {
         "labels": labels,
+        "reference": ref,
+        "paired": paired,
         "seeds_per_family": int(seeds),
         "threshold_px": objective.threshold_px,
         "sequences": rows,
@@ -204,7 +223,8 @@ def evaluate_heldout(
 def heldout_table(
     result: Mapping[str, Any], keys: tuple[str, ...] = ("acc@5", "acc@15", "hota")
 ) -> str:
-    """Markdown: one row per family and label, then the overall rows (mean +- std)."""
+    """Markdown: one row per family and label, the overall rows (mean +- std), then each
+    label's paired difference to the reference (mean +- std over sequences, how many better)."""
     labels = result["labels"]
     keys = tuple(k for k in keys if k in result["summary"][labels[0]])
     head = "| family | n | " + " | ".join(["method", *keys]) + " |"
@@ -217,6 +237,13 @@ def heldout_table(
         for label in labels:
             n = by_label[label][keys[0]]["n"]
             lines.append(f"| {fam} | {n} | {label} | {cells(by_label[label])} |")
+    ref = result["reference"]
+    for label, diff in result["paired"].items():
+        d = [
+            f"{c['mean']:+.1f} ± {c['std']:.1f} ({c['better']}/{c['n']} better)"
+            for c in (diff[k] for k in keys)
+        ]
+        lines.append(f"| paired | {diff[keys[0]]['n']} | {label} − {ref} | " + " | ".join(d) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -103,9 +103,20 @@ def test_scores_equal_the_runner_and_a_default_action_policy_equals_the_defaults
             "std": pytest.approx(np.std(vals)),
             "n": 2,
         }
+    d = [r["other"]["acc@5"] - r["defaults"]["acc@5"] for r in res["sequences"]]
+    assert res["reference"] == "defaults" and set(res["paired"]) == {"other", "zero", "far"}
+    assert res["paired"]["other"]["acc@5"] == {
+        "mean": pytest.approx(np.mean(d)),
+        "std": pytest.approx(np.std(d)),
+        "better": sum(x > 0 for x in d),
+        "worse": sum(x < 0 for x in d),
+        "n": 4,
+    }
+    assert res["paired"]["zero"]["acc@5"]["mean"] == 0.0
     table = heldout_table(res)
-    assert table.count("\n") == 2 + 3 * 4  # header, rule, (2 families + all) x 4 labels
-    assert "| all | 4 | far |" in table
+    # header, rule, (2 families + all) x 4 labels, 3 paired rows
+    assert table.count("\n") == 2 + 3 * 4 + 3
+    assert "| all | 4 | far |" in table and "| paired | 4 | zero − defaults | +0.0 ± 0.0" in table
 
 
 def test_heldout_command_scores_a_params_file_and_refuses_bad_input(tmp_path, capsys):
