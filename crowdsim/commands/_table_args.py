@@ -2,7 +2,9 @@
 
 :func:`add_jobs_arguments`: ``--workers``, ``--backend``, ``--address`` of the jobs runner
 (:mod:`crowdsim.jobs`), for ``generate``, ``compare`` and ``ablation``;
-:func:`add_table_arguments`: everything ``compare`` and ``ablation`` take.
+:func:`add_table_arguments`: everything ``compare`` and ``ablation`` take;
+:func:`add_episode_arguments` / :func:`episode_objective`: the sequences ``tune`` and
+``heldout`` score on.
 """
 
 from __future__ import annotations
@@ -78,3 +80,45 @@ def run_table_command(args: argparse.Namespace, rows, title: str, paper_table: s
         file=sys.stderr,
     )
     return 0
+
+
+def add_episode_arguments(p: argparse.ArgumentParser, only_help: str) -> None:
+    """``--suite NAME | --scenarios DIST``, ``--only``, ``--heldout-only``, ``--frames``."""
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument(
+        "--suite",
+        metavar="NAME",
+        help="built-in suite (ucf9, galleria) or a folder of MOT sequences",
+    )
+    src.add_argument(
+        "--scenarios",
+        metavar="DIST",
+        help="scenario distribution: 'all', a comma list (marathon,crossing) or a "
+        "JSON/TOML file of ScenarioDistribution fields",
+    )
+    p.add_argument("--only", nargs="+", metavar="SEQ", help=only_help)
+    p.add_argument(
+        "--heldout-only",
+        nargs="+",
+        metavar="SEQ",
+        help="with a suite folder: score on these (built-in suites and scenarios use other seeds)",
+    )
+    p.add_argument("--frames", type=int, metavar="N", help="frames per sequence")
+
+
+def episode_objective(args: argparse.Namespace, **fields: object) -> object:
+    """The :class:`envs.tuners.Objective` of :func:`add_episode_arguments`' flags (checked)."""
+    from envs.tuners import Objective
+
+    if args.only and not args.suite:
+        raise ValueError("--only needs --suite (name scenarios in --scenarios)")
+    if args.frames is not None and args.frames < 2:
+        raise ValueError(f"--frames must be >= 2, got {args.frames}")
+    return Objective(
+        suite=args.suite,
+        scenarios=args.scenarios,
+        only=args.only or (),
+        heldout_only=args.heldout_only or (),
+        frames=args.frames,
+        **fields,
+    )

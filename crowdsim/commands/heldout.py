@@ -19,6 +19,8 @@ import argparse
 import json
 from pathlib import Path
 
+from crowdsim.commands._table_args import add_episode_arguments, episode_objective
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -26,26 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="score defaults, tuned parameters and policies on held-out sequences",
         description=__doc__.split("\n\n")[0].replace("``", "").replace("\n", " "),
     )
-    src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument(
-        "--suite",
-        metavar="NAME",
-        help="built-in suite (ucf9, galleria) or a folder of MOT sequences",
-    )
-    src.add_argument(
-        "--scenarios",
-        metavar="DIST",
-        help="scenario distribution: 'all', a comma list (marathon,crossing) or a "
-        "JSON/TOML file of ScenarioDistribution fields",
-    )
-    p.add_argument("--only", nargs="+", metavar="SEQ", help="with a built-in suite: these")
-    p.add_argument(
-        "--heldout-only",
-        nargs="+",
-        metavar="SEQ",
-        help="with a suite folder: score on these (a folder cannot be re-seeded)",
-    )
-    p.add_argument("--frames", type=int, metavar="N", help="frames per sequence")
+    add_episode_arguments(p, only_help="with a built-in suite: these")
     p.add_argument(
         "--seeds",
         type=int,
@@ -116,22 +99,11 @@ def _check_out(out: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from envs.heldout import evaluate_heldout, heldout_table, write_heldout
-    from envs.tuners import Objective, load_params
+    from envs.tuners import load_params
 
-    if args.only and not args.suite:
-        raise ValueError("--only needs --suite (name scenarios in --scenarios)")
-    if args.frames is not None and args.frames < 2:
-        raise ValueError(f"--frames must be >= 2, got {args.frames}")
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
-    objective = Objective(
-        suite=args.suite,
-        scenarios=args.scenarios,
-        only=args.only or (),
-        heldout_only=args.heldout_only or (),
-        frames=args.frames,
-        tracker=args.tracker,
-    )
+    objective = episode_objective(args, tracker=args.tracker)
     param_sets = {}
     if not args.no_defaults:
         param_sets["defaults"] = objective.space().base

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import argparse
 
+from crowdsim.commands._table_args import add_episode_arguments, episode_objective
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -26,26 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="tune the BQP tracker's parameters (Optuna / Ray Tune)",
         description=__doc__.splitlines()[0].replace("``", ""),
     )
-    src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument(
-        "--suite",
-        metavar="NAME",
-        help="built-in suite (ucf9, galleria) or a folder of MOT sequences",
-    )
-    src.add_argument(
-        "--scenarios",
-        metavar="DIST",
-        help="scenario distribution: 'all', a comma list (marathon,crossing) or a "
-        "JSON/TOML file of ScenarioDistribution fields",
-    )
-    p.add_argument("--only", nargs="+", metavar="SEQ", help="with --suite: tune on these")
-    p.add_argument(
-        "--heldout-only",
-        nargs="+",
-        metavar="SEQ",
-        help="with a suite folder: score on these (built-in suites and scenarios use other seeds)",
-    )
-    p.add_argument("--frames", type=int, metavar="N", help="frames per sequence")
+    add_episode_arguments(p, only_help="with --suite: tune on these")
     p.add_argument(
         "--trials",
         type=int,
@@ -105,20 +88,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from envs.tuners import Objective, tune
+    from envs.tuners import tune
 
-    if args.only and not args.suite:
-        raise ValueError("--only needs --suite (name scenarios in --scenarios)")
     if args.address and args.backend != "ray":
         raise ValueError(f"--address needs --backend ray, got --address {args.address!r}")
-    if args.frames is not None and args.frames < 2:
-        raise ValueError(f"--frames must be >= 2, got {args.frames}")
-    objective = Objective(
-        suite=args.suite,
-        scenarios=args.scenarios,
-        only=args.only or (),
-        heldout_only=args.heldout_only or (),
-        frames=args.frames,
+    objective = episode_objective(
+        args,
         train_episodes=args.train_episodes,
         threshold_px=args.threshold,
         extended=args.extended,
