@@ -16,7 +16,9 @@ Module map:
 * :mod:`envs.crowd` -- :class:`CrowdParallelEnv`, the PettingZoo crowd (one agent per
   pedestrian), its array API and the shared-policy recipe;
 * :mod:`envs.crowd_v0` -- the versioned face (``env``, ``parallel_env``, ``raw_env``);
-* :mod:`envs.tuners` -- Optuna / Ray Tune / stable-baselines3 drivers.
+* :mod:`envs.tuners` -- Optuna / Ray Tune drivers (static parameters);
+* :mod:`envs.training` -- stable-baselines3 training of adaptive policies, loading them;
+* :mod:`envs.heldout` -- defaults, tuned parameters and policies on held-out sequences.
 
 The names below are imported lazily (the crowd pulls in pymunk and numba, the tuning
 environments the tracker), so ``import envs`` only registers the ids.

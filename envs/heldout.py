@@ -100,7 +100,7 @@ def heldout_count(objective: Any, seeds: int) -> int:
 def _policy_runner(policy: Any) -> Any:
     """``source -> (tracker, controlled source)`` for a ``model.zip`` path (loaded once) or a
     loaded ``(model, meta)`` pair."""
-    from envs.tuners import load_policy, policy_tracker
+    from envs.training import load_policy, policy_tracker
 
     model, meta = policy if isinstance(policy, tuple) else load_policy(policy)
 
@@ -135,7 +135,7 @@ def evaluate_heldout(
         Held-out sequences per family (see :func:`heldout_episodes`).
     policies : mapping, optional
         ``label -> model.zip`` of ``crowdsim train`` (or a ``(model, meta)`` pair of
-        :func:`envs.tuners.load_policy`): the policy sets the parameters every ``k_frames``
+        :func:`envs.training.load_policy`): the policy sets the parameters every ``k_frames``
         frames, deterministically, as ``crowdsim track --policy`` does.
     metrics : {"full", "accuracy"}
         ``"accuracy"`` keeps acc@5 / acc@15 only (fast).

@@ -1,4 +1,4 @@
-"""Tuners of the BQP tracker's parameters: Optuna, Ray Tune and stable-baselines3 drivers.
+"""Tuners of the BQP tracker's static parameters: Optuna and Ray Tune drivers.
 
 * :func:`tune` -- black-box search of the static parameters on the bandit environment
   (``crowdsim/TrackerTuningBandit-v0``): Optuna (TPE or CMA-ES) with its study in SQLite by
@@ -6,26 +6,22 @@
   journal file serve several machines; ``backend="ray"`` runs Ray Tune with ``OptunaSearch``
   on a Ray cluster. Writes ``best_params.json``, the optimisation history and the parameter
   importances as PNGs, and scores the best parameters against the paper defaults on
-  **held-out** sequences (other seeds than the ones tuned on).
-* :func:`train` -- PPO or SAC (stable-baselines3) on ``crowdsim/TrackerTuning-v0`` over N
-  asynchronous environments; saves ``model.zip`` (with the environment's settings inside) and
-  a learning-curve PNG.
-* :func:`load_params` / :func:`load_policy` -- read those files back for ``crowdsim track``.
+  **held-out** sequences (other seeds than the ones tuned on; :mod:`envs.heldout`).
+* :func:`load_params` -- read ``best_params.json`` back for ``crowdsim track`` / ``heldout``.
+* :class:`Objective` -- the sequences a trial scores (shared with :mod:`envs.heldout`).
 
-Heavy stacks (optuna, ray, torch, stable-baselines3) are imported on use; a missing one raises
-:class:`DependencyNotInstalled` naming the extra to install.
+Adaptive policies (PPO / SAC) are trained in :mod:`envs.training`. Heavy stacks (optuna, ray)
+are imported on use; a missing one raises :class:`DependencyNotInstalled` naming the extra to
+install.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import os
 import sqlite3
 import sys
-import time
-import zipfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,7 +29,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from crowdsim.atomic import atomic_path, write_text_atomic
+from crowdsim.atomic import write_text_atomic
 from crowdsim.checks import require_choice, require_number
 from envs.episodes import EpisodeSource, make_episodes
 from envs.heldout import HELDOUT_SEED, evaluate_heldout, write_heldout
@@ -43,9 +39,6 @@ STUDY_FILE = "study.db"
 DEFAULT_STUDY_NAME = "crowdsim-tune"
 SAMPLERS: tuple[str, ...] = ("tpe", "cmaes")
 BACKENDS: tuple[str, ...] = ("local", "ray")
-ALGOS: tuple[str, ...] = ("ppo", "sac")
-POLICY_META = "crowdsim.json"
-"""Entry added to ``model.zip``: the algorithm and the environment settings it was trained on."""
 
 
 class DependencyNotInstalled(gym.error.DependencyNotInstalled, ValueError):
@@ -771,271 +764,3 @@ def load_params(path: str | os.PathLike[str]) -> tuple[str, Any]:
         return name, entry.make_params(**values)
     except TypeError as exc:
         raise ValueError(f"{p}: {exc}") from None
-
-
-# ---------------------------------------------------------------------------- RL training
-def _policy_meta(algo: str, env_kwargs: dict[str, Any], space: ParamSpace) -> dict[str, Any]:
-    from envs.tracker_tuning import ENV_ID, OBS_FIELDS
-
-    return {
-        "format": 1,
-        "env_id": ENV_ID,
-        "algo": algo,
-        "env_kwargs": env_kwargs,
-        "observation": [f[0] for f in OBS_FIELDS] + [f"param:{n}" for n in space.names],
-        "action": list(space.names),
-        "space": space.signature(),
-    }
-
-
-def train(
-    algo: str,
-    *,
-    out: str | os.PathLike[str],
-    n_envs: int = 1,
-    steps: int = 2048,
-    env_kwargs: dict[str, Any] | None = None,
-    seed: int = 0,
-    progress: bool = True,
-    log: Callable[[str], None] | None = None,
-) -> dict[str, Any]:
-    """Train PPO or SAC on ``TrackerTuning-v0`` over ``n_envs`` asynchronous envs.
-
-    Writes ``OUT/model.zip`` (stable-baselines3, with :data:`POLICY_META` inside),
-    ``OUT/learning_curve.png`` and ``OUT/learning_curve.json``: the mean step reward (accuracy
-    at T px, %) of every finished episode against the environment steps so far.
-    """
-    require_choice("", "--algo", algo, ALGOS)
-    require_number("train", "envs", n_envs, lo=1, integer=True)
-    require_number("train", "steps", steps, lo=1, integer=True)
-    require("torch", "rl", "crowdsim train")
-    sb3 = require("stable_baselines3", "rl", "crowdsim train")
-    from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
-
-    from envs.tracker_tuning import TrackerTuningEnv
-
-    log = log or (lambda msg: print(msg, file=sys.stderr))
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    env_kwargs = dict(env_kwargs or {})
-    probe = TrackerTuningEnv(**env_kwargs)
-    space = probe.space
-    probe.close()
-    vec = make_vec_env(
-        TrackerTuningEnv,
-        n_envs=n_envs,
-        seed=seed,
-        env_kwargs=env_kwargs,
-        vec_env_cls=SubprocVecEnv if n_envs > 1 else DummyVecEnv,
-        vec_env_kwargs={"start_method": "spawn"} if n_envs > 1 else None,
-    )
-    curve: list[dict[str, float]] = []
-
-    class Curve(BaseCallback):
-        def __init__(self) -> None:
-            super().__init__()
-            self.bar = None
-
-        def _on_training_start(self) -> None:
-            from crowdsim.progress import progress_bar
-
-            self.bar = progress_bar(
-                total=steps, desc=f"train {algo}", unit="step", enabled=progress, leave=True
-            )
-
-        def _on_step(self) -> bool:
-            for info in self.locals.get("infos", []):
-                ep = info.get("episode")
-                if ep is not None:
-                    curve.append(
-                        {
-                            "steps": int(self.num_timesteps),
-                            "reward_per_step": 100.0 * float(ep["r"]) / max(ep["l"], 1),
-                            "length": int(ep["l"]),
-                        }
-                    )
-            if self.bar is not None:
-                self.bar.update(self.num_timesteps - self.bar.n)
-                if curve:
-                    recent = [c["reward_per_step"] for c in curve[-10:]]
-                    self.bar.set_postfix(acc=f"{np.mean(recent):.1f}%")
-            return True
-
-        def _on_training_end(self) -> None:
-            if self.bar is not None:
-                self.bar.close()
-
-    if algo == "ppo":
-        n_steps = max(4, min(64, math.ceil(steps / n_envs / 4)))
-        model = sb3.PPO(
-            "MlpPolicy",
-            vec,
-            n_steps=n_steps,
-            batch_size=max(2, min(64, n_steps * n_envs)),
-            n_epochs=10,
-            learning_rate=3e-4,
-            gamma=0.9,
-            seed=seed,
-            verbose=0,
-            device="cpu",
-        )
-    else:
-        model = sb3.SAC(
-            "MlpPolicy",
-            vec,
-            learning_starts=min(100, max(1, steps // 4)),
-            batch_size=64,
-            gamma=0.9,
-            train_freq=1,
-            seed=seed,
-            verbose=0,
-            device="cpu",
-        )
-    from stable_baselines3.common.logger import Logger
-
-    model.set_logger(Logger(None, []))  # else SB3 leaves an empty /tmp/SB3-<time> folder
-    t0 = time.perf_counter()
-    try:
-        model.learn(total_timesteps=steps, callback=Curve())
-    finally:
-        vec.close()
-    wall = time.perf_counter() - t0
-    with atomic_path(out / "model.zip") as tmp:
-        model.save(tmp)
-        with zipfile.ZipFile(tmp, "a") as zf:
-            zf.writestr(POLICY_META, json.dumps(_policy_meta(algo, env_kwargs, space)))
-    doc = {
-        "algo": algo,
-        "envs": n_envs,
-        "steps": steps,
-        "wall_s": wall,
-        "steps_per_s": steps / wall if wall > 0 else None,
-        "episodes": curve,
-    }
-    write_text_atomic(out / "learning_curve.json", json.dumps(doc, indent=2) + "\n")
-    plot_learning_curve(
-        curve,
-        out / "learning_curve.png",
-        title=f"{algo.upper()} on TrackerTuning-v0, {n_envs} env(s)",
-    )
-    log(
-        f"{algo}: {steps} steps in {wall:.0f} s ({steps / max(wall, 1e-9):.2f} steps/s), "
-        f"{len(curve)} episodes -> {out / 'model.zip'}"
-    )
-    return doc
-
-
-def plot_learning_curve(curve: Sequence[dict[str, float]], path: Path, title: str = "") -> Path:
-    """Mean step reward (%) per finished episode and its running mean, PNG."""
-    from crowdsim.plotting import new_figure, save_figure
-
-    fig, ax = new_figure(figsize=(6, 3.8))
-    if curve:
-        x = np.array([c["steps"] for c in curve])
-        y = np.array([c["reward_per_step"] for c in curve])
-        ax.plot(x, y, "o", ms=3, alpha=0.5, label="episode")
-        k = max(1, len(y) // 10)
-        run = np.convolve(y, np.ones(k) / k, mode="valid")
-        ax.plot(x[k - 1 :], run, "-", color="C3", label=f"running mean ({k})")
-        ax.legend(loc="lower right")
-    else:
-        ax.text(0.5, 0.5, "no finished episode", ha="center", va="center")
-    ax.set_xlabel("environment steps")
-    ax.set_ylabel("mean step reward: accuracy at T px (%)")
-    ax.set_title(title or "learning curve")
-    ax.grid(alpha=0.3)
-    return save_figure(fig, path, dpi=110)
-
-
-def load_policy(path: str | os.PathLike[str]) -> tuple[Any, dict[str, Any]]:
-    """``(stable-baselines3 model, metadata)`` of a ``model.zip`` written by :func:`train`.
-
-    Refuses (``ValueError``) a file that is not such a zip, a policy trained on another
-    environment, or one whose spaces do not match ``TrackerTuning-v0``'s.
-    """
-    from envs.tracker_tuning import ENV_ID, OBS_FIELDS
-
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"{p}: no such policy file")
-    try:
-        with zipfile.ZipFile(p) as zf:
-            names = zf.namelist()
-            meta = json.loads(zf.read(POLICY_META)) if POLICY_META in names else None
-    except zipfile.BadZipFile:
-        raise ValueError(f"{p}: not a stable-baselines3 model (not a zip file)") from None
-    if meta is None or meta.get("env_id") != ENV_ID:
-        raise ValueError(
-            f"{p}: not a policy for {ENV_ID} (trained on "
-            f"{(meta or {}).get('env_id', 'another environment')}); train one "
-            "with crowdsim train"
-        )
-    sb3 = require("stable_baselines3", "rl", "--policy")
-    cls = {"ppo": sb3.PPO, "sac": sb3.SAC}.get(meta.get("algo"))
-    if cls is None:
-        raise ValueError(f"{p}: unknown algorithm {meta.get('algo')!r}")
-    model = cls.load(str(p), device="cpu")
-    space = ParamSpace(extended=bool(meta.get("env_kwargs", {}).get("extended", False)))
-    want_obs = (len(OBS_FIELDS) + space.dim,)
-    if model.observation_space.shape != want_obs or model.action_space.shape != (space.dim,):
-        raise ValueError(
-            f"{p}: the policy's spaces {model.observation_space.shape} -> "
-            f"{model.action_space.shape} do not match {ENV_ID} ({want_obs} -> "
-            f"({space.dim},))"
-        )
-    return model, meta
-
-
-# ---------------------------------------------------------------------------- tracking
-def tuned_tracker(
-    source: Any,
-    params: str | os.PathLike[str] | None = None,
-    policy: str | os.PathLike[str] | None = None,
-    overrides: dict[str, Any] | None = None,
-) -> tuple[Any, Any, str]:
-    """``(tracker, frame source, description)`` for ``crowdsim track --params | --policy``.
-
-    ``params``: a ``best_params.json`` -> the BQP tracker with those static parameters.
-    ``policy``: a ``model.zip`` from :func:`train` -> an observed BQP tracker and ``source``
-    wrapped in :class:`envs.tracker_tuning.PolicyControlled` (the policy sets the parameters
-    every ``k_frames`` frames, as in training). ``overrides`` (e.g. ``appearance``) go on top.
-    """
-    from dataclasses import replace
-
-    from tracker.registry import make_tracker
-
-    if (params is None) == (policy is None):
-        raise ValueError("give exactly one of --params and --policy")
-    overrides = dict(overrides or {})
-    if params is not None:
-        name, p = load_params(params)
-        if overrides:
-            p = replace(p, **overrides)
-        return make_tracker(name, p), source, f"{name} with the parameters of {params}"
-    model, meta = load_policy(policy)
-    trk, ctl, what = policy_tracker(source, model, meta, overrides)
-    return trk, ctl, f"{what}, from {policy}"
-
-
-def policy_tracker(
-    source: Any, model: Any, meta: dict[str, Any], overrides: dict[str, Any] | None = None
-) -> tuple[Any, Any, str]:
-    """``(observed tracker, source under the policy, description)`` for a loaded policy.
-
-    ``model, meta`` come from :func:`load_policy` (load once, track many sequences). The
-    tracker starts from the space's default action; the policy sets its parameters every
-    ``k_frames`` frames (deterministically), as in training.
-    """
-    from envs.tracker_tuning import PolicyControlled, make_observed_tracker
-    from tracker.registry import get
-
-    kwargs = meta.get("env_kwargs", {})
-    name = kwargs.get("tracker", "bqp")
-    base = get(name).make_params(**dict(overrides or {}))
-    space = ParamSpace(extended=bool(kwargs.get("extended", False)), base=base)
-    trk = make_observed_tracker(name, space.to_params(space.default_action))
-    k = int(kwargs.get("k_frames", 25))
-    ctl = PolicyControlled(source, trk, model, space, k_frames=k)
-    return trk, ctl, f"{name} with the {meta['algo'].upper()} policy (every {k} frames)"

@@ -143,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     tracker = make_tracker(name, **over)
     feed = src
     if args.params or args.policy:
-        from envs.tuners import tuned_tracker
+        from envs.training import tuned_tracker
 
         if not name.startswith("bqp"):
             raise ValueError(

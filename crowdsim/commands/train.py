@@ -61,7 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from envs.tuners import train
+    from envs.training import train
 
     if args.only and not args.suite:
         raise ValueError("--only needs --suite")

@@ -15,12 +15,12 @@ from pathlib import Path
 
 import pytest
 
+from envs.training import load_policy
 from envs.tuners import (
     DependencyNotInstalled,
     Objective,
     complete_trials,
     load_params,
-    load_policy,
     open_study,
     require,
     storage_url,
@@ -227,7 +227,7 @@ def test_missing_extras_name_the_install_line(monkeypatch, tmp_path):
     with pytest.raises(ValueError, match=r"pip install 'crowdsim\[distributed\]'"):
         tune(objective(), trials=1, out=tmp_path, backend="ray", heldout=0, progress=False)
     monkeypatch.setitem(sys.modules, "torch", None)  # as if torch were not installed
-    from envs.tuners import train
+    from envs.training import train
 
     with pytest.raises(ValueError, match=r"pip install 'crowdsim\[rl\]'"):
         train("ppo", out=tmp_path, steps=1)
@@ -238,7 +238,7 @@ def test_train_ppo_saves_a_policy_that_tracks(tmp_path):
     from envs.episodes import ScenarioDistribution, ScenarioEpisodes
     from envs.param_space import ParamSpace
     from envs.tracker_tuning import PolicyControlled, make_observed_tracker
-    from envs.tuners import train
+    from envs.training import train
     from tracker.runner import run_tracker
 
     sb3_dirs = set(Path(tempfile.gettempdir()).glob("SB3-*"))
