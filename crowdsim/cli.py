@@ -30,6 +30,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "crowdsim.commands.calibrate",
     "crowdsim.commands.compare",
     "crowdsim.commands.ablation",
+    "crowdsim.commands.difficulty",
     "crowdsim.commands.tune",
     "crowdsim.commands.train",
     "crowdsim.commands.heldout",

@@ -104,7 +104,7 @@ def run_cell(
     return out
 
 
-def _cell_key(seq: str, row: Row, frames: int | None) -> str:
+def cell_key(seq: str, row: Row, frames: int | None) -> str:
     """The manifest key of a cell: sequence, tracker, its complete parameters (a digest, so
     that a changed default is not mistaken for a finished cell) and the frame count."""
     import dataclasses
@@ -182,7 +182,7 @@ def run_table(
     )
     jobs = [
         Job(
-            _cell_key(s.name, r, frames),
+            cell_key(s.name, r, frames),
             run_cell,
             (str(seq_root / s.name), r.tracker, dict(r.overrides), frames),
             size=s.frames,
@@ -201,7 +201,7 @@ def run_table(
         unit="frame",
         section="cells",
     )
-    cells = {(s.name, r.label): results[_cell_key(s.name, r, frames)] for s in specs for r in rows}
+    cells = {(s.name, r.label): results[cell_key(s.name, r, frames)] for s in specs for r in rows}
     paper = paper_numbers(suite)
     names = [s.name for s in specs]
     text = format_table(rows, names, cells, paper, paper_table, title)
