@@ -6,7 +6,8 @@ Two sources, one face (:class:`EpisodeSource`):
   (:class:`ScenarioDistribution`): each episode draws a scenario (marathon, counterflow,
   crossing, ...), a crowd size, a density, a template size and the appearance difficulty knobs
   (contrast, noise, colour clusters), builds a :class:`synth_data.spec.SequenceSpec` and
-  simulates and renders it **in memory** (no disk);
+  simulates and renders it **in memory** (no disk), through the same video codec and JPEG
+  steps as ``crowdsim generate`` (:func:`synth_data.video.camera_output`);
 * :class:`SuiteEpisodes` -- the sequences of a **suite**: a built-in suite name
   (``ucf9``, ``galleria``: specs rendered in memory, optionally re-seeded) or a folder of MOT
   sequences written by ``crowdsim generate`` (each sub-folder one episode), ``only`` some of
@@ -95,10 +96,9 @@ class ScenarioDistribution:
         (small frames keep episodes fast).
     difficulty : (float, float)
         The calibration's difficulty scale (:func:`crowdsim.calibration.knob_values`: look-alike
-        heads, packed bodies, gait and head turns, clutter, camera noise, blur and shake),
-        uniform. The default spans the calibrated ucf9 suite (0.23 to 0.89: sequences on which
-        the NCC tracker scores the papers' 33-86 %). In-memory frames carry no video codec,
-        so the scale's H.264 part is left out.
+        heads, packed bodies, gait and head turns, clutter, camera noise, blur, shake, JPEG
+        and H.264 compression), uniform. The default spans the calibrated ucf9 suite (0.23 to
+        0.89: sequences on which the NCC tracker scores the papers' 33-86 %).
 
     The default appearance knobs are harder than the renderer's defaults (low contrast, strong
     noise, few colour clusters, the calibrated difficulty): on the renderer's defaults every
@@ -244,18 +244,20 @@ class ScenarioDistribution:
             return spec
         from crowdsim.calibration import apply_knobs, knob_values
 
-        knobs = knob_values(spec, d, d)
-        knobs.pop(("appearance", "video_kbps"))  # in-memory frames pass through no codec
-        return apply_knobs(spec, knobs)
+        return apply_knobs(spec, knob_values(spec, d, d))
 
 
 # ---------------------------------------------------------------------------- sequences
 def spec_sequence(spec: Any, cache_frames: bool = False) -> Any:
     """``spec`` simulated and rendered in memory (:class:`synth_data.sequence.InMemorySequence`;
-    frames drawn on demand, or all rendered now and kept with ``cache_frames``)."""
+    frames drawn on demand, or all rendered now and kept with ``cache_frames``).
+
+    The frames pass through the spec's video codec and JPEG steps in memory, so an episode
+    shows the tracker what ``crowdsim generate`` then ``crowdsim track`` would (the tuned
+    parameters meet the compression artefacts they will be scored on)."""
     from synth_data.sequence import InMemorySequence
 
-    seq = InMemorySequence.from_spec(spec)
+    seq = InMemorySequence.from_spec(spec, camera_output=True)
     return seq.materialize() if cache_frames else seq
 
 

@@ -30,7 +30,7 @@ import csv
 import itertools
 import math
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -283,6 +283,9 @@ class InMemorySequence:
         Ground-truth head centres in pixels, NaN where absent.
     init : Births, optional
         Explicit starting targets and births; default: from the ground truth.
+    output : callable, optional
+        ``output(frames) -> frames``, applied to the rendered stream (e.g.
+        :func:`synth_data.video.camera_output`: the codec and JPEG steps of ``generate``).
     """
 
     def __init__(
@@ -299,6 +302,7 @@ class InMemorySequence:
         ids: np.ndarray | None = None,
         points: np.ndarray | None = None,
         init: Births | None = None,
+        output: Callable[[Iterable[np.ndarray]], Iterator[np.ndarray]] | None = None,
     ) -> None:
         owner = f"InMemorySequence {name!r}"
         require_number(owner, "frame_rate", frame_rate, lo=0, lo_open=True)
@@ -332,6 +336,7 @@ class InMemorySequence:
         self._render = render
         self._ids, self._points = ids, points
         self._init = init
+        self._output = output
 
     def __repr__(self) -> str:
         kind = "frames" if self._frames is not None else "rendered"
@@ -342,8 +347,8 @@ class InMemorySequence:
 
     # -- constructors
     @classmethod
-    def from_scene(cls, scene: Any) -> InMemorySequence:
-        """Frames drawn on demand from a :class:`synth_data.scene.Scene`."""
+    def from_scene(cls, scene: Any, output: Callable | None = None) -> InMemorySequence:
+        """Frames drawn on demand from a :class:`synth_data.scene.Scene` (then ``output``)."""
         ids, points = scene.gt_points()
         return cls(
             name=scene.name,
@@ -355,23 +360,34 @@ class InMemorySequence:
             length=scene.length,
             ids=ids,
             points=points,
+            output=output,
         )
 
     @classmethod
-    def from_spec(cls, spec: Any, frames: int | None = None) -> InMemorySequence:
+    def from_spec(
+        cls, spec: Any, frames: int | None = None, camera_output: bool = False
+    ) -> InMemorySequence:
         """Simulate ``spec`` (truncated to ``frames`` like ``generate --frames``) and render
-        it on demand, without touching disk: the frames ``generate`` would encode as JPEG.
+        it on demand, without touching disk.
 
-        With ``appearance.video_kbps > 0``, ``generate`` first passes the frames through a
-        video codec (:mod:`synth_data.video`); these are the frames the codec receives,
-        without its artefacts. The ground truth equals ``read_sequence(...).gt_points()`` of
-        the generated folder (to the 3 decimals of ``gt.txt``).
+        ``camera_output=False``: the rendered frames, which ``generate`` then passes through
+        the video codec (``appearance.video_kbps > 0``) and JPEG. ``camera_output=True``:
+        those two steps too, in memory (:func:`synth_data.video.camera_output`), so the frames
+        are the ones a tracker reads from the generated folder. The ground truth equals
+        ``read_sequence(...).gt_points()`` of the generated folder (to the 3 decimals of
+        ``gt.txt``).
         """
+        from functools import partial
+
         from synth_data.scene import Scene
+        from synth_data.video import camera_output as camera
 
         if frames is not None:
             spec = spec.truncated(frames)
-        return cls.from_scene(Scene.from_spec(spec))
+        output = (
+            partial(camera, fps=spec.fps, appearance=spec.appearance) if camera_output else None
+        )
+        return cls.from_scene(Scene.from_spec(spec), output=output)
 
     @classmethod
     def from_source(cls, source: SequenceSource, max_frames: int | None = None) -> InMemorySequence:
@@ -392,8 +408,8 @@ class InMemorySequence:
 
     def materialize(self) -> InMemorySequence:
         """The same sequence with every frame rendered into a list (e.g. to time tracking
-        without rendering)."""
-        if self._frames is not None:
+        without rendering); the ``output`` step is applied once, here."""
+        if self._frames is not None and self._output is None:
             return self
         return InMemorySequence(
             name=self.name,
@@ -409,6 +425,12 @@ class InMemorySequence:
 
     # -- the SequenceSource face
     def frames(self) -> Iterator[np.ndarray]:
+        if self._output is not None:
+            yield from self._output(self._raw_frames())
+        else:
+            yield from self._raw_frames()
+
+    def _raw_frames(self) -> Iterator[np.ndarray]:
         if self._frames is not None:
             yield from self._frames
             return

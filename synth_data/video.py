@@ -12,8 +12,11 @@ takes no bit rate. Both codecs therefore go through PyAV (``pip install av``; it
 bundle FFmpeg with libx264): ``"h264"`` (libx264, preset ``veryfast``, constant bit rate
 target) and ``"mpeg4"`` (MPEG-4 part 2, the codec of OpenCV's ``mp4v``). OpenCV decodes both.
 Encoding is deterministic: libx264 and FFmpeg's mpeg4 encoder give the same bytes for the same
-frames and settings (x264 is deterministic for a fixed thread count, here one), and the MP4
-muxer is told to write bit-exact headers.
+frames and settings, and the MP4 muxer is told to write bit-exact headers. For libx264 that
+takes one thread and :data:`X264_PARAMS` (macroblock-tree rate control off): with it on, some
+frame sizes (the calibrated ucf9 seq9's 166x334, for one) gave different bits on every run --
+x264's SIMD code then reads memory it never initialised (the same run with ``asm=0`` is
+deterministic).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -32,6 +35,9 @@ X264_PRESET: str = "veryfast"
 """libx264 speed preset (surveillance encoders trade quality for speed the same way)."""
 GOP_SECONDS: float = 2.0
 """Key-frame interval, seconds."""
+X264_PARAMS: str = "mbtree=0"
+"""libx264 settings beyond the preset: no macroblock-tree rate control (see the module
+docstring: with it, the bits of some frame sizes vary from run to run)."""
 ENCODER_THREADS: int = 1
 """Encoder threads: x264's output depends on its thread count, so one thread keeps the bytes
 the same on every machine (checksums) at about 40 frames/s for 720p."""
@@ -65,8 +71,8 @@ class VideoEncoder:
 
     Parameters
     ----------
-    path : path
-        MP4 file to write (replaced).
+    path : path or binary file object
+        MP4 file to write (replaced), or a seekable stream such as ``io.BytesIO``.
     width, height : int
         Frame size; odd sizes are not supported by 4:2:0 video and raise ``ValueError``.
     fps : float
@@ -81,7 +87,7 @@ class VideoEncoder:
 
     def __init__(
         self,
-        path: str | os.PathLike[str],
+        path: str | os.PathLike[str] | BinaryIO,
         width: int,
         height: int,
         fps: float,
@@ -98,10 +104,9 @@ class VideoEncoder:
             raise ValueError(f"video frames need even sizes, got {width}x{height}")
         av = _require_av()
         self._av = av
-        self.path = Path(path)
-        self._container = av.open(
-            str(self.path), "w", format="mp4", options={"fflags": "+bitexact"}
-        )
+        self.path = path if hasattr(path, "write") else Path(path)
+        target = self.path if hasattr(path, "write") else str(self.path)
+        self._container = av.open(target, "w", format="mp4", options={"fflags": "+bitexact"})
         rate = Fraction(float(fps)).limit_denominator(1001)
         stream = self._container.add_stream(ENCODERS[codec], rate=rate)
         stream.width, stream.height = int(width), int(height)
@@ -111,7 +116,7 @@ class VideoEncoder:
         stream.codec_context.flags |= int(av.codec.context.Flags.bitexact)
         stream.codec_context.thread_count = ENCODER_THREADS
         if codec == "h264":
-            stream.options = {"preset": X264_PRESET}
+            stream.options = {"preset": X264_PRESET, "x264-params": X264_PARAMS}
         self._stream = stream
         self.frames = 0
 
@@ -165,13 +170,15 @@ def codec_round_trip(
 ) -> Iterator[np.ndarray]:
     """Yield every frame after encoding and decoding it through ``codec`` at ``kbps``, in memory.
 
-    For sources that never touch disk (``synth_data.scene``): the encoder settings of
-    :class:`VideoEncoder`. For ``"h264"`` the coded bits equal the ``video.mp4`` the writer
-    makes, and the frames equal OpenCV's decoding of it up to the YUV -> BGR conversion, which
-    now and then rounds a pixel differently by a grey level (tested); for ``"mpeg4"`` the
-    encoder's rate control runs
-    differently outside the MP4 muxer, so frames after the first differ at the same error
-    level. The encoder's look-ahead delays output; every input frame comes out, in order.
+    For sources that never touch disk: :class:`VideoEncoder` writes the MP4 into a
+    ``BytesIO`` (only the compressed stream is held, not the frames), which PyAV then decodes.
+    The coded bytes are the ``video.mp4`` the writer makes, byte for byte, and deterministic;
+    the frames equal OpenCV's decoding of it up to the YUV -> BGR conversion, which now and
+    then rounds a pixel differently by a grey level (tested). All frames are encoded before
+    the first comes out.
+
+    (A bare PyAV ``CodecContext`` is no substitute: opened outside a muxer, libx264's
+    macroblock-tree rate control gave different bits from run to run.)
 
     Parameters
     ----------
@@ -182,45 +189,51 @@ def codec_round_trip(
     codec : str
         ``"h264"`` or ``"mpeg4"``.
     """
-    from fractions import Fraction
+    import io
 
     if codec not in ENCODERS:
         raise ValueError(f"video_codec must be one of {tuple(ENCODERS)}, got {codec!r}")
     if not kbps > 0:
         raise ValueError(f"video_kbps must be > 0, got {kbps!r}")
     av = _require_av()
-    enc = dec = None
-    for i, frame in enumerate(frames):
-        if enc is None:
-            h, w = frame.shape[:2]
-            if w % 2 or h % 2:
-                raise ValueError(f"video frames need even sizes, got {w}x{h}")
-            rate = Fraction(float(fps)).limit_denominator(1001)
-            enc = av.CodecContext.create(ENCODERS[codec], "w")
-            enc.width, enc.height, enc.pix_fmt = w, h, "yuv420p"
-            enc.framerate = rate
-            enc.bit_rate = int(round(kbps * 1000))
-            enc.gop_size = max(1, int(round(GOP_SECONDS * fps)))
-            # The same flags as inside an MP4 stream (global header), so the bits match the file.
-            flags = av.codec.context.Flags
-            enc.flags |= int(flags.bitexact) | int(flags.global_header)
-            enc.thread_count = ENCODER_THREADS
-            if codec == "h264":
-                enc.options = {"preset": X264_PRESET}
-            dec = av.CodecContext.create("h264" if codec == "h264" else "mpeg4", "r")
-        vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="bgr24")
-        vf.pts = i
-        yield from _decode_packets(enc, dec, enc.encode(vf))
+    buf = io.BytesIO()
+    enc = None
+    try:
+        for frame in frames:
+            if enc is None:
+                h, w = frame.shape[:2]
+                enc = VideoEncoder(buf, w, h, fps, kbps, codec)
+            enc.write(frame)
+    finally:
+        if enc is not None:
+            enc.close()
     if enc is None:
         return
-    yield from _decode_packets(enc, dec, enc.encode(None))
-    for out in dec.decode(None):
-        yield out.to_ndarray(format="bgr24")
-
-
-def _decode_packets(enc: Any, dec: Any, packets: Iterable[Any]) -> Iterator[np.ndarray]:
-    for packet in packets:
-        if dec.extradata is None:  # the global header (SPS/PPS) goes first
-            dec.extradata = enc.extradata
-        for out in dec.decode(packet):
+    buf.seek(0)
+    with av.open(buf, "r", format="mp4") as container:
+        for out in container.decode(video=0):
             yield out.to_ndarray(format="bgr24")
+
+
+def camera_output(
+    frames: Iterable[np.ndarray], fps: float, appearance: Any
+) -> Iterator[np.ndarray]:
+    """The frames a tracker reads from ``generate``'s ``img1/`` JPEGs, made in memory.
+
+    ``generate`` passes rendered frames through the video codec when
+    ``appearance.video_kbps > 0`` (:class:`VideoEncoder`, decoded by OpenCV) and then encodes
+    them as JPEG at ``appearance.jpeg_quality``. This applies the same two steps to a frame
+    stream without touching disk: :func:`codec_round_trip`, then a JPEG encode and decode.
+    Without the codec the frames equal the JPEGs read back exactly; with it, up to the rare
+    grey-level rounding of :func:`codec_round_trip`'s YUV -> BGR conversion (tested).
+    """
+    import cv2
+
+    from crowdsim.render import encode_jpeg
+
+    if appearance.video_kbps > 0:
+        frames = codec_round_trip(frames, fps, appearance.video_kbps, appearance.video_codec)
+    quality = int(appearance.jpeg_quality)
+    for frame in frames:
+        data = np.frombuffer(encode_jpeg(frame, quality), np.uint8)
+        yield cv2.imdecode(data, cv2.IMREAD_COLOR)

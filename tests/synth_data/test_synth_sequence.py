@@ -133,6 +133,27 @@ def test_in_memory_frames_equal_generated_frames_before_jpeg(tmp_path, monkeypat
     assert InMemorySequence.from_spec(spec, frames=3).length == 3
 
 
+@pytest.mark.parametrize("kbps", [0.0, 300.0])
+def test_camera_output_gives_the_frames_a_tracker_reads_from_the_generated_folder(tmp_path, kbps):
+    from dataclasses import replace
+
+    spec = tiny(frames=8)
+    spec = replace(spec, appearance=replace(spec.appearance, jpeg_quality=60, video_kbps=kbps))
+    generate([spec], tmp_path / "out", progress=False, log=lambda m: None)
+    disk = np.stack(list(read_sequence(tmp_path / "out" / "tiny").frames()))
+    seq = InMemorySequence.from_spec(spec, camera_output=True)
+    mem = np.stack(list(seq.frames()))
+    raw = np.stack(list(InMemorySequence.from_spec(spec).frames()))
+    assert mem.shape == disk.shape == raw.shape
+    if kbps == 0:
+        np.testing.assert_array_equal(mem, disk)  # the same JPEG bytes, decoded alike
+    else:  # the codec's YUV -> BGR conversion may round a pixel differently before the JPEG
+        diff = np.abs(mem.astype(int) - disk)
+        assert diff.mean() < 0.2, diff.mean()
+    assert np.abs(mem.astype(float) - raw).mean() > 0.3  # the artefacts are there
+    np.testing.assert_array_equal(np.stack(list(seq.materialize().frames())), mem)
+
+
 def test_scene_frames_are_random_access_and_errors_name_the_index():
     scene = Scene.from_spec(tiny(frames=4))
     frames = list(scene.frames())
