@@ -211,7 +211,9 @@ def codec_round_trip(
         return
     buf.seek(0)
     with av.open(buf, "r", format="mp4") as container:
-        for out in container.decode(video=0):
+        stream = container.streams.video[0]
+        stream.codec_context.thread_count = ENCODER_THREADS  # one core per sequence
+        for out in container.decode(stream):
             yield out.to_ndarray(format="bgr24")
 
 
