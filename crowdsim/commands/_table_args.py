@@ -54,25 +54,29 @@ def add_table_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
 
 
-def run_table_command(args: argparse.Namespace, rows, title: str, paper_table: str) -> int:
-    from crowdsim.experiments import run_table
+def table_run_kwargs(args: argparse.Namespace) -> dict:
+    """Keyword arguments of :func:`crowdsim.experiments.run_table` (and of what runs on it)
+    from :func:`add_table_arguments`' flags, with a log to stderr."""
 
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
+    return {
+        "only": args.only,
+        "frames": args.frames,
+        "workers": args.workers,
+        "backend": args.backend,
+        "address": args.address,
+        "progress": not args.no_progress,
+        "log": log,
+    }
+
+
+def run_table_command(args: argparse.Namespace, rows, title: str, paper_table: str) -> int:
+    from crowdsim.experiments import run_table
+
     text = run_table(
-        rows,
-        args.suite,
-        args.out,
-        only=args.only,
-        frames=args.frames,
-        workers=args.workers,
-        backend=args.backend,
-        address=args.address,
-        progress=not args.no_progress,
-        title=title,
-        paper_table=paper_table,
-        log=log,
+        rows, args.suite, args.out, title=title, paper_table=paper_table, **table_run_kwargs(args)
     )
     print(text)
     print(

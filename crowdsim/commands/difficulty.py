@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from crowdsim.commands._table_args import add_table_arguments
+from crowdsim.commands._table_args import add_table_arguments, table_run_kwargs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,21 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from crowdsim.difficulty import attribute, attribution_table
 
-    def log(msg: str) -> None:
-        print(msg, file=sys.stderr, flush=True)
-
-    doc = attribute(
-        args.suite,
-        args.out,
-        only=args.only,
-        trackers=args.trackers,
-        frames=args.frames,
-        workers=args.workers,
-        backend=args.backend,
-        address=args.address,
-        progress=not args.no_progress,
-        log=log,
-    )
+    doc = attribute(args.suite, args.out, trackers=args.trackers, **table_run_kwargs(args))
     print(attribution_table(doc))
     print(f"-> {args.out}/attribution.md, {args.out}/table.md", file=sys.stderr)
     return 0
