@@ -487,9 +487,20 @@ def _run_local(
     for one): they share the study, so each stops when it holds ``trials`` complete trials.
     The runner's manifest (``OUT/tune_jobs.json``) records a worker once it has finished; a
     killed run leaves none recorded and a rerun starts them again on the same study."""
+    from optuna.trial import TrialState
+
     from crowdsim.jobs import Job, run_jobs
 
     study = open_study(url, name, objective, sampler, seed, trials)
+    if workers > 1:
+        # Two processes on one SQLite study can both pop the same enqueued (WAITING) trial
+        # and one then fails with "Cannot tell a COMPLETE trial" (seen on CI): run the
+        # enqueued ones -- the paper defaults -- here before fanning out.
+        fn = _objective_fn(objective, objective.space())
+        while len(complete_trials(study)) < trials and study.get_trials(
+            deepcopy=False, states=(TrialState.WAITING,)
+        ):
+            study.optimize(fn, n_trials=1, gc_after_trial=False, show_progress_bar=False)
     left = trials - len(complete_trials(study))
     if left <= 0:
         return

@@ -188,6 +188,12 @@ def test_two_local_workers_share_the_study(tmp_path):
         log=lambda m: None,
     )
     assert 4 <= res.trials <= 5  # a parallel worker may finish one trial past the target
+    # the enqueued defaults run once, before the workers start: two processes popping one
+    # enqueued trial from SQLite made one fail ("Cannot tell a COMPLETE trial", optuna #4621)
+    rows = trials_of(tmp_path / "w")
+    assert rows[0][1] == "COMPLETE" and all(state == "COMPLETE" for _, state, _ in rows)
+    study = open_study(storage_url(None, tmp_path / "w"), "crowdsim-tune", objective(), "tpe", 0, 4)
+    assert [t.number for t in study.trials if t.user_attrs.get("defaults")] == [0]
 
 
 def test_bad_studies_and_sources_are_refused(tmp_path):
