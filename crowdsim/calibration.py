@@ -368,12 +368,12 @@ def _base_key(section: str, name: str) -> str:
     return f"base_{section}_{name}"
 
 
-def _uncalibrated(spec: Any) -> Any:
-    """The spec with the knob values it had before its first calibration.
+def uncalibrated_values(spec: Any) -> dict[tuple[str, str], Any]:
+    """``{(section, name): value}`` of the knobs before the spec's first calibration.
 
     The first calibration records them in ``[calibration]`` as ``base_<section>_<name>``, so
     a later run searches the same space from the same start (re-running is reproducible, and
-    it can make a sequence easier again).
+    it can make a sequence easier again). Empty for a spec never calibrated.
     """
     values = {}
     for k in SCENE_KNOBS + CAMERA_KNOBS + (Knob("appearance", "video_kbps", 0.0),):
@@ -381,6 +381,12 @@ def _uncalibrated(spec: Any) -> Any:
         if key in spec.calibration:
             v = spec.calibration[key]
             values[(k.section, k.name)] = int(v) if k.integer else float(v)
+    return values
+
+
+def _uncalibrated(spec: Any) -> Any:
+    """The spec with the knob values it had before its first calibration."""
+    values = uncalibrated_values(spec)
     return apply_knobs(spec, values) if values else spec
 
 

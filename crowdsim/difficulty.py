@@ -49,23 +49,18 @@ def variant_specs(spec: Any) -> list[tuple[str, Any]]:
     differ (same seed, same crowd, same motion). Raises ``ValueError`` for a spec that was
     never calibrated (no ``base_*`` values recorded in ``[calibration]``).
     """
-    from crowdsim.calibration import CAMERA_KNOBS, SCENE_KNOBS, Knob, _base_key, apply_knobs
+    from crowdsim.calibration import apply_knobs, uncalibrated_values
 
-    knobs = {k.name: k for k in (*SCENE_KNOBS, *CAMERA_KNOBS, Knob("appearance", "video_kbps", 0))}
-    base = {}
-    for name, k in knobs.items():
-        key = _base_key(k.section, name)
-        if key in spec.calibration:
-            v = spec.calibration[key]
-            base[(k.section, name)] = int(v) if k.integer else float(v)
+    base = uncalibrated_values(spec)
     if not base:
         raise ValueError(
             f"{spec.name}: not calibrated (no base_* values in [calibration]); "
             "run crowdsim calibrate first"
         )
+    section = {name: sec for sec, name in base}
     out = [("calibrated", replace(spec, name=f"{spec.name}.calibrated"))]
     for group, names in DIFFICULTY_GROUPS.items():
-        values = {(knobs[n].section, n): base[(knobs[n].section, n)] for n in names}
+        values = {(section[n], n): base[(section[n], n)] for n in names}
         v = apply_knobs(spec, values)
         out.append((f"-{group}", replace(v, name=f"{spec.name}.no-{_slug(group)}")))
     out.append(("uncalibrated", replace(apply_knobs(spec, base), name=f"{spec.name}.base")))
