@@ -32,7 +32,8 @@ from dataclasses import asdict, dataclass, fields
 import cv2
 import numpy as np
 
-from crowdsim.checks import require_choice, require_number
+from crowdsim.checks import require_number
+from crowdsim.knobs import ENCODING, attributes_doc, defaults, knob, knobs
 
 PALETTES: dict[str, tuple[tuple[int, int, int], ...]] = {
     # BGR clothing cluster centres.
@@ -94,206 +95,100 @@ ARM_AXES: tuple[float, float] = (0.17, 0.08)
 """Half length (along the walking direction) and half width of an arm, fraction of template."""
 SOLID_COVERAGE: float = 0.5
 """A person owns a pixel (for occlusion and visibility) where its coverage is at least this."""
-VIDEO_CODECS: tuple[str, ...] = ("h264", "mpeg4")
+VIDEO_CODECS: tuple[str, ...] = knob("video_codec").choices
 """Codecs of ``video_kbps``: H.264 (libx264 through PyAV) and MPEG-4 part 2 (mp4v)."""
+
+
+_D = defaults("appearance")
+
+
+@dataclass(frozen=True)
+class Encoding:
+    """How the camera's output is encoded: the one parameter set of the output-encoding step.
+
+    The rendered frames pass through the video codec (when ``video_kbps > 0``) and then JPEG,
+    in that order, both in ``generate``'s writer and in in-memory episodes
+    (:func:`synth_data.video.encode_output`, the one code path). The ranges are the
+    :mod:`crowdsim.knobs` rows of the same names.
+
+    Attributes
+    ----------
+    jpeg_quality : int
+        JPEG quality, 1-100.
+    video_kbps : float
+        Codec bit rate, kbit/s; 0 = no codec.
+    video_codec : str
+        ``"h264"`` or ``"mpeg4"``.
+    """
+
+    jpeg_quality: int = _D["jpeg_quality"]
+    video_kbps: float = _D["video_kbps"]
+    video_codec: str = _D["video_codec"]
+
+    def __post_init__(self) -> None:
+        for name in ENCODING:
+            knob(name).check("appearance", getattr(self, name))
 
 
 @dataclass(frozen=True)
 class AppearanceParams:
-    """Appearance and image-formation knobs of one sequence (the calibration knobs of SPEC §4).
+    """Appearance and image-formation knobs of one sequence (the ``[appearance]`` of a spec).
 
-    Every knob added for realistic difficulty (issue 8) defaults to off or to the earlier look,
-    so a spec that does not set it renders exactly as before; the calibration turns them on
-    per sequence.
+    One field per ``appearance`` row of :data:`crowdsim.knobs.KNOBS`, which holds each field's
+    default, range, difficulty scale and meaning (listed below from that table). Every knob added
+    for realistic difficulty defaults to off or to the earlier look, so a spec that does not set
+    it renders exactly as before; the calibration turns them on per sequence. Validation reads
+    the same table: a value out of range raises ``ValueError`` naming ``appearance.<field>``.
 
     Attributes
     ----------
-    template_px : int
-        Template (sprite) size in pixels: shoulder width; the ground-truth box side.
-    palette : str
-        Clothing palette name, see :data:`PALETTES`.
-    n_clusters : int
-        How many palette clusters are used (the first ones).
-    variants_per_cluster : int
-        Colour variants drawn around each cluster centre.
-    cluster_spread : float
-        Standard deviation (grey levels) of the variants around their cluster centre; small
-        values give tight clothing clusters (look-alike people).
-    cluster_decay : float
-        Weight ratio of successive clothing clusters: cluster ``k`` is worn with probability
-        ``~ cluster_decay ** k`` (default 0.5; smaller = one denser dominant cluster).
-    prominent_fraction : float
-        Fraction of people drawn with a distinct colour when the trajectories carry no
-        ``prominent`` attribute (paper 2's "queens").
-    dark_hair_fraction : float
-        Fraction of looks whose hair is the common dark hair colour ``HAIR_COLOURS[0]`` plus
-        Gaussian noise of ``hair_spread`` grey levels (default 0: hair drawn uniformly from
-        :data:`HAIR_COLOURS`). At 1 every head is near-identical dark hair from above.
-    hair_spread : float
-        Standard deviation (grey levels) of the dark hair colour (default 4).
-    contrast : float
-        Scales the clothing colours' difference from the ground colour (``< 1`` = people
-        blend into the ground, as in low-contrast outdoor scenes).
-    body_scale : float
-        Size of the shoulders, arms and shadow relative to the template (default 1: the
-        shoulders span the template). Above 1 bodies touch at marathon density, where heads
-        sit about one template apart; the head and the ground-truth box keep their size.
-    heads_on_top : bool
-        Draw every head after all bodies (default False: each person is drawn whole, in
-        depth order, so a nearer person's shoulders can cover a farther head). Seen from
-        above, the head is a person's highest point and no neighbour's shoulders hide it;
-        heads still cover each other in depth order. Changes what the gt visibility counts
-        as hidden.
-    ground_bgr : (int, int, int)
-        Mean ground colour.
-    ground_texture : float
-        Standard deviation (grey levels) of the ground texture.
-    paving_m : float
-        Paving slab size in metres (0 = no slabs).
-    shadow : float
-        Darkening of the ground under a shadow, in [0, 1].
-    sway_deg : float
-        Amplitude of the shoulder sway around the walking direction, degrees.
-    arm_swing : float
-        Forward/backward swing of the arms over a stride, fraction of the template (default
-        0: no arms drawn). Arms swing in opposition, driven by the walked distance.
-    gait_bob : float
-        Side-to-side bob of the body under the head over a stride, fraction of the template
-        (default 0).
-    head_turn_deg : float
-        Amplitude of slow head turns (the face crescent turns away from the walking
-        direction), degrees (default 0).
-    head_turn_period_s : float
-        Mean period of the head turns, seconds (each person's period is drawn in
-        ``[0.5, 1.5]`` times this).
-    distractor_density : float
-        Static head-like distractors (dark bollards, litter, road-marking dashes) baked into
-        the ground, per square metre at the look-at scale (default 0).
-    moving_shadow_density : float
-        Soft, head-sized moving shadows (of people and objects outside the view) per square
-        metre (default 0). They drift at walking speed and darken everything below them.
-    moving_shadow_m : float
-        Diameter of a moving shadow, metres (default 0.6).
-    illumination_drift : float
-        Relative amplitude of the slow global illumination change.
-    illumination_period_s : float
-        Period of the illumination change, seconds.
-    flicker : float
-        Standard deviation of an independent per-frame relative gain (illumination flicker,
-        e.g. 50 Hz lights against the shutter; default 0).
-    noise_sigma : float
-        Sensor noise standard deviation, grey levels.
-    defocus_px : float
-        Gaussian defocus blur sigma in pixels (default 0 = sharp).
-    jpeg_quality : int
-        JPEG quality of the written frames (1–100).
-    video_kbps : float
-        Video-codec compression: frames pass through ``video_codec`` at this bit rate
-        (kbit/s) before they are written, so the ``img1/`` JPEGs and ``video.mp4`` both carry
-        the codec's artefacts (default 0 = no video codec; real CCTV at 720p runs at roughly
-        1000–4000 kbit/s).
-    video_codec : str
-        ``"h264"`` (libx264 through PyAV, the default) or ``"mpeg4"`` (MPEG-4 part 2, 'mp4v').
-    motion_blur_px : float
-        Length of a horizontal-ish camera motion blur kernel, pixels (0 = off).
-    orientation_bins : int
-        Number of orientation bins of the sprite bank.
-    subpixel : int
-        Sub-pixel phases per axis of the sprite bank.
     """
 
-    template_px: int = 12
-    palette: str = "dull"
-    n_clusters: int = 3
-    variants_per_cluster: int = 4
-    cluster_spread: float = 10.0
-    cluster_decay: float = 0.5
-    prominent_fraction: float = 0.05
-    dark_hair_fraction: float = 0.0
-    hair_spread: float = 4.0
-    contrast: float = 1.0
-    body_scale: float = 1.0
-    heads_on_top: bool = False
-    ground_bgr: tuple[int, int, int] = (115, 125, 130)
-    ground_texture: float = 10.0
-    paving_m: float = 0.0
-    shadow: float = 0.35
-    sway_deg: float = 8.0
-    arm_swing: float = 0.0
-    gait_bob: float = 0.0
-    head_turn_deg: float = 0.0
-    head_turn_period_s: float = 4.0
-    distractor_density: float = 0.0
-    moving_shadow_density: float = 0.0
-    moving_shadow_m: float = 0.6
-    illumination_drift: float = 0.06
-    illumination_period_s: float = 30.0
-    flicker: float = 0.0
-    noise_sigma: float = 3.0
-    defocus_px: float = 0.0
-    jpeg_quality: int = 90
-    video_kbps: float = 0.0
-    video_codec: str = "h264"
-    motion_blur_px: float = 0.0
-    orientation_bins: int = 32
-    subpixel: int = 2
+    template_px: int = _D["template_px"]
+    palette: str = _D["palette"]
+    n_clusters: int = _D["n_clusters"]
+    variants_per_cluster: int = _D["variants_per_cluster"]
+    cluster_spread: float = _D["cluster_spread"]
+    cluster_decay: float = _D["cluster_decay"]
+    prominent_fraction: float = _D["prominent_fraction"]
+    dark_hair_fraction: float = _D["dark_hair_fraction"]
+    hair_spread: float = _D["hair_spread"]
+    contrast: float = _D["contrast"]
+    body_scale: float = _D["body_scale"]
+    heads_on_top: bool = _D["heads_on_top"]
+    ground_bgr: tuple[int, int, int] = _D["ground_bgr"]
+    ground_texture: float = _D["ground_texture"]
+    paving_m: float = _D["paving_m"]
+    shadow: float = _D["shadow"]
+    sway_deg: float = _D["sway_deg"]
+    arm_swing: float = _D["arm_swing"]
+    gait_bob: float = _D["gait_bob"]
+    head_turn_deg: float = _D["head_turn_deg"]
+    head_turn_period_s: float = _D["head_turn_period_s"]
+    distractor_density: float = _D["distractor_density"]
+    moving_shadow_density: float = _D["moving_shadow_density"]
+    moving_shadow_m: float = _D["moving_shadow_m"]
+    illumination_drift: float = _D["illumination_drift"]
+    illumination_period_s: float = _D["illumination_period_s"]
+    flicker: float = _D["flicker"]
+    noise_sigma: float = _D["noise_sigma"]
+    defocus_px: float = _D["defocus_px"]
+    jpeg_quality: int = _D["jpeg_quality"]
+    video_kbps: float = _D["video_kbps"]
+    video_codec: str = _D["video_codec"]
+    motion_blur_px: float = _D["motion_blur_px"]
+    orientation_bins: int = _D["orientation_bins"]
+    subpixel: int = _D["subpixel"]
 
     def __post_init__(self) -> None:
-        own = "appearance"
-        require_choice(own, "palette", self.palette, tuple(sorted(PALETTES)))
-        require_choice(own, "video_codec", self.video_codec, VIDEO_CODECS)
-        for name, lo, hi in (
-            ("template_px", 4, 64),
-            ("n_clusters", 1, len(PALETTES[self.palette])),
-            ("variants_per_cluster", 1, 16),
-            ("jpeg_quality", 1, 100),
-            ("orientation_bins", 4, 128),
-            ("subpixel", 1, 4),
-        ):
-            require_number(own, name, getattr(self, name), lo=lo, hi=hi, integer=True)
-        for name, lo, hi in (
-            ("cluster_spread", 0, 100),
-            ("prominent_fraction", 0, 1),
-            ("dark_hair_fraction", 0, 1),
-            ("hair_spread", 0, 100),
-            ("contrast", 0.05, 2),
-            ("body_scale", 0.5, 2),
-            ("ground_texture", 0, 80),
-            ("paving_m", 0, 100),
-            ("shadow", 0, 1),
-            ("sway_deg", 0, 45),
-            ("arm_swing", 0, 0.5),
-            ("gait_bob", 0, 0.5),
-            ("head_turn_deg", 0, 90),
-            ("distractor_density", 0, 10),
-            ("moving_shadow_density", 0, 10),
-            ("illumination_drift", 0, 0.5),
-            ("flicker", 0, 0.5),
-            ("noise_sigma", 0, 50),
-            ("defocus_px", 0, 20),
-            ("video_kbps", 0, 1_000_000),
-            ("motion_blur_px", 0, 30),
-        ):
-            require_number(own, name, getattr(self, name), lo=lo, hi=hi)
-        for name in (
-            "cluster_decay",
-            "illumination_period_s",
-            "head_turn_period_s",
-            "moving_shadow_m",
-        ):
-            require_number(own, name, getattr(self, name), lo=0, lo_open=True)
-        require_number(own, "cluster_decay", self.cluster_decay, lo=0, hi=1, lo_open=True)
-        if len(self.ground_bgr) != 3:
+        for k in knobs("appearance"):
+            k.check("appearance", getattr(self, k.name))
+        require_number("appearance", "n_clusters", self.n_clusters, hi=len(PALETTES[self.palette]))
+        if SUPERSAMPLE % self.subpixel:
             raise ValueError(
-                f"appearance.ground_bgr must be three numbers in [0, 255], got {self.ground_bgr!r}"
+                f"appearance.subpixel must divide {SUPERSAMPLE} (1, 2, 4 or 8), got {self.subpixel}"
             )
-        for c in self.ground_bgr:
-            require_number(own, "ground_bgr", c, lo=0, hi=255)
         object.__setattr__(self, "ground_bgr", tuple(int(c) for c in self.ground_bgr))
-        if not isinstance(self.heads_on_top, (bool, np.bool_)):
-            raise ValueError(
-                f"appearance.heads_on_top must be true or false, got {self.heads_on_top!r}"
-            )
 
     @classmethod
     def from_dict(cls, values: dict) -> AppearanceParams:
@@ -311,6 +206,11 @@ class AppearanceParams:
         d = asdict(self)
         d["ground_bgr"] = list(self.ground_bgr)
         return d
+
+    @property
+    def encoding(self) -> Encoding:
+        """The output encoding (JPEG quality, codec, bit rate) as one parameter set."""
+        return Encoding(**{name: getattr(self, name) for name in ENCODING})
 
     @property
     def n_appearances(self) -> int:
@@ -615,3 +515,12 @@ def build_sprite_bank(params: AppearanceParams, rng: np.random.Generator) -> Spr
         subpixel=p,
         size=z,
     )
+
+
+AppearanceParams.__doc__ = (
+    (AppearanceParams.__doc__ or "").rstrip()
+    + "\n"
+    + "\n".join(
+        "    " + line if line else line for line in attributes_doc("appearance").splitlines()
+    )
+)

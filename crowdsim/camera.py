@@ -33,7 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-JITTER_CORRELATION_FRAMES: float = 12.0
+from crowdsim.knobs import knob
+
+JITTER_CORRELATION_FRAMES: float = knob("jitter_frames").default
 """Default time constant (frames) of the camera shake: an AR(1) process with this correlation
 time (``Camera.jitter_frames``)."""
 
@@ -55,7 +57,8 @@ class Camera:
     distance_m : float
         Camera distance from the look-at point in metres (only matters when tilted).
     jitter_px : float
-        Standard deviation of the per-frame translation in pixels (``>= 0``).
+        Standard deviation of the per-frame translation in pixels (a knob of
+        :mod:`crowdsim.knobs`: in ``[0, 200]``).
     jitter_frames : float
         Correlation time of the translation in frames (``> 0``; default 12).
     seed : int
@@ -83,10 +86,8 @@ class Camera:
             raise ValueError(f"camera.tilt_deg must be in [0, 60), got {self.tilt_deg!r}")
         if not (math.isfinite(self.distance_m) and self.distance_m > 0):
             raise ValueError(f"camera.distance_m must be > 0, got {self.distance_m!r}")
-        if not (math.isfinite(self.jitter_px) and self.jitter_px >= 0):
-            raise ValueError(f"camera.jitter_px must be >= 0, got {self.jitter_px!r}")
-        if not (math.isfinite(self.jitter_frames) and self.jitter_frames > 0):
-            raise ValueError(f"camera.jitter_frames must be > 0, got {self.jitter_frames!r}")
+        for name in ("jitter_px", "jitter_frames"):  # the shake knobs: ranges in crowdsim.knobs
+            knob(name).check("camera", getattr(self, name))
         if len(self.center) != 2 or not all(math.isfinite(c) for c in self.center):
             raise ValueError(f"camera.center must be two finite numbers, got {self.center!r}")
         object.__setattr__(self, "center", (float(self.center[0]), float(self.center[1])))

@@ -13,31 +13,48 @@ from __future__ import annotations
 
 import argparse
 import errno
-import importlib
 import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from types import ModuleType
 
 from crowdsim import __version__
-
-COMMAND_MODULES: tuple[str, ...] = (
-    "crowdsim.commands.simulate",
-    "crowdsim.commands.track",
-    "crowdsim.commands.evaluate",
-    "crowdsim.commands.render",
-    "crowdsim.commands.generate",
-    "crowdsim.commands.calibrate",
-    "crowdsim.commands.compare",
-    "crowdsim.commands.ablation",
-    "crowdsim.commands.difficulty",
-    "crowdsim.commands.tune",
-    "crowdsim.commands.train",
-    "crowdsim.commands.heldout",
-    "crowdsim.commands.bench",
-    "crowdsim.commands.demo",
+from crowdsim.commands import (
+    ablation,
+    bench,
+    calibrate,
+    compare,
+    demo,
+    difficulty,
+    evaluate,
+    generate,
+    heldout,
+    render,
+    simulate,
+    track,
+    train,
+    tune,
 )
-"""Modules that register a sub-command, in the order ``--help`` lists them."""
+
+COMMANDS: tuple[ModuleType, ...] = (
+    simulate,
+    track,
+    evaluate,
+    render,
+    generate,
+    calibrate,
+    compare,
+    ablation,
+    difficulty,
+    tune,
+    train,
+    heldout,
+    bench,
+    demo,
+)
+"""Modules that register a sub-command, in the order ``--help`` lists them (each imports only
+the standard library at import; its work imports what it needs when it runs)."""
 
 
 class UsageError(ValueError):
@@ -53,8 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"crowdsim {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
+    for command in COMMANDS:
+        command.register(sub)
     return parser
 
 

@@ -67,7 +67,6 @@ STOP_GRACE_S: float = 3.0
 """Seconds a terminated worker gets to clean up before it is killed."""
 WATCHDOG_PERIOD_S: float = 0.5
 """How often a worker checks that its parent is still alive (fallback to PDEATHSIG)."""
-RAY_HINT = "--backend ray needs Ray, an optional extra: pip install 'crowdsim[distributed]'"
 
 
 class JobError(RuntimeError):
@@ -530,10 +529,9 @@ def _run_ray(
     record: Callable[[Job, Any], None],
     passthrough: tuple[type[BaseException], ...],
 ) -> None:
-    try:
-        import ray
-    except ImportError:
-        raise ValueError(RAY_HINT) from None
+    from crowdsim.optional import require
+
+    ray = require("ray", "distributed", "--backend ray")
     if not ray.is_initialized():
         ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
     task = ray.remote(num_cpus=1)(_call_on_ray)

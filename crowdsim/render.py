@@ -35,7 +35,7 @@ All randomness derives from the ``seed`` given to the functions, split with
 
 Ground truth: the head centre of agent ``n`` in frame ``t`` is ``AgentTracks.pixels[t, n]``,
 drawn to within ``1 / (2 * subpixel)`` pixels. The MOT rows are built by
-:func:`synth_data.writer.gt_rows`, not here.
+:func:`synth_data.mot.gt_rows`, not here.
 """
 
 from __future__ import annotations

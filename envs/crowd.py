@@ -508,8 +508,6 @@ class CrowdParallelEnv(ParallelEnv):
 
 # ------------------------------------------------------------------------------ SB3 recipe
 
-_SB3_HINT = "the shared-policy recipe needs stable-baselines3 and torch: pip install -e '.[rl]'"
-
 
 def shared_policy_vec_env(env: CrowdParallelEnv, seed: int | None = None) -> Any:
     """Every possible agent of ``env`` as one slot of a stable-baselines3 ``VecEnv``.
@@ -522,10 +520,9 @@ def shared_policy_vec_env(env: CrowdParallelEnv, seed: int | None = None) -> Any
     (``seed`` first, then its own generator) and every slot is done. Scenes without
     inflow (e.g. a periodic corridor) fit this best.
     """
-    try:
-        from stable_baselines3.common.vec_env import VecEnv
-    except ImportError as exc:  # pragma: no cover - depends on the installed extras
-        raise ImportError(_SB3_HINT) from exc
+    from crowdsim.optional import require
+
+    VecEnv = require("stable_baselines3.common.vec_env", "rl", "the shared-policy recipe").VecEnv
 
     slot_ids = np.array([int(a.split("_", 1)[1]) for a in env.possible_agents], np.int64)
 
@@ -618,11 +615,11 @@ def train_shared_policy(
     ``total_timesteps`` counts agent steps (slots x env steps). Needs the ``rl`` extra
     (torch, stable-baselines3), imported only here.
     """
-    try:
-        from stable_baselines3 import PPO
-        from stable_baselines3.common.callbacks import BaseCallback
-    except ImportError as exc:  # pragma: no cover - depends on the installed extras
-        raise ImportError(_SB3_HINT) from exc
+    from crowdsim.optional import require
+
+    require("torch", "rl", "the shared-policy recipe")
+    PPO = require("stable_baselines3", "rl", "the shared-policy recipe").PPO
+    from stable_baselines3.common.callbacks import BaseCallback
 
     kwargs = {
         "scenario": "counterflow",

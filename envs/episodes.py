@@ -95,7 +95,7 @@ class ScenarioDistribution:
         Largest frame, px: the camera frames the crowd at the template's scale up to this size
         (small frames keep episodes fast).
     difficulty : (float, float)
-        The calibration's difficulty scale (:func:`crowdsim.calibration.knob_values`: look-alike
+        The calibration's difficulty scale (:func:`crowdsim.knobs.knob_values`: look-alike
         heads, packed bodies, gait and head turns, clutter, camera noise, blur, shake, JPEG
         and H.264 compression), uniform. The default spans the calibrated ucf9 suite (0.23 to
         0.89: sequences on which the NCC tracker scores the papers' 33-86 %).
@@ -242,7 +242,7 @@ class ScenarioDistribution:
         )
         if d <= 0:
             return spec
-        from crowdsim.calibration import apply_knobs, knob_values
+        from crowdsim.knobs import apply_knobs, knob_values
 
         return apply_knobs(spec, knob_values(spec, d, d))
 

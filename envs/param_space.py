@@ -41,12 +41,18 @@ The defaults are the :class:`~tracker.bqp.params.BQPParams` defaults (the paper'
 (1.5, 0.0)
 >>> space.to_action(space.to_params([0.25, -0.5, 0, 1, -1])).tolist()
 [0.25, -0.5, 0.0, 1.0, -1.0]
+
+:func:`load_params` reads a parameters file (``best_params.json`` of ``crowdsim tune``) back for
+``crowdsim track --params`` and ``crowdsim heldout``.
 """
 
 from __future__ import annotations
 
+import json
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -285,3 +291,27 @@ class ParamSpace:
     def signature(self) -> str:
         """Short text naming the space (stored in studies so a foreign one is refused)."""
         return ";".join(f"{t.name}:{t.low:g}:{t.default:g}:{t.high:g}" for t in self.tunables)
+
+
+def load_params(path: str | os.PathLike[str]) -> tuple[str, Any]:
+    """``(tracker name, BQPParams)`` from a ``best_params.json`` written by :func:`envs.tuners.tune`
+    (or any JSON object ``{"params": {field: value}}`` / ``{field: value}``)."""
+    from tracker.registry import get
+
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{p}: not valid JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{p}: expected a JSON object of parameters")
+    name = doc.get("tracker", "bqp")
+    values = doc.get("params", doc)
+    if not isinstance(values, dict):
+        raise ValueError(f"{p}: 'params' must be an object of parameter values")
+    values = {k: v for k, v in values.items() if k not in ("tracker", "format")}
+    entry = get(name)
+    try:
+        return name, entry.make_params(**values)
+    except TypeError as exc:
+        raise ValueError(f"{p}: {exc}") from None

@@ -3,11 +3,12 @@
 ``crowdsim/TrackerTuning-v0`` (:class:`TrackerTuningEnv`): every step applies new parameters
 through :meth:`tracker.base.Tracker.set_params` and tracks the next ``K`` frames with the
 real BQP tracker; ``crowdsim/TrackerTuningBandit-v0`` (:class:`TrackerTuningBanditEnv`): one
-action scores a whole sequence (for black-box tuners). :func:`register_envs` registers both
-(idempotent; ``envs/__init__.py`` calls it).
+action scores a whole sequence (for black-box tuners). ``import envs`` registers both (the one
+table, :data:`envs.ENVS`).
 
 The observation (:data:`OBS_FIELDS`) is computed from the tracker's own state only, never
-from the ground truth, so an adaptive policy runs on real video too (:func:`run_adaptive`).
+from the ground truth, so an adaptive policy runs on real video too (:class:`PolicyControlled`
+drives any source, a video file included).
 """
 
 from __future__ import annotations
@@ -520,16 +521,6 @@ class TrackerTuningBanditEnv(TrackerTuningEnv):
             trk, self.space, self._action, 1.0, trk.confidences, trk.solver_iterations - it0, count
         )
         return obs, float(acc), True, False, self._info(acc, gt_n, clipped, count)
-
-
-def register_envs() -> None:
-    """Register both environment ids with Gymnasium (idempotent; string entry points)."""
-    for env_id, entry in (
-        (ENV_ID, "envs.tracker_tuning:TrackerTuningEnv"),
-        (BANDIT_ENV_ID, "envs.tracker_tuning:TrackerTuningBanditEnv"),
-    ):
-        if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=entry)
 
 
 # ---------------------------------------------------------------------------- adaptive runs

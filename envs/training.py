@@ -8,7 +8,7 @@
   by a ``best_params.json``) for ``crowdsim track`` and :mod:`envs.heldout`.
 
 torch and stable-baselines3 come from the ``rl`` extra and are imported on use; a missing one
-raises :class:`envs.tuners.DependencyNotInstalled` with the install line.
+raises :class:`crowdsim.optional.DependencyNotInstalled` with the install line.
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ import numpy as np
 
 from crowdsim.atomic import atomic_path, write_text_atomic
 from crowdsim.checks import require_choice, require_number
-from envs.param_space import ParamSpace
-from envs.tuners import load_params, require
+from crowdsim.optional import require
+from envs.param_space import ParamSpace, load_params
 
 ALGOS: tuple[str, ...] = ("ppo", "sac")
 POLICY_META = "crowdsim.json"

@@ -7,7 +7,6 @@
   on a Ray cluster. Writes ``best_params.json``, the optimisation history and the parameter
   importances as PNGs, and scores the best parameters against the paper defaults on
   **held-out** sequences (other seeds than the ones tuned on; :mod:`envs.heldout`).
-* :func:`load_params` -- read ``best_params.json`` back for ``crowdsim track`` / ``heldout``.
 * :class:`Objective` -- the sequences a trial scores (shared with :mod:`envs.heldout`).
 
 Adaptive policies (PPO / SAC) are trained in :mod:`envs.training`. Heavy stacks (optuna, ray)
@@ -26,11 +25,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 
 from crowdsim.atomic import write_text_atomic
 from crowdsim.checks import require_choice, require_number
+from crowdsim.optional import DependencyNotInstalled, require
 from envs.episodes import EpisodeSource, make_episodes
 from envs.heldout import HELDOUT_SEED, evaluate_heldout, write_heldout
 from envs.param_space import ParamSpace
@@ -39,25 +38,6 @@ STUDY_FILE = "study.db"
 DEFAULT_STUDY_NAME = "crowdsim-tune"
 SAMPLERS: tuple[str, ...] = ("tpe", "cmaes")
 BACKENDS: tuple[str, ...] = ("local", "ray")
-
-
-class DependencyNotInstalled(gym.error.DependencyNotInstalled, ValueError):
-    """An optional stack is missing; the message gives the ``pip install`` line.
-
-    A ``ValueError`` too, so the ``crowdsim`` command reports it in one line."""
-
-
-def require(module: str, extra: str, what: str) -> Any:
-    """Import ``module`` or raise :class:`DependencyNotInstalled` naming ``extra``."""
-    import importlib
-
-    try:
-        return importlib.import_module(module)
-    except ImportError as exc:
-        raise DependencyNotInstalled(
-            f"{what} needs {module.split('.')[0]}, which is not installed ({exc}); install it "
-            f"with: pip install 'crowdsim[{extra}]'"
-        ) from None
 
 
 # ---------------------------------------------------------------------------- objective
@@ -751,27 +731,3 @@ def tune(
         write_text_atomic(out / "best_params.json", json.dumps(doc, indent=2) + "\n")
         files["best_params"] = str(out / "best_params.json")
     return result
-
-
-def load_params(path: str | os.PathLike[str]) -> tuple[str, Any]:
-    """``(tracker name, BQPParams)`` from a ``best_params.json`` written by :func:`tune`
-    (or any JSON object ``{"params": {field: value}}`` / ``{field: value}``)."""
-    from tracker.registry import get
-
-    p = Path(path)
-    try:
-        doc = json.loads(p.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{p}: not valid JSON ({exc})") from None
-    if not isinstance(doc, dict):
-        raise ValueError(f"{p}: expected a JSON object of parameters")
-    name = doc.get("tracker", "bqp")
-    values = doc.get("params", doc)
-    if not isinstance(values, dict):
-        raise ValueError(f"{p}: 'params' must be an object of parameter values")
-    values = {k: v for k, v in values.items() if k not in ("tracker", "format")}
-    entry = get(name)
-    try:
-        return name, entry.make_params(**values)
-    except TypeError as exc:
-        raise ValueError(f"{p}: {exc}") from None

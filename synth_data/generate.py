@@ -45,7 +45,6 @@ from pathlib import Path
 from typing import Any
 
 from crowdsim.jobs import (
-    RAY_HINT,
     Interrupted,
     Job,
     JobError,
@@ -54,9 +53,10 @@ from crowdsim.jobs import (
     read_manifest,
 )
 from crowdsim.jobs import run_jobs as _run_jobs
+from synth_data.mot import verify_sequence
 from synth_data.scene import Scene
 from synth_data.spec import SequenceSpec
-from synth_data.writer import clean_stale_tmp, verify_sequence, write_sequence
+from synth_data.writer import clean_stale_tmp, write_sequence
 
 MANIFEST = "manifest.json"
 MANIFEST_SECTION = "sequences"
@@ -174,10 +174,9 @@ def generate(
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
     if backend == "ray":
-        import importlib.util
+        from crowdsim.optional import require
 
-        if importlib.util.find_spec("ray") is None:
-            raise ValueError(RAY_HINT)
+        require("ray", "distributed", "--backend ray")
     names = [s.name for s in specs]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:

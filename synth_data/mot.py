@@ -8,6 +8,7 @@ Layout of a sequence folder ``SEQ``::
     SEQ/gt/gt.txt            frame,id,bb_left,bb_top,bb_width,bb_height,conf,class,visibility
     SEQ/gt/agents.csv        id,group,prominent,anomaly,appearance (crowdsim sequences only)
     SEQ/meta.json            spec, seed, package versions (crowdsim sequences only)
+    SEQ/checksums.json       SHA-256 of every other file (crowdsim sequences only)
 
 Reader API (also reads real MOT17 / MOT20 folders)
 ---------------------------------------------------
@@ -27,27 +28,32 @@ Reader API (also reads real MOT17 / MOT20 folders)
   boxes give their centre; body boxes give ``(left + w / 2, top + HEAD_IN_BODY * h)``.
 * ``agents() -> dict[str, (N,) ndarray]`` from ``gt/agents.csv`` (empty dict without it);
 * ``births() -> ((ids0, pts0), {t: (ids, pts)})``: from the points CSV ``init`` when set (see
-  :mod:`synth_data.sequence`), else from the ground truth (each id born at its first frame).
+  :mod:`synth_data.births`), else from the ground truth (each id born at its first frame).
 
 A ``MotSequence`` is a :class:`synth_data.sequence.SequenceSource`.
 
 ``write_mot(path, rows)`` and ``read_mot_file(path) -> (K, 9+) float64`` write and read MOT
 text files; malformed lines raise :class:`ValueError` as ``file:line: message``.
+:func:`mot_ids` and :func:`gt_rows` turn trajectories into MOT ids and ground-truth rows;
+:func:`check_checksums` verifies ``checksums.json`` (:data:`CHECKSUMS_FILE`).
 """
 
 from __future__ import annotations
 
 import configparser
 import csv
+import hashlib
 import json
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from crowdsim.atomic import write_text_atomic
+from synth_data.births import Births, births_from_ground_truth, births_from_init
 
 MOT_COLUMNS: tuple[str, ...] = (
     "frame",
@@ -65,6 +71,8 @@ DEFAULT_TEMPLATE_SIZE: int = 12
 HEAD_IN_BODY: float = 0.08
 """Head centre height below the top of a full-body box, as a fraction of the box height."""
 AGENT_COLUMNS: tuple[str, ...] = ("id", "group", "prominent", "anomaly", "appearance")
+CHECKSUMS_FILE: str = "checksums.json"
+"""SHA-256 of every other file of a crowdsim sequence, written last by the writer."""
 
 
 # ---------------------------------------------------------------------------- MOT text files
@@ -196,6 +204,128 @@ def write_agents_csv(path: str | os.PathLike[str], table: dict[str, np.ndarray])
     return Path(path)
 
 
+# ---------------------------------------------------------------------------- ids and gt rows
+def mot_ids(ids: np.ndarray) -> np.ndarray:
+    """MOT ids (>= 1) of trajectory ids: ``id + 1`` when all ids are >= 0, else rank + 1."""
+    ids = np.asarray(ids, dtype=np.int64)
+    if len(ids) == 0 or ids.min() >= 0:
+        return ids + 1
+    return np.argsort(np.argsort(ids)) + 1
+
+
+def gt_rows(
+    pixels: np.ndarray,
+    camera: Any,
+    template_px: int,
+    mot_ids: np.ndarray,
+    visibility: np.ndarray | None = None,
+) -> np.ndarray:
+    """MOT ground-truth rows ``(K, 9)``: one head box per agent and frame.
+
+    Parameters
+    ----------
+    pixels : (T, N, 2) float
+        Head centres in pixels (``AgentTracks.pixels``), NaN where absent.
+    camera : crowdsim.camera.Camera
+        Frame size (a row is written when the head centre lies inside the frame).
+    template_px : int
+        Box side in pixels, centred on the head.
+    mot_ids : (N,) int
+        MOT ids of the agents (see :func:`mot_ids`).
+    visibility : (T, N) float, optional
+        Visible fraction of each head as drawn (``SceneRenderer.render(visibility=...)``:
+        occlusion by people in front and clipping by the frame). Without it the column is the
+        fraction of the box inside the frame.
+
+    Returns
+    -------
+    (K, 9) float64
+        Columns frame (1-based), id, bb_left, bb_top, bb_width, bb_height, conf (1),
+        class (1 = pedestrian), visibility in [0, 1]; sorted by frame, then id.
+    """
+    pix = np.asarray(pixels, np.float64)
+    vis = camera.visible(pix)
+    t_idx, n_idx = np.nonzero(vis)
+    mot_ids = np.asarray(mot_ids, np.int64)
+    order = np.lexsort((mot_ids[n_idx], t_idx))
+    t_idx, n_idx = t_idx[order], n_idx[order]
+    centre = pix[t_idx, n_idx]
+    s = float(template_px)
+    left = centre[:, 0] - s / 2.0
+    top = centre[:, 1] - s / 2.0
+    if visibility is None:
+        ix = np.clip(np.minimum(left + s, camera.width) - np.maximum(left, 0.0), 0, s)
+        iy = np.clip(np.minimum(top + s, camera.height) - np.maximum(top, 0.0), 0, s)
+        column = ix * iy / (s * s)
+    else:
+        visibility = np.asarray(visibility, np.float64)
+        if visibility.shape != pix.shape[:2]:
+            raise ValueError(f"visibility must have shape {pix.shape[:2]}, got {visibility.shape}")
+        column = np.clip(np.nan_to_num(visibility[t_idx, n_idx]), 0.0, 1.0)
+    k = len(t_idx)
+    return np.column_stack(
+        [
+            t_idx + 1,
+            mot_ids[n_idx],
+            left,
+            top,
+            np.full(k, s),
+            np.full(k, s),
+            np.ones(k),
+            np.ones(k),
+            column,
+        ]
+    ).astype(np.float64)
+
+
+def sha256_file(path: Path) -> str:
+    """Hex SHA-256 of the file at ``path``, read in 1 MiB blocks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def check_checksums(seq_dir: str | os.PathLike[str]) -> dict[str, str] | None:
+    """Verify the files ``checksums.json`` lists; ``None`` when the folder has no listing.
+
+    Every entry must be a relative path inside ``seq_dir`` (no ``..``, no absolute path, no
+    link out of the folder) to an existing file whose SHA-256 matches. Raises ``ValueError``
+    naming the listing or the file otherwise.
+    """
+    seq_dir = Path(seq_dir)
+    listing = seq_dir / CHECKSUMS_FILE
+    if not listing.is_file():
+        return None
+    try:
+        checks = json.loads(listing.read_text())
+    except (ValueError, UnicodeDecodeError):
+        raise ValueError(f"{listing}: not valid JSON") from None
+    if not isinstance(checks, dict) or not checks:
+        raise ValueError(f"{listing}: expected a non-empty object of file: sha256")
+    root = seq_dir.resolve()
+    for rel, digest in sorted(checks.items()):
+        p = seq_dir / rel
+        if Path(rel).is_absolute() or not p.resolve().is_relative_to(root):
+            raise ValueError(f"{listing}: entry {rel!r} points outside the sequence folder")
+        if not isinstance(digest, str):
+            raise ValueError(f"{listing}: entry {rel!r} has no SHA-256 string")
+        if not p.is_file():
+            raise ValueError(f"{p}: missing (listed in {listing.name})")
+        if sha256_file(p) != digest:
+            raise ValueError(f"{p}: damaged (its SHA-256 differs from {listing.name})")
+    return checks
+
+
+def verify_sequence(seq_dir: str | os.PathLike[str]) -> dict[str, str] | None:
+    """The checksums of a complete sequence folder, or None if it is incomplete or corrupt."""
+    try:
+        return check_checksums(seq_dir)
+    except (OSError, ValueError):
+        return None
+
+
 # ---------------------------------------------------------------------------- reader
 @dataclass
 class MotSequence:
@@ -298,11 +428,9 @@ class MotSequence:
             points[t[keep], col[keep], 1] = y[keep]
         return ids, points
 
-    def births(self):
+    def births(self) -> Births:
         """``((ids0, pts0), {t (0-based): (ids, pts)})``: from :attr:`init` (ids checked
         against the ground truth) or from the ground truth itself."""
-        from synth_data.sequence import births_from_ground_truth, births_from_init
-
         gt_ids, gt_pts = self.gt_points()
         if self.init is not None:
             return births_from_init(self.init, self.length, gt_ids, where=str(self.path))
@@ -427,30 +555,15 @@ def read_sequence(path: str | os.PathLike[str]) -> MotSequence:
     )
 
 
-def verify_frames(seq) -> None:
+def verify_frames(seq: MotSequence) -> None:
     """Refuse a damaged sequence, naming the file.
 
     With ``checksums.json`` (crowdsim sequences) every listed file must exist and match its
-    SHA-256. Otherwise every image that ``seqLength`` promises must exist, and the first one
-    must have the ``imWidth x imHeight`` of ``seqinfo.ini``. A sequence without an image folder
-    (ground truth only, or a video) is not checked further.
+    SHA-256 (:func:`check_checksums`). Otherwise every image that ``seqLength`` promises must
+    exist, and the first one must have the ``imWidth x imHeight`` of ``seqinfo.ini``. A
+    sequence without an image folder (ground truth only, or a video) is not checked further.
     """
-    from synth_data.writer import sha256_file
-
-    listing = seq.path / "checksums.json"
-    if listing.is_file():
-        try:
-            checks = json.loads(listing.read_text())
-        except ValueError:
-            raise ValueError(f"{listing}: not valid JSON") from None
-        if not isinstance(checks, dict):
-            raise ValueError(f"{listing}: expected an object of file: sha256")
-        for rel, digest in sorted(checks.items()):
-            p = seq.path / rel
-            if not p.is_file():
-                raise ValueError(f"{p}: missing (listed in {listing.name})")
-            if sha256_file(p) != digest:
-                raise ValueError(f"{p}: damaged (its SHA-256 differs from {listing.name})")
+    check_checksums(seq.path)
     im_dir = seq.path / seq.im_dir
     if not im_dir.is_dir():
         return

@@ -215,8 +215,8 @@ class Scene:
     def gt_points(self) -> tuple[np.ndarray, np.ndarray]:
         """``(ids (N,) int64, points (T, N, 2) float64)``: MOT ids (as written to ``gt.txt``)
         of the agents seen at least once, head centres in pixels, NaN where absent or outside
-        the frame (the rows :func:`synth_data.writer.gt_rows` would write)."""
-        from synth_data.writer import mot_ids
+        the frame (the rows :func:`synth_data.mot.gt_rows` would write)."""
+        from synth_data.mot import mot_ids
 
         pix = self.tracks.pixels
         vis = self.camera.visible(pix)

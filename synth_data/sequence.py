@@ -10,11 +10,7 @@ Three implementations:
 
 :func:`open_sequence` opens a folder or a video by path. Births follow the papers: the
 targets present in the first frame start the tracker, every later one is born at its first
-frame, at its ground-truth position (or as listed in a points CSV).
-
-Points CSV (``init``): a header line and rows ``frame,id,x,y`` (pixels, 1-based frame) or
-``id,x,y`` (all at frame 1). Rows at the first frame initialise the tracker; later rows are
-births.
+frame, at its ground-truth position (or as listed in a points CSV, :mod:`synth_data.births`).
 
 >>> seq = synthetic_crowd(3, 2, seed=0, size=(64, 48))
 >>> isinstance(seq, SequenceSource), seq.length, next(seq.frames()).shape
@@ -26,7 +22,6 @@ births.
 
 from __future__ import annotations
 
-import csv
 import itertools
 import math
 import os
@@ -37,9 +32,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from crowdsim.checks import require_number
-
-Births = tuple[tuple[np.ndarray, np.ndarray], dict[int, tuple[np.ndarray, np.ndarray]]]
-"""``((ids0 (n0,), points0 (n0, 2)), {t (0-based frame): (ids (k,), points (k, 2))})``."""
+from synth_data.births import Births, births_from_ground_truth, births_from_init
 
 
 @runtime_checkable
@@ -78,106 +71,6 @@ class SequenceSource(Protocol):
     def births(self) -> Births:
         """Targets to start at frame 0 and the later births (see :data:`Births`)."""
         ...
-
-
-# ---------------------------------------------------------------------------- births
-def read_points_csv(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Read a points CSV: returns ``frames (K,) 1-based, ids (K,), points (K, 2)`` px."""
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"{path}: no such points file")
-    with open(path, newline="") as fh:
-        reader = csv.reader(fh)
-        try:
-            header = [h.strip().lower() for h in next(reader)]
-        except StopIteration:
-            raise ValueError(
-                f"{path}: empty points file (expected a header frame,id,x,y or id,x,y)"
-            ) from None
-        except (UnicodeDecodeError, csv.Error) as exc:
-            raise ValueError(f"{path}: not a text CSV file ({exc})") from None
-        if header not in (["frame", "id", "x", "y"], ["id", "x", "y"]):
-            raise ValueError(
-                f"{path}:1: header must be 'frame,id,x,y' or 'id,x,y', got {','.join(header)!r}"
-            )
-        out = []
-        for lineno, row in enumerate(reader, start=2):
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != len(header):
-                raise ValueError(f"{path}:{lineno}: expected {len(header)} columns, got {len(row)}")
-            try:
-                vals = [float(c) for c in row]
-            except ValueError:
-                raise ValueError(f"{path}:{lineno}: non-numeric value in {row!r}") from None
-            if not np.isfinite(vals).all():
-                raise ValueError(f"{path}:{lineno}: non-finite value in {row!r}")
-            if len(vals) == 3:
-                vals = [1.0, *vals]
-            if vals[0] < 1 or vals[0] != int(vals[0]) or vals[1] != int(vals[1]):
-                raise ValueError(
-                    f"{path}:{lineno}: frame must be a positive integer and id an "
-                    f"integer, got {row!r}"
-                )
-            out.append(vals)
-    arr = np.asarray(out, dtype=np.float64).reshape(-1, 4)
-    ids = arr[:, 1].astype(np.int64)
-    uniq, counts = np.unique(ids, return_counts=True)
-    if (counts > 1).any():
-        raise ValueError(f"{path}: id {uniq[counts > 1][0]} is listed more than once")
-    return arr[:, 0].astype(np.int64), ids, arr[:, 2:4]
-
-
-def births_from_points(frames: np.ndarray, ids: np.ndarray, points: np.ndarray) -> Births:
-    """Split points into the initial targets (frame 1) and births ``{t (0-based): (ids, pts)}``.
-
-    ``frames (K,)`` 1-based, ``ids (K,)``, ``points (K, 2)`` px (as :func:`read_points_csv`).
-    """
-    init = (ids[frames == 1], points[frames == 1])
-    births = {}
-    for f in np.unique(frames[frames > 1]):
-        sel = frames == f
-        births[int(f) - 1] = (ids[sel], points[sel])
-    return init, births
-
-
-def births_from_ground_truth(ids: np.ndarray, points: np.ndarray) -> Births:
-    """Initial targets and births from ground-truth tracks ``points (T, N, 2)``, ``ids (N,)``.
-
-    Each id is born at its first present frame, at its ground-truth position there.
-    """
-    present = np.isfinite(points).all(-1)
-    has = present.any(0)
-    first = np.where(has, present.argmax(0), -1)
-    init_sel = first == 0
-    init = (ids[init_sel], points[0, init_sel])
-    births = {}
-    for t in np.unique(first[first > 0]):
-        sel = first == t
-        births[int(t)] = (ids[sel], points[t, sel])
-    return init, births
-
-
-def births_from_init(
-    init: str | os.PathLike[str],
-    length: int | None = None,
-    gt_ids: np.ndarray | None = None,
-    where: str = "",
-) -> Births:
-    """Births from a points CSV, checked against the sequence: frames within ``length`` and,
-    when the sequence has ground truth, ids that it knows."""
-    frames, ids, pts = read_points_csv(init)
-    if length is not None and len(frames) and frames.max() > length:
-        raise ValueError(
-            f"{init}: frame {int(frames.max())} is beyond the {length} frames of {where}"
-        )
-    if gt_ids is not None and len(gt_ids) and len(ids):
-        unknown = sorted(set(ids.tolist()) - set(np.asarray(gt_ids).tolist()))
-        if unknown:
-            raise ValueError(
-                f"{init}: ids {unknown[:5]} are unknown to the ground truth of {where}"
-            )
-    return births_from_points(frames, ids, pts)
 
 
 def _no_gt(length: int) -> tuple[np.ndarray, np.ndarray]:
@@ -372,8 +265,9 @@ class InMemorySequence:
 
         ``camera_output=False``: the rendered frames, which ``generate`` then passes through
         the video codec (``appearance.video_kbps > 0``) and JPEG. ``camera_output=True``:
-        those two steps too, in memory (:func:`synth_data.video.camera_output`), so the frames
-        are the ones a tracker reads from the generated folder. The ground truth equals
+        those two steps too, in memory (:func:`synth_data.video.camera_output`, the writer's
+        code path), so the frames are exactly the ones a tracker reads from the generated
+        folder. The ground truth equals
         ``read_sequence(...).gt_points()`` of the generated folder (to the 3 decimals of
         ``gt.txt``).
         """
@@ -385,7 +279,9 @@ class InMemorySequence:
         if frames is not None:
             spec = spec.truncated(frames)
         output = (
-            partial(camera, fps=spec.fps, appearance=spec.appearance) if camera_output else None
+            partial(camera, fps=spec.fps, encoding=spec.appearance.encoding)
+            if camera_output
+            else None
         )
         return cls.from_scene(Scene.from_spec(spec), output=output)
 

@@ -25,25 +25,10 @@ A spec describes one sequence. Example (TOML)::
     max_width = 1920
     max_height = 1080
 
-    [appearance]             # crowdsim.appearance_model.AppearanceParams (calibration knobs)
+    [appearance]             # crowdsim.appearance_model.AppearanceParams: the knobs below
     template_px = 14
     noise_sigma = 3.0
-    # Realistic-difficulty knobs (issue 8); each defaults to off / the earlier look:
-    # dark_hair_fraction = 0.0   look-alike heads: share of dark hair (1 = all near-identical)
-    # hair_spread = 4.0          grey-level spread of that dark hair
-    # cluster_spread = 10.0      clothing variants around their cluster centre (grey levels)
-    # cluster_decay = 0.5        weight ratio of successive clothing clusters
-    # body_scale = 1.0           shoulders/arms/shadow size vs the template (packing)
-    # heads_on_top = false       draw heads after all bodies (only heads hide heads)
-    # arm_swing = 0.0            arm swing over a stride, fraction of the template
-    # gait_bob = 0.0             body bob under the head, fraction of the template
-    # head_turn_deg = 0.0        head-turn amplitude; head_turn_period_s = 4.0
-    # distractor_density = 0.0   static head-like clutter per m^2 (bollards, litter, marks)
-    # moving_shadow_density = 0.0  moving head-sized shadows per m^2; moving_shadow_m = 0.6
-    # flicker = 0.0              per-frame relative gain noise
-    # defocus_px = 0.0           Gaussian defocus sigma, pixels
-    # video_kbps = 0.0           pass frames through a video codec at this bit rate
-    # video_codec = "h264"       or "mpeg4"
+    dark_hair_fraction = 0.6 # every knob defaults to off / the earlier look
 
     [output]
     images = true            # img1/*.jpg
@@ -54,6 +39,10 @@ A spec describes one sequence. Example (TOML)::
 
 Validation happens on load; every error names the file, the field and the value, e.g.
 ``seq3.toml: camera.tilt_deg must be in [0, 60), got 75``.
+
+The rendering knobs (``[appearance]`` and the camera shake), from :data:`crowdsim.knobs.KNOBS`
+(also printed by ``crowdsim generate --help``)::
+
 """
 
 from __future__ import annotations
@@ -69,6 +58,9 @@ from pathlib import Path
 from typing import Any
 
 from crowdsim.appearance_model import AppearanceParams
+from crowdsim.knobs import reference
+
+__doc__ = (__doc__ or "") + "\n".join("    " + line for line in reference().splitlines()) + "\n"
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 

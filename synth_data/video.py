@@ -1,10 +1,13 @@
-"""Video-codec compression of rendered frames (``appearance.video_kbps``, issue 8).
+"""The camera's output encoding: video codec, then JPEG (one parameter set, one code path).
 
 Real dense-crowd footage reaches a tracker through a video codec at a modest bit rate, not as
-near-lossless stills. :class:`VideoEncoder` writes frames to an MP4 file at a chosen bit rate;
-:func:`decode_frames` reads them back through OpenCV, exactly as
-:meth:`synth_data.mot.MotSequence.frames` reads a video-only sequence, so the ``img1/`` JPEGs
-the writer derives from the decoded frames carry the same codec artefacts as ``video.mp4``.
+near-lossless stills. :func:`encode_output` is the one code path from rendered frames to the
+JPEG files a tracker reads, used by ``generate``'s writer and by in-memory episodes alike: the
+frames go through the codec of :class:`crowdsim.appearance_model.Encoding` when its bit rate is
+above 0 (:class:`VideoEncoder` writes the MP4, :func:`decode_frames` reads it back through
+OpenCV, exactly as :meth:`synth_data.mot.MotSequence.frames` reads a video-only sequence), then
+through JPEG at its quality. The ``img1/`` JPEGs therefore carry the same codec artefacts as
+``video.mp4``, and :func:`camera_output` gives in memory the frames a tracker reads from disk.
 
 Codecs: OpenCV's pip wheels carry no H.264 *encoder* (``VideoWriter`` with ``avc1``/``H264``
 fails to open: the FFmpeg they bundle is built without libx264), and OpenCV's ``mp4v`` writer
@@ -25,9 +28,12 @@ import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from crowdsim.appearance_model import Encoding
 
 ENCODERS: dict[str, str] = {"h264": "libx264", "mpeg4": "mpeg4"}
 """``appearance.video_codec`` -> FFmpeg encoder name."""
@@ -41,16 +47,14 @@ docstring: with it, the bits of some frame sizes vary from run to run)."""
 ENCODER_THREADS: int = 1
 """Encoder threads: x264's output depends on its thread count, so one thread keeps the bytes
 the same on every machine (checksums) at about 40 frames/s for 720p."""
+DECODER_THREADS: int = 1
+"""Decoder threads: one core per sequence (sequences already run in parallel)."""
 
 
 def _require_av() -> Any:
-    try:
-        import av
-    except ImportError:  # pragma: no cover - depends on the environment
-        raise ImportError(
-            "appearance.video_kbps > 0 needs PyAV for the video codec: "
-            "pip install av  (or pip install 'crowdsim[video]')"
-        ) from None
+    """PyAV, a core dependency, imported on first use (it loads FFmpeg's libraries)."""
+    import av
+
     return av
 
 
@@ -150,92 +154,117 @@ class VideoEncoder:
         self.close()
 
 
-def decode_frames(path: str | os.PathLike[str], n_frames: int) -> Iterator[np.ndarray]:
-    """Yield ``n_frames`` ``(H, W, 3)`` uint8 BGR frames of a video, decoded by OpenCV."""
+def decode_frames(
+    source: str | os.PathLike[str] | BinaryIO, n_frames: int | None = None
+) -> Iterator[np.ndarray]:
+    """Yield the ``(H, W, 3)`` uint8 BGR frames of an MP4 file or in-memory stream, by OpenCV.
+
+    ``source`` is a path or a binary stream (``io.BytesIO``: OpenCV's stream API); the same
+    decoder reads both, so a sequence decoded from memory equals the one read back from disk
+    to the byte. With ``n_frames``, exactly that many frames must decode (``ValueError``
+    naming the frame otherwise); without it, every frame is yielded.
+    """
     import cv2
 
-    cap = cv2.VideoCapture(str(path))
+    params = [cv2.CAP_PROP_N_THREADS, DECODER_THREADS]
+    if isinstance(source, (str, os.PathLike)):
+        cap = cv2.VideoCapture(str(source), cv2.CAP_FFMPEG, params)
+        name = str(source)
+    else:
+        source.seek(0)
+        cap = cv2.VideoCapture(source, cv2.CAP_FFMPEG, params)
+        name = "the encoded stream"
     try:
-        for i in range(n_frames):
+        i = 0
+        while n_frames is None or i < n_frames:
             ok, img = cap.read()
             if not ok:
-                raise ValueError(f"{path}: could not decode frame {i + 1}")
+                if n_frames is None:
+                    return
+                raise ValueError(f"{name}: could not decode frame {i + 1}")
+            i += 1
             yield img
     finally:
         cap.release()
 
 
-def codec_round_trip(
-    frames: Iterable[np.ndarray], fps: float, kbps: float, codec: str = "h264"
-) -> Iterator[np.ndarray]:
-    """Yield every frame after encoding and decoding it through ``codec`` at ``kbps``, in memory.
-
-    For sources that never touch disk: :class:`VideoEncoder` writes the MP4 into a
-    ``BytesIO`` (only the compressed stream is held, not the frames), which PyAV then decodes.
-    The coded bytes are the ``video.mp4`` the writer makes, byte for byte, and deterministic;
-    the frames equal OpenCV's decoding of it up to the YUV -> BGR conversion, which now and
-    then rounds a pixel differently by a grey level (tested). All frames are encoded before
-    the first comes out.
-
-    (A bare PyAV ``CodecContext`` is no substitute: opened outside a muxer, libx264's
-    macroblock-tree rate control gave different bits from run to run.)
-
-    Parameters
-    ----------
-    frames : iterable of (H, W, 3) uint8 BGR
-        Frames of one sequence (even sizes).
-    fps, kbps : float
-        Frame rate and target bit rate (kbit/s, > 0).
-    codec : str
-        ``"h264"`` or ``"mpeg4"``.
-    """
-    import io
-
-    if codec not in ENCODERS:
-        raise ValueError(f"video_codec must be one of {tuple(ENCODERS)}, got {codec!r}")
-    if not kbps > 0:
-        raise ValueError(f"video_kbps must be > 0, got {kbps!r}")
-    av = _require_av()
-    buf = io.BytesIO()
+def encode_video(
+    frames: Iterable[np.ndarray],
+    fps: float,
+    encoding: Encoding,
+    into: str | os.PathLike[str] | BinaryIO,
+) -> int:
+    """Encode ``frames`` through ``encoding``'s codec at its bit rate into ``into`` (an MP4 path
+    or a seekable binary stream); returns the number of frames encoded."""
     enc = None
     try:
         for frame in frames:
             if enc is None:
                 h, w = frame.shape[:2]
-                enc = VideoEncoder(buf, w, h, fps, kbps, codec)
+                enc = VideoEncoder(into, w, h, fps, encoding.video_kbps, encoding.video_codec)
             enc.write(frame)
     finally:
         if enc is not None:
             enc.close()
-    if enc is None:
+    return 0 if enc is None else enc.frames
+
+
+def codec_frames(
+    frames: Iterable[np.ndarray],
+    fps: float,
+    encoding: Encoding,
+    into: str | os.PathLike[str] | BinaryIO | None = None,
+) -> Iterator[np.ndarray]:
+    """The frames after the video codec: the first step of the output encoding.
+
+    With ``encoding.video_kbps > 0`` every frame is encoded (:func:`encode_video`) into
+    ``into`` -- the sequence's ``video.mp4``, or an ``io.BytesIO`` when ``None``, so only the
+    compressed stream is held -- and decoded back by OpenCV (:func:`decode_frames`). All frames
+    are encoded before the first comes out. With ``video_kbps == 0`` the frames pass unchanged.
+    """
+    if encoding.video_kbps <= 0:
+        yield from frames
         return
-    buf.seek(0)
-    with av.open(buf, "r", format="mp4") as container:
-        stream = container.streams.video[0]
-        stream.codec_context.thread_count = ENCODER_THREADS  # one core per sequence
-        for out in container.decode(stream):
-            yield out.to_ndarray(format="bgr24")
+    if into is None:
+        import io
+
+        into = io.BytesIO()
+    n = encode_video(frames, fps, encoding, into)
+    yield from decode_frames(into, n)
+
+
+def jpeg_bytes(frames: Iterable[np.ndarray], quality: int) -> Iterator[bytes]:
+    """The JPEG file of every frame at ``quality``: the second step of the output encoding."""
+    from crowdsim.render import encode_jpeg
+
+    for frame in frames:
+        yield encode_jpeg(frame, quality)
+
+
+def encode_output(
+    frames: Iterable[np.ndarray],
+    fps: float,
+    encoding: Encoding,
+    video: str | os.PathLike[str] | BinaryIO | None = None,
+) -> Iterator[bytes]:
+    """The one code path of the camera's output encoding: codec (if any), then JPEG.
+
+    Yields the ``img1/`` JPEG file of every frame. ``generate``'s writer stores them (and passes
+    ``video``, its ``video.mp4``, to keep the coded stream); in-memory sequences decode them
+    (:func:`camera_output`). Both therefore see the same bytes.
+    """
+    yield from jpeg_bytes(codec_frames(frames, fps, encoding, video), encoding.jpeg_quality)
 
 
 def camera_output(
-    frames: Iterable[np.ndarray], fps: float, appearance: Any
+    frames: Iterable[np.ndarray], fps: float, encoding: Encoding
 ) -> Iterator[np.ndarray]:
     """The frames a tracker reads from ``generate``'s ``img1/`` JPEGs, made in memory.
 
-    ``generate`` passes rendered frames through the video codec when
-    ``appearance.video_kbps > 0`` (:class:`VideoEncoder`, decoded by OpenCV) and then encodes
-    them as JPEG at ``appearance.jpeg_quality``. This applies the same two steps to a frame
-    stream without touching disk: :func:`codec_round_trip`, then a JPEG encode and decode.
-    Without the codec the frames equal the JPEGs read back exactly; with it, up to the rare
-    grey-level rounding of :func:`codec_round_trip`'s YUV -> BGR conversion (tested).
+    :func:`encode_output`, then each JPEG decoded by OpenCV as ``cv2.imread`` decodes the
+    file: the frames equal those of the generated folder exactly, codec or not (tested).
     """
     import cv2
 
-    from crowdsim.render import encode_jpeg
-
-    if appearance.video_kbps > 0:
-        frames = codec_round_trip(frames, fps, appearance.video_kbps, appearance.video_codec)
-    quality = int(appearance.jpeg_quality)
-    for frame in frames:
-        data = np.frombuffer(encode_jpeg(frame, quality), np.uint8)
-        yield cv2.imdecode(data, cv2.IMREAD_COLOR)
+    for data in encode_output(frames, fps, encoding):
+        yield cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)

@@ -1,8 +1,8 @@
 """Render trajectories into a MOTChallenge sequence folder, atomically.
 
 :func:`write_sequence` renders every frame, writes ``img1/`` JPEGs (and optionally
-``video.mp4``), ``gt/gt.txt`` (rows built here by :func:`gt_rows`, with the visibility column
-measured from the drawing), ``gt/agents.csv``, ``seqinfo.ini``, ``meta.json`` and
+``video.mp4``), ``gt/gt.txt`` (rows built by :func:`synth_data.mot.gt_rows`, with the
+visibility column measured from the drawing), ``gt/agents.csv``, ``seqinfo.ini``, ``meta.json`` and
 ``checksums.json`` (SHA-256 of every other file) into a temporary sibling folder
 ``.crowdsim-tmp-<name>-<pid>-<token>``, then renames it to its final name. A folder with the
 final name is therefore always complete; ``checksums.json`` lets a later run verify it.
@@ -24,7 +24,6 @@ similar (``.tmp-notes-2024``) is never touched.
 from __future__ import annotations
 
 import hashlib
-import itertools
 import json
 import os
 import platform
@@ -35,9 +34,16 @@ from typing import Any
 
 import numpy as np
 
-from synth_data.mot import write_agents_csv, write_mot, write_seqinfo
+from synth_data.mot import (
+    CHECKSUMS_FILE,
+    gt_rows,
+    mot_ids,
+    sha256_file,
+    write_agents_csv,
+    write_mot,
+    write_seqinfo,
+)
 
-CHECKSUMS_FILE = "checksums.json"
 TMP_PREFIX = ".crowdsim-tmp-"
 """Name prefix of the folders a write in progress uses (then ``<name>-<pid>-<token>``)."""
 OLD_PREFIX = ".crowdsim-old-"
@@ -60,87 +66,6 @@ def package_versions() -> dict[str, str]:
 
     out["cv2"] = cv2.__version__
     return out
-
-
-def mot_ids(ids: np.ndarray) -> np.ndarray:
-    """MOT ids (>= 1) of trajectory ids: ``id + 1`` when all ids are >= 0, else rank + 1."""
-    ids = np.asarray(ids, dtype=np.int64)
-    if len(ids) == 0 or ids.min() >= 0:
-        return ids + 1
-    return np.argsort(np.argsort(ids)) + 1
-
-
-def gt_rows(
-    pixels: np.ndarray,
-    camera: Any,
-    template_px: int,
-    mot_ids: np.ndarray,
-    visibility: np.ndarray | None = None,
-) -> np.ndarray:
-    """MOT ground-truth rows ``(K, 9)``: one head box per agent and frame.
-
-    Parameters
-    ----------
-    pixels : (T, N, 2) float
-        Head centres in pixels (``AgentTracks.pixels``), NaN where absent.
-    camera : crowdsim.camera.Camera
-        Frame size (a row is written when the head centre lies inside the frame).
-    template_px : int
-        Box side in pixels, centred on the head.
-    mot_ids : (N,) int
-        MOT ids of the agents (see :func:`mot_ids`).
-    visibility : (T, N) float, optional
-        Visible fraction of each head as drawn (``SceneRenderer.render(visibility=...)``:
-        occlusion by people in front and clipping by the frame). Without it the column is the
-        fraction of the box inside the frame.
-
-    Returns
-    -------
-    (K, 9) float64
-        Columns frame (1-based), id, bb_left, bb_top, bb_width, bb_height, conf (1),
-        class (1 = pedestrian), visibility in [0, 1]; sorted by frame, then id.
-    """
-    pix = np.asarray(pixels, np.float64)
-    vis = camera.visible(pix)
-    t_idx, n_idx = np.nonzero(vis)
-    mot_ids = np.asarray(mot_ids, np.int64)
-    order = np.lexsort((mot_ids[n_idx], t_idx))
-    t_idx, n_idx = t_idx[order], n_idx[order]
-    centre = pix[t_idx, n_idx]
-    s = float(template_px)
-    left = centre[:, 0] - s / 2.0
-    top = centre[:, 1] - s / 2.0
-    if visibility is None:
-        ix = np.clip(np.minimum(left + s, camera.width) - np.maximum(left, 0.0), 0, s)
-        iy = np.clip(np.minimum(top + s, camera.height) - np.maximum(top, 0.0), 0, s)
-        column = ix * iy / (s * s)
-    else:
-        visibility = np.asarray(visibility, np.float64)
-        if visibility.shape != pix.shape[:2]:
-            raise ValueError(f"visibility must have shape {pix.shape[:2]}, got {visibility.shape}")
-        column = np.clip(np.nan_to_num(visibility[t_idx, n_idx]), 0.0, 1.0)
-    k = len(t_idx)
-    return np.column_stack(
-        [
-            t_idx + 1,
-            mot_ids[n_idx],
-            left,
-            top,
-            np.full(k, s),
-            np.full(k, s),
-            np.ones(k),
-            np.ones(k),
-            column,
-        ]
-    ).astype(np.float64)
-
-
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def tmp_dir_for(out_dir: Path) -> Path:
@@ -328,39 +253,7 @@ def write_sequence(
         if images:
             (tmp / "img1").mkdir()
         frames = _render_frames(renderer, tracks, visibility, progress)
-        if appearance.video_kbps > 0:
-            # Codec first; the JPEGs are made from the decoded frames (codec artefacts).
-            from synth_data.video import VideoEncoder, decode_frames
-
-            with VideoEncoder(
-                tmp / "video.mp4",
-                camera.width,
-                camera.height,
-                traj.fps,
-                appearance.video_kbps,
-                appearance.video_codec,
-            ) as enc:
-                for frame in frames:
-                    enc.write(frame)
-            if images:
-                total += _write_jpegs(
-                    tmp,
-                    decode_frames(tmp / "video.mp4", n_frames),
-                    appearance.jpeg_quality,
-                    checksums,
-                )
-            if not video:
-                (tmp / "video.mp4").unlink()
-        else:
-            total += _write_jpegs(
-                tmp,
-                frames,
-                appearance.jpeg_quality,
-                checksums,
-                images=images,
-                video=video,
-                fps=traj.fps,
-            )
+        total += _write_frames(tmp, frames, traj.fps, appearance.encoding, images, video, checksums)
         mids = mot_ids(tracks.ids)
         rows = gt_rows(tracks.pixels, camera, appearance.template_px, mids, visibility)
         write_mot(tmp / "gt" / "gt.txt", rows)
@@ -434,50 +327,63 @@ def _render_frames(
             progress(1)
 
 
-def _write_jpegs(
+def _write_frames(
     tmp: Path,
     frames: Iterable[np.ndarray],
-    quality: int,
+    fps: float,
+    encoding: Any,
+    images: bool,
+    video: bool,
     checksums: dict[str, str],
-    *,
-    images: bool = True,
-    video: bool = False,
-    fps: float = 25.0,
 ) -> int:
-    """Write ``img1/*.jpg`` (and an OpenCV mp4v ``video.mp4``) of ``frames``; bytes written."""
+    """Write ``img1/*.jpg`` through the output encoding, and ``video.mp4``; bytes of the JPEGs.
+
+    With a codec (``encoding.video_kbps > 0``) ``video.mp4`` is its coded stream (kept only
+    when ``video``); without one, ``video`` writes an OpenCV ``mp4v`` file of the rendered
+    frames at OpenCV's default quality.
+    """
+    from synth_data.video import encode_output, encode_video
+
+    codec = encoding.video_kbps > 0
+    if not images:
+        if codec:
+            encode_video(frames, fps, encoding, tmp / "video.mp4")
+        else:
+            for _ in _mp4v_frames(tmp / "video.mp4", frames, fps):
+                pass
+        return 0
+    if video and not codec:
+        frames = _mp4v_frames(tmp / "video.mp4", frames, fps)
+    into = tmp / "video.mp4" if (video and codec) else None
+    total = 0
+    for t, data in enumerate(encode_output(frames, fps, encoding, into)):
+        rel = f"img1/{t + 1:06d}.jpg"
+        with open(tmp / rel, "wb") as fh:
+            fh.write(data)
+        checksums[rel] = hashlib.sha256(data).hexdigest()
+        total += len(data)
+    return total
+
+
+def _mp4v_frames(path: Path, frames: Iterable[np.ndarray], fps: float) -> Iterator[np.ndarray]:
+    """Yield ``frames`` unchanged while writing them to an OpenCV ``mp4v`` file at ``path``."""
     import cv2
 
-    from crowdsim.render import encode_jpeg
-
     writer = None
-    total = 0
-    if video:
-        h, w = None, None
-        frames = iter(frames)
-        first = next(frames, None)
-        if first is not None:
-            h, w = first.shape[:2]
-            frames = itertools.chain([first], frames)
-            writer = cv2.VideoWriter(
-                str(tmp / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h)
-            )
-            if not writer.isOpened():
-                raise RuntimeError("OpenCV cannot write mp4v video on this machine")
     try:
-        for t, frame in enumerate(frames):
-            if images:
-                data = encode_jpeg(frame, quality)
-                rel = f"img1/{t + 1:06d}.jpg"
-                with open(tmp / rel, "wb") as fh:
-                    fh.write(data)
-                checksums[rel] = hashlib.sha256(data).hexdigest()
-                total += len(data)
-            if writer is not None:
-                writer.write(frame)
+        for frame in frames:
+            if writer is None:
+                h, w = frame.shape[:2]
+                writer = cv2.VideoWriter(
+                    str(path), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h)
+                )
+                if not writer.isOpened():
+                    raise RuntimeError("OpenCV cannot write mp4v video on this machine")
+            writer.write(frame)
+            yield frame
     finally:
         if writer is not None:
             writer.release()
-    return total
 
 
 def _fsync_dir(path: Path) -> None:
@@ -489,22 +395,3 @@ def _fsync_dir(path: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
-
-
-def verify_sequence(seq_dir: str | os.PathLike[str]) -> dict[str, str] | None:
-    """The checksums of a complete sequence folder, or None if it is incomplete or corrupt."""
-    seq_dir = Path(seq_dir)
-    listing = seq_dir / CHECKSUMS_FILE
-    if not listing.is_file():
-        return None
-    try:
-        checksums = json.loads(listing.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
-    if not isinstance(checksums, dict) or not checksums:
-        return None
-    for rel, digest in checksums.items():
-        p = seq_dir / rel
-        if not p.is_file() or sha256_file(p) != digest:
-            return None
-    return checksums

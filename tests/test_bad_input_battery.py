@@ -94,8 +94,7 @@ def write_tiny_sequence(seq: Path, n_frames: int = 6) -> Path:
 
     import cv2
 
-    from synth_data.mot import write_mot, write_seqinfo
-    from synth_data.writer import sha256_file
+    from synth_data.mot import sha256_file, write_mot, write_seqinfo
 
     (seq / "img1").mkdir(parents=True)
     (seq / "gt").mkdir()

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from crowdsim.cli import main
-from synth_data.writer import TMP_PREFIX, verify_sequence
+from synth_data.mot import verify_sequence
+from synth_data.writer import TMP_PREFIX
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -87,3 +87,17 @@ def test_installed_opencv_distributions_share_one_version():
     }
     assert found, "no OpenCV distribution installed"
     assert len(set(found.values())) == 1, f"cv2 mixes OpenCV builds: {found}"
+
+
+def test_every_extra_named_by_require_is_an_extra_of_pyproject():
+    from crowdsim.optional import EXTRAS
+
+    extras = set(_project()["optional-dependencies"])
+    assert set(EXTRAS) <= extras, set(EXTRAS) - extras
+    # and no install hint elsewhere names an extra by hand (one code path for the hint)
+    hints = re.compile(r"crowdsim\[([a-z]+)\]")
+    root = PYPROJECT.parent
+    for pkg in ("crowdsim", "tracker", "envs", "synth_data"):
+        for path in (root / pkg).rglob("*.py"):
+            for extra in hints.findall(path.read_text()):
+                assert extra in extras, f"{path}: names the extra {extra!r}, which does not exist"

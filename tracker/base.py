@@ -128,6 +128,13 @@ class Tracker(ABC):
     """The frozen parameter dataclass of this tracker (``None``: it has no parameters)."""
     fixed_params: ClassVar[frozenset[str]] = frozenset()
     """Fields of :attr:`params_class` that cannot change once a sequence has started."""
+    id_mapping: ClassVar[str] = "same"
+    """How the runner relates this tracker's ids to the ground truth: ``"same"`` (it follows
+    the given targets) or ``"majority"`` (it names its own tracks; :mod:`tracker.metrics`)."""
+    position_tolerance_px: ClassVar[float] = 0.0
+    """How far a tracked point may lie from the truth on the contract's exact scenes
+    (:func:`tracker.testing.check_tracker_contract`); 0 for a tracker that recovers integer
+    motion on textured ground exactly."""
 
     def __init__(self) -> None:
         self.params: Any = None

@@ -3,7 +3,10 @@
 * :func:`make_scene` -- tiny hand-built scenes with exact ground truth;
 * :func:`synthetic_frame_qp` -- relaxed QPs shaped like a BQP tracking frame (solver tests and
   ``crowdsim bench solver``);
-* :func:`check_set_params` -- the ``set_params`` part of the tracker contract, for any tracker.
+* :func:`check_tracker_contract` -- the tracker contract, for any tracker: a conformance check
+  that outside tracker authors run on their own implementation (as PettingZoo's
+  ``parallel_api_test``), and that ``tests/tracker/test_tracker_contract.py`` runs over every
+  registered tracker; :func:`check_set_params` is its ``set_params`` part.
 
 Scenes:
 
@@ -407,3 +410,219 @@ def check_set_params(make_tracker: Callable[[Any], Any], scene: Scene | None = N
                 )
         checked.append(name)
     return checked
+
+
+# ------------------------------------------------------------------ the whole contract
+def _position_check(tracker: Any, got: np.ndarray, want: np.ndarray, what: str) -> None:
+    tol = float(getattr(type(tracker), "position_tolerance_px", 0.0))
+    name = type(tracker).__name__
+    if not np.array_equal(np.isnan(got), np.isnan(want)):
+        raise AssertionError(f"{name}: {what}: tracked where the person is absent, or lost")
+    ok = np.isnan(want) | (np.abs(got - want) <= tol)
+    if not ok.all():
+        t, j = np.argwhere(~ok.all(-1))[0]
+        raise AssertionError(
+            f"{name}: {what}: frame {t}, target {j} at {got[t, j].tolist()}, "
+            f"expected {want[t, j].tolist()} (tolerance {tol:g} px)"
+        )
+
+
+def _track_scene(tracker: Any, sc: Scene, births: Any = None) -> Any:
+    pts = sc.points[0]
+    present = np.isfinite(pts).all(1)
+    return tracker.track(sc.frames, sc.ids[present], pts[present], sc.template_size, births=births)
+
+
+def _expect_error(what: str, match: str, call: Callable[[], Any]) -> None:
+    try:
+        call()
+    except ValueError as exc:
+        if match not in str(exc):
+            raise AssertionError(f"{what}: the error does not say {match!r}: {exc}") from exc
+        return
+    raise AssertionError(f"{what}: accepted without a ValueError")
+
+
+def _check_exact_scene(factory: Callable[..., Any]) -> None:
+    from tracker.base import TrackResult
+
+    sc = make_scene(
+        [[20, 20], [90, 20], [100, 75], [25, 75]], [[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=12
+    )
+    tr = factory()
+    res = _track_scene(tr, sc)
+    if not isinstance(res, TrackResult) or res.positions.shape != (12, 4, 2):
+        raise AssertionError(f"{type(tr).__name__}: track() must return (12, 4, 2) positions")
+    if not np.array_equal(res.ids, sc.ids):
+        raise AssertionError(f"{type(tr).__name__}: ids {res.ids} != {sc.ids}")
+    _position_check(tr, res.positions, sc.points, "hand-built scene")
+    if not res.timings.get("total", 0) > 0:
+        raise AssertionError(f"{type(tr).__name__}: timings['total'] not recorded")
+
+
+def _check_zero_targets(factory: Callable[..., Any]) -> None:
+    sc = make_scene(np.zeros((0, 2)), np.zeros((0, 2)), n_frames=4)
+    res = factory().track(sc.frames, [], np.zeros((0, 2)), 8)
+    if res.positions.shape != (4, 0, 2) or res.ids.shape != (0,):
+        raise AssertionError("zero targets must give (T, 0, 2) positions and no ids")
+
+
+def _check_empty_frames(factory: Callable[..., Any]) -> None:
+    flat = [np.full((60, 80, 3), 100, np.uint8)] * 5
+    res = factory().track(flat, [1, 2], np.array([[20.0, 20.0], [60.0, 40.0]]), 8)
+    if not np.isfinite(res.positions).all():
+        raise AssertionError("a textureless frame gave a NaN point")
+    if np.abs(res.positions - res.positions[0]).max() > 4 * 5:
+        raise AssertionError("on textureless frames a point wandered beyond its search range")
+
+
+def _check_border(factory: Callable[..., Any]) -> None:
+    sc = make_scene([[3, 3], [124, 50]], [[2, 0], [0, 2]], n_frames=8, shape=(96, 128))
+    res = _track_scene(factory(), sc)
+    if not np.isfinite(res.positions).all() or np.abs(res.positions - sc.points).max() > 2:
+        raise AssertionError("targets at the image border are lost or misplaced")
+
+
+def _check_leaving_and_births(factory: Callable[..., Any]) -> None:
+    sc = make_scene(
+        [[110, 30], [30, 60], [60, 20]],
+        [[3, 0], [1, 0], [0, 2]],
+        n_frames=14,
+        shape=(96, 128),
+        birth_frames=[0, 0, 5],
+    )
+    tr = factory()
+    res = _track_scene(tr, sc, births={5: (sc.ids[2:], sc.points[5, 2:])})
+    if not np.array_equal(res.ids, sc.ids):
+        raise AssertionError(f"births: ids {res.ids} != {sc.ids}")
+    gone = np.flatnonzero(np.isnan(sc.points[:, 0, 0]))[0]  # id 1 leaves on the right
+    lag = tr.params.max_lost if getattr(type(tr), "position_tolerance_px", 0.0) else 0
+    if not np.isnan(res.positions[gone + 1 + lag :, 0]).all():
+        raise AssertionError("a target that left the image is still tracked")
+    if not np.isnan(res.positions[:5, 2]).all():
+        raise AssertionError("a target is tracked before its birth frame")
+    _position_check(tr, res.positions[5:, 2], sc.points[5:, 2], "a target born at frame 5")
+    _position_check(tr, res.positions[:, 1], sc.points[:, 1], "a target that stays")
+
+
+def _check_vanishing(factory: Callable[..., Any]) -> None:
+    sc = make_scene(
+        [[20, 20], [110, 20], [100, 70], [30, 70]],
+        [[2, 1], [0, 1], [-1, 0], [1, -1]],
+        n_frames=20,
+        death_frames=[20, 8, 20, 20],
+    )
+    tr = factory()
+    res = _track_scene(tr, sc)
+    max_lost = tr.params.max_lost
+    if not max_lost > 0:
+        raise AssertionError("params.max_lost must be > 0 for tracks to end on lost evidence")
+    if not np.isnan(res.positions[8 + max_lost :, 1]).all():
+        raise AssertionError(
+            f"a person who vanished at frame 8 is still tracked {max_lost} frames later"
+        )
+    _position_check(tr, res.positions[:8, 1], sc.points[:8, 1], "before vanishing")
+    for j in (0, 2, 3):
+        _position_check(tr, res.positions[:, j], sc.points[:, j], "beside a vanishing person")
+
+
+def _check_bad_input(factory: Callable[..., Any]) -> None:
+    sc = make_scene([[20, 20]], [[1, 0]], n_frames=3)
+    tr = factory()
+    _expect_error("step before init", "init", lambda: tr.step(sc.frames[0]))
+    _expect_error(
+        "duplicate ids", "duplicate", lambda: tr.init(sc.frames[0], [1, 1], np.zeros((2, 2)), 8)
+    )
+    _expect_error(
+        "a point outside the frame",
+        "outside",
+        lambda: tr.init(sc.frames[0], [1], np.array([[500.0, 5.0]]), 8),
+    )
+    _expect_error(
+        "template_size 1",
+        "template_size",
+        lambda: tr.init(sc.frames[0], [1], np.array([[5.0, 5.0]]), 1),
+    )
+    tr.init(sc.frames[0], [1], sc.points[0], 8)
+    _expect_error("a smaller frame", "mismatched frame sizes", lambda: tr.step(sc.frames[1][:50]))
+    _expect_error(
+        "a birth with a used id",
+        "already used",
+        lambda: tr.step(sc.frames[1], births=(np.array([1]), np.array([[40.0, 40.0]]))),
+    )
+    _expect_error("a float frame", "uint8", lambda: tr.step(sc.frames[1].astype(np.float32)))
+    _expect_error("no frames", "no frames", lambda: tr.track([], [1], sc.points[0], 8))
+    _expect_error("params of another type", "takes", lambda: factory().set_params(object()))
+
+
+def _check_deterministic(factory: Callable[..., Any]) -> None:
+    sc = make_scene([[20, 20], [26, 28], [60, 50]], [[2, 1], [2, 1], [-1, 1]], n_frames=10)
+    a = _track_scene(_fed(factory(), sc), sc).positions
+    b = _track_scene(_fed(factory(), sc), sc).positions
+    if not np.array_equal(a, b, equal_nan=True):
+        raise AssertionError("two runs on the same scene gave different tracks")
+
+
+def _fed(tracker: Any, sc: Scene) -> Any:
+    if hasattr(tracker, "use_detections"):
+        tracker.use_detections(scene_detections(sc))
+    return tracker
+
+
+def _check_params(factory: Callable[..., Any]) -> None:
+    tr = factory()
+    cls = type(tr).params_class
+    if cls is not None and not isinstance(tr.params, cls):
+        raise AssertionError(f"{type(tr).__name__}.params is not a {cls.__name__}")
+    if not check_set_params(factory):
+        raise AssertionError(f"{type(tr).__name__}: no parameter could be checked")
+
+
+POINT_CHECKS: dict[str, Callable[[Callable[..., Any]], None]] = {
+    "exact positions on a hand-built scene": _check_exact_scene,
+    "zero targets": _check_zero_targets,
+    "textureless frames": _check_empty_frames,
+    "targets at the border": _check_border,
+    "leaving targets end, births start": _check_leaving_and_births,
+    "tracks end where people vanish in view": _check_vanishing,
+    "bad input is refused by name": _check_bad_input,
+}
+"""Checks of trackers that follow the given targets (``id_mapping == "same"``)."""
+COMMON_CHECKS: dict[str, Callable[[Callable[..., Any]], None]] = {
+    "deterministic": _check_deterministic,
+    "set_params: every parameter acts as if given at start": _check_params,
+}
+"""Checks of every tracker, tracking-by-detection included."""
+
+
+def contract_checks(factory: Callable[..., Any]) -> dict[str, Callable[[Callable[..., Any]], None]]:
+    """The checks of :func:`check_tracker_contract` that apply to ``factory``'s tracker."""
+    point = getattr(type(factory()), "id_mapping", "same") == "same"
+    return {**(POINT_CHECKS if point else {}), **COMMON_CHECKS}
+
+
+def check_tracker_contract(factory: Callable[..., Any]) -> list[str]:
+    """Run the whole tracker contract on ``factory``'s tracker; raise on the first breach.
+
+    ``factory(params=None) -> Tracker`` makes a fresh tracker (default parameters when
+    ``params`` is ``None``), e.g. ``tracker.registry.get("bqp").create`` or a class of your own.
+    Point trackers (``id_mapping == "same"``, the default) must recover tiny hand-built scenes
+    exactly (within the class's ``position_tolerance_px``), handle zero targets, textureless
+    frames, the image border, people who leave or vanish, births and bad input; every tracker
+    must be deterministic and honour ``set_params`` (:func:`check_set_params`).
+
+    Returns the names of the checks passed; raises ``AssertionError`` naming the tracker and
+    the check otherwise.
+
+    >>> from tracker.registry import get
+    >>> check_tracker_contract(get("ncc").create)[:2]
+    ['exact positions on a hand-built scene', 'zero targets']
+    """
+    passed = []
+    for name, check in contract_checks(factory).items():
+        try:
+            check(factory)
+        except AssertionError as exc:
+            raise AssertionError(f"tracker contract, {name}: {exc}") from exc
+        passed.append(name)
+    return passed

@@ -28,6 +28,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from crowdsim.optional import DependencyNotInstalled, require
+
 DENSITY = 2.0
 V0 = 1.34
 WARMUP = 10
@@ -153,7 +155,7 @@ def run_ours(layout: Layout) -> dict[str, Any]:
 
 
 def run_jupedsim(layout: Layout, model: str) -> dict[str, Any]:
-    import jupedsim as jps
+    jps = require("jupedsim", "bench", "crowdsim bench sim")
 
     L, W = layout.length, layout.width
     if model == "sfm":
@@ -208,7 +210,7 @@ def run_pysocialforce(layout: Layout, dt: float = 0.4) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         os.chdir(tmp)  # psf opens a "file.log" in the working directory on import
         try:
-            import pysocialforce as psf
+            psf = require("pysocialforce", "bench", "crowdsim bench sim")
         finally:
             os.chdir(cwd)
 
@@ -335,8 +337,8 @@ def run(args: argparse.Namespace) -> int:
                 results.append(run_jupedsim(layout, name.split("-")[1]))
             else:
                 results.append(run_pysocialforce(layout))
-        except ImportError as exc:
-            skipped[name] = f"{exc.name or exc} is not installed: pip install -e '.[bench]'"
+        except DependencyNotInstalled as exc:
+            skipped[name] = str(exc)
     scale = run_scale(args.scale) if args.scale else None
     ratios = []
     for ours in (r for r in results if r["simulator"] == "crowdsim"):

@@ -8,7 +8,7 @@ Reproduces two claims on the relaxed per-frame QP of the BQP tracker:
 
 Problems come from one of three sources:
 
-* ``--tracker-frames N``: the BQP tracker (:class:`tracker.bqp.BQPTracker`) itself runs N
+* ``--tracker-frames N``: the BQP tracker (:class:`tracker.bqp.tracker.BQPTracker`) itself runs N
   frames on a crowd rendered by :func:`synth_data.sequence.synthetic_crowd` at each size and
   its recorded per-frame QPs are taken;
 * ``--from-npz FILE``: QPs dumped from tracking frames with :func:`tracker.bqp.qp.save_many`

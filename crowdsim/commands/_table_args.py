@@ -55,7 +55,7 @@ def add_table_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def table_run_kwargs(args: argparse.Namespace) -> dict:
-    """Keyword arguments of :func:`crowdsim.experiments.run_table` (and of what runs on it)
+    """Keyword arguments of :func:`crowdsim.lab.experiments.run_table` (and of what runs on it)
     from :func:`add_table_arguments`' flags, with a log to stderr."""
 
     def log(msg: str) -> None:
@@ -73,7 +73,7 @@ def table_run_kwargs(args: argparse.Namespace) -> dict:
 
 
 def run_table_command(args: argparse.Namespace, rows, title: str, paper_table: str) -> int:
-    from crowdsim.experiments import run_table
+    from crowdsim.lab.experiments import run_table
 
     text = run_table(
         rows, args.suite, args.out, title=title, paper_table=paper_table, **table_run_kwargs(args)

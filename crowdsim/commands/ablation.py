@@ -25,6 +25,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from crowdsim.experiments import ablation_rows
+    from crowdsim.lab.experiments import ablation_rows
 
     return run_table_command(args, ablation_rows(), f"ablation on {args.suite}", "ablation@15")

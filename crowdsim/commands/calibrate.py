@@ -6,7 +6,7 @@ For each sequence with a paper NCC figure, an Optuna study moves the spec's appe
 camera knobs (never its motion) along one difficulty scale, bracketing the target, until the
 independent NCC tracker scores that figure at
 15 px, then writes the knobs and the achieved score into the spec file and the suite's
-README (see :mod:`crowdsim.calibration`). Studies live in ``DIR/calibration.db`` (SQLite):
+README (see :mod:`crowdsim.lab.calibration`). Studies live in ``DIR/calibration.db`` (SQLite):
 a killed run resumes.
 """
 
@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from crowdsim.calibration import calibrate_suite
+    from crowdsim.lab.calibration import calibrate_suite
 
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)

@@ -7,7 +7,7 @@ Rows: NCC, mean-shift, PNMC, BQP (KCF), BQP (NCC appearance), ByteTrack and OC-S
 detector miss rates 0.1 and 0.3. Per sequence: acc@15, acc@5, MOTA, IDF1, HOTA, frames/s.
 Writes ``table.md``, ``table.csv`` and accuracy-versus-threshold PNGs and prints the table.
 Resumable: a rerun with the same ``--out`` skips finished cells (see
-:mod:`crowdsim.experiments`).
+:mod:`crowdsim.lab.experiments`).
 """
 
 from __future__ import annotations
@@ -28,6 +28,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from crowdsim.experiments import COMPARE_ROWS
+    from crowdsim.lab.experiments import COMPARE_ROWS
 
     return run_table_command(args, COMPARE_ROWS, f"compare on {args.suite}", "acc@15")

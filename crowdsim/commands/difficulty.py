@@ -8,7 +8,7 @@ appearance / camera knobs put back to its uncalibrated value (look-alike heads, 
 clutter, noise and codec, blur, flicker, shake; one group at a time) and the uncalibrated
 spec, with each tracker (default: ncc pnmc bqp). Writes the run's ``table.md`` / ``table.csv``
 and ``attribution.md`` / ``attribution.json``: the acc@15 points each group costs each tracker.
-Resumable like ``compare`` (see :mod:`crowdsim.difficulty`).
+Resumable like ``compare`` (see :mod:`crowdsim.lab.difficulty`).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from crowdsim.difficulty import attribute, attribution_table
+    from crowdsim.lab.difficulty import attribute, attribution_table
 
     doc = attribute(args.suite, args.out, trackers=args.trackers, **table_run_kwargs(args))
     print(attribution_table(doc))

@@ -21,11 +21,16 @@ import os
 
 def register(sub: argparse._SubParsersAction) -> None:
     from crowdsim.commands._table_args import add_jobs_arguments
+    from crowdsim.knobs import reference
 
     p = sub.add_parser(
         "generate",
         help="generate synthetic benchmark sequences (MOT layout)",
         description=__doc__.splitlines()[0].replace("``", ""),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="The rendering knobs of a spec file (its [appearance] section and the camera "
+        "shake; a value\nout of range is refused on load, naming the file, the field and the "
+        "value):\n\n" + reference(),
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument(

@@ -99,7 +99,7 @@ def _check_out(out: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from envs.heldout import evaluate_heldout, heldout_table, write_heldout
-    from envs.tuners import load_params
+    from envs.param_space import load_params
 
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")

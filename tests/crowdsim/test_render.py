@@ -11,8 +11,8 @@ from crowdsim.appearance_model import AppearanceParams, build_sprite_bank
 from crowdsim.camera import Camera
 from crowdsim.render import SceneRenderer, prepare_agents
 from crowdsim.trajectories import Trajectories
-from synth_data.mot import read_sequence
-from synth_data.writer import gt_rows, mot_ids, write_sequence
+from synth_data.mot import gt_rows, mot_ids, read_sequence
+from synth_data.writer import write_sequence
 
 
 def walkers(n_frames: int = 12, dt: float = 0.04) -> Trajectories:

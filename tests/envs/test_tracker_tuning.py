@@ -18,7 +18,6 @@ from envs.tracker_tuning import (
     TrackerTuningBanditEnv,
     TrackerTuningEnv,
     make_observed_tracker,
-    register_envs,
 )
 
 TINY = {
@@ -33,10 +32,20 @@ TINY = {
 """A sequence of a few people, 12 small frames: each env step takes milliseconds."""
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _registered():
-    register_envs()
-    register_envs()  # idempotent
+def test_one_registration_table_registers_each_id_once():
+    import importlib
+
+    import gymnasium as gym
+
+    import envs
+
+    assert set(envs.ENVS) == {ENV_ID, BANDIT_ENV_ID}
+    for env_id, entry in envs.ENVS.items():
+        assert gym.registry[env_id].entry_point == entry
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # gymnasium warns when an id is registered twice
+        importlib.reload(envs)
+    assert [i for i in gym.registry if i.startswith("crowdsim/")] == list(envs.ENVS)
 
 
 def tiny_env(cls=TrackerTuningEnv, **kw):
@@ -245,8 +254,8 @@ def test_async_vector_env_default_context_in_a_fresh_process():
 
     code = (
         "import gymnasium as gym, numpy as np\n"
-        "from envs.tracker_tuning import register_envs, ENV_ID\n"
-        "register_envs()\n"
+        "import envs\n"
+        "from envs.tracker_tuning import ENV_ID\n"
         f"vec = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode='async', "
         f"scenarios={dict(TINY)!r}, k_frames=5)\n"
         "obs, _ = vec.reset(seed=0)\n"

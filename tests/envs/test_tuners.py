@@ -15,17 +15,10 @@ from pathlib import Path
 
 import pytest
 
+from crowdsim.optional import DependencyNotInstalled, require
+from envs.param_space import load_params
 from envs.training import load_policy
-from envs.tuners import (
-    DependencyNotInstalled,
-    Objective,
-    complete_trials,
-    load_params,
-    open_study,
-    require,
-    storage_url,
-    tune,
-)
+from envs.tuners import Objective, complete_trials, open_study, storage_url, tune
 
 TINY = {
     "scenarios": ["counterflow"],

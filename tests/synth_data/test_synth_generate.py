@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from synth_data.generate import generate
-from synth_data.mot import read_sequence
+from synth_data.mot import read_sequence, sha256_file
 from synth_data.spec import spec_from_dict
-from synth_data.writer import TMP_PREFIX, read_tmp_marker, sha256_file
+from synth_data.writer import TMP_PREFIX, read_tmp_marker
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -166,7 +166,8 @@ def test_killed_worker_then_rerun_completes_with_right_checksums(tmp_path, slow_
     cmd = [
         sys.executable,
         "-m",
-        "crowdsim.commands._generate_main",
+        "crowdsim",
+        "generate",
         "--out",
         str(out),
         "--workers",
@@ -229,7 +230,7 @@ def test_ray_missing_is_a_clear_user_error(tmp_path):
         pass
     else:
         pytest.skip("Ray is installed; the missing-Ray message cannot be shown")
-    with pytest.raises(ValueError, match=r"--backend ray needs Ray.*crowdsim\[distributed\]"):
+    with pytest.raises(ValueError, match=r"--backend ray needs ray.*crowdsim\[distributed\]"):
         generate([tiny()], tmp_path / "out", backend="ray", progress=False, log=lambda m: None)
 
 
@@ -274,7 +275,8 @@ def _gen(out: Path, spec_args: list[str], workers: int) -> list[str]:
     return [
         sys.executable,
         "-m",
-        "crowdsim.commands._generate_main",
+        "crowdsim",
+        "generate",
         "--out",
         str(out),
         "--workers",

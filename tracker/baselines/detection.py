@@ -70,18 +70,12 @@ DETECTOR_FIELDS: frozenset[str] = frozenset(
 """Fields describing the simulated detector (same names as
 ``synth_data.detections.DetectionParams``); fixed once a sequence has started."""
 
-INSTALL_HINT = (
-    "ByteTrack / OC-SORT need the optional 'trackers' package: pip install 'crowdsim[detect]'"
-)
-
 
 def _import_trackers() -> tuple[Any, Any]:
-    try:
-        import supervision as sv
-        import trackers
-    except ImportError as exc:  # pragma: no cover - exercised only without the extra
-        raise ImportError(INSTALL_HINT) from exc
-    return trackers, sv
+    from crowdsim.optional import require
+
+    trackers = require("trackers", "detect", "ByteTrack / OC-SORT")
+    return trackers, require("supervision", "detect", "ByteTrack / OC-SORT")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -133,6 +133,10 @@ class MeanShiftTracker(Tracker):
 
     name = "meanshift"
     params_class = MeanShiftParams
+    position_tolerance_px = 3.0
+    """cv2.meanShift's integer search window stops 1-2 px short of a blob's centre by design,
+    so it lags a moving one by up to 3 px. The same lag keeps its window inside the image when
+    a person walks out, so its track ends on lost evidence (``max_lost`` frames later)."""
 
     def __init__(self, params: MeanShiftParams | None = None):
         super().__init__()

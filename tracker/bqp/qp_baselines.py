@@ -8,7 +8,7 @@ standing in for the paper's ILOG CPLEX (Sec. 7.4, Fig. 12). Both take the proble
     OSQP:      1 <= B x <= 1,  0 <= x <= inf
 
 where ``B`` (n, l) sums each block. Neither package is a core dependency: they are imported
-lazily, and a missing one raises ``ImportError`` with the install hint.
+lazily, and a missing one raises :class:`crowdsim.optional.DependencyNotInstalled`.
 """
 
 from __future__ import annotations
@@ -20,11 +20,6 @@ import scipy.sparse as sp
 
 from tracker.bqp.qp import BlockQP
 
-_INSTALL_HINT = (
-    "{name} is needed for the reference QP solver; install it with "
-    "`pip install {name}` or `pip install -e '.[bench]'`"
-)
-
 
 @dataclass
 class QPSolution:
@@ -35,7 +30,7 @@ class QPSolution:
     x : (l,) float64
         Solution, clipped to ``>= 0`` and renormalised per block (solver round-off only).
     objective : float
-        ``c.x + x^T Q x`` at ``x`` (recomputed, so comparable with :mod:`frank_wolfe`).
+        ``c.x + x^T Q x`` at ``x`` (recomputed, so comparable with :mod:`tracker.bqp.frank_wolfe`).
     status : str
         The solver's status string.
     iterations : int
@@ -50,13 +45,6 @@ class QPSolution:
     status: str
     iterations: int
     solve_time: float
-
-
-def _import(name: str):
-    try:
-        return __import__(name)
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ImportError(_INSTALL_HINT.format(name=name)) from exc
 
 
 def block_sum_matrix(qp: BlockQP) -> sp.csc_matrix:
@@ -80,7 +68,9 @@ def _finish(qp: BlockQP, x: np.ndarray, status: str, iterations: int, t: float) 
 
 def solve_clarabel(qp: BlockQP, tol: float = 1e-8, verbose: bool = False) -> QPSolution:
     """Solve ``qp`` with Clarabel's interior-point method (gap tolerances ``tol``)."""
-    clarabel = _import("clarabel")
+    from crowdsim.optional import require
+
+    clarabel = require("clarabel", "bench", "the Clarabel reference QP solver")
     l, n = qp.n_vars, qp.n_blocks
     if n == 0:
         return QPSolution(np.zeros(0), 0.0, "Solved", 0, 0.0)
@@ -104,7 +94,9 @@ def solve_osqp(
     qp: BlockQP, tol: float = 1e-6, verbose: bool = False, max_iter: int = 20_000
 ) -> QPSolution:
     """Solve ``qp`` with OSQP (first-order ADMM; absolute/relative tolerances ``tol``)."""
-    osqp = _import("osqp")
+    from crowdsim.optional import require
+
+    osqp = require("osqp", "bench", "the OSQP reference QP solver")
     l, n = qp.n_vars, qp.n_blocks
     if n == 0:
         return QPSolution(np.zeros(0), 0.0, "solved", 0, 0.0)

@@ -7,9 +7,9 @@ import json
 
 import pytest
 
-from crowdsim.calibration import _uncalibrated
 from crowdsim.cli import main
-from crowdsim.difficulty import DIFFICULTY_GROUPS, attribute, variant_specs
+from crowdsim.lab.calibration import _uncalibrated
+from crowdsim.lab.difficulty import DIFFICULTY_GROUPS, attribute, variant_specs
 from synth_data.suites import suite_specs
 
 

@@ -8,8 +8,9 @@ import json
 
 import pytest
 
-from crowdsim import calibration, experiments
-from crowdsim.experiments import Row, run_table
+from crowdsim.knobs import apply_knobs, knob_values
+from crowdsim.lab import calibration, experiments
+from crowdsim.lab.experiments import Row, run_table
 from synth_data.spec import load_spec, spec_from_dict
 
 
@@ -94,9 +95,7 @@ def test_difficulty_makes_ncc_worse_and_calibration_lands_on_the_target(tmp_path
         source="m.toml",
     )
     easy = calibration.ncc_score(spec, tmp_path / "w")
-    hard = calibration.ncc_score(
-        calibration.apply_knobs(spec, calibration.knob_values(spec, 1.0, 1.0)), tmp_path / "w"
-    )
+    hard = calibration.ncc_score(apply_knobs(spec, knob_values(spec, 1.0, 1.0)), tmp_path / "w")
     assert hard < easy - 20
     target = (easy + hard) / 2
     res = calibration.calibrate_spec(
@@ -140,7 +139,7 @@ def test_write_calibration_keeps_the_file_and_records_the_base(tmp_path):
     path = tmp_path / "lobby.toml"
     path.write_text(SPEC_TEXT)
     before = load_spec(path)
-    values = calibration.knob_values(before, 0.4, 0.4)
+    values = knob_values(before, 0.4, 0.4)
     calibration.write_calibration(
         path, {"difficulty": 0.4, "ncc_15px": 85.5, "trials": 5, "values": values}
     )
@@ -161,7 +160,7 @@ def test_write_calibration_keeps_the_file_and_records_the_base(tmp_path):
             "difficulty": 0.9,
             "ncc_15px": 40.0,
             "trials": 2,
-            "values": calibration.knob_values(after, 0.9, 0.9),
+            "values": knob_values(after, 0.9, 0.9),
         },
     )
     restored = calibration._uncalibrated(load_spec(path))
@@ -171,7 +170,7 @@ def test_write_calibration_keeps_the_file_and_records_the_base(tmp_path):
 
 def test_knob_values_are_validated():
     with pytest.raises(ValueError, match="difficulty|scene"):
-        calibration.knob_values(tiny(), 1.5, 0.0)
-    vals = calibration.knob_values(tiny(), 0.0, 0.0)
+        knob_values(tiny(), 1.5, 0.0)
+    vals = knob_values(tiny(), 0.0, 0.0)
     assert vals[("appearance", "video_kbps")] == 0.0  # d = 0 is the spec as written
     assert vals[("appearance", "noise_sigma")] == 3.0

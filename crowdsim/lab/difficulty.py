@@ -1,11 +1,11 @@
 """Which difficulty costs which tracker: ``crowdsim difficulty``.
 
-The calibration (:mod:`crowdsim.calibration`) moves all appearance and camera knobs of a
+The calibration (:mod:`crowdsim.lab.calibration`) moves all appearance and camera knobs of a
 sequence together until the NCC tracker scores the paper's figure. It says nothing about which
 of them makes a tracker fail. :func:`attribute` answers that: for each sequence it generates
 the calibrated spec, the spec with one *group* of knobs (:data:`DIFFICULTY_GROUPS`) put back to
 its uncalibrated value, for every group in turn, and the fully uncalibrated spec, then tracks
-all of them with each tracker (:func:`crowdsim.experiments.run_table`: resumable, parallel).
+all of them with each tracker (:func:`crowdsim.lab.experiments.run_table`: resumable, parallel).
 The accuracy a tracker regains when a group is removed is what that group costs it.
 """
 
@@ -19,21 +19,13 @@ from pathlib import Path
 from typing import Any
 
 from crowdsim.atomic import write_text_atomic
+from crowdsim.knobs import apply_knobs, difficulty_groups
 
-DIFFICULTY_GROUPS: dict[str, tuple[str, ...]] = {
-    "look-alike": ("dark_hair_fraction", "cluster_spread", "cluster_decay", "contrast"),
-    "packing": ("body_scale",),
-    "gait": ("arm_swing", "gait_bob", "head_turn_deg"),
-    "clutter": ("distractor_density", "moving_shadow_density"),
-    "noise+codec": ("noise_sigma", "jpeg_quality", "video_kbps"),
-    "blur": ("defocus_px", "motion_blur_px"),
-    "flicker": ("flicker",),
-    "shake": ("jitter_px",),
-}
-"""Knob groups (spec field names) of the calibration's difficulty scale, in the issue's words:
-look-alike heads, packed bodies, appearance change (gait, arm swing, head turns), clutter and
-moving shadows, sensor noise with JPEG / H.264 compression, defocus and motion blur,
-illumination flicker, camera shake."""
+DIFFICULTY_GROUPS: dict[str, tuple[str, ...]] = difficulty_groups()
+"""Knob groups (spec field names) of the calibration's difficulty scale, read from the ``group``
+column of :data:`crowdsim.knobs.KNOBS`: look-alike heads, packed bodies, appearance change
+(gait, arm swing, head turns), clutter and moving shadows, sensor noise with JPEG / H.264
+compression, defocus and motion blur, illumination flicker, camera shake."""
 
 DEFAULT_TRACKERS: tuple[str, ...] = ("ncc", "pnmc", "bqp")
 
@@ -49,7 +41,7 @@ def variant_specs(spec: Any) -> list[tuple[str, Any]]:
     differ (same seed, same crowd, same motion). Raises ``ValueError`` for a spec that was
     never calibrated (no ``base_*`` values recorded in ``[calibration]``).
     """
-    from crowdsim.calibration import apply_knobs, uncalibrated_values
+    from crowdsim.lab.calibration import uncalibrated_values
 
     base = uncalibrated_values(spec)
     if not base:
@@ -82,14 +74,14 @@ def attribute(
 ) -> dict[str, Any]:
     """Track every difficulty variant of the suite's calibrated sequences with ``trackers``.
 
-    Writes the full table of :func:`crowdsim.experiments.run_table` (``OUT/table.md``,
+    Writes the full table of :func:`crowdsim.lab.experiments.run_table` (``OUT/table.md``,
     ``table.csv``, ``cells.json``, curves) and ``OUT/attribution.md`` / ``.json``: per
     sequence and tracker, acc@15 calibrated, the points regained by removing each group, and
     acc@15 uncalibrated. Returns the attribution document.
     """
     import json
 
-    from crowdsim.experiments import Row, cell_key, run_table
+    from crowdsim.lab.experiments import Row, cell_key, run_table
     from synth_data.suites import suite_specs
     from tracker.registry import get
 

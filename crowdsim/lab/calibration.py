@@ -7,13 +7,14 @@ independent NCC tracker's accuracy at 15 px lands on the paper's figure. The kno
 written back into the spec file (comments and the rest of the file kept), with the achieved
 score, so ``crowdsim generate`` reproduces the calibrated sequence exactly.
 
-Search space: one difficulty ``d`` in [0, 1] moving two groups of knobs from the spec's own
-values (0) to hard ends (1), linearly:
+Search space: one difficulty ``d`` in [0, 1] moving the knobs of both calibration axes of
+:data:`crowdsim.knobs.KNOBS` from the spec's own values (0) to their hard ends (1)
+(:func:`crowdsim.knobs.knob_values`):
 
-* ``scene`` (:data:`SCENE_KNOBS`) -- look-alike heads and clothing, packed bodies, gait,
-  arm swing and head turns, clutter and moving shadows;
-* ``camera`` (:data:`CAMERA_KNOBS`) -- sensor noise, defocus, flicker, motion blur, shake,
-  JPEG quality and H.264 compression.
+* ``scene`` -- look-alike heads and clothing, packed bodies, gait, arm swing and head turns,
+  clutter and moving shadows;
+* ``camera`` -- sensor noise, defocus, flicker, motion blur, shake, JPEG quality and H.264
+  compression (its bit rate on a log scale).
 
 The NCC score falls nearly monotonically with ``d``, so the study places its trials by
 bracketing (:func:`next_difficulty`) and reaches the target within a point in a handful of
@@ -28,95 +29,14 @@ import os
 import re
 import tempfile
 from collections.abc import Callable
-from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from crowdsim.atomic import write_text_atomic
+from crowdsim.knobs import apply_knobs, knob_values, scaled
 
-
-@dataclass(frozen=True)
-class Knob:
-    """One spec field moved by a calibration scalar from the spec's value to ``hard``."""
-
-    section: str
-    name: str
-    hard: float
-    integer: bool = False
-
-
-SCENE_KNOBS: tuple[Knob, ...] = (
-    Knob("appearance", "dark_hair_fraction", 1.0),
-    Knob("appearance", "cluster_spread", 3.0),
-    Knob("appearance", "cluster_decay", 0.3),
-    Knob("appearance", "contrast", 0.2),
-    Knob("appearance", "body_scale", 1.6),
-    Knob("appearance", "arm_swing", 0.4),
-    Knob("appearance", "gait_bob", 0.25),
-    Knob("appearance", "head_turn_deg", 60.0),
-    Knob("appearance", "distractor_density", 0.6),
-    Knob("appearance", "moving_shadow_density", 0.15),
-)
-"""Scene and appearance difficulty (issue: look-alikes, packing, appearance change, clutter)."""
-
-CAMERA_KNOBS: tuple[Knob, ...] = (
-    Knob("appearance", "noise_sigma", 24.0),
-    Knob("appearance", "defocus_px", 2.0),
-    Knob("appearance", "flicker", 0.08),
-    Knob("appearance", "motion_blur_px", 3.5),
-    Knob("appearance", "jpeg_quality", 40, integer=True),
-    Knob("camera", "jitter_px", 3.0),
-)
-"""Camera difficulty; the codec bit rate is handled apart (:func:`knob_values`)."""
-
-VIDEO_KBPS_EASY: float = 4000.0
-"""H.264 bit rate (kbit/s) at ``camera`` just above 0 (a good 720p stream)."""
-VIDEO_KBPS_HARD: float = 150.0
-"""... and at ``camera = 1`` (a starved CCTV stream)."""
-VIDEO_ON: float = 0.1
-"""The codec is applied from this ``camera`` value on (below it: JPEG only)."""
 TOLERANCE: float = 1.0
 """A study stops early once the NCC score is within this many points of the target."""
-
-
-def _base_values(spec: Any) -> dict[tuple[str, str], float]:
-    app = spec.appearance
-    out = {}
-    for k in SCENE_KNOBS + CAMERA_KNOBS:
-        if k.section == "appearance":
-            out[(k.section, k.name)] = float(getattr(app, k.name))
-        else:
-            out[(k.section, k.name)] = float(spec.camera.get(k.name, 0.0))
-    return out
-
-
-def knob_values(spec: Any, scene: float, camera: float) -> dict[tuple[str, str], Any]:
-    """Spec fields ``{(section, name): value}`` for the two calibration scalars in [0, 1]."""
-    for name, v in (("scene", scene), ("camera", camera)):
-        if not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
-            raise ValueError(f"calibration {name} must be in [0, 1], got {v!r}")
-    base = _base_values(spec)
-    out: dict[tuple[str, str], Any] = {}
-    for group, s in ((SCENE_KNOBS, scene), (CAMERA_KNOBS, camera)):
-        for k in group:
-            b = base[(k.section, k.name)]
-            v = b + s * (k.hard - b)
-            out[(k.section, k.name)] = int(round(v)) if k.integer else round(v, 4)
-    if camera >= VIDEO_ON:
-        f = (camera - VIDEO_ON) / (1.0 - VIDEO_ON)
-        kbps = VIDEO_KBPS_EASY * (VIDEO_KBPS_HARD / VIDEO_KBPS_EASY) ** f  # log scale
-        out[("appearance", "video_kbps")] = round(kbps, 1)
-    else:
-        out[("appearance", "video_kbps")] = 0.0
-    return out
-
-
-def apply_knobs(spec: Any, values: dict[tuple[str, str], Any]) -> Any:
-    """``spec`` with the knob values set (validated by the appearance dataclass)."""
-    app = replace(spec.appearance, **{n: v for (s, n), v in values.items() if s == "appearance"})
-    cam = dict(spec.camera)
-    cam.update({n: v for (s, n), v in values.items() if s == "camera"})
-    return replace(spec, appearance=app, camera=cam)
 
 
 def ncc_score(spec: Any, workdir: str | os.PathLike[str]) -> float:
@@ -376,7 +296,7 @@ def uncalibrated_values(spec: Any) -> dict[tuple[str, str], Any]:
     it can make a sequence easier again). Empty for a spec never calibrated.
     """
     values = {}
-    for k in SCENE_KNOBS + CAMERA_KNOBS + (Knob("appearance", "video_kbps", 0.0),):
+    for k in scaled():
         key = _base_key(k.section, k.name)
         if key in spec.calibration:
             v = spec.calibration[key]

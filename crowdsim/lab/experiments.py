@@ -1,8 +1,9 @@
 """The papers' tables on a suite: tracker comparison and term ablation, resumable and parallel.
 
-:func:`compare` runs every row of :data:`COMPARE_ROWS` (NCC, mean-shift, PNMC, BQP with KCF and
-with NCC appearance, ByteTrack and OC-SORT at two detector miss rates) on every sequence of a
-suite; :func:`ablation` runs paper 1's Table 3 rows (:mod:`tracker.bqp.ablation`). Both:
+:func:`run_table` runs rows over every sequence of a suite: ``crowdsim compare`` the rows of
+:data:`COMPARE_ROWS` (NCC, mean-shift, PNMC, BQP with KCF and with NCC appearance, ByteTrack and
+OC-SORT at two detector miss rates), ``crowdsim ablation`` paper 1's Table 3 rows
+(:func:`ablation_rows`, from :mod:`tracker.bqp.ablation`). Both:
 
 1. generate the suite's sequences into ``OUT/sequences`` (:func:`synth_data.generate.generate`,
    resumable, checksummed; ``frames`` truncates every spec);
