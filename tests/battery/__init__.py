@@ -1,0 +1,1 @@
+"""The bad-input battery: a harness and one case file per area."""
