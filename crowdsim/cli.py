@@ -6,7 +6,10 @@ parsed arguments and returning an exit code. Heavy imports happen inside ``func`
 ``crowdsim --help`` stays fast.
 
 User errors (bad flags, bad files, out-of-range parameters) end with exit code 2 and one line
-``crowdsim <command>: error: <message>`` on stderr, never a traceback.
+``crowdsim <command>: error: <message>`` on stderr, never a traceback. SIGINT (Ctrl-C) ends any
+command with exit code 130 and SIGTERM with 143, after the command's clean-ups ran, with one
+line ``crowdsim <command>: interrupted by SIGINT|SIGTERM[; what was removed or kept]`` (see
+:func:`main`).
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from crowdsim.commands import (
     train,
     tune,
 )
+from crowdsim.jobs import EXIT_CODES, interruptible
 
 COMMANDS: tuple[ModuleType, ...] = (
     simulate,
@@ -137,7 +141,13 @@ def describe_os_error(exc: OSError) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run one sub-command; returns its exit code (2 for a user error, 130 for Ctrl-C).
+    """Run one sub-command; returns its exit code.
+
+    Exit codes, the same for every command: 0 done; 1 the work itself failed (a worker died,
+    a job raised: see the command); 2 a user error or a file-system error; 130 stopped by
+    SIGINT (Ctrl-C) and 143 by SIGTERM, after the command's own clean-ups ran (the signals
+    raise :class:`crowdsim.jobs.Interrupted` while a command runs), with one line
+    ``crowdsim <command>: interrupted by SIGINT; <what was cleaned up or kept>``.
 
     Every expected failure ends as one line ``crowdsim <command>: error: <message>``:
     ``ValueError`` (bad input; ``UsageError`` included), any ``OSError`` (full disk, permission,
@@ -154,7 +164,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     prefix = f"crowdsim {args.command}: error:"
     try:
-        return int(args.func(args) or 0)
+        with interruptible():
+            return int(args.func(args) or 0)
+    except KeyboardInterrupt as exc:  # Interrupted too: SIGINT or SIGTERM, one line
+        name = getattr(exc, "signal_name", "SIGINT")
+        detail = getattr(exc, "detail", "")
+        print(
+            f"crowdsim {args.command}: interrupted by {name}" + (f"; {detail}" if detail else ""),
+            file=sys.stderr,
+        )
+        return EXIT_CODES.get(name, 130)
     except ValueError as exc:
         print(f"{prefix} {exc}", file=sys.stderr)
         return 2
@@ -164,9 +183,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except MemoryError:
         print(f"{prefix} out of memory; ask for fewer frames, agents or pixels", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"crowdsim {args.command}: interrupted", file=sys.stderr)
-        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -77,12 +77,27 @@ class JobError(RuntimeError):
         self.key = key
 
 
-class Interrupted(KeyboardInterrupt):
-    """SIGINT or SIGTERM stopped the run; ``signal_name`` says which."""
+EXIT_CODES: dict[str, int] = {"SIGINT": 130, "SIGTERM": 143}
+"""Exit code of a command stopped by each signal (128 + the signal number, as a shell reports
+a process the signal killed), whatever the command."""
 
-    def __init__(self, signal_name: str) -> None:
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM stopped the run; ``signal_name`` says which.
+
+    ``detail`` is what the interrupted work wants the one line that reports it to add (what was
+    cleaned up, what was kept); code that catches the interrupt to clean up sets it and
+    re-raises.
+    """
+
+    def __init__(self, signal_name: str, detail: str = "") -> None:
         super().__init__(signal_name)
         self.signal_name = signal_name
+        self.detail = detail
+
+    @property
+    def exit_code(self) -> int:
+        return EXIT_CODES.get(self.signal_name, 130)
 
 
 @dataclass(frozen=True)
@@ -193,7 +208,7 @@ class _Terminated(BaseException):
     """Raised inside a worker's running job by SIGTERM so that its clean-ups run."""
 
 
-def _die_with_parent(parent_pid: int) -> None:
+def die_with_parent(parent_pid: int) -> None:
     """Ask for SIGKILL when the parent dies (Linux), and watch the parent pid (everywhere)."""
     if sys.platform.startswith("linux"):
         try:
@@ -223,7 +238,7 @@ def _on_sigterm(signum: int, frame: Any) -> None:
 
 def _worker_init(parent_pid: int, queue: Any, user_init: Callable[[], None] | None) -> None:
     global _QUEUE
-    _die_with_parent(parent_pid)
+    die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
     signal.signal(signal.SIGTERM, _on_sigterm)
     _QUEUE = queue

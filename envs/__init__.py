@@ -18,7 +18,8 @@ Module map:
 * :mod:`envs.crowd_v0` -- the versioned face (``env``, ``parallel_env``, ``raw_env``);
 * :mod:`envs.tuners` -- Optuna / Ray Tune drivers (static parameters);
 * :mod:`envs.training` -- stable-baselines3 training of adaptive policies, loading them;
-* :mod:`envs.heldout` -- defaults, tuned parameters and policies on held-out sequences.
+* :mod:`envs.heldout` -- defaults, tuned parameters and policies on held-out sequences;
+* :mod:`envs.outputs` -- result files a command may replace: only those it can prove it wrote.
 
 The names below are imported lazily (the crowd pulls in pymunk and numba, the tuning
 environments the tracker), so ``import envs`` only registers the ids.

@@ -186,6 +186,12 @@ class CrowdParallelEnv(ParallelEnv):
         render_size: tuple[int, int] = (640, 360),
         **params: Any,
     ) -> None:
+        unknown = sorted(set(params) - set(CrowdEnvParams.__dataclass_fields__))
+        if unknown:
+            raise ValueError(
+                f"CrowdParallelEnv: unknown parameter(s) {', '.join(unknown)}; valid: "
+                f"{', '.join(CrowdEnvParams.__dataclass_fields__)}"
+            )
         self.params = CrowdEnvParams(**params)
         p = self.params
         if isinstance(scenario, Scenario):
@@ -199,13 +205,26 @@ class CrowdParallelEnv(ParallelEnv):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
+        if not (isinstance(render_size, (tuple, list)) and len(render_size) == 2):
+            raise ValueError(f"render_size must be (width, height) in px, got {render_size!r}")
+        for v in render_size:
+            require_number("CrowdParallelEnv", "render_size", v, lo=16, hi=8192, integer=True)
         self.render_size = (int(render_size[0]), int(render_size[1]))
+        if sim_params is not None and not isinstance(sim_params, SocialForceParams):
+            raise ValueError(
+                f"sim_params must be a crowdsim.params.SocialForceParams, got {sim_params!r}"
+            )
         self.sim_params = sim_params if sim_params is not None else SocialForceParams()
         max_agents = int(p.max_agents if p.max_agents is not None else self.scenario.n_agents)
         self.max_agents = max_agents
         ids = np.arange(max_agents)
         if controlled_ids is not None:
-            chosen = np.unique(np.asarray(controlled_ids, dtype=np.int64))
+            try:
+                chosen = np.unique(np.asarray(controlled_ids, dtype=np.int64).reshape(-1))
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"controlled_ids must be a list of integer agent ids, got {controlled_ids!r}"
+                ) from None
             if len(chosen) and (chosen[0] < 0 or chosen[-1] >= max_agents):
                 raise ValueError(
                     f"controlled_ids must lie in [0, {max_agents}), got {chosen.tolist()[:10]}"
@@ -221,6 +240,7 @@ class CrowdParallelEnv(ParallelEnv):
         self._obs_space = spaces.Box(-np.inf, np.inf, (p.obs_size,), np.float32)
         self._act_space = spaces.Box(-p.vmax, p.vmax, (2,), np.float32)
         self._agent_names: list[str] | None = []
+        self._live_names: tuple[list[str], frozenset[str]] | None = None
         self.np_random: np.random.Generator | None = None
         self.sim: Simulation | None = None
         self.n_clipped = 0
@@ -247,6 +267,34 @@ class CrowdParallelEnv(ParallelEnv):
                 f"unknown agent {agent!r}; agents are named 'ped_<id>' with "
                 f"ids below max_agents = {self.max_agents}"
             )
+
+    def _live_set(self) -> frozenset[str]:
+        if self._live_names is None or self._live_names[0] is not self.agents:
+            self._live_names = (self.agents, frozenset(self.agents))
+        return self._live_names[1]
+
+    @staticmethod
+    def _check_action(name: str, a: Any) -> None:
+        """``ValueError`` naming agent ``name`` unless ``a`` is a finite ``(2,)`` action."""
+        try:
+            v = np.asarray(a, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"action of {name!r} must be 2 numbers (m/s), got {a!r}") from None
+        if v.shape != (2,):
+            raise ValueError(
+                f"action of {name!r} must have shape (2,) (preferred velocity, m/s), "
+                f"got shape {v.shape}: {a!r}"
+            )
+        if not np.isfinite(v).all():
+            raise ValueError(f"action of {name!r} must be finite, got {v.tolist()}")
+
+    def _refuse_agent(self, name: Any) -> None:
+        """``ValueError`` for an action addressed to ``name``, which is not a live agent."""
+        self._check_agent(name)  # a misspelt or impossible name
+        raise ValueError(
+            f"action for agent {name!r}, which is not live (it has left the scene or has "
+            "not entered yet); act only for env.agents"
+        )
 
     @property
     def agents(self) -> list[str]:
@@ -359,13 +407,27 @@ class CrowdParallelEnv(ParallelEnv):
     ]:
         names = self.agents
         n = len(names)
+        if not isinstance(actions, Mapping):
+            raise ValueError(
+                f"actions must be a dict of agent name -> (2,) action, got {type(actions).__name__}"
+            )
+        live = self._live_set()
+        if not live.issuperset(actions):
+            self._refuse_agent(next(k for k in actions if k not in live))
+        rows = [k for k, name in enumerate(names) if actions.get(name) is not None]
+        given = [actions[names[k]] for k in rows]
+        try:  # one conversion for all (thousands of agents); per agent only to name a culprit
+            block = np.asarray(given, dtype=np.float64) if given else np.zeros((0, 2))
+        except (TypeError, ValueError):  # ragged or not numbers
+            block = None
+        if block is None or block.shape != (len(given), 2) or not np.isfinite(block).all():
+            for k in rows:
+                self._check_action(names[k], actions[names[k]])
         arr = np.zeros((n, 2))
         act = np.zeros(n, dtype=bool)
-        for k, name in enumerate(names):
-            a = actions.get(name)
-            if a is not None:
-                arr[k] = a
-                act[k] = True
+        if rows:
+            arr[rows] = block
+            act[rows] = True
         obs, rew, term, trunc = self.step_arrays(arr, act)
         out_obs = dict(zip(names, obs, strict=True))
         rewards = dict(zip(names, rew.tolist(), strict=True))

@@ -50,6 +50,24 @@ DEFAULT_SCENARIOS: tuple[str, ...] = (
 """Scenario families of the default distribution (every scenario of :mod:`crowdsim.scenarios`)."""
 
 
+def tiny_scenarios() -> dict[str, Any]:
+    """A fresh ``scenarios=`` mapping for smoke runs and tests: 6-8 people of one family in 12
+    frames of 160 x 120 px, so that an env step takes milliseconds.
+
+    >>> ScenarioDistribution.from_dict(tiny_scenarios()).frames
+    12
+    """
+    return {
+        "scenarios": ["counterflow"],
+        "agents": [6, 8],
+        "frames": 12,
+        "warmup_steps": 4,
+        "template_px": [10],
+        "max_width": 160,
+        "max_height": 120,
+    }
+
+
 def _pair(
     owner: str, name: str, value: Any, *, lo: float, hi: float | None = None, integer: bool = False
 ) -> tuple[Any, Any]:
@@ -121,17 +139,28 @@ class ScenarioDistribution:
     difficulty: tuple[float, float] = (0.2, 0.9)
 
     def __post_init__(self) -> None:
-        from crowdsim.scenarios import SCENARIOS
+        from crowdsim.scenarios import MAX_AGENTS, SCENARIOS
+        from synth_data.spec import MAX_FRAMES, MAX_SIDE_PX, MAX_WARMUP_STEPS
 
         own = "ScenarioDistribution"
-        scen = tuple(self.scenarios)
+        # one name is a family of one (tuple("marathon") would be its letters)
+        scen = (self.scenarios,) if isinstance(self.scenarios, str) else self.scenarios
+        if not isinstance(scen, (tuple, list)):
+            raise ValueError(
+                f"{own}.scenarios must be a scenario name or a list of them, got {scen!r}"
+            )
+        scen = tuple(scen)
         if not scen:
             raise ValueError(f"{own}.scenarios must name at least one scenario")
         for s in scen:
-            if s not in SCENARIOS:
+            if not isinstance(s, str) or s not in SCENARIOS:
                 raise ValueError(f"unknown scenario {s!r}; valid scenarios: {', '.join(SCENARIOS)}")
         object.__setattr__(self, "scenarios", scen)
-        object.__setattr__(self, "agents", _pair(own, "agents", self.agents, lo=1, integer=True))
+        object.__setattr__(
+            self,
+            "agents",
+            _pair(own, "agents", self.agents, lo=1, hi=MAX_AGENTS, integer=True),
+        )
         object.__setattr__(
             self, "density_scale", _pair(own, "density_scale", self.density_scale, lo=0.05, hi=5)
         )
@@ -148,62 +177,64 @@ class ScenarioDistribution:
         object.__setattr__(
             self, "difficulty", _pair(own, "difficulty", self.difficulty, lo=0, hi=1)
         )
-        tp = tuple(self.template_px)
+        tp = self.template_px
+        tp = (tp,) if isinstance(tp, (int, float, np.integer, np.floating)) else tp
+        if not isinstance(tp, (tuple, list)):
+            raise ValueError(f"{own}.template_px must be a size or a list of sizes, got {tp!r}")
+        tp = tuple(tp)
         if not tp:
             raise ValueError(f"{own}.template_px must list at least one size")
         for v in tp:
             require_number(own, "template_px", v, lo=4, hi=64, integer=True)
         object.__setattr__(self, "template_px", tp)
-        require_number(own, "frames", self.frames, lo=2, integer=True)
-        require_number(own, "warmup_steps", self.warmup_steps, lo=0, integer=True)
+        require_number(own, "frames", self.frames, lo=2, hi=MAX_FRAMES, integer=True)
+        require_number(
+            own, "warmup_steps", self.warmup_steps, lo=0, hi=MAX_WARMUP_STEPS, integer=True
+        )
+        # whole numbers written as 100.0 or 1e2 in a file are the integers they mean
+        object.__setattr__(self, "frames", int(self.frames))
+        object.__setattr__(self, "warmup_steps", int(self.warmup_steps))
         require_number(own, "fps", self.fps, lo=1, hi=240)
-        require_number(own, "max_width", self.max_width, lo=32, integer=True)
-        require_number(own, "max_height", self.max_height, lo=32, integer=True)
+        require_number(own, "max_width", self.max_width, lo=32, hi=MAX_SIDE_PX, integer=True)
+        require_number(own, "max_height", self.max_height, lo=32, hi=MAX_SIDE_PX, integer=True)
 
     @classmethod
     def from_arg(cls, text: str, **overrides: Any) -> ScenarioDistribution:
         """From a CLI value: ``all``, a comma list of scenario names (``marathon,crossing``)
-        or a JSON/TOML file of fields; ``overrides`` (e.g. ``frames``) on top."""
+        or a JSON/TOML file of fields; ``overrides`` (e.g. ``frames``) on top. Every problem
+        of a file (binary, broken, unknown or out-of-range fields) is a ``ValueError`` naming
+        it."""
         text = str(text).strip()
         p = Path(text)
         if p.suffix.lower() in (".json", ".toml") or p.is_file():
             if not p.is_file():
                 raise ValueError(f"--scenarios: no such file {text!r}")
-            raw = p.read_text()
-            try:
-                if p.suffix.lower() == ".toml":
-                    import tomllib
-
-                    data = tomllib.loads(raw)
-                else:
-                    data = json.loads(raw)
-            except (ValueError, json.JSONDecodeError) as exc:
-                raise ValueError(f"{p}: not valid {p.suffix[1:].upper()} ({exc})") from None
-            if not isinstance(data, dict):
-                raise ValueError(f"{p}: expected a table of distribution fields")
-            valid = {f for f in cls.__dataclass_fields__}
-            unknown = sorted(set(data) - valid)
-            if unknown:
-                raise ValueError(
-                    f"{p}: unknown field(s) {', '.join(unknown)}; valid: {', '.join(sorted(valid))}"
-                )
-            for k in (
-                "scenarios",
-                "agents",
-                "density_scale",
-                "template_px",
-                "contrast",
-                "noise_sigma",
-                "n_clusters",
-                "cluster_spread",
-                "difficulty",
-            ):
-                if k in data and isinstance(data[k], list):
-                    data[k] = tuple(data[k])
-            return cls(**{**data, **overrides})
+            return cls.from_dict(_read_table(p), where=str(p), **overrides)
         if text in ("", "all"):
             return cls(**overrides)
         return cls(scenarios=tuple(s.strip() for s in text.split(",") if s.strip()), **overrides)
+
+    @classmethod
+    def from_dict(
+        cls, data: Mapping[str, Any], where: str = "ScenarioDistribution", **overrides: Any
+    ) -> ScenarioDistribution:
+        """From a mapping of fields (lists for the pairs are fine); unknown or bad fields
+        raise ``ValueError`` prefixed with ``where`` (the file they came from)."""
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{where}: expected a table of distribution fields, got {data!r}")
+        valid = set(cls.__dataclass_fields__)
+        unknown = sorted(str(k) for k in set(data) - valid)
+        if unknown:
+            raise ValueError(
+                f"{where}: unknown field(s) {', '.join(unknown)}; valid: {', '.join(sorted(valid))}"
+            )
+        fields = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+        try:
+            return cls(**{**fields, **overrides})
+        except ValueError as exc:
+            if where == "ScenarioDistribution":
+                raise
+            raise ValueError(f"{where}: {exc}") from None
 
     def to_dict(self) -> dict[str, Any]:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
@@ -247,6 +278,28 @@ class ScenarioDistribution:
         return apply_knobs(spec, knob_values(spec, d, d))
 
 
+def _read_table(p: Path) -> dict[str, Any]:
+    """The table of a JSON or TOML distribution file (by suffix; JSON otherwise)."""
+    raw = p.read_bytes()
+    kind = "TOML" if p.suffix.lower() == ".toml" else "JSON"
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"{p}: not a {kind} distribution file (binary, not UTF-8)") from None
+    try:
+        if kind == "TOML":
+            import tomllib
+
+            data = tomllib.loads(text)
+        else:
+            data = json.loads(text)
+    except ValueError as exc:  # json.JSONDecodeError and tomllib.TOMLDecodeError
+        raise ValueError(f"{p}: not valid {kind} ({exc})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{p}: expected a table of distribution fields")
+    return data
+
+
 # ---------------------------------------------------------------------------- sequences
 def spec_sequence(spec: Any, cache_frames: bool = False) -> Any:
     """``spec`` simulated and rendered in memory (:class:`synth_data.sequence.InMemorySequence`;
@@ -262,13 +315,60 @@ def spec_sequence(spec: Any, cache_frames: bool = False) -> Any:
 
 
 def folder_sequence(path: str | os.PathLike[str], frames: int | None = None) -> Any:
-    """A MOT sequence folder with the sequence face (first ``frames`` frames only)."""
+    """A MOT sequence folder with the sequence face (first ``frames`` frames only), checked
+    first (:func:`verify_folder`): a damaged frame is named, never tracked."""
     from synth_data.sequence import open_sequence
 
     seq = open_sequence(path)
+    verify_folder(seq)
     if frames is not None and frames < seq.length:
         seq = _Truncated(seq, frames)
     return seq
+
+
+_JPEG_EOI_WINDOW = 64
+"""Bytes at the end of a JPEG searched for its end-of-image marker ``FF D9`` (encoders may
+pad after it; inside the entropy-coded data ``FF`` is never followed by ``D9``)."""
+
+
+def image_is_complete(path: Path) -> bool:
+    """Whether a JPEG or PNG file holds a whole image: its start marker and its end marker
+    (JPEG ``FF D9``, PNG ``IEND``) are there. A truncated JPEG decodes without an error in
+    OpenCV (the missing rows come out grey), so the markers are the evidence. Other formats
+    are left to the decoder (``True``)."""
+    suffix = path.suffix.lower()
+    if suffix not in (".jpg", ".jpeg", ".png"):
+        return True
+    with open(path, "rb") as fh:
+        head = fh.read(8)
+        fh.seek(0, os.SEEK_END)
+        size = fh.tell()
+        fh.seek(max(0, size - _JPEG_EOI_WINDOW))
+        tail = fh.read()
+    if suffix == ".png":
+        return head == b"\x89PNG\r\n\x1a\n" and b"IEND" in tail[-16:]
+    return head[:2] == b"\xff\xd8" and b"\xff\xd9" in tail
+
+
+def verify_folder(seq: Any) -> None:
+    """Refuse a damaged MOT sequence folder, naming the file (``ValueError``).
+
+    What ``crowdsim track`` checks (:func:`synth_data.mot.verify_frames`: every file of
+    ``checksums.json`` matches its SHA-256; without one, every promised image is there and the
+    first decodes at the ``seqinfo.ini`` size), and without ``checksums.json`` every JPEG or
+    PNG frame is complete (:func:`image_is_complete`): a frame that cannot decode is an error
+    naming it, never a grey block tracked silently.
+    """
+    from synth_data.mot import CHECKSUMS_FILE, verify_frames
+
+    verify_frames(seq)
+    im_dir = seq.path / seq.im_dir
+    if (seq.path / CHECKSUMS_FILE).is_file() or not im_dir.is_dir():
+        return
+    for i in range(1, seq.length + 1):
+        p = im_dir / f"{i:06d}{seq.im_ext}"
+        if not image_is_complete(p):
+            raise ValueError(f"{p}: not a complete image (truncated or damaged; cannot decode)")
 
 
 class _Cache:
@@ -397,7 +497,7 @@ class SuiteEpisodes(EpisodeSource):
         self.frames = frames
         self.reseed = int(reseed)
         self.cache_frames = bool(cache_frames)
-        only = list(only) if only else None
+        only = [only] if isinstance(only, str) else (list(only) if only else None)
         if self.suite in SUITE_NAMES:
             specs = [s.truncated(frames) for s in suite_specs(self.suite, only)]
             self.items: list[Any] = [replace(s, seed=s.seed + self.reseed) for s in specs]
@@ -413,12 +513,7 @@ class SuiteEpisodes(EpisodeSource):
             raise ValueError(
                 "reseed applies to built-in suites only (a folder on disk has fixed sequences)"
             )
-        if (path / "seqinfo.ini").is_file():
-            folders = [path]
-        else:
-            folders = sorted(p for p in path.iterdir() if (p / "seqinfo.ini").is_file())
-        if not folders:
-            raise ValueError(f"{path}: no MOT sequence folders (sub-folders with seqinfo.ini)")
+        folders = self._folders(path)
         if only:
             known = [p.name for p in folders]
             unknown = [o for o in only if o not in known]
@@ -427,8 +522,26 @@ class SuiteEpisodes(EpisodeSource):
                     f"--only: no sequence {unknown[0]!r} in {path}; choose from {', '.join(known)}"
                 )
             folders = [p for p in folders if p.name in only]
+        from synth_data.sequence import open_sequence
+
+        for folder in folders:  # before any work: a damaged frame is named, not tracked
+            verify_folder(open_sequence(folder))
         self.items = folders
         self.on_disk = True
+
+    @staticmethod
+    def _folders(path: Path) -> list[Path]:
+        if (path / "seqinfo.ini").is_file():
+            return [path]
+        folders = sorted(p for p in path.iterdir() if (p / "seqinfo.ini").is_file())
+        if not folders:
+            raise ValueError(f"{path}: no MOT sequence folders (sub-folders with seqinfo.ini)")
+        return folders
+
+    @classmethod
+    def folder_names(cls, suite: str | os.PathLike[str]) -> list[str]:
+        """Names of the sequences of a suite folder (without opening any)."""
+        return [p.name for p in cls._folders(Path(suite))]
 
     def __len__(self) -> int:
         return len(self.items)
@@ -440,7 +553,7 @@ class SuiteEpisodes(EpisodeSource):
         item = self.spec(index)
         if not self.on_disk:
             return spec_sequence(item, cache_frames=self.cache_frames)
-        seq = folder_sequence(item, self.frames)
+        seq = folder_sequence(item, self.frames)  # checked again: it may have changed since
         if self.cache_frames:
             from synth_data.sequence import InMemorySequence
 

@@ -272,18 +272,44 @@ def plot_heldout(result: Mapping[str, Any], path: Any, key: str = "acc@5") -> An
     return save_figure(fig, path, dpi=110)
 
 
+HELDOUT_FILES: tuple[str, ...] = ("heldout.json", "heldout.md", "heldout.png")
+"""What :func:`write_heldout` writes: the record, then its table and its plot."""
+
+
+def _is_heldout(doc: Any) -> bool:
+    return isinstance(doc, dict) and "seeds_per_family" in doc and "families" in doc
+
+
+def check_heldout_out(out: Any, flag: str = "--out") -> None:
+    """Refuse (``ValueError`` naming ``flag`` and the file) a folder whose ``heldout.json``,
+    ``heldout.md`` or ``heldout.png`` this program cannot prove it wrote (a user's own notes
+    or plot), before any work; see :mod:`envs.outputs`."""
+    from envs.outputs import check_outputs
+
+    check_outputs(
+        out, HELDOUT_FILES[0], HELDOUT_FILES[1:], _is_heldout, "crowdsim heldout", flag=flag
+    )
+
+
 def write_heldout(result: Mapping[str, Any], out: Any) -> dict[str, str]:
     """Write ``heldout.json``, ``heldout.md`` (:func:`heldout_table`) and ``heldout.png``
-    (:func:`plot_heldout`) into ``out``, each atomically; ``{kind: path}``."""
-    import json
-    from pathlib import Path
+    (:func:`plot_heldout`) into ``out``, each atomically, the JSON listing the others'
+    SHA-256 (so a rerun replaces them and nothing else: :func:`check_heldout_out`);
+    ``{kind: path}``."""
+    from envs.outputs import write_outputs
 
-    from crowdsim.atomic import write_text_atomic
-
-    out = Path(out)
-    files = {
-        "heldout": write_text_atomic(out / "heldout.json", json.dumps(result, indent=2) + "\n"),
-        "heldout_table": write_text_atomic(out / "heldout.md", heldout_table(result)),
-        "heldout_plot": plot_heldout(result, out / "heldout.png"),
+    paths = write_outputs(
+        out,
+        "heldout.json",
+        result,
+        {
+            "heldout.md": lambda p: p.write_text(heldout_table(result)),
+            "heldout.png": lambda p: plot_heldout(result, p),
+        },
+    )
+    kinds = {
+        "heldout": "heldout.json",
+        "heldout_table": "heldout.md",
+        "heldout_plot": "heldout.png",
     }
-    return {k: str(v) for k, v in files.items()}
+    return {kind: str(paths[name]) for kind, name in kinds.items()}

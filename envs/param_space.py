@@ -190,7 +190,10 @@ class ParamSpace:
         if base is None:
             base = BQPParams()
         elif not isinstance(base, BQPParams):
-            raise ValueError(f"ParamSpace.base must be a BQPParams, got {type(base).__name__}")
+            raise ValueError(
+                "ParamSpace(base=...) must be the parameters of a BQP tracker "
+                f"({', '.join(tunable_trackers())}: a BQPParams), got {type(base).__name__}"
+            )
         self.extended = bool(extended)
         self.base = base
         self.tunables = BASE_TUNABLES + (EXTRA_TUNABLES if extended else ())
@@ -293,25 +296,64 @@ class ParamSpace:
         return ";".join(f"{t.name}:{t.low:g}:{t.default:g}:{t.high:g}" for t in self.tunables)
 
 
+def tunable_trackers() -> tuple[str, ...]:
+    """Registry names whose tracker :class:`ParamSpace` tunes (the BQP variants)."""
+    from tracker.bqp.tracker import BQPTracker
+    from tracker.registry import TRACKERS
+
+    return tuple(n for n, e in TRACKERS.items() if issubclass(e.tracker_class(), BQPTracker))
+
+
+def require_tunable(tracker: Any, flag: str = "--tracker") -> str:
+    """``tracker`` if it names a tracker the tuning layer supports; ``ValueError`` naming
+    ``flag`` and the supported names otherwise (unknown names list every registered one)."""
+    from tracker.registry import get
+
+    get(tracker)  # an unknown name lists the registered trackers
+    supported = tunable_trackers()
+    if tracker not in supported:
+        raise ValueError(
+            f"{flag} {tracker}: tuning supports the BQP trackers only ({', '.join(supported)})"
+        )
+    return tracker
+
+
+def read_json(path: str | os.PathLike[str], what: str) -> Any:
+    """The JSON document in ``path``; ``ValueError`` naming the file (and ``what`` it should
+    be) when it is binary, not UTF-8 or not valid JSON. A missing file raises ``OSError``."""
+    p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"{p}: is a folder, not {what}")
+    raw = p.read_bytes()
+    try:
+        return json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise ValueError(f"{p}: not {what} (binary, not UTF-8 text)") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{p}: not {what} (invalid JSON: {exc})") from None
+
+
 def load_params(path: str | os.PathLike[str]) -> tuple[str, Any]:
-    """``(tracker name, BQPParams)`` from a ``best_params.json`` written by :func:`envs.tuners.tune`
-    (or any JSON object ``{"params": {field: value}}`` / ``{field: value}``)."""
+    """``(tracker name, parameters)`` from a ``best_params.json`` written by
+    :func:`envs.tuners.tune` (or any JSON object ``{"params": {field: value}}`` /
+    ``{field: value}``, optionally with ``"tracker": NAME``; default ``bqp``).
+
+    Every problem -- a binary or broken file, an unknown tracker, an unknown or out-of-range
+    parameter -- raises ``ValueError`` naming the file.
+    """
     from tracker.registry import get
 
     p = Path(path)
-    try:
-        doc = json.loads(p.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{p}: not valid JSON ({exc})") from None
+    doc = read_json(p, "a parameters file (JSON)")
     if not isinstance(doc, dict):
-        raise ValueError(f"{p}: expected a JSON object of parameters")
+        raise ValueError(f"{p}: expected a JSON object of parameters, got {type(doc).__name__}")
     name = doc.get("tracker", "bqp")
     values = doc.get("params", doc)
     if not isinstance(values, dict):
         raise ValueError(f"{p}: 'params' must be an object of parameter values")
     values = {k: v for k, v in values.items() if k not in ("tracker", "format")}
-    entry = get(name)
     try:
+        entry = get(name)
         return name, entry.make_params(**values)
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:
         raise ValueError(f"{p}: {exc}") from None

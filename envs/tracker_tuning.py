@@ -23,7 +23,7 @@ from gymnasium import spaces
 
 from crowdsim.checks import require_number
 from envs.episodes import EpisodeSource, ScenarioDistribution, make_episodes
-from envs.param_space import ParamSpace
+from envs.param_space import ParamSpace, require_tunable
 from tracker.bqp.tracker import BQPTracker
 from tracker.metrics import point_errors
 
@@ -68,14 +68,7 @@ class ObservedBQPTracker(BQPTracker):
 
 def make_observed_tracker(tracker: str, params: Any) -> ObservedBQPTracker:
     """An :class:`ObservedBQPTracker` for a registry name whose class is the BQP tracker."""
-    from tracker.registry import get
-
-    entry = get(tracker)
-    if not issubclass(entry.tracker_class(), BQPTracker):
-        raise ValueError(
-            f"the tuning environments tune the BQP tracker; {tracker!r} is "
-            f"{entry.tracker_class().__name__}"
-        )
+    require_tunable(tracker, "tracker")
     return ObservedBQPTracker(params)
 
 
@@ -282,15 +275,18 @@ class TrackerTuningEnv(gym.Env):
         require_number("TrackerTuningEnv", "threshold_px", threshold_px, lo=0)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        require_tunable(tracker, "tracker")
         if episodes is None:
             if isinstance(scenarios, Mapping):
-                scenarios = ScenarioDistribution(
-                    **{k: tuple(v) if isinstance(v, list) else v for k, v in scenarios.items()}
-                )
+                scenarios = ScenarioDistribution.from_dict(scenarios)
             if suite is None and scenarios is None:
                 scenarios = ScenarioDistribution()
             episodes = make_episodes(
                 suite=suite, scenarios=scenarios, only=only, frames=frames, seed=episode_seed
+            )
+        elif not isinstance(episodes, EpisodeSource):
+            raise ValueError(
+                f"episodes must be an envs.episodes.EpisodeSource, got {type(episodes).__name__}"
             )
         self.episodes = episodes
         self.k_frames = int(k_frames)
@@ -298,13 +294,7 @@ class TrackerTuningEnv(gym.Env):
         self.tracker_name = tracker
         from tracker.registry import get
 
-        entry = get(tracker)
-        if not issubclass(entry.tracker_class(), BQPTracker):
-            raise ValueError(
-                f"the tuning environments tune the BQP tracker; {tracker!r} is "
-                f"{entry.tracker_class().__name__}"
-            )
-        base = entry.make_params() if start_params is None else start_params
+        base = get(tracker).make_params() if start_params is None else start_params
         self.space = ParamSpace(extended=extended, base=base)
         self.start_action = self.space.to_action(base)
         self.action_space = spaces.Box(-1.0, 1.0, (self.space.dim,), np.float32)

@@ -20,17 +20,24 @@ import sys
 import time
 import zipfile
 from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from crowdsim.atomic import atomic_path, write_text_atomic
 from crowdsim.checks import require_choice, require_number
 from crowdsim.optional import require
-from envs.param_space import ParamSpace, load_params
+from envs.outputs import check_outputs, write_outputs
+from envs.param_space import ParamSpace, load_params, require_tunable
 
 ALGOS: tuple[str, ...] = ("ppo", "sac")
+MAX_ENVS = 64
+"""Most environment processes of one run (each holds its tracker and episode: ~640 MB)."""
+MAX_STEPS = 10**9
+TRAIN_FILES: tuple[str, ...] = ("learning_curve.json", "model.zip", "learning_curve.png")
+"""What :func:`train` writes: the record (it lists the others' SHA-256, so a rerun replaces
+them and never a user's own file of the same name: :mod:`envs.outputs`), the policy, the plot."""
 POLICY_META = "crowdsim.json"
 """Entry added to ``model.zip``: the algorithm and the environment settings it was trained on."""
 
@@ -67,8 +74,18 @@ def train(
     at T px, %) of every finished episode against the environment steps so far.
     """
     require_choice("", "--algo", algo, ALGOS)
-    require_number("train", "envs", n_envs, lo=1, integer=True)
-    require_number("train", "steps", steps, lo=1, integer=True)
+    require_number("", "--envs", n_envs, lo=1, hi=MAX_ENVS, integer=True)
+    require_number("", "--steps", steps, lo=1, hi=MAX_STEPS, integer=True)
+    require_number("", "--seed", seed, lo=0, hi=2**32 - 1, integer=True)
+    if env_kwargs is not None and not isinstance(env_kwargs, dict):
+        raise ValueError(f"env_kwargs must be a dict, got {type(env_kwargs).__name__}")
+    try:  # they go into model.zip: refused now, not after hours of training
+        json.dumps(env_kwargs or {})
+    except (TypeError, ValueError):
+        raise ValueError(
+            "env_kwargs must be JSON values (scenarios as a dict or a string, not objects): "
+            "they are saved inside model.zip"
+        ) from None
     require("torch", "rl", "crowdsim train")
     sb3 = require("stable_baselines3", "rl", "crowdsim train")
     from stable_baselines3.common.callbacks import BaseCallback
@@ -79,13 +96,17 @@ def train(
 
     log = log or (lambda msg: print(msg, file=sys.stderr))
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     env_kwargs = dict(env_kwargs or {})
-    probe = TrackerTuningEnv(**env_kwargs)
+    probe = TrackerTuningEnv(**env_kwargs)  # bad settings are refused before anything is made
     space = probe.space
     probe.close()
+    # checked now, made when the results are written (a stopped run leaves no empty folder)
+    check_outputs(out, TRAIN_FILES[0], TRAIN_FILES[1:], _is_train_record, "crowdsim train")
+    # each subprocess environment dies with this process at once and silently (no orphan of
+    # ~640 MB printing BrokenPipeError after a SIGKILL): see _subprocess_env
+    factory = partial(_subprocess_env, os.getpid()) if n_envs > 1 else TrackerTuningEnv
     vec = make_vec_env(
-        TrackerTuningEnv,
+        factory,
         n_envs=n_envs,
         seed=seed,
         env_kwargs=env_kwargs,
@@ -163,10 +184,12 @@ def train(
     finally:
         vec.close()
     wall = time.perf_counter() - t0
-    with atomic_path(out / "model.zip") as tmp:
+
+    def save_model(tmp: Path) -> None:
         model.save(tmp)
         with zipfile.ZipFile(tmp, "a") as zf:
             zf.writestr(POLICY_META, json.dumps(_policy_meta(algo, env_kwargs, space)))
+
     doc = {
         "algo": algo,
         "envs": n_envs,
@@ -175,17 +198,41 @@ def train(
         "steps_per_s": steps / wall if wall > 0 else None,
         "episodes": curve,
     }
-    write_text_atomic(out / "learning_curve.json", json.dumps(doc, indent=2) + "\n")
-    plot_learning_curve(
-        curve,
-        out / "learning_curve.png",
-        title=f"{algo.upper()} on TrackerTuning-v0, {n_envs} env(s)",
+    title = f"{algo.upper()} on TrackerTuning-v0, {n_envs} env(s)"
+    write_outputs(
+        out,
+        TRAIN_FILES[0],
+        doc,
+        {
+            "model.zip": save_model,
+            "learning_curve.png": lambda p: plot_learning_curve(curve, p, title=title),
+        },
     )
     log(
         f"{algo}: {steps} steps in {wall:.0f} s ({steps / max(wall, 1e-9):.2f} steps/s), "
         f"{len(curve)} episodes -> {out / 'model.zip'}"
     )
     return doc
+
+
+def _is_train_record(doc: Any) -> bool:
+    return isinstance(doc, dict) and {"algo", "steps", "episodes"} <= set(doc)
+
+
+def _subprocess_env(parent_pid: int, **env_kwargs: Any) -> Any:
+    """A ``TrackerTuning-v0`` environment built inside a ``SubprocVecEnv`` worker, tied to
+    its parent: the kernel kills the worker when the parent dies (and a watchdog thread
+    covers the start-up race and other platforms: :mod:`crowdsim.jobs`'s parent-death
+    watch), and Ctrl-C is left to the parent (a terminal sends SIGINT to the whole process
+    group; the parent closes its workers)."""
+    import signal
+
+    from crowdsim.jobs import die_with_parent
+    from envs.tracker_tuning import TrackerTuningEnv
+
+    die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return TrackerTuningEnv(**env_kwargs)
 
 
 def plot_learning_curve(curve: Sequence[dict[str, float]], path: Path, title: str = "") -> Path:
@@ -210,13 +257,13 @@ def plot_learning_curve(curve: Sequence[dict[str, float]], path: Path, title: st
     return save_figure(fig, path, dpi=110)
 
 
-def load_policy(path: str | os.PathLike[str]) -> tuple[Any, dict[str, Any]]:
-    """``(stable-baselines3 model, metadata)`` of a ``model.zip`` written by :func:`train`.
+def policy_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The metadata (:data:`POLICY_META`) of a ``model.zip`` written by :func:`train`, checked
+    without loading the model: ``ValueError`` naming the file for anything but a sound zip
+    holding a model and the metadata of a ``TrackerTuning-v0`` policy of a BQP tracker."""
+    import zlib
 
-    Refuses (``ValueError``) a file that is not such a zip, a policy trained on another
-    environment, or one whose spaces do not match ``TrackerTuning-v0``'s.
-    """
-    from envs.tracker_tuning import ENV_ID, OBS_FIELDS
+    from envs.tracker_tuning import ENV_ID
 
     p = Path(path)
     if not p.is_file():
@@ -224,21 +271,82 @@ def load_policy(path: str | os.PathLike[str]) -> tuple[Any, dict[str, Any]]:
     try:
         with zipfile.ZipFile(p) as zf:
             names = zf.namelist()
-            meta = json.loads(zf.read(POLICY_META)) if POLICY_META in names else None
-    except zipfile.BadZipFile:
-        raise ValueError(f"{p}: not a stable-baselines3 model (not a zip file)") from None
+            raw = zf.read(POLICY_META) if POLICY_META in names else None
+            if "data" not in names or "policy.pth" not in names:
+                missing = "data" if "data" not in names else "policy.pth"
+                if raw is not None:  # ours, but the model is missing
+                    raise ValueError(
+                        f"{p}: a damaged policy: the model ({missing}) is missing from the zip"
+                    )
+                if "data" not in names:  # (a zip cut short can show an inner zip's entries)
+                    raise ValueError(
+                        f"{p}: not a stable-baselines3 model (no 'data' entry: damaged, "
+                        "truncated or another kind of zip)"
+                    )
+            bad = zf.testzip()  # CRC of every member: a damaged or truncated entry
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as exc:
+        if isinstance(exc, OSError) and exc.errno is not None:
+            raise
+        raise ValueError(
+            f"{p}: not a stable-baselines3 model (not a zip file, or a damaged one)"
+        ) from None
+    if bad is not None:
+        raise ValueError(f"{p}: a damaged policy (zip entry {bad!r} fails its CRC check)")
+    meta: Any = None
+    if raw is not None:
+        try:
+            meta = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, ValueError):
+            raise ValueError(f"{p}: its {POLICY_META} is not valid JSON") from None
+        if not isinstance(meta, dict):
+            raise ValueError(
+                f"{p}: its {POLICY_META} must be a JSON object, got {type(meta).__name__}"
+            )
     if meta is None or meta.get("env_id") != ENV_ID:
         raise ValueError(
             f"{p}: not a policy for {ENV_ID} (trained on "
-            f"{(meta or {}).get('env_id', 'another environment')}); train one "
+            f"{(meta or {}).get('env_id', 'another environment')!s}); train one "
             "with crowdsim train"
         )
+    if meta.get("algo") not in ALGOS:
+        raise ValueError(f"{p}: unknown algorithm {meta.get('algo')!r} (ppo or sac)")
+    kwargs = meta.setdefault("env_kwargs", {})
+    if not isinstance(kwargs, dict):
+        raise ValueError(f"{p}: its {POLICY_META} 'env_kwargs' must be an object")
+    k = kwargs.get("k_frames", 25)
+    if isinstance(k, bool) or not isinstance(k, int) or k < 1:
+        raise ValueError(f"{p}: its {POLICY_META} 'k_frames' must be an integer >= 1, got {k!r}")
+    try:
+        require_tunable(kwargs.get("tracker", "bqp"), "tracker")
+    except ValueError as exc:
+        raise ValueError(f"{p}: {exc}") from None
+    return meta
+
+
+def load_policy(path: str | os.PathLike[str]) -> tuple[Any, dict[str, Any]]:
+    """``(stable-baselines3 model, metadata)`` of a ``model.zip`` written by :func:`train`.
+
+    Refuses (``ValueError`` naming the file) one that is not such a zip (not a zip, a
+    damaged or truncated one, metadata that is not a JSON object, no model or truncated
+    tensors inside: :func:`policy_meta`), a policy trained on another environment, or one
+    whose spaces do not match ``TrackerTuning-v0``'s.
+    """
+    from envs.tracker_tuning import ENV_ID, OBS_FIELDS
+
+    p = Path(path)
+    meta = policy_meta(p)
+    kwargs = meta.get("env_kwargs", {})
     sb3 = require("stable_baselines3", "rl", "--policy")
-    cls = {"ppo": sb3.PPO, "sac": sb3.SAC}.get(meta.get("algo"))
-    if cls is None:
-        raise ValueError(f"{p}: unknown algorithm {meta.get('algo')!r}")
-    model = cls.load(str(p), device="cpu")
-    space = ParamSpace(extended=bool(meta.get("env_kwargs", {}).get("extended", False)))
+    cls = {"ppo": sb3.PPO, "sac": sb3.SAC}[meta["algo"]]
+    try:
+        model = cls.load(str(p), device="cpu")
+    except Exception as exc:  # noqa: BLE001 - torch / pickle errors of a damaged model
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        raise ValueError(
+            f"{p}: a damaged policy: stable-baselines3 cannot load it "
+            f"({type(exc).__name__}: {first[:200]})"
+        ) from None
+    space = ParamSpace(extended=bool(kwargs.get("extended", False)))
     want_obs = (len(OBS_FIELDS) + space.dim,)
     if model.observation_space.shape != want_obs or model.action_space.shape != (space.dim,):
         raise ValueError(

@@ -16,25 +16,29 @@ install.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import os
 import sqlite3
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from crowdsim.atomic import write_text_atomic
 from crowdsim.checks import require_choice, require_number
 from crowdsim.optional import DependencyNotInstalled, require
-from envs.episodes import EpisodeSource, make_episodes
-from envs.heldout import HELDOUT_SEED, evaluate_heldout, write_heldout
-from envs.param_space import ParamSpace
+from envs.episodes import EpisodeSource, ScenarioDistribution, SuiteEpisodes, make_episodes
+from envs.heldout import HELDOUT_SEED, check_heldout_out, evaluate_heldout, write_heldout
+from envs.outputs import check_outputs, write_outputs
+from envs.param_space import ParamSpace, require_tunable
 
 STUDY_FILE = "study.db"
+MAX_WORKERS = 256
+"""Most local optimisation processes (or concurrent Ray trials) one run starts."""
 DEFAULT_STUDY_NAME = "crowdsim-tune"
 SAMPLERS: tuple[str, ...] = ("tpe", "cmaes")
 BACKENDS: tuple[str, ...] = ("local", "ray")
@@ -82,10 +86,22 @@ class Objective:
     def __post_init__(self) -> None:
         require_number("Objective", "train_episodes", self.train_episodes, lo=1, integer=True)
         require_number("Objective", "threshold_px", self.threshold_px, lo=0)
-        object.__setattr__(self, "only", tuple(self.only))
-        object.__setattr__(self, "heldout_only", tuple(self.heldout_only))
-        if isinstance(self.scenarios, dict):
-            object.__setattr__(self, "scenarios", _dist_from_dict(self.scenarios))
+        require_tunable(self.tracker)
+        if (self.suite is None) == (self.scenarios is None):
+            raise ValueError("give exactly one of --suite NAME and --scenarios DIST")
+        if self.frames is not None:
+            require_number("Objective", "frames", self.frames, lo=2, integer=True)
+        for name in ("only", "heldout_only"):
+            value = getattr(self, name)
+            # one name is one sequence (tuple("seq8") would be its letters)
+            names = (value,) if isinstance(value, str) else value or ()
+            if not isinstance(names, (tuple, list)) or not all(
+                isinstance(n, str) and n for n in names
+            ):
+                raise ValueError(f"Objective.{name} must be sequence names, got {value!r}")
+            object.__setattr__(self, name, tuple(names))
+        if isinstance(self.scenarios, Mapping):
+            object.__setattr__(self, "scenarios", ScenarioDistribution.from_dict(self.scenarios))
 
     def episodes(self, heldout: bool = False, cache: int = 0) -> EpisodeSource:
         """Training (stream 0) or held-out episodes."""
@@ -97,6 +113,13 @@ class Objective:
                 raise ValueError(
                     f"{self.suite}: a folder of sequences cannot be re-seeded; "
                     "name held-out sequences with --heldout-only"
+                )
+            known = SuiteEpisodes.folder_names(self.suite)
+            unknown = [n for n in self.heldout_only if n not in known]
+            if unknown:
+                raise ValueError(
+                    f"--heldout-only: no sequence {unknown[0]!r} in {self.suite}; "
+                    f"choose from {', '.join(known)}"
                 )
             return make_episodes(
                 suite=self.suite,
@@ -133,12 +156,6 @@ class Objective:
         d["only"] = list(self.only)
         d["heldout_only"] = list(self.heldout_only)
         return d
-
-
-def _dist_from_dict(d: dict[str, Any]) -> Any:
-    from envs.episodes import ScenarioDistribution
-
-    return ScenarioDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
 
 class Scorer:
@@ -227,6 +244,40 @@ def _check_sqlite(path: Path) -> None:
         )
 
 
+def check_storage(url: str) -> None:
+    """Refuse a study file that exists and is not an Optuna study (SQLite or journal),
+    reading it only: nothing is created. Other URLs are checked when opened."""
+    if url.startswith("sqlite:///"):
+        _check_sqlite(Path(url[len("sqlite:///") :]))
+    elif url.startswith("journal:"):
+        path = Path(url[len("journal:") :])
+        if path.is_dir():
+            raise ValueError(f"--study {path}: is a folder, not a journal file")
+        if path.is_file() and path.stat().st_size:
+            _check_journal(path)
+
+
+def _check_journal(path: Path) -> None:
+    """Every line of an Optuna journal is a JSON object; the last may be cut short (a writer
+    killed mid-line: Optuna skips it too)."""
+    with open(path, "rb") as fh:
+        lines = fh.read().split(b"\n")
+    if lines and lines[-1] == b"":
+        lines.pop()
+    for number, line in enumerate(lines[:-1], start=1):
+        try:
+            ok = isinstance(json.loads(line), dict)
+        except (UnicodeDecodeError, ValueError):
+            ok = False
+        if not ok:
+            raise ValueError(
+                f"{path}: not an Optuna journal file (corrupt or foreign: line {number} is "
+                "not a JSON record)"
+            )
+    if lines and not lines[0].startswith((b"{", b"[")):
+        raise ValueError(f"{path}: not an Optuna journal file (corrupt or foreign)")
+
+
 def open_storage(url: str) -> Any:
     """An Optuna storage for ``url`` (see :func:`storage_url`); heartbeats on databases so
     trials of a killed worker are failed and retried."""
@@ -240,7 +291,13 @@ def open_storage(url: str) -> Any:
             if head not in (b"{", b"["):
                 raise ValueError(f"{path}: not an Optuna journal file (corrupt or foreign)")
         path.parent.mkdir(parents=True, exist_ok=True)
-        return optuna.storages.JournalStorage(JournalFileBackend(str(path)))
+        try:
+            return optuna.storages.JournalStorage(JournalFileBackend(str(path)))
+        except Exception as exc:  # a broken line: JSONDecodeError, KeyError of a bad record
+            raise ValueError(
+                f"{path}: not an Optuna journal file (corrupt or foreign: "
+                f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
+            ) from None
     if url.startswith("sqlite:///"):
         path = Path(url[len("sqlite:///") :])
         _check_sqlite(path)
@@ -378,15 +435,20 @@ def _fail_orphans(study: Any) -> int:
 
 
 class _OutLock:
-    """An exclusive lock on ``OUT/.tune.lock``: two local runs never share one study file."""
+    """An exclusive lock on ``OUT/.tune.lock``: two local runs never share one study file.
+
+    A run that fails removes the lock file if it created it (nothing is left behind by a
+    refused input); a finished run leaves it (hidden, empty) beside its results."""
 
     def __init__(self, out: Path) -> None:
         self.path = out / ".tune.lock"
         self.fh = None
+        self.created = False
 
     def __enter__(self) -> _OutLock:
         import fcntl
 
+        self.created = not self.path.exists()
         self.fh = open(self.path, "a+")
         try:
             fcntl.flock(self.fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -397,16 +459,48 @@ class _OutLock:
             ) from None
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, exc_type: Any, *exc: Any) -> None:
         if self.fh is not None:
+            if exc_type is not None and self.created:
+                self.path.unlink(missing_ok=True)  # still ours: we hold the lock
             self.fh.close()
 
 
 # ---------------------------------------------------------------------------- local runs
+class _QuietInterrupt(logging.Filter):
+    """Drops Optuna's "Trial N failed ... KeyboardInterrupt" warnings (a traceback of 35-65
+    lines) for a trial that Ctrl-C or SIGTERM stopped: the trial is marked failed as usual
+    and the interrupt goes on to the command, which says "interrupted" in one line."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.trials: set[int] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        msg = record.getMessage()
+        for n in list(self.trials):
+            if msg.startswith(f"Trial {n} failed"):
+                if msg.startswith(f"Trial {n} failed with value"):  # Optuna's last word on it
+                    self.trials.discard(n)
+                return False
+        return True
+
+
+_QUIET = _QuietInterrupt()
+
+
 def _objective_fn(objective: Objective, space: ParamSpace) -> Callable[[Any], float]:
+    # installed on use (importing a library module changes no process-wide setting);
+    # adding the same filter again is a no-op
+    logging.getLogger("optuna.study._optimize").addFilter(_QUIET)
+
     def fn(trial: Any) -> float:
-        values = space.optuna_suggest(trial)
-        value, per = _scorer(objective)(values)
+        try:
+            values = space.optuna_suggest(trial)
+            value, per = _scorer(objective)(values)
+        except KeyboardInterrupt:  # jobs.Interrupted (SIGINT, SIGTERM) included
+            _QUIET.trials.add(trial.number)
+            raise
         trial.set_user_attr("per_episode", [round(v, 4) for v in per])
         return value
 
@@ -420,9 +514,12 @@ def _worker(
     sampler: str,
     seed: int,
     trials: int,
+    share: int | None = None,
     advance: Callable[..., None] | None = None,
 ) -> int:
-    """One optimisation process: runs trials until the study holds ``trials`` complete ones.
+    """One optimisation process: runs trials until the study holds ``trials`` complete ones,
+    and at most ``share`` of them (the workers' shares add up to the trials still missing,
+    so parallel workers never overshoot ``trials``).
 
     ``advance(1, best=...)`` (from :func:`crowdsim.jobs.run_jobs`) moves the shared progress
     bar after each trial this worker finishes. Returns the number of trials it ran.
@@ -442,9 +539,11 @@ def _worker(
             ts = complete_trials(study)
             advance(1, best=f"{max(t.value for t in ts):.2f}%" if ts else "n/a")
 
+    if share is not None and share <= 0:
+        return 0
     study.optimize(
         _objective_fn(objective, objective.space()),
-        n_trials=None,
+        n_trials=share,
         callbacks=[MaxTrialsCallback(trials, states=(TrialState.COMPLETE,)), tick],
         gc_after_trial=False,
         show_progress_bar=False,
@@ -465,11 +564,14 @@ def _run_local(
 ) -> None:
     """``workers`` optimisation processes on :func:`crowdsim.jobs.run_jobs` (in this process
     for one): they share the study, so each stops when it holds ``trials`` complete trials.
-    The runner's manifest (``OUT/tune_jobs.json``) records a worker once it has finished; a
-    killed run leaves none recorded and a rerun starts them again on the same study."""
+    With several workers, the trials still missing are shared out among the workers still
+    to run, so that together they finish exactly ``trials`` (parallel workers stopping on the
+    count alone overshoot: ``--trials 6 --workers 2`` ended with 7). The runner's manifest
+    (``OUT/tune_jobs.json``) records a worker once it has finished; a killed run leaves the
+    unfinished ones unrecorded and a rerun starts them again on the same study."""
     from optuna.trial import TrialState
 
-    from crowdsim.jobs import Job, run_jobs
+    from crowdsim.jobs import Job, read_manifest, run_jobs
 
     study = open_study(url, name, objective, sampler, seed, trials)
     if workers > 1:
@@ -484,20 +586,28 @@ def _run_local(
     left = trials - len(complete_trials(study))
     if left <= 0:
         return
-    share = [left // workers + (i < left % workers) for i in range(workers)]
+    manifest = out / "tune_jobs.json"
+    keys = [f"{name}/to-{trials}/worker-{i + 1}-of-{workers}" for i in range(workers)]
+    done = read_manifest(manifest)["jobs"]
+    todo = [i for i, key in enumerate(keys) if key not in done]
+    if not todo:  # every worker finished, yet trials are missing (some failed): run again
+        todo = list(range(workers))
+        keys = [f"{key}/again-from-{trials - left}" for key in keys]
+    share = {i: left // len(todo) + (k < left % len(todo)) for k, i in enumerate(todo)}
     jobs = [
         Job(
-            f"{name}/to-{trials}/worker-{i + 1}-of-{workers}",
+            keys[i],
             _worker,
-            (url, name, objective, sampler, seed + i, trials),
+            (url, name, objective, sampler, seed + i, trials, share[i] if workers > 1 else None),
             size=max(share[i], 1),
             progress_kw="advance",
         )
-        for i in range(workers)
+        for i in todo
+        if share[i] > 0
     ]
     run_jobs(
         jobs,
-        out / "tune_jobs.json",
+        manifest,
         workers=workers,
         progress=progress,
         desc="tune",
@@ -577,6 +687,23 @@ def _run_ray(
 
 
 # ---------------------------------------------------------------------------- results
+TUNE_FILES: tuple[str, ...] = ("best_params.json", "history.png", "importance.png")
+"""What :func:`tune` writes beside its study: the record, then its two plots."""
+
+
+def _is_tune_record(doc: Any) -> bool:
+    return isinstance(doc, dict) and {"params", "space", "study", "trials"} <= set(doc)
+
+
+def check_tune_out(out: Path, heldout: bool) -> None:
+    """Refuse a folder holding a ``best_params.json``, ``history.png`` or ``importance.png``
+    (or, with held-out scoring, a ``heldout.*``) that ``crowdsim tune`` cannot prove it
+    wrote: a user's own files are never replaced (:mod:`envs.outputs`). Reads only."""
+    check_outputs(out, TUNE_FILES[0], TUNE_FILES[1:], _is_tune_record, "crowdsim tune")
+    if heldout:
+        check_heldout_out(out)
+
+
 @dataclass
 class TuneResult:
     """What :func:`tune` found and wrote."""
@@ -611,20 +738,29 @@ def plot_history(study: Any, path: Path) -> Path:
     return save_figure(fig, path, dpi=110)
 
 
-def plot_importances(study: Any, path: Path) -> tuple[Path, dict[str, float]]:
-    """fANOVA importances of the parameters (Optuna's evaluator), PNG; ``{}`` when there are
-    too few trials or no variation to attribute."""
+def _importances(study: Any) -> dict[str, float]:
+    """fANOVA importances of the parameters (Optuna's evaluator); ``{}`` when there are too
+    few trials or no variation to attribute."""
     import optuna
 
+    ts = complete_trials(study)
+    if len(ts) < 2 or np.ptp([t.value for t in ts]) == 0:
+        return {}
+    try:
+        imp = optuna.importance.get_param_importances(study)
+    except (RuntimeError, ValueError):
+        return {}
+    return {k: float(v) for k, v in imp.items()}
+
+
+def plot_importances(
+    study: Any, path: Path, imp: dict[str, float] | None = None
+) -> tuple[Path, dict[str, float]]:
+    """The importances (:func:`_importances` unless given) as a bar chart, PNG."""
     from crowdsim.plotting import new_figure, save_figure
 
-    imp: dict[str, float] = {}
-    ts = complete_trials(study)
-    if len(ts) >= 2 and np.ptp([t.value for t in ts]) > 0:
-        try:
-            imp = optuna.importance.get_param_importances(study)
-        except (RuntimeError, ValueError):
-            imp = {}
+    if imp is None:
+        imp = _importances(study)
     fig, ax = new_figure(figsize=(5.5, 3.2))
     if imp:
         names = list(imp)[::-1]
@@ -655,19 +791,82 @@ def tune(
     log: Callable[[str], None] | None = None,
 ) -> TuneResult:
     """Tune the static parameters; see the module docstring. Resumes an existing study."""
-    require_number("tune", "trials", trials, lo=1, integer=True)
-    require_number("tune", "workers", workers, lo=1, integer=True)
-    require_number("tune", "heldout", heldout, lo=0, integer=True)
-    require_number("tune", "seed", seed, lo=0, integer=True)
+    if not isinstance(objective, Objective):
+        raise ValueError(f"tune needs an envs.tuners.Objective, got {type(objective).__name__}")
+    require_number("", "--trials", trials, lo=1, integer=True)
+    require_number("", "--workers", workers, lo=1, hi=MAX_WORKERS, integer=True)
+    require_number("", "--heldout", heldout, lo=0, integer=True)
+    require_number("", "--seed", seed, lo=0, hi=2**32 - 1, integer=True)
     require_choice("", "--backend", backend, BACKENDS)
     require_choice("", "--sampler", sampler, SAMPLERS)
+    require_choice("", "heldout_metrics", heldout_metrics, ("full", "accuracy"))
     require("optuna", "rl", "crowdsim tune")
+    if sampler == "cmaes":
+        require("cmaes", "rl", "--sampler cmaes")
+    if backend == "ray":  # before anything is created (no lock file, no empty study)
+        require("ray", "distributed", "--backend ray")
+        require("ray.tune", "distributed", "--backend ray")
+    elif address is not None:
+        raise ValueError(f"--address needs --backend ray, got --address {address!r}")
     log = log or (lambda msg: print(msg, file=sys.stderr))
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: is a file, not a folder")
     url = storage_url(study, out)
     space = objective.space()
     objective.episodes()  # validate suite / scenarios / --only before any work
+    if heldout:
+        objective.episodes(heldout=True)  # a suite folder needs --heldout-only: say it now
+    check_storage(url)  # a foreign study file is refused before anything is created
+    check_tune_out(out, heldout > 0)
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        return _tune_locked(
+            objective,
+            out,
+            url,
+            space,
+            trials=trials,
+            sampler=sampler,
+            study=study,
+            study_name=study_name,
+            workers=workers,
+            backend=backend,
+            address=address,
+            seed=seed,
+            heldout=heldout,
+            heldout_metrics=heldout_metrics,
+            progress=progress,
+            log=log,
+        )
+    except BaseException:
+        if created:  # a run refused or stopped before writing anything leaves no folder
+            with contextlib.suppress(OSError):
+                out.rmdir()  # only an empty folder: nothing of this run is lost
+        raise
+
+
+def _tune_locked(
+    objective: Objective,
+    out: Path,
+    url: str,
+    space: ParamSpace,
+    *,
+    trials: int,
+    sampler: str,
+    study: str | None,
+    study_name: str,
+    workers: int,
+    backend: str,
+    address: str | None,
+    seed: int,
+    heldout: int,
+    heldout_metrics: str,
+    progress: bool,
+    log: Callable[[str], None],
+) -> TuneResult:
+    """:func:`tune` after its checks, holding ``OUT/.tune.lock``."""
     with _OutLock(out):
         st = open_study(
             url, study_name, objective, sampler, seed, trials, enqueue_defaults=backend == "local"
@@ -692,9 +891,7 @@ def tune(
         defaults = [t for t in ts if t.user_attrs.get("defaults")]
         default_value = float(defaults[0].value) if defaults else None
         files = {"study": url}
-        files["history"] = str(plot_history(st, out / "history.png"))
-        p, importances = plot_importances(st, out / "importance.png")
-        files["importance"] = str(p)
+        importances = _importances(st)
         result = TuneResult(
             best_params=best_values,
             best_value=float(best.value),
@@ -728,6 +925,16 @@ def tune(
             "study": {"storage": url, "name": study_name},
             "heldout": result.heldout.get("summary", {}),
         }
-        write_text_atomic(out / "best_params.json", json.dumps(doc, indent=2) + "\n")
-        files["best_params"] = str(out / "best_params.json")
+        written = write_outputs(
+            out,
+            "best_params.json",
+            doc,
+            {
+                "history.png": lambda p: plot_history(st, p),
+                "importance.png": lambda p: plot_importances(st, p, importances),
+            },
+        )
+        files["history"] = str(written["history.png"])
+        files["importance"] = str(written["importance.png"])
+        files["best_params"] = str(written["best_params.json"])
     return result

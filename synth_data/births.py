@@ -28,12 +28,17 @@ Births = tuple[tuple[np.ndarray, np.ndarray], dict[int, tuple[np.ndarray, np.nda
 """``((ids0 (n0,), points0 (n0, 2)), {t (0-based frame): (ids (k,), points (k, 2))})``."""
 
 
+MAX_EXACT: float = 2.0**53
+"""Frames and ids of a points CSV stay below this: every integer up to it is exact as a float
+(the file is read as floats), and it fits int64."""
+
+
 def read_points_csv(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Read a points CSV: returns ``frames (K,) 1-based, ids (K,), points (K, 2)`` px."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path}: no such points file")
-    with open(path, newline="") as fh:
+    with open(path, newline="", encoding="utf-8-sig") as fh:  # a spreadsheet's BOM is fine
         reader = csv.reader(fh)
         try:
             header = [h.strip().lower() for h in next(reader)]
@@ -66,6 +71,8 @@ def read_points_csv(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarra
                     f"{path}:{lineno}: frame must be a positive integer and id an "
                     f"integer, got {row!r}"
                 )
+            if max(vals[0], abs(vals[1])) >= MAX_EXACT:  # beyond, a float is no exact integer
+                raise ValueError(f"{path}:{lineno}: frame and id must be below 2**53, got {row!r}")
             out.append(vals)
     arr = np.asarray(out, dtype=np.float64).reshape(-1, 4)
     ids = arr[:, 1].astype(np.int64)
@@ -117,6 +124,11 @@ def births_from_init(
     if length is not None and len(frames) and frames.max() > length:
         raise ValueError(
             f"{init}: frame {int(frames.max())} is beyond the {length} frames of {where}"
+        )
+    if not (frames == 1).any():  # a header alone once tracked nobody and exited 0
+        raise ValueError(
+            f"{init}: no target in the first frame (rows with frame 1, or id,x,y rows); "
+            "the tracker needs at least one person to start from"
         )
     if gt_ids is not None and len(gt_ids) and len(ids):
         unknown = sorted(set(ids.tolist()) - set(np.asarray(gt_ids).tolist()))

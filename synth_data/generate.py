@@ -20,7 +20,10 @@ module only writes to disk and runs the jobs through :func:`crowdsim.jobs.run_jo
 * **Concurrent runs**: manifest updates are merged under a file lock, so two runs into one
   folder with different sequences keep each other's entries.
 * **No silent overwrite**: a folder made from another spec (or another ``--frames``), or one
-  that fails verification, raises :class:`FileExistsError` unless ``overwrite=True``.
+  that fails verification, raises :class:`FileExistsError` unless ``overwrite=True``; even
+  then it is replaced only when crowdsim can prove it wrote every file in it
+  (:func:`synth_data.mot.not_ours`), otherwise ``ValueError`` names the first file that
+  is not its own, before anything runs.
 * **Parallel**: ``backend="local"`` runs a spawn-context process pool of ``workers``
   processes (in-process when ``workers == 1``) whose workers die with this process;
   ``backend="ray"`` runs one Ray task per sequence on the cluster at ``address`` (a local Ray
@@ -53,12 +56,12 @@ from crowdsim.jobs import (
     read_manifest,
 )
 from crowdsim.jobs import run_jobs as _run_jobs
-from synth_data.mot import verify_sequence
+from synth_data.mot import SUITE_MANIFEST, verify_sequence
 from synth_data.scene import Scene
 from synth_data.spec import SequenceSpec
-from synth_data.writer import clean_stale_tmp, write_sequence
+from synth_data.writer import clean_stale_tmp, require_ours, write_sequence
 
-MANIFEST = "manifest.json"
+MANIFEST = SUITE_MANIFEST
 MANIFEST_SECTION = "sequences"
 MANIFEST_FORMAT = 1
 
@@ -236,6 +239,8 @@ def _generate(
         entry, why = _existing_entry(seq_dir, spec)
         if entry is None and not overwrite:
             raise FileExistsError(f"{seq_dir} exists and {why}; pass --overwrite to replace it")
+        if entry is None:  # to be replaced: refuse before anything (the manifest) changes
+            require_ours(seq_dir)
         found[spec.name] = entry
     with locked_manifest(out / MANIFEST, MANIFEST_SECTION) as manifest:
         seqs = manifest[MANIFEST_SECTION]

@@ -73,6 +73,9 @@ HEAD_IN_BODY: float = 0.08
 AGENT_COLUMNS: tuple[str, ...] = ("id", "group", "prominent", "anomaly", "appearance")
 CHECKSUMS_FILE: str = "checksums.json"
 """SHA-256 of every other file of a crowdsim sequence, written last by the writer."""
+SUITE_MANIFEST: str = "manifest.json"
+"""The manifest of a folder of sequences made by ``crowdsim generate`` (and its lock file
+``.manifest.json.lock``)."""
 
 
 # ---------------------------------------------------------------------------- MOT text files
@@ -324,6 +327,55 @@ def verify_sequence(seq_dir: str | os.PathLike[str]) -> dict[str, str] | None:
         return check_checksums(seq_dir)
     except (OSError, ValueError):
         return None
+
+
+def not_ours(folder: str | os.PathLike[str]) -> str | None:
+    """Why crowdsim cannot prove it wrote everything in ``folder``; ``None`` when it can.
+
+    A sequence folder is crowdsim's when every file below it (hidden ones included) is
+    ``checksums.json`` or listed there with its SHA-256; a suite folder when it holds only its
+    ``manifest.json`` (a JSON object with a ``sequences`` table, as ``crowdsim generate``
+    writes it), the manifest's lock file and such sequence folders. Otherwise the answer names
+    the first file that is not (a file a user added to ``gt/`` or ``img1/``, a changed file, a
+    hidden file beside the sequences, a folder with no listing). What ``--overwrite`` checks
+    before it replaces a folder, so that replacing it deletes nothing but crowdsim's own
+    output.
+    """
+    folder = Path(folder)
+    if folder.is_symlink():
+        return f"{folder} is a link, not a folder crowdsim wrote"
+    if not folder.is_dir():
+        return f"{folder} is not a folder"
+    if (folder / SUITE_MANIFEST).is_file() and not (folder / CHECKSUMS_FILE).exists():
+        try:
+            manifest = json.loads((folder / SUITE_MANIFEST).read_text())
+        except (OSError, ValueError):
+            manifest = None
+        if not (isinstance(manifest, dict) and isinstance(manifest.get("sequences"), dict)):
+            return f"{folder / SUITE_MANIFEST} is not a crowdsim manifest (no sequences table)"
+        lock = f".{SUITE_MANIFEST}.lock"
+        for entry in sorted(folder.iterdir()):
+            if entry.name in (SUITE_MANIFEST, lock):
+                continue
+            why = not_ours(entry) if entry.is_dir() else f"{entry} was not written by crowdsim"
+            if why is not None:
+                return why
+        return None
+    try:
+        checks = check_checksums(folder)
+    except (OSError, ValueError) as exc:
+        return str(exc)
+    if checks is None:
+        return f"{folder} has no {CHECKSUMS_FILE}, so crowdsim cannot tell its files from yours"
+    listed = {*checks, CHECKSUMS_FILE}
+    folders = {parent.as_posix() for rel in listed for parent in Path(rel).parents}
+    for path in sorted(folder.rglob("*")):
+        rel = path.relative_to(folder).as_posix()
+        if path.is_dir() and not path.is_symlink() and (rel in folders or any(path.iterdir())):
+            continue  # a folder of the user's is named by the first file in it
+        if rel not in listed:
+            return f"{path} was not written by crowdsim"
+    return None
 
 
 # ---------------------------------------------------------------------------- reader

@@ -38,6 +38,7 @@ from synth_data.mot import (
     CHECKSUMS_FILE,
     gt_rows,
     mot_ids,
+    not_ours,
     sha256_file,
     write_agents_csv,
     write_mot,
@@ -175,10 +176,27 @@ def clean_stale_tmp(parent: str | os.PathLike[str]) -> list[Path]:
     return removed
 
 
-def publish_tmp_dir(tmp: Path, out_dir: Path) -> None:
-    """Rename the complete ``tmp`` to ``out_dir`` (replacing an existing one), then drop the
-    marker: until the rename the folder is a cleanable leftover, afterwards a sequence."""
-    if out_dir.exists():
+def require_ours(out_dir: Path) -> None:
+    """Refuse (``ValueError``) to replace a folder crowdsim cannot prove it wrote."""
+    why = not_ours(out_dir)
+    if why is not None:
+        raise ValueError(f"refusing to replace {out_dir} with --overwrite: {why}")
+
+
+def publish_tmp_dir(tmp: Path, out_dir: Path, overwrite: bool = False) -> None:
+    """Rename the complete ``tmp`` to ``out_dir``, then drop the marker: until the rename the
+    folder is a cleanable leftover, afterwards a sequence.
+
+    An existing ``out_dir`` is replaced only with ``overwrite``, and only when it is still
+    provably crowdsim's (:func:`synth_data.mot.not_ours`, checked again now: a user may have
+    added a file while the frames were rendered, or made the folder meanwhile); it is renamed
+    aside (:data:`OLD_PREFIX`) before the new one takes its name, so the name never points at a
+    half-made folder.
+    """
+    if out_dir.exists() or out_dir.is_symlink():
+        if not overwrite:
+            raise FileExistsError(f"{out_dir} already exists; pass --overwrite to replace it")
+        require_ours(out_dir)
         import secrets
 
         old = out_dir.parent / f"{OLD_PREFIX}{out_dir.name}-{os.getpid()}-{secrets.token_hex(4)}"
@@ -223,7 +241,10 @@ def write_sequence(
     images, video : bool
         Write ``img1/*.jpg`` and/or ``video.mp4``; at least one.
     overwrite : bool
-        Replace an existing ``out_dir``; otherwise an existing folder raises FileExistsError.
+        Replace an existing ``out_dir``, only when it is provably a sequence crowdsim wrote
+        (:func:`synth_data.mot.not_ours`: else ``ValueError`` naming the first file that is
+        not), checked before rendering and again just before the swap; without it an existing
+        folder raises ``FileExistsError``.
     progress : callable, optional
         Called with ``1`` after each rendered frame.
 
@@ -238,8 +259,10 @@ def write_sequence(
     name = name or out_dir.name
     if not (images or video):
         raise ValueError("output: at least one of images or video must be true")
-    if out_dir.exists() and not overwrite:
-        raise FileExistsError(f"{out_dir} already exists; pass --overwrite to replace it")
+    if out_dir.exists() or out_dir.is_symlink():
+        if not overwrite:
+            raise FileExistsError(f"{out_dir} already exists; pass --overwrite to replace it")
+        require_ours(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = make_tmp_dir(out_dir)
     (tmp / "gt").mkdir()
@@ -307,7 +330,7 @@ def write_sequence(
         checksums = dict(sorted(checksums.items()))
         (tmp / CHECKSUMS_FILE).write_text(json.dumps(checksums, indent=0) + "\n")
         _fsync_dir(tmp)
-        publish_tmp_dir(tmp, out_dir)
+        publish_tmp_dir(tmp, out_dir, overwrite)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

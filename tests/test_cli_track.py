@@ -184,3 +184,56 @@ def test_demo_writes_table_curve_and_overlay(tmp_path, capsys):
     # nothing re-entered the CLI: one simulate table, one generation, one tracking table
     assert text.count("scenario  ") == 1 and text.count("method") == 1
     assert summary["results"]["BQP"]["acc@15"] >= 90.0
+
+
+def test_track_params_follow_the_files_tracker_only_when_none_is_given(tmp_path, seq, capsys):
+    """A parameters file of ``ncc`` is NCC's: without --tracker it tracks with NCC (and says
+    so), exactly like ``--tracker ncc --set ...``; with another --tracker it is refused."""
+    params = tmp_path / "ncc.json"
+    params.write_text(json.dumps({"tracker": "ncc", "params": {"search_factor": 3.0}}))
+    followed, direct = tmp_path / "followed.txt", tmp_path / "direct.txt"
+    argv = ["track", str(seq), "--no-progress"]
+    assert main([*argv, "--params", str(params), "--out", str(followed)]) == 0
+    err = capsys.readouterr().err
+    assert f"tracking with ncc (the tracker the file names) with the parameters of {params}" in err
+    assert main([*argv, "--tracker", "ncc", "--set", "search_factor=3", "--out", str(direct)]) == 0
+    capsys.readouterr()
+    assert followed.read_text() == direct.read_text()
+    assert main([*argv, "--tracker", "ncc", "--params", str(params), "--out", str(direct)]) == 0
+    capsys.readouterr()
+    assert (
+        main([*argv, "--tracker", "bqp", "--params", str(params), "--out", str(tmp_path / "x")])
+        == 2
+    )
+    line = _error_line(capsys, "track")
+    assert f"--params {params}: made for the 'ncc' tracker, but --tracker is 'bqp'" in line
+    assert not (tmp_path / "x").exists()
+    assert main([*argv, "--dense", "--set", "speedup=true", "--out", str(tmp_path / "x")]) == 2
+    assert "--dense (no speed-up sampling) contradicts --set speedup=True" in _error_line(
+        capsys, "track"
+    )
+
+
+def test_track_refuses_a_truncated_frame_without_checksums(tmp_path, seq, capsys):
+    """A real MOT folder has no checksums.json: a JPEG cut short decodes in OpenCV with grey
+    rows and no error, so it is named before tracking instead of being tracked silently."""
+    import shutil
+
+    jpg = tmp_path / "jpg"
+    (jpg / "img1").mkdir(parents=True)
+    shutil.copytree(seq / "gt", jpg / "gt")
+    ini = (seq / "seqinfo.ini").read_text().replace("imExt=.png", "imExt=.jpg")
+    (jpg / "seqinfo.ini").write_text(ini)
+    for p in sorted((seq / "img1").glob("*.png")):
+        cv2.imwrite(str(jpg / "img1" / f"{p.stem}.jpg"), cv2.imread(str(p)))
+    out = tmp_path / "r.txt"
+    assert main(["track", str(jpg), "--tracker", "ncc", "--no-progress", "--out", str(out)]) == 0
+    capsys.readouterr()
+    cut = jpg / "img1" / "000004.jpg"
+    data = cut.read_bytes()
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    assert cv2.imread(str(cut)) is not None  # OpenCV alone would track it
+    out.unlink()
+    assert main(["track", str(jpg), "--tracker", "ncc", "--no-progress", "--out", str(out)]) == 2
+    assert f"{cut}: not a complete image" in _error_line(capsys, "track")
+    assert not out.exists()

@@ -80,7 +80,11 @@ def _wait_for_frames(
 
 
 @pytest.mark.parametrize(
-    "sig, code, word", [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")]
+    "sig, code, word",
+    [
+        (signal.SIGINT, 130, "interrupted by SIGINT"),
+        (signal.SIGTERM, 143, "interrupted by SIGTERM"),
+    ],
 )
 def test_render_signal_removes_its_tmp_folder(tmp_path, sig, code, word, slow_jpeg_env):
     csv = _walk_csv(tmp_path / "walk.csv", frames=2000)
@@ -96,6 +100,45 @@ def test_render_signal_removes_its_tmp_folder(tmp_path, sig, code, word, slow_jp
     assert lines[-1] == f"crowdsim render: {word}; removed the unfinished temporary folder of {out}"
     assert "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.csv"]
+
+
+def _catches(pid: int, sig: signal.Signals) -> bool:
+    """Whether process ``pid`` has a handler for ``sig`` (Linux: ``SigCgt`` of its status)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) >> (sig - 1) & 1)
+    return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/<pid>/status")
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_command_without_its_own_handler_ends_with_the_signal_code(tmp_path, sig, code):
+    """Every command, not only render and generate, ends a signal with 130 / 143 and one line
+    (crowdsim.cli.main turns SIGTERM into crowdsim.jobs.Interrupted while a command runs);
+    simulate here, whose output must not appear half-written. Before that, SIGTERM killed it
+    without a word (-15) and SIGINT said "interrupted" without the signal's name."""
+    out = tmp_path / "walk.npz"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "crowdsim.cli", "simulate", "marathon", "--agents", "50"]
+        + ["--steps", "100000", "--no-progress", "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=str(REPO)),
+        cwd=REPO,
+    )
+    deadline = time.monotonic() + 60
+    while not _catches(proc.pid, signal.SIGTERM):  # the command runs under the handler
+        if proc.poll() is not None or time.monotonic() > deadline:
+            proc.kill()
+            pytest.fail(f"simulate ended or never started: {proc.communicate()}")
+        time.sleep(0.02)
+    time.sleep(0.3)  # well inside the simulation
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == code, err
+    assert err.strip().splitlines() == [f"crowdsim simulate: interrupted by {sig.name}"], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
 def test_render_sigkill_then_rerun_cleans_up_and_completes(tmp_path, slow_jpeg_env):

@@ -152,6 +152,12 @@ class Tracker(ABC):
     # ------------------------------------------------------------------ public API
     def init(self, frame: np.ndarray, ids, points, template_size: int) -> None:
         """Start tracking ``ids`` at ``points`` ``(n, 2)`` px in ``frame`` (H, W, 3) uint8."""
+        cls = self.params_class
+        if cls is not None and not isinstance(self.params, cls):
+            raise ValueError(
+                f"tracker {self.name!r} takes {cls.__name__}, got {type(self.params).__name__} "
+                "(build the parameters with tracker.registry.make_tracker or the dataclass)"
+            )
         frame = self._check_frame(frame, first=True)
         if not (isinstance(template_size, (int, np.integer)) and template_size >= 2):
             raise ValueError(f"template_size must be an integer >= 2 px, got {template_size!r}")

@@ -73,12 +73,26 @@ class TrackerEntry:
         return cls(**{**self.overrides, **overrides})
 
     def create(self, params: Any = None, **overrides: Any) -> Tracker:
-        """A new tracker; ``params`` (an instance of :meth:`params_class`) or overrides."""
-        if params is not None:
-            if overrides:
-                params = replace(params, **overrides)
-            return self.tracker_class()(params)
-        return self.tracker_class()(self.make_params(**overrides))
+        """A new tracker; ``params`` (an instance of :meth:`params_class`, or a mapping of its
+        fields, validated like overrides) and/or overrides.
+
+        Anything else is refused naming its type: a tracker built around a dict or another
+        tracker's parameters would run unvalidated until something deep inside it failed.
+        """
+        cls = self.params_class()
+        if params is None:
+            return self.tracker_class()(self.make_params(**overrides))
+        if isinstance(params, Mapping):
+            return self.tracker_class()(self.make_params(**{**params, **overrides}))
+        if not isinstance(params, cls):
+            raise ValueError(
+                f"tracker {self.name!r} takes params as a {cls.__name__} or a mapping of its "
+                f"fields, got {type(params).__name__}"
+            )
+        if overrides:
+            self.make_params(**overrides)  # unknown fields are refused by name
+            params = replace(params, **overrides)
+        return self.tracker_class()(params)
 
 
 def _entry(name: str, target: str, params: str, summary: str, **overrides: Any) -> TrackerEntry:

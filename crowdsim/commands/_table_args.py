@@ -31,11 +31,14 @@ def add_jobs_arguments(p: argparse.ArgumentParser, workers_help: str, workers: i
 
 
 def add_table_arguments(p: argparse.ArgumentParser) -> None:
+    """``--suite NAME|DIR``, ``--only``, ``--frames``, the jobs flags, ``--out``,
+    ``--no-progress`` of ``compare``, ``ablation`` and ``difficulty``."""
     p.add_argument(
         "--suite",
         default="ucf9",
-        choices=("ucf9", "galleria", "stress"),
-        help="suite to run (default ucf9)",
+        metavar="NAME|DIR",
+        help="built-in suite (ucf9, galleria, stress) or a suite folder of spec files, e.g. "
+        "one written by crowdsim calibrate --out (default ucf9)",
     )
     p.add_argument("--only", nargs="+", metavar="SEQ", help="only these sequences")
     p.add_argument(
@@ -61,6 +64,8 @@ def table_run_kwargs(args: argparse.Namespace) -> dict:
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
+    if args.address is not None and args.backend != "ray":  # the wording of generate's
+        raise ValueError(f"--address needs --backend ray, got --address {args.address!r}")
     return {
         "only": args.only,
         "frames": args.frames,
@@ -73,11 +78,11 @@ def table_run_kwargs(args: argparse.Namespace) -> dict:
 
 
 def run_table_command(args: argparse.Namespace, rows, title: str, paper_table: str) -> int:
+    """Run :func:`crowdsim.lab.experiments.run_table` from the flags; print the table."""
     from crowdsim.lab.experiments import run_table
 
-    text = run_table(
-        rows, args.suite, args.out, title=title, paper_table=paper_table, **table_run_kwargs(args)
-    )
+    kwargs = table_run_kwargs(args)  # flags checked before any work
+    text = run_table(rows, args.suite, args.out, title=title, paper_table=paper_table, **kwargs)
     print(text)
     print(
         f"table -> {args.out}/table.md, {args.out}/table.csv; curves -> {args.out}/curves/",
@@ -113,9 +118,15 @@ def add_episode_arguments(p: argparse.ArgumentParser, only_help: str) -> None:
 def episode_objective(args: argparse.Namespace, **fields: object) -> object:
     """The :class:`envs.tuners.Objective` of :func:`add_episode_arguments`' flags (checked)."""
     from envs.tuners import Objective
+    from synth_data.suites import SUITE_NAMES
 
     if args.only and not args.suite:
         raise ValueError("--only needs --suite (name scenarios in --scenarios)")
+    if args.heldout_only and (not args.suite or args.suite in SUITE_NAMES):
+        raise ValueError(
+            "--heldout-only names sequences of a suite folder; built-in suites and "
+            "--scenarios are scored on other seeds of the same sequences (drop it)"
+        )
     if args.frames is not None and args.frames < 2:
         raise ValueError(f"--frames must be >= 2, got {args.frames}")
     return Objective(

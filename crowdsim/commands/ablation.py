@@ -1,10 +1,12 @@
 """``crowdsim ablation``: paper 1's Table 3, the BQP tracker's terms switched on one by one.
 
-``crowdsim ablation --suite ucf9 [--only SEQ ...] [--frames N] [--workers N] --out DIR``
+``crowdsim ablation --suite NAME|DIR [--only SEQ ...] [--frames N] [--workers N] [--backend
+local|ray [--address ADDR]] --out DIR``
 
 Rows: B, B+Mo, B+Mo+SP, B+Mo+Gr, B+Mo+Gr+NMo and the full objective, each with NCC and with
-KCF appearance (:mod:`tracker.bqp.ablation`); the paper's Table 3 figures beside ours.
-Resumable like ``crowdsim compare``.
+KCF appearance (:mod:`tracker.bqp.ablation`); the paper's Table 3 figures (``ablation@15`` of
+the suite's ``paper.json``) beside ours. ``--suite``, resuming and the checked cells as in
+``crowdsim compare``.
 """
 
 from __future__ import annotations

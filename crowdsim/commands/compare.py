@@ -1,13 +1,17 @@
 """``crowdsim compare``: every tracker on a suite, the papers' figures beside ours.
 
-``crowdsim compare --suite ucf9 [--only SEQ ...] [--frames N] [--workers N] [--backend
-local|ray] --out DIR``
+``crowdsim compare --suite NAME|DIR [--only SEQ ...] [--frames N] [--workers N] [--backend
+local|ray [--address ADDR]] --out DIR``
 
+``--suite`` is a built-in suite (ucf9, galleria, stress) or a suite folder of spec files, such
+as the one ``crowdsim calibrate --out`` writes (its ``paper.json`` gives the papers' column).
 Rows: NCC, mean-shift, PNMC, BQP (KCF), BQP (NCC appearance), ByteTrack and OC-SORT at
 detector miss rates 0.1 and 0.3. Per sequence: acc@15, acc@5, MOTA, IDF1, HOTA, frames/s.
 Writes ``table.md``, ``table.csv`` and accuracy-versus-threshold PNGs and prints the table.
-Resumable: a rerun with the same ``--out`` skips finished cells (see
-:mod:`crowdsim.lab.experiments`).
+Resumable: a rerun with the same ``--out`` skips finished cells, each checked against the
+checksum stored with it in ``cells.json`` (an edited cell is refused, naming it; see
+:mod:`crowdsim.lab.experiments`). A sequence folder in ``DIR/sequences`` made from another
+spec is never replaced (exit 2: remove it or choose another ``--out``).
 """
 
 from __future__ import annotations

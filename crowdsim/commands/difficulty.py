@@ -1,14 +1,15 @@
 """``crowdsim difficulty``: which difficulty of a calibrated suite costs which tracker.
 
-``crowdsim difficulty --suite ucf9 [--only SEQ ...] [--trackers NAME ...] [--frames N]
-[--workers N] [--backend local|ray] --out DIR``
+``crowdsim difficulty --suite NAME|DIR [--only SEQ ...] [--trackers NAME ...] [--frames N]
+[--workers N] [--backend local|ray [--address ADDR]] --out DIR``
 
 For every calibrated sequence, tracks the calibrated spec, the spec with one group of
 appearance / camera knobs put back to its uncalibrated value (look-alike heads, packing, gait,
 clutter, noise and codec, blur, flicker, shake; one group at a time) and the uncalibrated
 spec, with each tracker (default: ncc pnmc bqp). Writes the run's ``table.md`` / ``table.csv``
 and ``attribution.md`` / ``attribution.json``: the acc@15 points each group costs each tracker.
-Resumable like ``compare`` (see :mod:`crowdsim.lab.difficulty`).
+Resumable like ``compare`` (see :mod:`crowdsim.lab.difficulty`); ``--suite`` takes a built-in
+name or a calibrated suite folder (``crowdsim calibrate --out``).
 """
 
 from __future__ import annotations

@@ -3,6 +3,12 @@
 The papers' metric is the percentage of ground-truth points with a tracked point of the same
 id within T px (T = 0..25; tables at 5 and 15 px). CLEAR MOT, IDF1 and HOTA come from
 TrackEval with the point similarity max(0, 1 - d / T_sim) (T_sim = --similarity-px).
+
+Result ids: when they are the ground truth's (a point tracker's), acc@T compares each person
+with the track of their id, and a row whose id the ground truth does not know (a stray row,
+a negative id) is scored as unmatched and counted in the output. When they are a tracker's
+own (ByteTrack's 0, 1, 2, ...), each track stands for the person it follows in most frames
+(majority vote). The output says which; see :func:`tracker.metrics.resolve_id_mapping`.
 """
 
 from __future__ import annotations
@@ -38,11 +44,17 @@ def load_results(results: str, seq_dir: str):
     from synth_data.mot import read_mot_file, read_sequence
     from tracker.mot_io import mot_rows_to_tracks
 
-    seq = read_sequence(seq_dir)
-    gt_ids, gt_pts = seq.gt_points()
+    try:
+        seq = read_sequence(seq_dir)
+        gt_ids, gt_pts = seq.gt_points()
+    except UnicodeDecodeError as exc:  # a binary seqinfo.ini or gt.txt
+        raise ValueError(f"{seq_dir}: a file of the sequence is not text ({exc.reason})") from None
     if len(gt_ids) == 0:
         raise ValueError(f"{seq_dir}: the sequence has no ground truth (gt/gt.txt)")
-    rows = read_mot_file(results)
+    try:
+        rows = read_mot_file(results)
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{results}: not a text MOT results file ({exc.reason})") from None
     ids, pts = mot_rows_to_tracks(rows, seq.length, source=str(results))
     if len(ids):
         finite = np.isfinite(pts).all(-1)
@@ -100,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
     seq, gt_ids, gt_pts, ids, pts = load_results(args.results, args.sequence)
     verify_frames(seq)
     # any result ids: MOTA, IDF1 and HOTA need no correspondence; acc@T uses the ids as they
-    # are when they are ground-truth ids, else a majority mapping (tracker.metrics.evaluate)
+    # are when they are ground-truth ids (unknown ones unmatched), else a majority mapping
     report = evaluate(
         gt_ids, gt_pts, ids, pts, similarity_scale=args.similarity_px, id_mapping="auto"
     )
@@ -114,9 +126,28 @@ def run(args: argparse.Namespace) -> int:
     print(format_table({name: report}))
     curve = " ".join(f"{c['acc']:.0f}" for c in report["curve"])
     print(f"accuracy (%) for T = 0..25 px: {curve}")
+    print(id_mapping_note(report, gt_ids, ids))
     print(
         f"CLEAR/IDF1 match within {args.similarity_px / 2:g} px (similarity >= 0.5); "
         f"MOTP {report['motp']:.1f}%, DetA {report['deta']:.1f}%, AssA {report['assa']:.1f}%, "
         f"MT {report['mt']}, ML {report['ml']}, Frag {report['frag']}"
     )
     return 0
+
+
+def id_mapping_note(report: dict, gt_ids, ids) -> str:
+    """One line saying how acc@T related the result ids to the ground truth's."""
+    import numpy as np
+
+    if report["id_mapping"] == "majority":
+        return (
+            "acc@T: the result ids are not the ground truth's; each track stands for the "
+            "person it follows in most frames (majority vote)"
+        )
+    unknown = np.setdiff1d(np.asarray(ids), np.asarray(gt_ids))
+    if not len(unknown):
+        return "acc@T: the result ids are the ground truth's"
+    return (
+        f"acc@T: the result ids are the ground truth's; {len(unknown)} id(s) unknown to it "
+        f"(e.g. {', '.join(map(str, unknown[:5].tolist()))}) scored as unmatched"
+    )

@@ -8,9 +8,9 @@ rerun (resume), existing sequences made from another spec are only replaced with
 ``--overwrite`` (otherwise exit code 2). See :mod:`synth_data.generate`.
 
 Exit codes: 0 done; 1 a worker failed or died (finished sequences are kept: rerun to resume);
-2 a user error, a file-system error (full disk, read-only folder...: one line naming the path,
-nothing left behind), or SIGINT/SIGTERM (the run stops at once, removes its temporary folders
-and says so in one line).
+2 a user error or a file-system error (full disk, read-only folder...: one line naming the
+path, nothing left behind); 130 SIGINT and 143 SIGTERM (the run stops at once, removes its
+temporary folders and says so in one line; see :func:`crowdsim.cli.main`).
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument(
         "--suite",
-        choices=("ucf9", "galleria", "stress"),
-        help="named suite of spec files shipped with crowdsim",
+        metavar="NAME|DIR",
+        help="built-in suite (ucf9, galleria, stress) or a suite folder of spec files",
     )
     src.add_argument(
         "--spec",
@@ -62,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from crowdsim.jobs import Interrupted, interruptible
+    from crowdsim.jobs import Interrupted
     from synth_data.generate import GenerationError, clean_stale_tmp, generate
     from synth_data.spec import load_spec
     from synth_data.suites import suite_specs
@@ -76,30 +76,24 @@ def run(args: argparse.Namespace) -> int:
     specs = suite_specs(args.suite, args.only) if args.suite else [load_spec(f) for f in args.spec]
     specs = [s.truncated(args.frames) for s in specs]
     workers = args.workers if args.workers is not None else min(os.cpu_count() or 1, len(specs))
-    try:
-        with interruptible():
-            manifest = generate(
-                specs,
-                args.out,
-                workers=workers,
-                backend=args.backend,
-                address=args.address,
-                overwrite=args.overwrite,
-                progress=not args.no_progress,
-            )
+    try:  # crowdsim.cli.main turns SIGINT and SIGTERM into Interrupted while this runs
+        manifest = generate(
+            specs,
+            args.out,
+            workers=workers,
+            backend=args.backend,
+            address=args.address,
+            overwrite=args.overwrite,
+            progress=not args.no_progress,
+        )
     except GenerationError as exc:
         print(f"crowdsim generate: error: {exc}", file=sys.stderr)
         return 1
     except Interrupted as exc:
-        if getattr(exc, "removed", None) is None:  # stopped before any job ran
-            clean_stale_tmp(args.out)
-        print(
-            f"crowdsim generate: interrupted by {exc.signal_name}; workers stopped, this "
-            f"run's temporary folders removed; finished sequences are kept in {args.out}, "
-            "rerun the same command to resume",
-            file=sys.stderr,
-        )
-        return 2
+        if getattr(exc, "removed", None) is None and os.path.isdir(args.out):
+            clean_stale_tmp(args.out)  # stopped before any job ran
+        exc.detail = _kept(args.out)
+        raise
     seqs = manifest["sequences"]
     total = sum(e["bytes"] for e in seqs.values())
     print(
@@ -107,3 +101,22 @@ def run(args: argparse.Namespace) -> int:
         f"manifest: {os.path.join(args.out, 'manifest.json')}"
     )
     return 0
+
+
+def _kept(out: str) -> str:
+    """What an interrupted run leaves, in words that are true: the finished sequences the
+    manifest lists (this run's and earlier runs'), or that nothing was finished."""
+    from synth_data.generate import MANIFEST_SECTION, read_manifest_of
+
+    if not os.path.isdir(out):  # the folder this run made is gone again
+        return f"nothing was finished; {out} was removed again"
+    n = len(read_manifest_of(out)[MANIFEST_SECTION])
+    if n == 0:
+        return (
+            "workers stopped, this run's temporary folders removed; nothing was finished, "
+            "rerun the same command to start again"
+        )
+    return (
+        f"workers stopped, this run's temporary folders removed; {n} finished sequence(s) "
+        f"are kept in {out}, rerun the same command to resume"
+    )

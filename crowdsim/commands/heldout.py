@@ -10,13 +10,14 @@ and ``crowdsim train`` never use, and tracks every one with the BQP tracker's pa
 with each ``best_params.json`` of ``crowdsim tune`` and with each ``model.zip`` of ``crowdsim
 train`` (the policy sets the parameters every K frames). Writes ``DIR/heldout.json`` (every
 sequence's acc@5, acc@15, HOTA, MOTA, IDF1; mean and std per family and overall),
-``DIR/heldout.md`` (the table it prints) and ``DIR/heldout.png``. See :mod:`envs.heldout`.
+``DIR/heldout.md`` (the table it prints) and ``DIR/heldout.png``; a ``heldout.*`` already in
+DIR that it cannot prove it wrote (its SHA-256 listed in its ``heldout.json``) is refused, never
+replaced. See :mod:`envs.heldout`.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from crowdsim.commands._table_args import add_episode_arguments, episode_objective
@@ -80,29 +81,15 @@ def _labelled(items: list[str], default: str, flag: str) -> dict[str, str]:
     return out
 
 
-def _check_out(out: Path) -> None:
-    """Refuse a ``heldout.json`` in ``out`` that this command did not write."""
-    prev = out / "heldout.json"
-    if not prev.exists():
-        return
-    try:
-        doc = json.loads(prev.read_text())
-        ours = isinstance(doc, dict) and "seeds_per_family" in doc and "families" in doc
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        ours = False
-    if not ours:
-        raise ValueError(
-            f"--out: {prev} exists and is not a crowdsim heldout result; "
-            "refusing to replace it (choose another folder)"
-        )
-
-
 def run(args: argparse.Namespace) -> int:
-    from envs.heldout import evaluate_heldout, heldout_table, write_heldout
+    from envs.heldout import check_heldout_out, evaluate_heldout, heldout_table, write_heldout
     from envs.param_space import load_params
+    from envs.training import load_policy, policy_meta
 
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
+    out = Path(args.out)
+    check_heldout_out(out)  # a user's own heldout.* is never replaced: refused before any work
     objective = episode_objective(args, tracker=args.tracker)
     param_sets = {}
     if not args.no_defaults:
@@ -115,14 +102,21 @@ def run(args: argparse.Namespace) -> int:
                 f"{args.tracker!r} (add --tracker {name})"
             )
         param_sets[label] = params
-    policies = _labelled(args.policy, "policy", "--policy")
-    clash = set(param_sets) & set(policies)
+    policy_files = _labelled(args.policy, "policy", "--policy")
+    clash = set(param_sets) & set(policy_files)
     if clash:
         raise ValueError(f"--policy: label {sorted(clash)[0]!r} is also a --params label")
+    policies = {}
+    for label, path in policy_files.items():
+        name = policy_meta(path)["env_kwargs"].get("tracker", "bqp")
+        if name != args.tracker:
+            raise ValueError(
+                f"--policy {path}: a policy of the {name!r} tracker, but --tracker is "
+                f"{args.tracker!r} (add --tracker {name})"
+            )
+        policies[label] = load_policy(path)  # a damaged policy is refused before any work
     if not param_sets and not policies:
         raise ValueError("nothing to score: give --params or --policy (or drop --no-defaults)")
-    out = Path(args.out)
-    _check_out(out)
     objective.episodes(heldout=True)  # validate suite / scenarios / --only before any work
     result = evaluate_heldout(
         objective,
@@ -132,7 +126,6 @@ def run(args: argparse.Namespace) -> int:
         metrics=args.metrics,
         progress=not args.no_progress,
     )
-    out.mkdir(parents=True, exist_ok=True)
     files = write_heldout(result, out)
     n = len(result["sequences"])
     print(f"{n} held-out sequences ({args.seeds} per family), mean ± std:")

@@ -10,22 +10,24 @@ written first, proves it is ours, then renamed into place. A temporary folder le
 render is removed by the next render into the same parent folder (only when its marker names a
 dead process of this host); SIGINT and SIGTERM remove it at once and say so in one line.
 
+Exit codes: 0 done; 2 a user or file-system error (one line naming the flag, file or value);
+130 SIGINT and 143 SIGTERM (see :func:`crowdsim.cli.main`).
+
 Limits (checked before anything is allocated): frame sides 8..8192 px, scale 1e-3..1e4 px/m,
 coordinates within ±1e5 m (:data:`crowdsim.trajectories.MAX_COORD_M`), and an estimated working
 set within :data:`crowdsim.checks.MEMORY_LIMIT_BYTES`. ``--overwrite`` replaces only a
-crowdsim sequence folder (``seqinfo.ini`` + ``gt/`` + ``meta.json``, nothing else) or a suite
-folder with ``manifest.json``, and never the input file.
+folder crowdsim can prove it wrote, file by file: a sequence whose ``checksums.json`` lists every
+file in it with its SHA-256 (:func:`synth_data.mot.not_ours`), or a suite folder holding only
+its ``manifest.json`` and such sequences (checked again just before the swap); it never replaces
+the input file, and refuses anything else naming the first file that is not its own.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
-import signal
 from pathlib import Path
-from typing import Any
 
 MAX_SIDE_PX = 8192
 """Largest frame width or height (px); one 8192 x 8192 frame peaked at 3.0 GiB resident
@@ -40,19 +42,6 @@ BYTES_PER_PIXEL = 64
 BYTES_PER_AGENT_ROW = 128
 """Working set per (frame, agent) cell (positions, pixels, headings, sway, gt); measured
 107 B for 2000 frames x 1000 people."""
-SEQUENCE_ENTRIES = frozenset(
-    {
-        "img1",
-        "gt",
-        "seqinfo.ini",
-        "meta.json",
-        "checksums.json",
-        "video.mp4",
-        ".crowdsim-tmp-owner.json",
-    }
-)
-"""Everything a sequence folder written by crowdsim may hold (the writer's marker is removed
-right after the rename that publishes the folder)."""
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -132,37 +121,6 @@ def _check_flags(args: argparse.Namespace) -> None:
         raise ValueError(f"--template-px must be in [4, 64], got {args.template_px}")
 
 
-def is_sequence_folder(path: Path) -> bool:
-    """True when ``path`` is a sequence folder written by crowdsim and holds nothing else."""
-    if not path.is_dir() or path.is_symlink():
-        return False
-    if not ((path / "seqinfo.ini").is_file() and (path / "gt").is_dir()):
-        return False
-    try:
-        meta = json.loads((path / "meta.json").read_text())
-    except (OSError, ValueError):
-        return False
-    if not (isinstance(meta, dict) and "camera" in meta and "appearance" in meta):
-        return False
-    return all(p.name in SEQUENCE_ENTRIES for p in path.iterdir())
-
-
-def is_suite_folder(path: Path) -> bool:
-    """True when ``path`` holds a crowdsim ``manifest.json`` and only sequence folders."""
-    if not path.is_dir() or path.is_symlink():
-        return False
-    try:
-        manifest = json.loads((path / "manifest.json").read_text())
-    except (OSError, ValueError):
-        return False
-    if not (isinstance(manifest, dict) and isinstance(manifest.get("sequences"), dict)):
-        return False
-    return all(
-        p.name == "manifest.json" or p.name.startswith(".") or is_sequence_folder(p)
-        for p in path.iterdir()
-    )
-
-
 def check_output(out: Path, source: Path, overwrite: bool) -> None:
     """Refuse an ``--out`` that is the input, holds it, or is not ours to replace."""
     src = source.resolve()
@@ -178,26 +136,19 @@ def check_output(out: Path, source: Path, overwrite: bool) -> None:
             f"--out {out} is a file, not a crowdsim sequence folder; refusing to "
             "replace it with --overwrite"
         )
-    if not (is_sequence_folder(out) or is_suite_folder(out)):
+    from synth_data.mot import not_ours
+
+    why = not_ours(out)
+    if why is not None:
         raise ValueError(
-            f"--out {out} is not a crowdsim sequence or suite folder (no "
-            "seqinfo.ini + gt/ + meta.json of ours, or other files inside); "
-            "refusing to replace it with --overwrite"
+            f"--out {out} is not a crowdsim sequence or suite folder that crowdsim can prove it "
+            f"wrote ({why}); refusing to replace it with --overwrite"
         )
 
 
 def estimate_bytes(width: int, height: int, n_frames: int, n_agents: int) -> int:
     """Estimated peak working set (bytes) of rendering ``n_frames`` frames of ``n_agents``."""
     return BYTES_PER_PIXEL * width * height + BYTES_PER_AGENT_ROW * n_frames * n_agents
-
-
-# ---------------------------------------------------------------------------- signals
-class _Terminated(BaseException):
-    """SIGTERM while rendering (cleaned up like Ctrl-C)."""
-
-
-def _on_sigterm(signum: int, frame: Any) -> None:
-    raise _Terminated()
 
 
 # ---------------------------------------------------------------------------- command
@@ -271,7 +222,6 @@ def run(args: argparse.Namespace) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     for p in clean_stale_tmp(out.parent):
         print(f"crowdsim render: removed {p}, left by a render that was killed", file=sys.stderr)
-    previous = signal.signal(signal.SIGTERM, _on_sigterm) if _main_thread() else None
     try:
         with progress_bar(total=traj.n_steps, unit="frame", desc="rendering") as bar:
             entry = write_sequence(
@@ -285,29 +235,16 @@ def run(args: argparse.Namespace) -> int:
                 overwrite=args.overwrite,
                 progress=bar.update,
             )
-    except (KeyboardInterrupt, _Terminated) as exc:
-        how = "terminated" if isinstance(exc, _Terminated) else "interrupted"
-        print(
-            f"crowdsim render: {how}; removed the unfinished temporary folder of {out}",
-            file=sys.stderr,
-        )
-        return 130 if how == "interrupted" else 143
+    except KeyboardInterrupt as exc:  # crowdsim.jobs.Interrupted: SIGINT or SIGTERM
+        exc.detail = f"removed the unfinished temporary folder of {out}"
+        raise
     except OSError as exc:  # name --out, not the hidden temporary folder (or nothing)
         name = "" if exc.filename is None else Path(os.fsdecode(exc.filename)).name
         if exc.filename is None or name.startswith(".crowdsim-tmp-"):
             raise type(exc)(exc.errno, exc.strerror or str(exc), str(out)) from None
         raise
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
     print(
         f"wrote {out}: {entry['frames']} frames {camera.width}x{camera.height} "
         f"at {camera.px_per_m:.2f} px/m"
     )
     return 0
-
-
-def _main_thread() -> bool:
-    import threading
-
-    return threading.current_thread() is threading.main_thread()

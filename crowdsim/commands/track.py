@@ -33,9 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("input", help="MOT sequence folder or video file")
     p.add_argument(
         "--tracker",
-        default="bqp",
+        default=None,
         metavar="NAME",
-        help=f"registered tracker (default bqp). {listing}",
+        help="registered tracker (default bqp; with --params or --policy: the tracker the file "
+        f"names). {listing}",
     )
     p.add_argument(
         "--set",
@@ -100,24 +101,76 @@ def _check_output(path: str, flag: str, suffix: str | None = None) -> Path:
     return out
 
 
-def _overrides(args: argparse.Namespace) -> tuple[str, dict]:
+def _overrides(args: argparse.Namespace, name: str) -> dict:
+    """``--set``, ``--appearance`` and ``--dense`` as parameter values of tracker ``name``,
+    checked: unknown or out-of-range values and flags that contradict each other are named."""
     from crowdsim.commands.simulate import parse_assignments
+    from envs.param_space import tunable_trackers
     from tracker.registry import get
 
-    name = args.tracker
     entry = get(name)  # unknown names list the valid ones
     over = parse_assignments(args.set, "--set")
+    bqp = name in tunable_trackers()
+    for flag, given in (("--appearance", args.appearance is not None), ("--dense", args.dense)):
+        if given and not bqp:
+            raise ValueError(
+                f"{flag} sets a parameter of the BQP trackers ({', '.join(tunable_trackers())}), "
+                f"not of --tracker {name}"
+            )
     if args.appearance is not None:
+        if "appearance" in over and over["appearance"] != args.appearance:
+            raise ValueError(
+                f"--appearance {args.appearance} contradicts --set appearance={over['appearance']}"
+            )
         over["appearance"] = args.appearance
     if args.dense:
+        if "speedup" in over and over["speedup"] is not False:
+            raise ValueError(
+                f"--dense (no speed-up sampling) contradicts --set speedup={over['speedup']}"
+            )
         over["speedup"] = False
     entry.make_params(**over)  # unknown or out-of-range parameters fail here, named
-    return name, over
+    return over
+
+
+def _tuned(args: argparse.Namespace, src: object) -> tuple[object, object, str]:
+    """``(tracker, frame source, description)`` for ``--params`` / ``--policy``.
+
+    The file names its tracker; ``--tracker``, when given, must be the same one (a parameters
+    file of ``ncc`` never silently turns ``--tracker bqp`` into NCC)."""
+    from dataclasses import replace
+
+    from envs.param_space import load_params
+    from envs.training import load_policy, policy_meta, policy_tracker
+    from tracker.registry import make_tracker
+
+    if args.params:
+        flag, path = "--params", args.params
+        name, params = load_params(path)
+    else:
+        flag, path = "--policy", args.policy
+        name = policy_meta(path)["env_kwargs"].get("tracker", "bqp")
+    if args.tracker is not None and args.tracker != name:
+        raise ValueError(
+            f"{flag} {path}: made for the {name!r} tracker, but --tracker is "
+            f"{args.tracker!r} (drop --tracker to follow the file, or give --tracker {name})"
+        )
+    over = _overrides(args, name)
+    followed = "" if args.tracker is not None else " (the tracker the file names)"
+    if args.params:
+        tracker = make_tracker(name, replace(params, **over) if over else params)
+        return tracker, src, f"{name}{followed} with the parameters of {path}"
+    model, meta = load_policy(path)
+    tracker, feed, _ = policy_tracker(src, model, meta, over)
+    k = meta["env_kwargs"].get("k_frames", 25)
+    what = f"the {meta['algo'].upper()} policy (every {k} frames) of {path}"
+    return tracker, feed, f"{name}{followed} with {what}"
 
 
 def run(args: argparse.Namespace) -> int:
+    from envs.episodes import verify_folder
     from synth_data.detections import attach_detections
-    from synth_data.mot import verify_frames, write_mot
+    from synth_data.mot import write_mot
     from synth_data.sequence import open_sequence
     from tracker.metrics import format_table
     from tracker.mot_io import tracks_to_mot_rows
@@ -135,23 +188,17 @@ def run(args: argparse.Namespace) -> int:
     out = _check_output(args.out, "--out")
     if args.video:
         _check_output(args.video, "--video", ".mp4")
-    name, over = _overrides(args)
+    if not (args.params or args.policy):
+        over = _overrides(args, args.tracker or "bqp")
     src = open_sequence(args.input, init=args.init)
     if is_folder:
-        verify_frames(src)  # a damaged or swapped image is named, not tracked silently
+        verify_folder(src)  # a damaged, truncated or swapped image is named, not tracked
     size = int(size or src.template_size)
-    tracker = make_tracker(name, **over)
-    feed = src
     if args.params or args.policy:
-        from envs.training import tuned_tracker
-
-        if not name.startswith("bqp"):
-            raise ValueError(
-                "--params and --policy set the parameters of a BQP tracker, "
-                f"not of --tracker {name}"
-            )
-        tracker, feed, what = tuned_tracker(src, args.params, args.policy, over)
+        tracker, feed, what = _tuned(args, src)
         print(f"tracking with {what}", file=sys.stderr)
+    else:
+        tracker, feed = make_tracker(args.tracker or "bqp", **over), src
     run = run_tracker(
         tracker,
         feed,

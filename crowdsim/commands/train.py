@@ -6,7 +6,9 @@
 Trains on ``crowdsim/TrackerTuning-v0`` (the policy sets the BQP tracker's parameters every
 ``--k`` frames) over ``--envs`` asynchronous environments (subprocesses). Writes
 ``DIR/model.zip`` (for ``crowdsim track --policy``), ``DIR/learning_curve.png`` and
-``DIR/learning_curve.json``. Needs the ``rl`` extra (torch, stable-baselines3).
+``DIR/learning_curve.json`` (a user's own files of those names are refused, never replaced).
+Needs the ``rl`` extra (torch, stable-baselines3). The environment processes die with this one
+(a SIGKILL leaves no orphan).
 """
 
 from __future__ import annotations
@@ -61,10 +63,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from crowdsim.checks import require_number
     from envs.training import train
 
     if args.only and not args.suite:
         raise ValueError("--only needs --suite")
+    require_number("", "--k", args.k, lo=1, integer=True)
+    require_number("", "--threshold", args.threshold, lo=0)
+    if args.frames is not None:
+        require_number("", "--frames", args.frames, lo=2, integer=True)
     kwargs = {"k_frames": args.k, "threshold_px": args.threshold, "extended": args.extended}
     if args.suite:
         kwargs.update(suite=args.suite, only=args.only)

@@ -12,7 +12,8 @@ resumes it: ``--trials`` is the total of finished trials wanted. Writes ``DIR/be
 (for ``crowdsim track --params``), ``DIR/history.png``, ``DIR/importance.png`` and
 ``DIR/heldout.json`` / ``.md`` / ``.png``: the best parameters against the paper defaults on
 ``--heldout`` held-out seeds per sequence or scenario family (never tuned on; ``crowdsim
-heldout`` scores a trained policy beside them). See :mod:`envs.tuners`.
+heldout`` scores a trained policy beside them). Files of those names in DIR that it cannot
+prove it wrote are refused, never replaced. See :mod:`envs.tuners`.
 """
 
 from __future__ import annotations
@@ -88,10 +89,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from crowdsim.checks import require_number
     from envs.tuners import tune
 
-    if args.address and args.backend != "ray":
-        raise ValueError(f"--address needs --backend ray, got --address {args.address!r}")
+    require_number("", "--train-episodes", args.train_episodes, lo=1, integer=True)
+    require_number("", "--threshold", args.threshold, lo=0)
     objective = episode_objective(
         args,
         train_episodes=args.train_episodes,

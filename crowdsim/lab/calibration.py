@@ -3,9 +3,28 @@
 The generated crowds must be as hard as the papers' real ones. For every sequence of a suite
 whose spec records the paper's NCC score (``[calibration] paper_ncc_15px``), an Optuna study
 searches the sequence's *appearance and camera* knobs -- never its motion -- until the
-independent NCC tracker's accuracy at 15 px lands on the paper's figure. The knobs are
-written back into the spec file (comments and the rest of the file kept), with the achieved
-score, so ``crowdsim generate`` reproduces the calibrated sequence exactly.
+independent NCC tracker's accuracy at 15 px lands on the paper's figure.
+
+Where the result goes
+    :func:`calibrate_suite` writes a new *suite folder* ``OUT`` (``--out``): every spec file of
+    the suite (the calibrated ones with their knobs and the achieved score; comments and the
+    rest of each file kept), the suite's ``README.md`` (the paper's figures beside the
+    achieved), a copy of its ``paper.json`` and ``calibrate.json`` (what this command wrote,
+    with checksums, and the results). ``--suite OUT`` then works wherever a suite is named
+    (``generate``, ``compare``, ``ablation``, ``difficulty``, ``calibrate``), so ``crowdsim
+    generate --suite OUT`` reproduces the calibrated sequences exactly. The suite calibrated
+    from is never touched, except with ``update_suite`` (``--update-suite``), and even then a
+    sequence whose new calibration is further from the paper's figure than the one its spec
+    records is kept unless ``force`` (``--force``); the log says per sequence what was kept.
+
+Files are sacred
+    ``OUT`` must be new, empty or a folder this command wrote: a file in it is only replaced
+    when its checksum in ``calibrate.json`` proves it is ours and unchanged. The studies live
+    in ``OUT/calibration.db`` (or ``--study FILE``), SQLite, so a killed run resumes; a study
+    file that is not SQLite, an SQLite database with other tables, or an Optuna file holding a
+    study this command did not make is refused before anything is written
+    (:func:`check_study_file`), so no Optuna table is ever added to someone else's database.
+    Every check runs before the first write: a refused run leaves nothing behind.
 
 Search space: one difficulty ``d`` in [0, 1] moving the knobs of both calibration axes of
 :data:`crowdsim.knobs.KNOBS` from the spec's own values (0) to their hard ends (1)
@@ -18,17 +37,23 @@ Search space: one difficulty ``d`` in [0, 1] moving the knobs of both calibratio
 
 The NCC score falls nearly monotonically with ``d``, so the study places its trials by
 bracketing (:func:`next_difficulty`) and reaches the target within a point in a handful of
-trials. A trial is scored exactly as ``crowdsim compare`` scores it: the sequence is
-generated to disk (JPEG and codec included) and tracked from its MOT folder.
+trials. A trial is scored exactly as ``crowdsim compare`` scores it (:func:`ncc_score`): the
+sequence is generated to disk (JPEG and codec included) and tracked from its MOT folder.
+Trials run through Optuna's ask-and-tell interface: SIGINT or SIGTERM during a trial marks it
+failed and goes on as one ``interrupted`` line (no Optuna traceback); the finished trials stay
+in the study.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import os
 import re
+import sqlite3
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +62,18 @@ from crowdsim.knobs import apply_knobs, knob_values, scaled
 
 TOLERANCE: float = 1.0
 """A study stops early once the NCC score is within this many points of the target."""
+MAX_TRIALS: int = 200
+"""Most trials per sequence (``--trials``); the bracketing needs 3-9."""
+STUDY_FILE = "calibration.db"
+"""The studies' SQLite file in the output folder (unless ``--study``)."""
+RECORD_FILE = "calibrate.json"
+"""The output folder's record: the suite calibrated from, every file written (SHA-256), the
+results."""
+STUDY_ATTR = "crowdsim_calibrate"
+"""User attribute marking an Optuna study as made by this module."""
+README_MARK = "<!-- written by crowdsim calibrate: rewritten on every run -->"
+"""Last line of every README this module writes; a README without it is never replaced."""
+OPTUNA_TABLES = frozenset({"studies", "trials", "version_info"})
 
 
 def ncc_score(spec: Any, workdir: str | os.PathLike[str]) -> float:
@@ -96,57 +133,140 @@ def calibrate_spec(
     """Search the difficulty (``scene = camera = d``) so that NCC scores ``target`` % at 15 px.
 
     Each trial of an Optuna study (in ``storage``, an Optuna URL: SQLite makes it resumable
-    after a kill) is placed by :func:`next_difficulty`; the study stops once a trial lands
-    within :data:`TOLERANCE` points. Returns ``{"difficulty", "ncc_15px", "error", "trials",
-    "values"}`` of the best trial.
+    after a kill; an SQLite file is checked first, :func:`check_study_file`) is placed by
+    :func:`next_difficulty` and scored by :func:`ncc_score`; the study stops once a trial
+    lands within :data:`TOLERANCE` points. Returns ``{"difficulty", "ncc_15px", "error",
+    "trials", "values"}`` of the trial closest to the target: ``ncc_15px`` is the score that
+    trial measured, ``error`` its distance from ``target``.
     """
     import optuna
+    from optuna.trial import TrialState
 
+    from crowdsim.checks import require_number
+
+    require_number("calibrate_spec", "target", target, lo=0, hi=100)
+    require_number("calibrate_spec", "trials", trials, lo=1, hi=MAX_TRIALS, integer=True)
+    if storage is not None and storage.startswith("sqlite:///"):
+        check_study_file(Path(storage[len("sqlite:///") :]))
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    study = optuna.create_study(
-        study_name=f"calibrate-{spec.name}-{spec.digest()[:12]}",
-        storage=storage,
-        direction="minimize",
-        load_if_exists=True,
-    )
+    name = study_name(spec)
+    try:
+        study = optuna.create_study(
+            study_name=name, storage=storage, direction="minimize", load_if_exists=True
+        )
+    except Exception as exc:  # SQLAlchemy / Optuna errors of a damaged file
+        raise ValueError(
+            f"cannot open study {name!r} in {storage}: {type(exc).__name__}: "
+            f"{(str(exc).splitlines() or [''])[0]}"
+        ) from None
+    mark = {"sequence": spec.name, "digest": spec.digest()}
+    old = study.user_attrs.get(STUDY_ATTR)
+    if old is None:
+        if study.trials:
+            raise ValueError(
+                f"study {name!r} in {storage} was not made by crowdsim calibrate; choose "
+                "another --study or --out"
+            )
+        study.set_user_attr(STUDY_ATTR, mark)
+    elif old != mark:
+        raise ValueError(f"study {name!r} in {storage} was made for another spec ({old})")
 
     def points() -> list[tuple[float, float]]:
         return [
             (t.params["difficulty"], t.user_attrs["ncc_15px"])
-            for t in study.trials
-            if t.state == optuna.trial.TrialState.COMPLETE
+            for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
         ]
 
     with tempfile.TemporaryDirectory(prefix="crowdsim-calibrate-") as work:
-
-        def objective(trial: Any) -> float:
-            d = trial.suggest_float("difficulty", 0.0, 1.0)
-            score = ncc_score(apply_knobs(spec, knob_values(spec, d, d)), work)
-            trial.set_user_attr("ncc_15px", score)
-            log(
-                f"{spec.name}: trial {trial.number}: difficulty {d:.3f} -> NCC "
-                f"{score:.1f}% (target {target:g})"
-            )
-            return abs(score - target)
-
-        while len(points()) < trials:
-            done = points()
+        while len(done := points()) < trials:
             if done and min(abs(s - target) for _, s in done) <= TOLERANCE:
                 break
             d = next_difficulty(done, target)
             if d is None:
                 break
             study.enqueue_trial({"difficulty": d})
-            study.optimize(objective, n_trials=1)
-    best = study.best_trial
-    d = best.params["difficulty"]
+            trial = study.ask()
+            try:
+                d = trial.suggest_float("difficulty", 0.0, 1.0)
+                score = float(ncc_score(apply_knobs(spec, knob_values(spec, d, d)), work))
+                if not 0.0 <= score <= 100.0:
+                    raise ValueError(f"{spec.name}: the NCC score is not a percentage: {score!r}")
+            except BaseException:  # an interrupt included: failed, and no Optuna traceback
+                study.tell(trial, state=TrialState.FAIL)
+                raise
+            trial.set_user_attr("ncc_15px", score)
+            study.tell(trial, abs(score - target))
+            log(
+                f"{spec.name}: trial {trial.number}: difficulty {d:.3f} -> NCC "
+                f"{score:.1f}% (target {target:g})"
+            )
+    done = points()
+    if not done:
+        raise ValueError(f"{spec.name}: no finished calibration trial in {storage}")
+    # the closest to *this* target (a study's values hold the distance to the target of the
+    # run that made them; the measured scores do not depend on it)
+    d, score = min(done, key=lambda p: (abs(p[1] - target), p[0]))
     return {
         "difficulty": round(d, 4),
-        "ncc_15px": round(best.user_attrs["ncc_15px"], 2),
-        "error": round(best.value, 2),
-        "trials": len(points()),
+        "ncc_15px": round(score, 2),
+        "error": round(abs(score - target), 2),
+        "trials": len(done),
         "values": knob_values(spec, d, d),
     }
+
+
+def study_name(spec: Any) -> str:
+    """The study of a spec: its name and the digest of its uncalibrated rendering."""
+    return f"calibrate-{spec.name}-{spec.digest()[:12]}"
+
+
+def check_study_file(path: str | os.PathLike[str]) -> None:
+    """Refuse a study file that calibrate must not write into, reading it only.
+
+    A missing or empty file is fine (Optuna creates it). Refused, naming the file: a folder,
+    a file that is not SQLite, an SQLite database whose tables are not Optuna's, and an Optuna
+    database holding a study this module did not make (marked with :data:`STUDY_ATTR`).
+    """
+    path = Path(path)
+    hint = "choose another --study or --out"
+    if path.is_dir():
+        raise ValueError(f"--study {path}: is a folder, not a study file")
+    if not path.exists() or path.stat().st_size == 0:
+        return
+    with open(path, "rb") as fh:
+        head = fh.read(16)
+    if head != b"SQLite format 3\x00":
+        raise ValueError(f"--study {path}: not an SQLite file (a calibration study is); {hint}")
+    try:
+        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+        try:
+            tables = {
+                r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")
+            }
+            foreign = []
+            if OPTUNA_TABLES <= tables:
+                foreign = [
+                    r[0]
+                    for r in con.execute(
+                        "SELECT study_name FROM studies s WHERE NOT EXISTS (SELECT 1 FROM "
+                        "study_user_attributes a WHERE a.study_id = s.study_id AND a.key = ?)",
+                        (STUDY_ATTR,),
+                    )
+                ]
+        finally:
+            con.close()
+    except sqlite3.Error as exc:
+        raise ValueError(f"--study {path}: a damaged SQLite file ({exc}); {hint}") from None
+    if tables and not OPTUNA_TABLES <= tables:
+        raise ValueError(
+            f"--study {path}: an SQLite database that is not an Optuna study (tables "
+            f"{', '.join(sorted(tables)[:5])}); {hint}"
+        )
+    if foreign:
+        raise ValueError(
+            f"--study {path}: holds the Optuna study {foreign[0]!r}, not made by crowdsim "
+            f"calibrate; {hint}"
+        )
 
 
 # ------------------------------------------------------------------------- spec files
@@ -203,17 +323,16 @@ def set_table_values(text: str, table: str, values: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_calibration(path: str | os.PathLike[str], result: dict[str, Any]) -> None:
-    """Write the calibrated knobs and the achieved score into the spec file at ``path``.
+def calibrated_text(text: str, result: dict[str, Any], source: str = "<spec>") -> str:
+    """The spec file ``text`` with the calibrated knobs and the achieved score written in.
 
     The first time, the knobs' values as written before are kept in ``[calibration]``
-    (``base_<section>_<name>``), see :func:`_uncalibrated`.
+    (``base_<section>_<name>``, see :func:`uncalibrated_values`). The new text is validated
+    as a spec (a ``ValueError`` naming ``source`` otherwise).
     """
-    from synth_data.spec import load_spec
+    from synth_data.spec import parse_spec_text, spec_from_dict
 
-    path = Path(path)
-    text = path.read_text()
-    before = load_spec(path)
+    before = spec_from_dict(parse_spec_text(text, "toml", source), source=source)
     if not any(k.startswith("base_") for k in before.calibration):
         app, cam = before.appearance, before.camera
         base = {
@@ -234,54 +353,267 @@ def write_calibration(path: str | os.PathLike[str], result: dict[str, Any]) -> N
             "note": "knobs set by crowdsim calibrate (NCC tracker, acc@15 on the full sequence)",
         },
     )
-    tmp = path.with_name(f".{path.stem}.calibrate{path.suffix}")
-    tmp.write_text(text)
-    try:
-        load_spec(tmp)  # never write a spec that does not load
-    finally:
-        tmp.unlink()
-    write_text_atomic(path, text)
+    spec_from_dict(parse_spec_text(text, "toml", source), source=source)  # never a bad spec
+    return text
+
+
+def write_calibration(path: str | os.PathLike[str], result: dict[str, Any]) -> None:
+    """Write the calibrated knobs and the achieved score into the spec file at ``path``
+    (atomically; see :func:`calibrated_text`)."""
+    path = Path(path)
+    write_text_atomic(path, calibrated_text(path.read_text(), result, str(path)))
+
+
+# ------------------------------------------------------------------------- suites
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+class OutputFolder:
+    """A suite folder this module writes, and the record (:data:`RECORD_FILE`) proving which
+    of its files it wrote: ``{"format": 1, "written_by": "crowdsim calibrate", "source": ...,
+    "files": {name: [sha256, ...]}, "results": {sequence: {...}}}``.
+
+    A file is replaced only when its content matches a recorded checksum (while a write is
+    under way, both the old and the new one are recorded, so a kill between the two steps
+    leaves a folder the next run still accepts).
+    """
+
+    def __init__(self, path: Path, source: str) -> None:
+        self.path = path
+        self.source = source
+        self.record = self._read()
+
+    def _read(self) -> dict[str, Any]:
+        path = self.path / RECORD_FILE
+        fresh = {
+            "format": 1,
+            "written_by": "crowdsim calibrate",
+            "source": self.source,
+            "files": {},
+            "results": {},
+        }
+        if self.path.exists() and not self.path.is_dir():
+            raise ValueError(f"--out {self.path}: is a file, not a folder")
+        if not path.exists():
+            if self.path.is_dir() and any(self.path.iterdir()):
+                raise ValueError(
+                    f"--out {self.path}: not empty and not written by crowdsim calibrate (no "
+                    f"{RECORD_FILE}); choose a new folder"
+                )
+            return fresh
+        try:
+            data = json.loads(path.read_bytes())
+        except ValueError as exc:
+            raise ValueError(
+                f"{path}: damaged ({str(exc).splitlines()[0]}); choose a new --out"
+            ) from None
+        ok = (
+            isinstance(data, dict)
+            and data.get("written_by") == "crowdsim calibrate"
+            and isinstance(data.get("files"), dict)
+            and isinstance(data.get("results"), dict)
+            and all(
+                isinstance(v, list) and all(isinstance(h, str) for h in v)
+                for v in data["files"].values()
+            )
+        )
+        if not ok:
+            raise ValueError(f"{path}: not a crowdsim calibrate record; choose a new --out")
+        if data.get("source") != self.source:
+            raise ValueError(
+                f"--out {self.path}: holds a calibration of the suite {data.get('source')!r}, "
+                f"not {self.source!r}; choose another --out"
+            )
+        return data
+
+    def check_owned(self, name: str) -> None:
+        """Refuse to replace ``name`` unless it is missing or unchanged since we wrote it."""
+        path = self.path / name
+        if not path.exists() and not path.is_symlink():
+            return
+        if path.is_file() and not path.is_symlink():
+            if _sha256(path.read_bytes()) in self.record["files"].get(name, []):
+                return
+        raise ValueError(
+            f"{path}: not written by crowdsim calibrate, or changed since; move it away or "
+            "choose another --out"
+        )
+
+    def write(self, name: str, data: bytes) -> None:
+        """Write file ``name`` atomically, recording its checksum first and last."""
+        from crowdsim.atomic import atomic_path
+
+        self.check_owned(name)
+        self.path.mkdir(parents=True, exist_ok=True)
+        new = _sha256(data)
+        self.record["files"][name] = sorted({*self.record["files"].get(name, []), new})
+        self.save()
+        with atomic_path(self.path / name) as tmp:
+            tmp.write_bytes(data)
+        self.record["files"][name] = [new]
+        self.save()
+
+    def save(self) -> None:
+        self.path.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(self.path / RECORD_FILE, json.dumps(self.record, indent=1) + "\n")
 
 
 def calibrate_suite(
-    suite: str,
+    suite: str | os.PathLike[str],
     *,
-    only: list[str] | None = None,
+    out: str | os.PathLike[str],
+    only: Sequence[str] | None = None,
     trials: int = 12,
-    out: str | os.PathLike[str] | None = None,
+    study: str | os.PathLike[str] | None = None,
+    update_suite: bool = False,
+    force: bool = False,
     log: Callable[[str], None] = print,
 ) -> dict[str, dict[str, Any]]:
-    """Calibrate every sequence of ``suite`` with a paper NCC figure; write specs and README.
+    """Calibrate every sequence of ``suite`` with a paper NCC figure into the folder ``out``.
 
-    Studies are kept in ``out/calibration.db`` (SQLite; a killed run resumes where it was).
+    Parameters
+    ----------
+    suite : str or path
+        A built-in suite name or a suite folder (:func:`synth_data.suites.suite_dir`).
+    out : path
+        The calibrated suite folder (module docstring): new, empty, or written by an earlier
+        run of this function on the same suite (which it resumes).
+    only : list of str, optional
+        Calibrate only these sequences (the other specs are copied as they are).
+    trials : int
+        Trials per sequence at most (1 .. :data:`MAX_TRIALS`).
+    study : path, optional
+        The studies' SQLite file (default ``out/calibration.db``); checked by
+        :func:`check_study_file`.
+    update_suite : bool
+        Also write each new calibration into the suite's own spec file, unless the spec
+        records a calibration closer to the paper's figure; ``force`` writes it anyway.
+
+    Returns ``{sequence: {"paper_ncc_15px", "difficulty", "ncc_15px", "error", "trials",
+    "suite_spec"}}``; ``suite_spec`` is ``"updated"``, ``"kept"`` or ``None`` (no
+    ``update_suite``). Every input is checked before anything is written.
     """
-    from crowdsim.checks import require_number
-    from synth_data.suites import suite_dir, suite_specs
+    from crowdsim.checks import require_number, require_output_dir
+    from synth_data.suites import PAPER_FILE, SUITE_NAMES, suite_dir, suite_files, suite_specs
 
-    require_number("", "--trials", trials, lo=1, integer=True)
-    specs = [s for s in suite_specs(suite, only) if "paper_ncc_15px" in s.calibration]
+    require_number("", "--trials", trials, lo=1, hi=MAX_TRIALS, integer=True)
+    if force and not update_suite:
+        raise ValueError("--force needs --update-suite (it lets a worse calibration replace it)")
+    if isinstance(only, str):
+        only = [only]
+    source_dir = suite_dir(suite)
+    files = suite_files(suite)
+    specs = suite_specs(suite, list(only) if only else None)
+    specs = [s for s in specs if "paper_ncc_15px" in s.calibration]
     if not specs:
-        raise ValueError(f"suite {suite!r}: no spec records [calibration] paper_ncc_15px")
-    out = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="crowdsim-calib-"))
-    out.mkdir(parents=True, exist_ok=True)
-    storage = f"sqlite:///{(out / 'calibration.db').resolve()}"
-    results = {}
-    for spec in specs:
-        target = float(spec.calibration["paper_ncc_15px"])
-        # search from the uncalibrated knobs, so a rerun searches the same space
-        base = _uncalibrated(spec)
-        res = calibrate_spec(base, target, trials=trials, storage=storage, log=log)
-        write_calibration(spec.source or suite_dir(suite) / f"{spec.name}.toml", res)
-        log(
-            f"{spec.name}: NCC {res['ncc_15px']:.1f}% (paper {target:g}%), difficulty "
-            f"{res['difficulty']:.3f}, {res['trials']} trials"
+        raise ValueError(f"suite {str(suite)!r}: no spec records [calibration] paper_ncc_15px")
+    for s in specs:
+        for key in ("paper_ncc_15px", "achieved_ncc_15px"):
+            if key in s.calibration:
+                require_number(f"{s.source}: calibration", key, s.calibration[key], lo=0, hi=100)
+    out = Path(out)
+    if out.resolve() == source_dir.resolve():
+        raise ValueError(
+            f"--out {out}: is the suite folder itself; calibrate writes a new suite folder "
+            "(add --update-suite to change the suite as well)"
         )
-        results[spec.name] = {
-            "paper_ncc_15px": target,
-            **{k: v for k, v in res.items() if k != "values"},
-        }
-    write_suite_readme(suite)
+    require_output_dir("--out", out)
+    where = source_dir.resolve()  # a built-in suite by name, also when given as its folder
+    source = next((n for n in SUITE_NAMES if suite_dir(n).resolve() == where), str(where))
+    folder = OutputFolder(out, source)
+    paper = source_dir / PAPER_FILE
+    replaced = [Path(s.source).name for s in specs] + ["README.md"]
+    for name in replaced + ([PAPER_FILE] if paper.is_file() else []):
+        folder.check_owned(name)  # the other specs are only copied where missing
+    study_path = Path(study) if study is not None else out / STUDY_FILE
+    if study is not None:
+        if str(study).startswith("sqlite:///"):
+            study_path = Path(str(study)[len("sqlite:///") :])
+        elif "://" in str(study) or str(study).startswith("journal:"):
+            raise ValueError(f"--study must be an SQLite file (a path), got {str(study)!r}")
+        if not study_path.parent.is_dir():
+            raise ValueError(f"--study {study_path}: no such folder {study_path.parent}")
+    check_study_file(study_path)
+    if update_suite:
+        for s in specs:
+            if not os.access(s.source, os.W_OK) or not os.access(source_dir, os.W_OK):
+                raise ValueError(f"--update-suite: cannot write {s.source} (read-only)")
+
+    # every check passed: write
+    for f in files:  # a complete suite folder: the specs not calibrated now, as they are
+        if not (out / f.name).exists():
+            folder.write(f.name, f.read_bytes())
+    if paper.is_file():
+        folder.write(PAPER_FILE, paper.read_bytes())
+    storage = f"sqlite:///{study_path.resolve()}"
+    label = str(suite)
+    results: dict[str, dict[str, Any]] = {}
+    updated = False
+    try:
+        for spec in specs:
+            target = float(spec.calibration["paper_ncc_15px"])
+            # search from the uncalibrated knobs, so a rerun searches the same space
+            res = calibrate_spec(
+                _uncalibrated(spec), target, trials=trials, storage=storage, log=log
+            )
+            name = Path(spec.source).name
+            text = calibrated_text(Path(spec.source).read_text(), res, str(out / name))
+            folder.write(name, text.encode())
+            verdict = None
+            if update_suite:
+                verdict = _update_suite_spec(spec, target, res, force, log)
+                updated = updated or verdict == "updated"
+            log(
+                f"{spec.name}: NCC {res['ncc_15px']:.1f}% (paper {target:g}%), difficulty "
+                f"{res['difficulty']:.3f}, {res['trials']} trials -> {out / name}"
+            )
+            results[spec.name] = {
+                "paper_ncc_15px": target,
+                **{k: v for k, v in res.items() if k != "values"},
+                "suite_spec": verdict,
+            }
+            folder.record["results"][spec.name] = results[spec.name]
+            folder.write("README.md", suite_readme(out, f"{label} --out {out}").encode())
+    except KeyboardInterrupt as exc:
+        if not getattr(exc, "detail", ""):
+            exc.detail = (
+                f"the sequences calibrated so far are written to {out}; the study "
+                f"{study_path} keeps the finished trials: rerun the same command to resume"
+            )
+        raise
+    finally:
+        if updated:
+            _write_source_readme(suite, log)
     return results
+
+
+def _update_suite_spec(
+    spec: Any, target: float, res: dict[str, Any], force: bool, log: Callable[[str], None]
+) -> str:
+    """Write ``res`` into the suite's own spec unless it records a closer calibration."""
+    old = spec.calibration.get("achieved_ncc_15px")
+    new_err = abs(res["ncc_15px"] - target)
+    if old is not None and not force and new_err > abs(float(old) - target):
+        log(
+            f"{spec.name}: kept the suite's calibration in {spec.source}: NCC {float(old):g}% "
+            f"is {abs(float(old) - target):.2f} from the paper's {target:g}%, this run's "
+            f"{res['ncc_15px']:g}% is {new_err:.2f} from it (--force replaces it)"
+        )
+        return "kept"
+    write_calibration(spec.source, res)
+    log(f"{spec.name}: updated {spec.source} (NCC {res['ncc_15px']:g}%, paper {target:g}%)")
+    return "updated"
+
+
+def _write_source_readme(suite: str | os.PathLike[str], log: Callable[[str], None]) -> None:
+    from synth_data.suites import suite_dir
+
+    path = suite_dir(suite) / "README.md"
+    if path.exists() and README_MARK not in path.read_text(errors="replace"):
+        log(f"{path}: not written by crowdsim calibrate; left unchanged")
+        return
+    write_text_atomic(path, suite_readme(suite, str(suite)))
 
 
 def _base_key(section: str, name: str) -> str:
@@ -310,8 +642,11 @@ def _uncalibrated(spec: Any) -> Any:
     return apply_knobs(spec, values) if values else spec
 
 
-def write_suite_readme(suite: str) -> Path:
-    """``synth_data/suites/<suite>/README.md``: the paper's NCC figures beside the achieved."""
+def suite_readme(suite: str | os.PathLike[str], command: str) -> str:
+    """A suite's ``README.md``: the paper's NCC figures beside the achieved ones.
+
+    ``command`` is what follows ``crowdsim calibrate --suite`` in the text (how the figures
+    were made)."""
     from synth_data.suites import suite_dir, suite_specs
 
     rows = [
@@ -328,13 +663,22 @@ def write_suite_readme(suite: str) -> Path:
             f"{c.get('paper_ncc_15px', '')} | {'' if got is None else got} | "
             f"{c.get('difficulty', '')} |"
         )
-    text = (
-        f"# Suite `{suite}`\n\nCounterparts of the papers' sequences. `crowdsim calibrate "
-        f"--suite {suite}` sets each spec's appearance and camera knobs (never its motion) "
+    name = str(suite) if isinstance(suite, str) and "/" not in suite else suite_dir(suite).name
+    return (
+        f"# Suite `{name}`\n\nCounterparts of the papers' sequences. `crowdsim calibrate "
+        f"--suite {command}` sets each spec's appearance and camera knobs (never its motion) "
         "so that the independent NCC tracker scores the paper's NCC figure at 15 px; the "
         "achieved figures below are written by that command, measured on the full "
-        "sequence as `crowdsim compare` measures them.\n\n" + "\n".join(rows) + "\n"
+        "sequence as `crowdsim compare` measures them.\n\n"
+        + "\n".join(rows)
+        + f"\n\n{README_MARK}\n"
     )
+
+
+def write_suite_readme(suite: str | os.PathLike[str]) -> Path:
+    """Rewrite ``<suite folder>/README.md`` (:func:`suite_readme`); returns its path."""
+    from synth_data.suites import suite_dir
+
     path = suite_dir(suite) / "README.md"
-    write_text_atomic(path, text)
+    write_text_atomic(path, suite_readme(suite, str(suite)))
     return path

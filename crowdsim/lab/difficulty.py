@@ -60,7 +60,7 @@ def variant_specs(spec: Any) -> list[tuple[str, Any]]:
 
 
 def attribute(
-    suite: str,
+    suite: str | os.PathLike[str],
     out: str | os.PathLike[str],
     *,
     only: Sequence[str] | None = None,
@@ -74,6 +74,9 @@ def attribute(
 ) -> dict[str, Any]:
     """Track every difficulty variant of the suite's calibrated sequences with ``trackers``.
 
+    ``suite`` is a built-in name or a suite folder (e.g. one written by ``crowdsim calibrate
+    --out``).
+
     Writes the full table of :func:`crowdsim.lab.experiments.run_table` (``OUT/table.md``,
     ``table.csv``, ``cells.json``, curves) and ``OUT/attribution.md`` / ``.json``: per
     sequence and tracker, acc@15 calibrated, the points regained by removing each group, and
@@ -81,17 +84,23 @@ def attribute(
     """
     import json
 
-    from crowdsim.lab.experiments import Row, cell_key, run_table
+    from crowdsim.lab.experiments import CELLS_FILE, Row, cell_key, read_cells, run_table
     from synth_data.suites import suite_specs
     from tracker.registry import get
 
+    if isinstance(trackers, str):
+        trackers = (trackers,)  # one name, not its letters
     rows = []
     for name in trackers:
         get(name)  # an unknown name fails before any work
         rows.append(Row(name, name))
+    if not rows:
+        raise ValueError("--trackers: name at least one tracker")
+    if len(set(trackers)) != len(trackers):
+        raise ValueError(f"--trackers: {', '.join(trackers)} names a tracker twice")
     specs = [s for s in suite_specs(suite, list(only) if only else None) if s.calibration]
     if not specs:
-        raise ValueError(f"suite {suite!r}: no calibrated sequence to attribute")
+        raise ValueError(f"suite {str(suite)!r}: no calibrated sequence to attribute")
     variants = {s.name: variant_specs(s) for s in specs}
     all_specs = [v for vs in variants.values() for _, v in vs]
     run_table(
@@ -106,8 +115,8 @@ def attribute(
         title=f"difficulty attribution on {suite}",
         log=log,
     )
-    cells = json.loads((Path(out) / "cells.json").read_text())["cells"]
-    doc: dict[str, Any] = {"suite": suite, "groups": DIFFICULTY_GROUPS, "sequences": {}}
+    cells = read_cells(Path(out) / CELLS_FILE)  # checked: figures as the trackers measured
+    doc: dict[str, Any] = {"suite": str(suite), "groups": DIFFICULTY_GROUPS, "sequences": {}}
     for seq, vs in variants.items():
         per = {}
         for row in rows:

@@ -9,7 +9,9 @@ OC-SORT at two detector miss rates), ``crowdsim ablation`` paper 1's Table 3 row
    resumable, checksummed; ``frames`` truncates every spec);
 2. run one *cell* (row x sequence) per job on :func:`crowdsim.jobs.run_jobs` (local pool or
    Ray), recording each finished cell in ``OUT/cells.json`` -- a killed run loses no finished
-   cell and a rerun resumes;
+   cell and a rerun resumes. Each cell is stored with a SHA-256 of its key and figures
+   (:func:`seal_cell`): a cell edited by hand or damaged is refused, naming it, before any work
+   (:func:`read_cells`), so a table never prints a figure no tracker measured;
 3. write ``table.md`` and ``table.csv`` (our figures beside the papers' where they report
    one), one accuracy-versus-threshold PNG per sequence, and return the table text.
 
@@ -75,16 +77,15 @@ def ablation_rows() -> tuple[Row, ...]:
     return tuple(Row(label, "bqp", over, paper=label) for label, over in rows())
 
 
-def paper_numbers(suite: str) -> dict[str, dict[str, dict[str, float]]]:
-    """The papers' figures for ``suite`` (``{table: {column: {sequence: %}}}``), or ``{}``."""
-    from synth_data.suites import SUITE_NAMES, suite_dir
+def paper_numbers(suite: Any) -> dict[str, dict[str, dict[str, float]]]:
+    """The papers' figures for ``suite`` (``{table: {column: {sequence: %}}}``): its
+    ``paper.json`` (:func:`synth_data.suites.paper_numbers`), ``{}`` without one or for a
+    list of specs."""
+    from synth_data.suites import paper_numbers as numbers
 
-    if suite not in SUITE_NAMES:
+    if not isinstance(suite, (str, os.PathLike)):
         return {}
-    path = suite_dir(suite) / "paper.json"
-    if not path.is_file():
-        return {}
-    return {k: v for k, v in json.loads(path.read_text()).items() if not k.startswith("_")}
+    return numbers(suite)
 
 
 def run_cell(
@@ -103,6 +104,71 @@ def run_cell(
     out = run.summary()
     out["curve"] = [c["acc"] for c in run.report.get("curve", [])]
     return out
+
+
+CELLS_FILE = "cells.json"
+"""The manifest of finished cells in a table's output folder (section ``cells``)."""
+CHECKSUM = "sha256"
+"""The field of a stored cell holding :func:`cell_checksum`."""
+
+
+def cell_checksum(key: str, cell: dict[str, Any]) -> str:
+    """SHA-256 of a cell's key and figures (its own checksum field left out).
+
+    The key is part of it, so a cell moved under another key fails as well as an edited one.
+
+    >>> c = seal_cell("seq1|ncc", {"acc@15": 85.4})
+    >>> c["sha256"] == cell_checksum("seq1|ncc", c), c["sha256"] == cell_checksum("seq2|ncc", c)
+    (True, False)
+    """
+    import hashlib
+
+    body = {k: v for k, v in cell.items() if k != CHECKSUM}
+    text = json.dumps({"key": key, "cell": body}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def seal_cell(key: str, cell: dict[str, Any]) -> dict[str, Any]:
+    """The cell with its checksum (:func:`cell_checksum`), as ``cells.json`` stores it."""
+    return {**cell, CHECKSUM: cell_checksum(key, cell)}
+
+
+def read_cells(path: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:
+    """The finished cells recorded in ``path`` (``{}`` when it does not exist), every one
+    checked against its checksum.
+
+    Raises ``ValueError`` naming the file (and the cell) for a file that is not a cells
+    manifest (foreign, damaged, binary) and for a cell whose figures or key were changed
+    after it was recorded: the table would otherwise print them as measured.
+    """
+    path = Path(path)
+    if not path.exists():
+        return {}
+    hint = "move it away or choose another --out"
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder, not a cells file; {hint}")
+    try:
+        data = json.loads(path.read_bytes())
+    except ValueError as exc:
+        raise ValueError(
+            f"{path}: not a crowdsim cells file (damaged: {str(exc).splitlines()[0]}); {hint}"
+        ) from None
+    if not isinstance(data, dict) or not isinstance(data.get("cells"), dict):
+        raise ValueError(f"{path}: not a crowdsim cells file (no 'cells' object); {hint}")
+    for key, cell in data["cells"].items():
+        if not isinstance(cell, dict) or cell.get(CHECKSUM) != cell_checksum(key, cell):
+            raise ValueError(
+                f"{path}: cell {key!r} does not match its checksum (edited by hand or "
+                "damaged); delete that entry, or the whole file, to compute it again"
+            )
+    return data["cells"]
+
+
+def run_sealed_cell(
+    key: str, seq_dir: str, tracker: str, overrides: dict[str, Any], frames: int | None
+) -> dict[str, Any]:
+    """One job of :func:`run_table`: :func:`run_cell`, sealed under ``key``."""
+    return seal_cell(key, run_cell(seq_dir, tracker, overrides, frames))
 
 
 def cell_key(seq: str, row: Row, frames: int | None) -> str:
@@ -138,8 +204,9 @@ def run_table(
     Parameters
     ----------
     rows : sequence of Row
-    suite : str or list of SequenceSpec
-        A suite name (:data:`synth_data.suites.SUITE_NAMES`), or the specs themselves.
+    suite : str, path or list of SequenceSpec
+        A suite name (:data:`synth_data.suites.SUITE_NAMES`), a suite folder of spec files
+        (its ``paper.json`` gives the papers' figures), or the specs themselves.
     out : path
         Output folder: ``sequences/``, ``cells.json``, ``table.md``, ``table.csv``,
         ``curves/<sequence>.png``.
@@ -148,7 +215,8 @@ def run_table(
     frames : int, optional
         Truncate every sequence to its first ``frames`` frames (quick runs).
     workers, backend, address
-        The jobs runner (:func:`crowdsim.jobs.run_jobs`).
+        The jobs runner (:func:`crowdsim.jobs.run_jobs`); ``address`` only with
+        ``backend="ray"``.
     paper_table : str
         The section of the suite's ``paper.json`` holding the 15 px figures of these rows.
     """
@@ -160,40 +228,65 @@ def run_table(
 
     if frames is not None:
         require_number("", "--frames", frames, lo=2, integer=True)
+    require_number("", "--workers", workers, lo=1, integer=True)
+    if address is not None and backend != "ray":
+        raise ValueError(f"--address needs --backend ray, got --address {address!r}")
     for row in rows:
         get(row.tracker).make_params(**row.overrides)  # unknown names fail before any work
     out = Path(out)
-    if isinstance(suite, str):
+    if isinstance(suite, (str, os.PathLike)):
         specs = suite_specs(suite, only)
+        paper = paper_numbers(suite)
     else:
-        specs = [sp for sp in suite if not only or sp.name in only]
-        suite = "specs"
+        specs = list(suite)
+        unknown = [o for o in only or () if o not in {sp.name for sp in specs}]
+        if unknown:
+            raise ValueError(f"--only: no sequence {unknown[0]!r} among the specs")
+        specs = [sp for sp in specs if not only or sp.name in only]
+        suite, paper = "specs", {}
     if frames is not None:
         specs = [replace(s, frames=min(s.frames, frames)) for s in specs]
+    labels = [r.label for r in rows]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"{title}: two rows share the label {_first_dup(labels)!r}")
+    keys = {(s.name, r.label): cell_key(s.name, r, frames) for s in specs for r in rows}
+    if len(set(keys.values())) != len(keys):
+        raise ValueError(
+            f"{title}: two rows run the same tracker with the same parameters "
+            f"({_first_dup(list(keys.values()))})"
+        )
+    read_cells(out / CELLS_FILE)  # an edited or foreign cells.json fails before any work
     seq_root = out / "sequences"
+    try:
+        generate(
+            specs,
+            seq_root,
+            workers=workers,
+            backend=backend,
+            address=address,
+            progress=progress,
+            log=log,
+        )
+    except FileExistsError as exc:  # a sequence folder made from another spec
+        why = str(exc).split("; pass --overwrite")[0]
+        raise ValueError(
+            f"{why}; a table run never replaces a sequence: remove that folder, or choose "
+            "another --out"
+        ) from None
     log(f"{title}: {len(rows)} rows x {len(specs)} sequences of {suite} -> {out}")
-    generate(
-        specs,
-        seq_root,
-        workers=workers,
-        backend=backend,
-        address=address,
-        progress=progress,
-        log=log,
-    )
     jobs = [
         Job(
-            cell_key(s.name, r, frames),
-            run_cell,
-            (str(seq_root / s.name), r.tracker, dict(r.overrides), frames),
+            keys[(s.name, r.label)],
+            run_sealed_cell,
+            (keys[(s.name, r.label)], str(seq_root / s.name), r.tracker, dict(r.overrides), frames),
             size=s.frames,
         )
         for s in specs
         for r in rows
     ]
-    results = run_jobs(
+    run_jobs(
         jobs,
-        out / "cells.json",
+        out / CELLS_FILE,
         workers=workers,
         backend=backend,
         address=address,
@@ -202,14 +295,18 @@ def run_table(
         unit="frame",
         section="cells",
     )
-    cells = {(s.name, r.label): results[cell_key(s.name, r, frames)] for s in specs for r in rows}
-    paper = paper_numbers(suite)
+    done = read_cells(out / CELLS_FILE)
+    cells = {cell: done[key] for cell, key in keys.items()}
     names = [s.name for s in specs]
     text = format_table(rows, names, cells, paper, paper_table, title)
     write_text_atomic(out / "table.md", text)
     write_text_atomic(out / "table.csv", table_csv(rows, names, cells, paper, paper_table))
     _plot_curves(rows, names, cells, out / "curves")
     return text
+
+
+def _first_dup(items: list[str]) -> str:
+    return next(x for i, x in enumerate(items) if x in items[:i])
 
 
 def _paper(paper: dict, table: str, row: Row, seq: str) -> float | None:

@@ -214,3 +214,41 @@ def test_illumination_drifts_and_motion_blur_smooths():
         < 0.7 * np.abs(np.diff(a.astype(float), axis=1)).mean()
     )
     np.testing.assert_array_equal(b, blurred.render(0, *none))
+
+
+def test_overwrite_checks_ownership_again_before_the_swap(tmp_path):
+    """A file the user adds to the old sequence while the new one renders (minutes, for a
+    long one) survives: the swap checks again and refuses, naming it, and leaves no
+    temporary folder. So does a folder that appears meanwhile without ``overwrite``."""
+    from synth_data.writer import TMP_PREFIX
+
+    traj = walkers(n_frames=4)
+    out = tmp_path / "seq"
+    write_sequence(out, traj, camera=CAMERA, appearance=PARAMS, seed=3)
+    mine = out / "gt" / "my_labels.txt"
+
+    def user_writes(_):
+        mine.write_text("mine")
+
+    with pytest.raises(ValueError, match=f"{mine} was not written by crowdsim"):
+        write_sequence(
+            out,
+            traj,
+            camera=CAMERA,
+            appearance=PARAMS,
+            seed=3,
+            overwrite=True,
+            progress=user_writes,
+        )
+    assert mine.read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]
+    late = tmp_path / "late"
+
+    def user_makes(_):
+        late.mkdir(exist_ok=True)
+        (late / "notes.txt").write_text("mine")
+
+    with pytest.raises(FileExistsError, match="late already exists"):
+        write_sequence(late, traj, camera=CAMERA, appearance=PARAMS, seed=3, progress=user_makes)
+    assert sorted(p.name for p in late.iterdir()) == ["notes.txt"]
+    assert not list(tmp_path.glob(f"{TMP_PREFIX}*"))

@@ -130,7 +130,7 @@ def test_overwrite_replaces_only_our_folders(tmp_path, capsys):
     # ... but not once a file of the user's sits inside it.
     (seq / "notes.txt").write_text("mine")
     assert _main([*argv, "--overwrite", "--out", str(seq)]) == 2
-    assert "is not a crowdsim sequence or suite folder" in capsys.readouterr().err
+    assert "notes.txt was not written by crowdsim" in capsys.readouterr().err
     assert (seq / "notes.txt").read_text() == "mine"
     # A suite folder (manifest.json + sequence folders) may be replaced.
     suite = tmp_path / "suite"
@@ -145,7 +145,7 @@ def test_overwrite_replaces_only_our_folders(tmp_path, capsys):
     thesis.mkdir()
     (thesis / "thesis.tex").write_text("\\chapter{One}")
     for out, needle in (
-        (thesis, "is not a crowdsim sequence"),
+        (thesis, "has no checksums.json"),
         (csv, "would replace the input"),
         (tmp_path, "would replace the input"),
     ):
@@ -193,3 +193,60 @@ def test_render_removes_a_killed_renders_tmp_folder_only(tmp_path, capsys):
     assert not stale.exists()
     assert (lookalike / "thesis.txt").read_text() == "mine"
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["walk.csv", "seq", lookalike.name])
+
+
+@pytest.mark.parametrize(
+    "plant",
+    [
+        "suite/.notes",  # a hidden file beside the sequences of a suite folder
+        "suite/seq/gt/my_labels.txt",  # anything a user put in gt/ ...
+        "suite/seq/img1/000001_fixed.jpg",  # ... or img1/
+        "suite/seq/.DS_Store",
+    ],
+)
+def test_overwrite_keeps_every_user_file_in_a_suite_or_sequence(tmp_path, capsys, plant):
+    csv = _traj().to_csv(tmp_path / "walk.csv")
+    argv = ["render", "--trajectories", str(csv), "--fps", "10", "--size", "64x48"]
+    suite = tmp_path / "suite"
+    suite.mkdir()
+    (suite / "manifest.json").write_text('{"format": 1, "sequences": {}}')
+    assert _main([*argv, "--out", str(suite / "seq")]) == 0
+    user = tmp_path / plant
+    user.write_text("mine")
+    for out in (suite, suite / "seq"):
+        if user.parent == suite and out != suite:
+            continue  # a file beside the sequence is not inside it
+        capsys.readouterr()
+        assert _main([*argv, "--overwrite", "--out", str(out)]) == 2
+        assert f"{user} was not written by crowdsim" in capsys.readouterr().err
+        assert user.read_text() == "mine"
+
+
+def test_overwrite_refuses_a_sequence_whose_files_were_changed(tmp_path, capsys):
+    csv = _traj().to_csv(tmp_path / "walk.csv")
+    argv = ["render", "--trajectories", str(csv), "--fps", "10", "--size", "64x48"]
+    seq = tmp_path / "seq"
+    assert _main([*argv, "--out", str(seq)]) == 0
+    gt = seq / "gt" / "gt.txt"
+    gt.write_text(gt.read_text() + "1,99,1,1,12,12,1,1,1\n")  # a user's hand correction
+    assert _main([*argv, "--overwrite", "--out", str(seq)]) == 2
+    assert "gt.txt: damaged" in capsys.readouterr().err
+    assert "1,99," in gt.read_text()
+
+
+def test_generate_overwrite_keeps_a_user_file_inside_a_sequence(tmp_path, capsys):
+    from crowdsim.cli import main
+
+    spec = tmp_path / "s.toml"
+    spec.write_text(
+        'name = "s"\nseed = 1\nframes = 3\n[scenario]\nname = "marathon"\nn_agents = 4\n'
+        "[camera]\nmax_width = 64\nmax_height = 48\n[appearance]\ntemplate_px = 8\n"
+    )
+    out = tmp_path / "out"
+    gen = ["generate", "--spec", str(spec), "--out", str(out), "--workers", "1", "--no-progress"]
+    assert main(gen) == 0
+    (out / "s" / "gt" / "notes.txt").write_text("mine")
+    spec.write_text(spec.read_text().replace("seed = 1", "seed = 2"))  # another spec
+    assert main([*gen, "--overwrite"]) == 2
+    assert "notes.txt was not written by crowdsim" in capsys.readouterr().err
+    assert (out / "s" / "gt" / "notes.txt").read_text() == "mine"

@@ -198,6 +198,40 @@ def test_bad_arguments_are_refused():
         env.step_arrays(np.zeros((4, 2)))
 
 
+def test_step_refuses_actions_it_cannot_apply_naming_the_agent():
+    """A misspelt or unknown name, an agent that has left, a scalar (once broadcast to both
+    components) or a wrong-shaped action: each refused naming the agent, nothing stepped."""
+    env = sparse_env(4, max_cycles=50)
+    env.reset(seed=0)
+    a0, a1 = env.agents[:2]
+    before = env.state().copy()
+    for actions, needle in (
+        ({"pde_0": [0.5, 0.0]}, "unknown agent 'pde_0'"),
+        ({a0: [0.5, 0.0], "ped_77": [0.0, 0.0]}, "unknown agent 'ped_77'"),
+        (
+            {a0: 1.0},
+            f"action of {a0!r} must have shape (2,) (preferred velocity, m/s), got shape ()",
+        ),
+        ({a1: [1.0, 2.0, 3.0]}, f"action of {a1!r} must have shape (2,)"),
+        ({a1: [[1.0, 2.0]]}, f"action of {a1!r} must have shape (2,)"),
+        ({a1: [np.inf, 0.0]}, f"action of {a1!r} must be finite"),
+        ({a1: "fast"}, f"action of {a1!r} must be 2 numbers"),
+    ):
+        with pytest.raises(ValueError) as info:
+            env.step(actions)
+        assert needle in str(info.value)
+    np.testing.assert_array_equal(env.state(), before)  # nothing moved
+    assert env._cycles == 0
+    gone = CrowdParallelEnv(n_agents=4, max_cycles=50, scenario_params=SPARSE)
+    gone.reset(seed=0)
+    name = gone.agents[0]
+    gone._ids = gone._ids[1:]  # as if ped_0 had left the scene
+    gone._agent_names = None
+    with pytest.raises(ValueError, match=f"action for agent {name!r}, which is not live"):
+        gone.step({name: [0.0, 0.0]})
+    env.step({a0: [0.5, 0.0]})  # a valid dict still steps; missing agents follow the force
+
+
 @pytest.mark.skipif(
     importlib.util.find_spec("stable_baselines3") is None
     or importlib.util.find_spec("torch") is None,

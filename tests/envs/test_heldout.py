@@ -155,5 +155,66 @@ def test_heldout_command_scores_a_params_file_and_refuses_bad_input(tmp_path, ca
     theirs = tmp_path / "theirs"
     theirs.mkdir()
     (theirs / "heldout.json").write_text('{"my": "notes"}')
-    refused(["--out", str(theirs)], "is not a crowdsim heldout result")
+    refused(["--out", str(theirs)], "heldout.json exists and was not written by crowdsim heldout")
     assert (theirs / "heldout.json").read_text() == '{"my": "notes"}'
+
+
+def test_heldout_never_replaces_a_users_table_or_plot(tmp_path, capsys):
+    """Only files crowdsim heldout can prove it wrote (their SHA-256 in its heldout.json)
+    are replaced: a user's own heldout.md or heldout.png, beside our heldout.json or alone,
+    is refused before any work and left as it was."""
+    scen = tmp_path / "dist.json"
+    scen.write_text(json.dumps({**TINY, "scenarios": ["counterflow"]}))
+    argv = ["heldout", "--scenarios", str(scen), "--seeds", "1", "--no-progress"]
+    argv += ["--metrics", "accuracy"]
+    out = tmp_path / "h"
+    assert main([*argv, "--out", str(out)]) == 0
+    doc = json.loads((out / "heldout.json").read_text())
+    assert set(doc["files"]) == {"heldout.md", "heldout.png"}
+    assert main([*argv, "--out", str(out)]) == 0  # ours: replaced
+    capsys.readouterr()
+    for name, mine in (("heldout.md", b"my notes\n"), ("heldout.png", b"\x89PNG my plot")):
+        (out / name).write_bytes(mine)
+        assert main([*argv, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert f"{out / name} exists and was not written by crowdsim heldout" in err, err
+        assert (out / name).read_bytes() == mine
+        (out / name).unlink()
+        alone = tmp_path / f"alone-{name}"
+        alone.mkdir()
+        (alone / name).write_bytes(mine)
+        assert main([*argv, "--out", str(alone)]) == 2
+        assert "not written by crowdsim heldout" in capsys.readouterr().err
+        assert sorted(p.name for p in alone.iterdir()) == [name]
+
+
+def test_outputs_stay_provable_when_a_run_dies_between_record_and_renames(tmp_path, monkeypatch):
+    """write_outputs writes the record (new and previous digests) before renaming the new
+    files into place: a run killed in between leaves the old files provably ours."""
+    import os
+
+    import crowdsim.atomic
+    from envs.outputs import check_outputs, write_outputs
+
+    def ours(doc):
+        return doc.get("kind") == "t"
+
+    write_outputs(tmp_path, "r.json", {"kind": "t"}, {"a.md": lambda p: p.write_text("one\n")})
+    real = os.replace
+
+    def killed_before_a_md(src, dst):
+        if os.fspath(dst).endswith("a.md"):
+            raise KeyboardInterrupt  # the record is written, a.md not yet renamed
+        real(src, dst)
+
+    monkeypatch.setattr(crowdsim.atomic.os, "replace", killed_before_a_md)
+    with pytest.raises(KeyboardInterrupt):
+        write_outputs(tmp_path, "r.json", {"kind": "t"}, {"a.md": lambda p: p.write_text("2\n")})
+    monkeypatch.setattr(crowdsim.atomic.os, "replace", real)
+    assert (tmp_path / "a.md").read_text() == "one\n"
+    assert json.loads((tmp_path / "r.json").read_text())["previous_files"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.md", "r.json"]  # no temp left
+    check_outputs(tmp_path, "r.json", ("a.md",), ours, "t")  # still ours
+    (tmp_path / "a.md").write_text("mine\n")
+    with pytest.raises(ValueError, match="a.md exists and was not written by t"):
+        check_outputs(tmp_path, "r.json", ("a.md",), ours, "t")

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import warnings
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
-from envs.episodes import ScenarioDistribution, ScenarioEpisodes
+from envs.episodes import ScenarioDistribution, ScenarioEpisodes, tiny_scenarios
 from envs.param_space import ParamSpace
 from envs.tracker_tuning import (
     BANDIT_ENV_ID,
@@ -20,15 +21,7 @@ from envs.tracker_tuning import (
     make_observed_tracker,
 )
 
-TINY = {
-    "scenarios": ["counterflow"],
-    "agents": [6, 8],
-    "frames": 12,
-    "warmup_steps": 4,
-    "template_px": [10],
-    "max_width": 160,
-    "max_height": 120,
-}
+TINY = tiny_scenarios()
 """A sequence of a few people, 12 small frames: each env step takes milliseconds."""
 
 
@@ -327,6 +320,182 @@ def test_suite_episodes_from_a_folder_and_a_builtin_suite(tmp_path):
     assert done and info["frames"] == 2 and 0.0 <= r <= 1.0
     with pytest.raises(ValueError, match="no sequence 'tiny2'"):
         SuiteEpisodes(tmp_path / "suite", only=["tiny2"])
+    # a damaged frame is named before any work (checksums.json of crowdsim generate)
+    frame = tmp_path / "suite" / "tiny1" / "img1" / "000003.jpg"
+    frame.write_bytes(frame.read_bytes()[:-200])
+    with pytest.raises(ValueError, match=f"{frame}: damaged"):
+        SuiteEpisodes(tmp_path / "suite")
+    with pytest.raises(ValueError, match="000003.jpg: damaged"):
+        TrackerTuningEnv(suite=str(tmp_path / "suite"), k_frames=5)
+    (tmp_path / "suite" / "tiny1" / "checksums.json").unlink()  # as a real MOT folder
+    with pytest.raises(ValueError, match=f"{frame}: not a complete image"):
+        SuiteEpisodes(tmp_path / "suite")
     held = SuiteEpisodes("ucf9", only=["seq8"], frames=3, reseed=5)
     (orig,) = suite_specs("ucf9", ["seq8"])
     assert held.spec(0).seed == orig.seed + 5 and held.spec(0).frames == 3
+
+
+# ---------------------------------------------------------------------------- no ground truth
+class _GtEdited:
+    """``seq`` with the same frames and births (what the tracker is given) and its ground
+    truth (what only the reward may read) shifted by ``shift`` px, or all NaN after frame 0
+    (``shift=None``: people removed from the scoring, ids kept)."""
+
+    def __init__(self, seq, shift):
+        self._seq = seq
+        self._shift = shift
+        for k in ("name", "frame_rate", "width", "height", "length", "template_size"):
+            setattr(self, k, getattr(seq, k))
+
+    def frames(self):
+        return self._seq.frames()
+
+    def births(self):
+        return self._seq.births()
+
+    def gt_points(self):
+        ids, pts = self._seq.gt_points()
+        pts = pts.copy()
+        if self._shift is None:
+            pts[1:] = np.nan
+        else:
+            pts += np.asarray(self._shift, np.float64)
+        return ids, pts
+
+
+class _Edited(ScenarioEpisodes):
+    def __init__(self, shift):
+        super().__init__(ScenarioDistribution.from_dict(TINY), seed=0)
+        self.shift = shift
+
+    def _build(self, index):
+        seq = super()._build(index)
+        return seq if self.shift == "none" else _GtEdited(seq, self.shift)
+
+
+ACTIONS = np.array(
+    [[0.8, -0.5, 0.2, -1.0, 0.4], [-0.9, 0.7, 1.0, 0.3, -0.6], [0.1, 0.1, -0.4, 1.0, 0.9]]
+)
+"""A different action on each of the three steps of a 12-frame episode with K = 5."""
+
+
+def _roll(episodes, episode=4):
+    env = TrackerTuningEnv(episodes=episodes, k_frames=5, threshold_px=1.0)
+    obs, _ = env.reset(options={"episode": episode})
+    seen, rewards, done, k = [obs], [], False, 0
+    while not done:
+        obs, r, done, _, _ = env.step(ACTIONS[k])
+        seen.append(obs)
+        rewards.append(r)
+        k += 1
+    return seen, rewards, env
+
+
+def test_observation_never_depends_on_the_ground_truth_at_any_step():
+    """Shifting the ground truth by (7, -3) px or removing it leaves every observation
+    unchanged -- the reset's and each step's -- while the rewards do change (the edit is
+    real): nothing of the ground truth leaks into what a policy sees."""
+    base, r_base, _ = _roll(_Edited("none"))
+    for shift in ((7.0, -3.0), None):
+        seen, rewards, _ = _roll(_Edited(shift))
+        assert len(seen) == len(base) == 4
+        for k, (a, b) in enumerate(zip(base, seen, strict=True)):
+            np.testing.assert_array_equal(a, b, err_msg=f"observation {k} (0: reset)")
+        assert rewards != r_base  # the reward does read the ground truth
+    assert any(r > 0 for r in r_base)
+
+
+def test_policy_driven_tracker_sees_exactly_the_envs_observations():
+    """PolicyControlled (``crowdsim track --policy``) shows the policy the same observation
+    the env returns before each step -- every step, on a source whose ground truth is gone --
+    and the policy's actions produce the env's tracks."""
+    from tracker.runner import run_tracker
+
+    env_obs, _, env = _roll(_Edited("none"))
+
+    class Scripted:
+        def __init__(self):
+            self.seen = []
+
+        def predict(self, obs, deterministic=True):
+            self.seen.append(np.asarray(obs).copy())
+            return ACTIONS[len(self.seen) - 1], None
+
+    pol = Scripted()
+    space = ParamSpace()
+    seq = _GtEdited(env.episodes.episode(4), None)
+    trk = make_observed_tracker("bqp", space.to_params(space.default_action))
+    run = run_tracker(trk, PolicyControlled(seq, trk, pol, space, k_frames=5), metrics="none")
+    assert len(pol.seen) == 3
+    for k, (a, b) in enumerate(zip(env_obs[:3], pol.seen, strict=True)):
+        np.testing.assert_array_equal(a, b, err_msg=f"observation before step {k}")
+    gt_ids, _ = seq.gt_points()
+    col = {int(i): c for c, i in enumerate(gt_ids)}
+    for j, i in enumerate(run.result.ids):
+        np.testing.assert_array_equal(run.result.positions[:, j], env._ep.tracks[:, col[int(i)]])
+
+
+def test_each_step_reward_covers_exactly_its_k_frames():
+    """Every step's reward is the fraction, over that step's frames only (1-5, 6-10, 11), of
+    the ground-truth points whose tracked point of the same id lies within T px -- computed
+    here by hand from an independent run of the same actions (a cumulative reward would match
+    the first step only)."""
+    from tracker.runner import run_tracker
+
+    _, rewards, env = _roll(_Edited("none"))
+    space = ParamSpace()
+    seq = env.episodes.episode(4)
+
+    class Scripted:
+        n = 0
+
+        def predict(self, obs, deterministic=True):
+            self.n += 1
+            return ACTIONS[self.n - 1], None
+
+    trk = make_observed_tracker("bqp", space.to_params(space.default_action))
+    run = run_tracker(trk, PolicyControlled(seq, trk, Scripted(), space, 5), metrics="none")
+    gt_ids, gt = seq.gt_points()
+    tracked = dict(zip(run.result.ids.tolist(), range(len(run.result.ids)), strict=True))
+    expected = []
+    for frames in (range(1, 6), range(6, 11), range(11, 12)):
+        hits = total = 0
+        for t in frames:
+            for c, pid in enumerate(gt_ids.tolist()):
+                g = gt[t, c]
+                if np.isnan(g).any():
+                    continue  # not in the frame: not scored
+                total += 1
+                j = tracked.get(pid)
+                p = run.result.positions[t, j] if j is not None else np.full(2, np.nan)
+                hits += bool(np.hypot(*(p - g)) <= 1.0)  # a lost person (NaN) is a miss
+        expected.append(hits / total if total else 0.0)
+    assert rewards == pytest.approx(expected, abs=1e-12)
+    assert len(set(np.round(expected, 6))) == 3  # the steps differ: a mix-up would show
+
+
+def test_distribution_files_are_bounded_and_a_single_name_is_one_family(tmp_path):
+    """``frames: 1e9`` (simulated until killed) and friends are refused with the spec
+    files' limits, naming the file; ``scenarios = "marathon"`` is the family marathon."""
+    from crowdsim.scenarios import MAX_AGENTS
+    from synth_data.spec import MAX_FRAMES, MAX_WARMUP_STEPS
+
+    f = tmp_path / "d.toml"
+    f.write_text('scenarios = "marathon"\nframes = 12\n')
+    d = ScenarioDistribution.from_arg(str(f))
+    assert d.scenarios == ("marathon",) and d.frames == 12
+    for field, value, limit in (
+        ("frames", MAX_FRAMES + 1, MAX_FRAMES),
+        ("warmup_steps", MAX_WARMUP_STEPS + 1, MAX_WARMUP_STEPS),
+        ("agents", [1, MAX_AGENTS + 1], MAX_AGENTS),
+    ):
+        j = tmp_path / f"{field}.json"
+        j.write_text(json.dumps({field: value}))
+        with pytest.raises(ValueError, match=rf"{j}: ScenarioDistribution.{field} must be") as e:
+            ScenarioDistribution.from_arg(str(j))
+        assert f"{limit:g}" in str(e.value)
+        edge = {field: limit if field != "agents" else [1, limit]}
+        ScenarioDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in edge.items()})
+    (tmp_path / "b.json").write_bytes(b"\xff\xfe\x00binary")
+    with pytest.raises(ValueError, match="b.json: not a JSON distribution file"):
+        ScenarioDistribution.from_arg(str(tmp_path / "b.json"))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import cv2
 import numpy as np
 import pytest
@@ -172,3 +174,78 @@ def test_mot_round_trip_property(tmp_path_factory, rows):
     np.testing.assert_array_equal(back[:, [0, 1, 7]], arr[:, [0, 1, 7]])
     np.testing.assert_allclose(back[:, 2:6], arr[:, 2:6], atol=6e-4)
     np.testing.assert_allclose(back[:, 8], arr[:, 8], atol=6e-5)
+
+
+# ---------------------------------------------------------------------------- ownership
+def _listed_sequence(seq):
+    """A minimal sequence folder whose ``checksums.json`` lists every file in it."""
+    import json
+
+    from synth_data.mot import sha256_file
+
+    (seq / "gt").mkdir(parents=True)
+    (seq / "img1").mkdir()
+    (seq / "gt" / "gt.txt").write_text("1,1,2,2,8,8,1,1,1\n")
+    (seq / "img1" / "000001.jpg").write_bytes(b"\xff\xd8 a frame")
+    (seq / "seqinfo.ini").write_text("[Sequence]\nname=s\n")
+    listing = {p.relative_to(seq).as_posix(): sha256_file(p) for p in seq.rglob("*") if p.is_file()}
+    (seq / "checksums.json").write_text(json.dumps(listing))
+    return seq
+
+
+def test_checksums_entries_must_stay_inside_the_sequence(tmp_path):
+    """A listing that names a file outside its folder (``..``, an absolute path, a link out)
+    is refused even when that file's digest matches: --overwrite would otherwise count a
+    user's file as the sequence's own, and verification would vouch for a foreign file."""
+    import json
+
+    from synth_data.mot import check_checksums, not_ours, sha256_file, verify_sequence
+
+    seq = _listed_sequence(tmp_path / "seq")
+    mine = tmp_path / "thesis.tex"
+    mine.write_text("\\chapter{One}")
+    (seq / "link.tex").symlink_to(mine)
+    good = json.loads((seq / "checksums.json").read_text())
+    assert check_checksums(seq) == good and not_ours(seq) is not None  # link.tex: not listed
+    for entry in ("../thesis.tex", str(mine), "link.tex"):
+        (seq / "checksums.json").write_text(json.dumps({**good, entry: sha256_file(mine)}))
+        with pytest.raises(ValueError, match=re.escape(f"entry {entry!r} points outside")):
+            check_checksums(seq)
+        assert verify_sequence(seq) is None
+        assert "points outside the sequence folder" in not_ours(seq)
+    assert mine.read_text() == "\\chapter{One}"
+
+
+def test_not_ours_names_the_first_file_crowdsim_did_not_write(tmp_path):
+    from synth_data.mot import not_ours
+
+    suite = tmp_path / "suite"
+    seq = _listed_sequence(suite / "seq")
+    assert not_ours(seq) is None
+    (suite / "manifest.json").write_text('{"format": 1, "sequences": {}}')
+    (suite / ".manifest.json.lock").write_text("")
+    assert not_ours(suite) is None
+    for plant, named in (
+        ("seq/img1/000001_fixed.jpg", "seq/img1/000001_fixed.jpg"),
+        ("seq/.DS_Store", "seq/.DS_Store"),
+        (".notes", ".notes"),  # hidden, beside the sequences of a suite
+        ("seq/gt/mine/labels.txt", "seq/gt/mine/labels.txt"),  # a user's folder: its file
+    ):
+        (suite / plant).parent.mkdir(parents=True, exist_ok=True)
+        (suite / plant).write_text("mine")
+        assert not_ours(suite) == f"{suite / named} was not written by crowdsim", plant
+        (suite / plant).unlink()
+    (seq / "gt" / "mine").rmdir()
+    (seq / "empty").mkdir()  # an empty folder of the user's is named itself
+    assert not_ours(suite) == f"{seq / 'empty'} was not written by crowdsim"
+    (seq / "empty").rmdir()
+    (seq / "gt" / "gt.txt").write_text("1,1,3,3,8,8,1,1,1\n")  # a hand correction
+    assert "gt.txt: damaged" in not_ours(suite)
+    other = tmp_path / "webapp"
+    _listed_sequence(other / "seq")
+    (other / "manifest.json").write_text('{"name": "my-app", "version": "1.0"}')
+    assert (
+        not_ours(other)
+        == f"{other / 'manifest.json'} is not a crowdsim manifest (no sequences table)"
+    )
+    assert not_ours(tmp_path / "nothing") == f"{tmp_path / 'nothing'} is not a folder"

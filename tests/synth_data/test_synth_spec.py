@@ -157,3 +157,96 @@ def test_other_suites_and_only():
         suite_specs("ucf9", ["seq10"])
     with pytest.raises(ValueError, match="--suite must be one of"):
         suite_specs("nope")
+
+
+def test_the_digest_covers_everything_that_changes_the_output():
+    """Every spec field that shapes the sequence changes the digest (a stale folder is then
+    never taken for a finished one); the calibration record, description and source do not."""
+    import dataclasses
+
+    from crowdsim import knobs
+    from synth_data.spec import CAMERA_FIELDS, OUTPUT_FIELDS, SequenceSpec, spec_from_dict
+
+    base = load_spec_text(GOOD)
+    digest = base.digest()
+    changed = {
+        "name": "other",
+        "seed": 5,
+        "frames": 9,
+        "fps": 30.0,
+        "warmup_steps": 3,
+        "scenario": {**base.scenario, "n_agents": 11},
+        "camera": {**base.camera, "tilt_deg": 12.0},
+        "appearance": dataclasses.replace(base.appearance, noise_sigma=4.0),
+        "output": {"images": True, "video": True},
+    }
+    kept = {"calibration": {"paper_ncc_15px": 1.0}, "description": "notes", "source": "x.toml"}
+    fields = {f.name for f in dataclasses.fields(SequenceSpec)}
+    assert fields == set(changed) | set(kept), "a new spec field: say whether it shapes output"
+    for name, value in changed.items():
+        assert dataclasses.replace(base, **{name: value}).digest() != digest, name
+    for name, value in kept.items():
+        assert dataclasses.replace(base, **{name: value}).digest() == digest, name
+    for k in knobs.KNOBS:  # every rendering knob, appearance and camera alike
+        other = _another_value(k)
+        if k.section == "appearance":
+            spec = dataclasses.replace(
+                base, appearance=dataclasses.replace(base.appearance, **{k.name: other})
+            )
+        else:
+            spec = spec_from_dict({**base.to_dict(), "camera": {**base.camera, k.name: other}})
+        assert spec.digest() != digest, k.name
+    # every camera field (fitted size and scale included) and every output switch, each given
+    # a valid value of its own: a field the digest drops would let a stale folder pass
+    camera = {
+        "px_per_m": 20.0,
+        "width": 100,
+        "height": 80,
+        "center": [1.0, 2.0],
+        "tilt_deg": 12.0,
+        "distance_m": 50.0,
+        "jitter_px": 1.0,
+        "jitter_frames": 5.0,
+        "max_width": 500,
+        "max_height": 400,
+        "margin_m": 3.0,
+    }
+    assert set(camera) == set(CAMERA_FIELDS), "a new camera field: give it a value here"
+    output = {"video": {"video": True}, "images": {"images": False, "video": True}}
+    assert set(output) == set(OUTPUT_FIELDS)
+    scenario = {"n_agents": {"n_agents": 11}, "density": {"density": 1.5}}
+    camera = {key: {key: value} for key, value in camera.items()}
+    for section, values in (("camera", camera), ("output", output), ("scenario", scenario)):
+        for key, change in values.items():
+            data = base.to_dict()
+            data[section] = {**data[section], **change}
+            assert spec_from_dict(data).digest() != digest, f"{section}.{key}"
+
+
+def _another_value(k):
+    if k.kind == "choice":
+        return next(c for c in k.choices if c != k.default)
+    if k.kind == "bool":
+        return not k.default
+    if k.kind == "bgr":
+        return tuple(min(255, c + 1) for c in k.default)
+    from crowdsim.appearance_model import AppearanceParams
+
+    step = 1 if k.integer else max(0.01, k.off_below)
+    for v in (k.default + step, k.default * 2, k.default - step):
+        try:
+            k.check(k.section, v)
+            if k.section == "appearance":
+                AppearanceParams(**{k.name: v})  # cross-field rules (subpixel divides 8)
+        except ValueError:
+            continue
+        return v
+    raise AssertionError(f"no other valid value for {k.name}")
+
+
+def load_spec_text(text):
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        return load_spec(write(Path(d), text))

@@ -90,3 +90,106 @@ def test_params_are_used():
     assert tr.radius == 8
     with pytest.raises(ValueError):
         BQPParams(search_factor=1.0)
+
+
+# --------------------------------------------------------------------------- each weight acts
+def _tracked_convoy(**params):
+    """A dense-candidate BQP tracker 12 frames into the convoy: moving, grouped (tree edges)."""
+    import copy
+
+    sc = _convoy(16)
+    tr = BQPTracker(BQPParams(speedup=False, group_refresh=5, **params))
+    tr.init(sc.frames[0], sc.ids, sc.points[0], sc.template_size)
+    for frame in sc.frames[1:12]:
+        tr.step(frame)
+    assert len(tr.tree_edges) and np.abs(tr.velocities).max() > 0.5
+    return tr, sc.frames[12], copy.deepcopy
+
+
+@pytest.mark.parametrize(
+    ("name", "value"), [("zeta", 0.9), ("eta", 0.7), ("w_sp", 1.1), ("w_g", 2.5)]
+)
+def test_each_term_weight_scales_exactly_its_own_term(name, value):
+    """zeta, eta, w_sp and w_g each change the frame's QP by delta times their own term (Eq. 1)
+    and nothing else: a weight that is ignored, or applied to another term, fails here."""
+    from dataclasses import replace
+
+    from tracker.bqp.terms import (
+        motion_cost,
+        neighbourhood_cost,
+        neighbours_in_groups,
+        quadratic_matrix,
+    )
+
+    tr, frame, copy = _tracked_convoy()
+    base, alt = copy(tr), copy(tr)
+    alt.set_params(replace(tr.params, **{name: value}))
+    delta = value - getattr(tr.params, name)
+    c0, _ = base.candidates(frame)
+    c1, _ = alt.candidates(frame)
+    np.testing.assert_array_equal(c0.positions, c1.positions)  # dense: the same candidates
+    q0, q1 = base.quadratic(c0), alt.quadratic(c1)
+
+    p, pos = tr.params, c0.positions
+    n, k = pos.shape[:2]
+    grid = pos.reshape(n, k, 1, 2)
+    sigma = tr._px(p.motion_sigma)
+    term_c = np.zeros((n, k))
+    term_q = None
+    if name == "zeta":
+        term_c = motion_cost(grid, tr.points + tr.velocities, sigma).reshape(n, k)
+    elif name == "eta":
+        nbr, wts = neighbours_in_groups(
+            tr.points, tr.groups, p.n_neighbours, tr._px(p.group_radius), tr._px(p.neighbour_scale)
+        )
+        term_c = neighbourhood_cost(grid, tr.points, tr.velocities, nbr, wts, sigma).reshape(n, k)
+    else:
+        ref = tr.tree_offsets if p.group_offsets else tr.tree_lengths
+        sp_on, g_on = (1.0, 0.0) if name == "w_sp" else (0.0, 1.0)
+        term_q = quadratic_matrix(
+            pos,
+            sp_on,
+            tr._px(p.proximity_sigma),
+            p.proximity_cutoff,
+            g_on,
+            tr.tree_edges,
+            ref,
+            tr._px(p.group_sigma),
+            p.group_cutoff,
+            p.laplacian_tau,
+        )
+    assert np.abs(term_c).max() > 1e-3 or abs(term_q).max() > 1e-3  # the term is there
+    np.testing.assert_allclose(c1.cost - c0.cost, delta * term_c, rtol=1e-9, atol=1e-12)
+    dq = (q1 - q0).toarray()
+    want = np.zeros_like(dq) if term_q is None else delta * term_q.toarray()
+    np.testing.assert_allclose(dq, want, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("appearance", ["kcf", "ncc"])
+@pytest.mark.parametrize("quantile", [0.25, 0.75])
+def test_update_threshold_gates_the_appearance_update(appearance, quantile):
+    """At non-default thresholds, exactly the targets whose confidence reaches the threshold
+    refresh their appearance model in a frame (KCF filters and NCC templates alike)."""
+    from dataclasses import replace
+
+    tr, frame, copy = _tracked_convoy(appearance=appearance, ncc_update_every=1)
+    # sensor noise spreads the confidences (on the clean frame KCF's peaks all exceed 1)
+    noise = np.random.default_rng(0).normal(0, 60, frame.shape)
+    frame = np.clip(frame + noise, 0, 255).astype(np.uint8)
+    probe = copy(tr)
+    probe.step(frame)
+    conf = probe.confidence
+    threshold = float(np.quantile(conf, quantile))
+    assert 0 < (conf >= threshold).sum() < len(conf)  # both kinds of target present
+
+    def model(t):
+        app = t.appearance
+        return app.xf.copy() if appearance == "kcf" else app.templates.copy()
+
+    run = copy(tr)
+    run.set_params(replace(tr.params, update_threshold=threshold))
+    before = model(run)
+    run.step(frame)
+    np.testing.assert_array_equal(run.confidence, conf)  # the threshold acts after scoring
+    changed = (model(run) != before).reshape(len(conf), -1).any(axis=1)
+    np.testing.assert_array_equal(changed, conf >= threshold)

@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tracker.metrics import (
+    SIMILARITY_SCALE,
     THRESHOLDS,
     accuracy_curve,
     evaluate,
@@ -16,6 +17,7 @@ from tracker.metrics import (
     mapped_positions,
     plot_accuracy,
     point_errors,
+    resolve_id_mapping,
     trackeval_metrics,
 )
 from tracker.mot_io import mot_rows_to_tracks, tracks_to_mot_rows
@@ -126,13 +128,14 @@ def test_accuracy_curve_properties(t, n, seed, noise):
 # ---------------------------------------------------------------- any track ids (own-id trackers)
 def test_perfect_tracker_with_its_own_ids():
     ids, gt = _gt(t=10, n=6)
-    own = np.array([70, 3, 900, 41, 5, 12])  # relabelled; 3 and 5 even collide with gt ids
+    own = np.array([70, 3, 900, 41, 2, 12])  # relabelled; 3 and 2 collide with gt ids
     rep = evaluate(ids, gt, own, gt, id_mapping="majority")
     assert rep["mota"] == pytest.approx(100) and rep["idf1"] == pytest.approx(100)
     assert rep["hota"] == pytest.approx(100) and rep["idsw"] == 0
     assert rep["acc@5"] == 100.0 and rep["curve"][0]["acc"] == 100.0
     assert rep["id_mapping"] == "majority"
-    # "auto" maps as soon as one id is unknown; "same" takes the ids at their word
+    # "auto" maps: the two known ids (3 and 2) lie on persons 2 and 5, not on their own;
+    # "same" takes the ids at their word
     assert evaluate(ids, gt, own, gt)["id_mapping"] == "majority"
     same = evaluate(ids, gt, own, gt, id_mapping="same", strict=False)
     assert same["acc@15"] < 50 and same["mota"] == rep["mota"]
@@ -200,3 +203,115 @@ def test_clear_idf1_hota_do_not_depend_on_the_ids(t, n, seed):
     a = trackeval_metrics(ids, gt, ids, tr)
     b = trackeval_metrics(ids, gt, own, tr)
     assert a == pytest.approx(b)
+
+
+# ---------------------------------------------------------------- hand-computed metric wiring
+def _one_person_off_then_lost():
+    """Two people over 4 frames: A (id 1) tracked exactly; B (id 2) tracked 5 px off in
+    frames 0-1, then lost (no tracked point) in frames 2-3."""
+    ids = np.array([1, 2])
+    gt = np.zeros((4, 2, 2))
+    gt[:, 0] = np.stack([10.0 + np.arange(4), np.full(4, 20.0)], 1)
+    gt[:, 1] = np.stack([np.full(4, 100.0), 60.0 + 2 * np.arange(4)], 1)
+    tr = gt.copy()
+    tr[:2, 1] += [3.0, 4.0]  # 5 px off
+    tr[2:, 1] = np.nan  # lost
+    return ids, gt, tr
+
+
+def test_metrics_on_a_hand_computed_degraded_case():
+    """Every metric by hand, at the documented similarity max(0, 1 - d / T_sim), T_sim = 15.
+
+    B's two tracked points have similarity s = 1 - 5/15 = 2/3 (>= 0.5: CLEAR and IDF1 match
+    them). 8 gt points, 6 tracked, none false: MOTA = 1 - 2/8; MOTP = mean similarity of the
+    matches = (4 + 2 s) / 6 = 8/9; IDF1 = 2 IDTP / (2 IDTP + IDFN + IDFP) = 12 / 14.
+    HOTA at each alpha of 0.05 .. 0.95 (19): for alpha <= 2/3 (13 alphas) DetA = 6/8 and
+    AssA = (4 * 4/4 + 2 * 2/4) / 6 = 5/6 (B's track covers 2 of B's 4 points); above (6
+    alphas) B's matches drop: TP 4, FN 4, FP 2, DetA = 4/10, AssA = 1. HOTA = sqrt(DetA AssA)
+    averaged over the alphas. acc@T: A's 4 points at 0 px, B's 2 at 5 px, 2 untracked."""
+    ids, gt, tr = _one_person_off_then_lost()
+    rep = evaluate(ids, gt, ids, tr)
+    assert SIMILARITY_SCALE == 15.0 and rep["similarity_px"] == 15.0
+    s = 1 - 5 / 15
+    assert rep["mota"] == pytest.approx(100 * (1 - 2 / 8))
+    assert rep["motp"] == pytest.approx(100 * (4 + 2 * s) / 6)
+    assert rep["idf1"] == pytest.approx(100 * 12 / 14)
+    low, high = 13, 6
+    hota = (low * np.sqrt(6 / 8 * 5 / 6) + high * np.sqrt(4 / 10 * 1.0)) / 19
+    assert rep["hota"] == pytest.approx(100 * hota)
+    assert rep["deta"] == pytest.approx(100 * (low * 6 / 8 + high * 4 / 10) / 19)
+    assert rep["assa"] == pytest.approx(100 * (low * 5 / 6 + high * 1.0) / 19)
+    assert (rep["idsw"], rep["mt"], rep["ml"], rep["frag"]) == (0, 1, 0, 0)
+    curve = [c["acc"] for c in rep["curve"]]
+    assert curve[:6] == [50.0, 50.0, 50.0, 50.0, 50.0, 75.0] and curve[25] == 75.0
+    assert rep["acc@5"] == 75.0 and rep["acc@15"] == 75.0
+    assert rep["id_mapping"] == "same" and rep["unknown_ids"] == 0
+    # the similarity scale is the one asked for: at T_sim = 30, s = 5/6
+    wide = evaluate(ids, gt, ids, tr, similarity_scale=30.0)
+    assert wide["motp"] == pytest.approx(100 * (4 + 2 * 5 / 6) / 6)
+
+
+@pytest.mark.parametrize("mapping", ["auto", "same", "majority"])
+def test_track_ids_in_unsorted_order_change_no_metric(mapping):
+    ids, gt, tr = _one_person_off_then_lost()
+    want = evaluate(ids, gt, ids, tr, id_mapping=mapping)
+    for order in ([1, 0], [0, 1]):
+        got = evaluate(ids, gt, ids[order], tr[:, order], id_mapping=mapping)
+        assert got == want, order
+    # own ids (not the ground truth's), unsorted: the same figures under majority mapping
+    own = evaluate(ids, gt, np.array([907, 15]), tr[:, [1, 0]], id_mapping="majority")
+    assert {k: v for k, v in own.items() if k != "id_mapping"} == {
+        k: v
+        for k, v in evaluate(ids, gt, ids, tr, id_mapping="majority").items()
+        if k != "id_mapping"
+    }
+
+
+# ------------------------------------------------------- result ids unknown to the ground truth
+def _drifting_scene():
+    """Five people far apart over 6 frames. Tracks 1-4 sit on their own person; track 5
+    follows person 5 for 2 frames, then sits 2 px from person 4 for 4 frames. With the ids
+    taken as they are, acc@15 = (24 + 2) / 30; a majority mapping gives track 5 to person 4
+    (4 votes to 2) and leaves person 5 untracked: 24 / 30."""
+    ids = np.arange(1, 6)
+    gt = np.zeros((6, 5, 2))
+    gt[..., 0] = 100.0 * ids
+    gt[..., 1] = 50.0 + np.arange(6)[:, None]
+    tr = gt.copy()
+    tr[2:, 4] = gt[2:, 3] + [2.0, 0.0]
+    return ids, gt, tr
+
+
+def test_one_unknown_id_keeps_the_known_ids_scored_as_known():
+    ids, gt, tr = _drifting_scene()
+    same = evaluate(ids, gt, ids, tr)
+    assert same["id_mapping"] == "same" and same["acc@15"] == pytest.approx(100 * 26 / 30)
+    assert evaluate(ids, gt, ids, tr, id_mapping="majority")["acc@15"] == pytest.approx(80.0)
+    for stray in (99, -1, 0):  # one stray row with an id the ground truth does not know
+        extra = np.full((6, 1, 2), np.nan)
+        extra[3, 0] = [250.0, 53.0]
+        rep = evaluate(ids, gt, np.r_[ids, stray], np.concatenate([tr, extra], 1))
+        assert rep["id_mapping"] == "same", stray
+        assert rep["unknown_ids"] == 1
+        assert rep["acc@15"] == pytest.approx(100 * 26 / 30), stray  # the stray is unmatched
+        assert rep["curve"] == same["curve"]
+    # asking for "same" strictly still refuses unknown ids
+    with pytest.raises(ValueError, match="unknown to the ground truth"):
+        evaluate(ids, gt, np.r_[ids, 99], np.concatenate([tr, extra], 1), id_mapping="same")
+
+
+def test_own_ids_stay_on_majority_mapping():
+    ids, gt, tr = _drifting_scene()
+    exact = gt.copy()
+    # ByteTrack-style ids 0, 1, 2, ...: four of them are ground-truth ids by number only
+    shifted = ids - 1
+    rep = evaluate(ids, gt, shifted, exact)
+    assert rep["id_mapping"] == "majority" and rep["unknown_ids"] == 0
+    assert rep["curve"][0]["acc"] == 100.0  # each track mapped to the person it sits on
+    # all ids unknown: majority as well
+    assert evaluate(ids, gt, ids + 1000, exact)["id_mapping"] == "majority"
+    assert resolve_id_mapping(ids, shifted, "auto", gt, exact) == "majority"
+    assert resolve_id_mapping(ids, np.r_[ids, -1], "auto", gt, np.concatenate(
+        [exact, exact[:, :1]], 1)) == "same"  # fmt: skip
+    with pytest.raises(ValueError, match="needs the points"):
+        resolve_id_mapping(ids, shifted, "auto")

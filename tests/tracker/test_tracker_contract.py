@@ -52,6 +52,42 @@ def test_unknown_tracker_name_lists_the_valid_ones():
         registry.make_tracker("bqp", zetaa=1.0)
 
 
+def test_params_given_as_anything_but_the_dataclass_are_validated_or_refused():
+    """A mapping goes through the parameter dataclass (validated, the variant's overrides
+    kept); another tracker's parameters or any other object is refused naming its type. Once,
+    ``make_tracker("bqp", params={"zeta": -5})`` built a tracker around the raw dict."""
+    import re
+
+    from tracker.bqp.params import BQPParams
+    from tracker.bqp.tracker import BQPTracker
+
+    tr = registry.make_tracker("bqp-ncc", params={"zeta": 0.5}, eta=0.1)
+    assert isinstance(tr.params, BQPParams)
+    assert (tr.params.zeta, tr.params.eta, tr.params.appearance) == (0.5, 0.1, "ncc")
+    for params, needle in (
+        ({"zeta": -5}, "BQPParams.zeta must be a finite number >= 0, got -5"),
+        ({"zetaa": 1}, "tracker 'bqp' has no parameter(s) zetaa"),
+        (3, "tracker 'bqp' takes params as a BQPParams or a mapping of its fields, got int"),
+        (BQPParams(), None),
+    ):
+        if needle is None:
+            assert registry.make_tracker("bqp", params=params).params == params
+            continue
+        with pytest.raises(ValueError, match=re.escape(needle)):
+            registry.make_tracker("bqp", params=params)
+    with pytest.raises(ValueError, match="takes params as a PNMCParams .* got BQPParams"):
+        registry.make_tracker("pnmc", params=BQPParams())
+    with pytest.raises(ValueError, match=r"no parameter\(s\) zetaa"):
+        registry.make_tracker("bqp", params=BQPParams(), zetaa=1.0)
+    with pytest.raises(
+        ValueError, match=r"BQPParams.search_factor must .* in \(1, 8\], got 1000000.0"
+    ):
+        registry.make_tracker("bqp", params=BQPParams(), search_factor=1e6)
+    frame = np.zeros((32, 32, 3), np.uint8)
+    with pytest.raises(ValueError, match="tracker 'bqp' takes BQPParams, got dict"):
+        BQPTracker({"zeta": -5}).init(frame, [1], np.array([[9.0, 9.0]]), 8)
+
+
 class _Frozen(NCCTracker):
     """A planted bug: never moves its points."""
 

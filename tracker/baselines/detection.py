@@ -116,15 +116,17 @@ class DetectionTrackerParams:
     def __post_init__(self) -> None:
         own = type(self).__name__
         require_number(own, "miss_rate", self.miss_rate, lo=0, hi=1)
-        require_number(own, "false_alarm_rate", self.false_alarm_rate, lo=0)
-        require_number(own, "jitter_px", self.jitter_px, lo=0)
+        require_number(own, "false_alarm_rate", self.false_alarm_rate, lo=0, hi=1000)
+        require_number(own, "jitter_px", self.jitter_px, lo=0, hi=1000)
         if self.box_px is not None:
-            require_number(own, "box_px", self.box_px, lo=1)
+            require_number(own, "box_px", self.box_px, lo=1, hi=4096)
         require_number(own, "score_mean", self.score_mean, lo=0, hi=1)
         require_number(own, "score_std", self.score_std, lo=0)
         require_number(own, "false_score_mean", self.false_score_mean, lo=0, hi=1)
-        require_number(own, "seed", self.seed, lo=0, integer=True)
-        require_number(own, "lost_track_buffer", self.lost_track_buffer, lo=0, integer=True)
+        require_number(own, "seed", self.seed, lo=0, hi=2**63, hi_open=True, integer=True)
+        require_number(
+            own, "lost_track_buffer", self.lost_track_buffer, lo=0, hi=100_000, integer=True
+        )
         require_number(
             own, "minimum_consecutive_frames", self.minimum_consecutive_frames, lo=1, integer=True
         )
@@ -177,7 +179,7 @@ class OCSORTParams(DetectionTrackerParams):
         require_number(
             "OCSORTParams", "direction_consistency_weight", self.direction_consistency_weight, lo=0
         )
-        require_number("OCSORTParams", "delta_t", self.delta_t, lo=1, integer=True)
+        require_number("OCSORTParams", "delta_t", self.delta_t, lo=1, hi=100, integer=True)
 
 
 DetectionFeed = Sequence[Any] | Mapping[int, Any] | Callable[[int, np.ndarray], Any]

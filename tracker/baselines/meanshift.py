@@ -107,9 +107,10 @@ class MeanShiftParams:
     def __post_init__(self) -> None:
         o = "MeanShiftParams"
         require_choice(o, "color_space", self.color_space, COLOR_SPACES)
-        require_number(o, "bins", self.bins, lo=2, hi=256, integer=True)
-        require_number(o, "search_factor", self.search_factor, lo=1, lo_open=True)
-        require_number(o, "max_iter", self.max_iter, lo=1, integer=True)
+        # bins^3 floats per target in colour: 32 bins and 1,000 people are 262 MB already
+        require_number(o, "bins", self.bins, lo=2, hi=32, integer=True)
+        require_number(o, "search_factor", self.search_factor, lo=1, lo_open=True, hi=8)
+        require_number(o, "max_iter", self.max_iter, lo=1, hi=1000, integer=True)
         require_number(o, "epsilon", self.epsilon, lo=0, lo_open=True)
         require_number(o, "update_every", self.update_every, lo=1, integer=True)
         require_number(o, "update_threshold", self.update_threshold, lo=0, hi=1)

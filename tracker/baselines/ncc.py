@@ -45,7 +45,7 @@ class NCCParams:
     max_lost: int = 5
 
     def __post_init__(self) -> None:
-        require_number("NCCParams", "search_factor", self.search_factor, lo=1, lo_open=True)
+        require_number("NCCParams", "search_factor", self.search_factor, lo=1, lo_open=True, hi=8)
         require_number("NCCParams", "update_threshold", self.update_threshold, lo=0, hi=1)
         require_number("NCCParams", "update_every", self.update_every, lo=1, integer=True)
         require_number("NCCParams", "lost_ratio", self.lost_ratio, lo=0, hi=1)

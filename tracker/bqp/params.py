@@ -16,6 +16,31 @@ from tracker.bqp.frank_wolfe import VARIANTS as FW_VARIANTS
 APPEARANCE_MODELS: tuple[str, ...] = ("kcf", "ncc")
 
 
+UPPER: dict[str, float] = {
+    "search_factor": 8.0,
+    "history": 1000,
+    "n_neighbours": 50,
+    "n_extrema": 50,
+    "n_samples": 500,
+    "sample_window": 100,
+    "candidate_stride": 64,
+    "fw_max_iter": 10_000,
+    "group_radius": 20.0,
+    "neighbour_scale": 20.0,
+    "motion_sigma": 20.0,
+    "proximity_sigma": 10.0,
+    "proximity_cutoff": 10.0,
+    "group_sigma": 10.0,
+    "group_cutoff": 10.0,
+    "kcf_target_window": 8.0,
+}
+"""Upper bounds of the fields whose size is memory or time: the search grid grows with the
+square of ``search_factor``, the candidates with ``n_extrema * n_samples``, the quadratic terms'
+pairs with the square of the radii and cut-offs (templates), the solver's work with
+``fw_max_iter``. A value beyond them can only exhaust the machine, so it is refused by name
+instead of ending in "out of memory"."""
+
+
 @dataclass(frozen=True, kw_only=True)
 class BQPParams:
     """Every tunable constant of the BQP tracker.
@@ -220,20 +245,22 @@ class BQPParams:
             "fw_max_iter",
         )
         for name in nonneg:
-            require_number(own, name, getattr(self, name), lo=0)
+            require_number(own, name, getattr(self, name), lo=0, hi=UPPER.get(name))
         for name in positive:
-            require_number(own, name, getattr(self, name), lo=0, lo_open=True)
+            require_number(own, name, getattr(self, name), lo=0, lo_open=True, hi=UPPER.get(name))
         for name in counts:
-            require_number(own, name, getattr(self, name), lo=1, integer=True)
-        require_number(own, "history", self.history, lo=2, integer=True)
-        require_number(own, "seed", self.seed, lo=0, integer=True)
+            require_number(own, name, getattr(self, name), lo=1, integer=True, hi=UPPER.get(name))
+        require_number(own, "history", self.history, lo=2, hi=UPPER["history"], integer=True)
+        require_number(own, "seed", self.seed, lo=0, hi=2**63, hi_open=True, integer=True)
         require_number(own, "max_lost", self.max_lost, lo=0, integer=True)
         require_number(own, "lost_ratio", self.lost_ratio, lo=0, hi=1)
         require_number(own, "update_threshold", self.update_threshold, lo=0, hi=1)
         require_number(own, "kcf_learning_rate", self.kcf_learning_rate, lo=0, hi=1, lo_open=True)
         require_number(own, "velocity_smoothing", self.velocity_smoothing, lo=0, hi=1, hi_open=True)
         require_number(own, "coherence_threshold", self.coherence_threshold, lo=-1, hi=1)
-        require_number(own, "search_factor", self.search_factor, lo=1, lo_open=True)
+        require_number(
+            own, "search_factor", self.search_factor, lo=1, lo_open=True, hi=UPPER["search_factor"]
+        )
         require_choice(own, "appearance", self.appearance, APPEARANCE_MODELS)
         require_choice(own, "kcf_kernel", self.kcf_kernel, ("gaussian", "linear"))
         require_choice(own, "fw_variant", self.fw_variant, FW_VARIANTS)

@@ -174,3 +174,155 @@ def test_knob_values_are_validated():
     vals = knob_values(tiny(), 0.0, 0.0)
     assert vals[("appearance", "video_kbps")] == 0.0  # d = 0 is the spec as written
     assert vals[("appearance", "noise_sigma")] == 3.0
+
+
+# ------------------------------------------------------------------ the tables map cells right
+def test_every_row_has_its_own_cell_key():
+    for rows in (experiments.COMPARE_ROWS, experiments.ablation_rows()):
+        for frames in (None, 40):
+            keys = [experiments.cell_key("seq5", r, frames) for r in rows]
+            assert len(set(keys)) == len(keys)
+            assert all(k.startswith("seq5|") for k in keys)
+    # another sequence or frame count never reuses a cell
+    row = experiments.COMPARE_ROWS[5]  # ByteTrack miss 0.1
+    assert row.overrides == {"miss_rate": 0.1}
+    assert len({experiments.cell_key(s, row, f) for s in ("seq1", "seq2") for f in (None, 9)}) == 4
+
+
+def _differing_specs():
+    """Two tiny sequences that really differ: other seeds, crowds and noise."""
+    a = tiny("a", frames=8)
+    b = spec_from_dict(
+        {
+            "name": "b",
+            "seed": 11,
+            "frames": 8,
+            "warmup_steps": 2,
+            "scenario": {"name": "marathon", "n_agents": 30, "density": 2.5},
+            "camera": {"px_per_m": 14.0},
+            "appearance": {"template_px": 8, "noise_sigma": 20.0, "contrast": 0.3},
+        },
+        source="b.toml",
+    )
+    return [a, b]
+
+
+def test_cells_are_read_back_per_sequence_and_method(tmp_path):
+    out = tmp_path / "t"
+    rows = (Row("NCC", "ncc", paper="NCC"), Row("mean-shift", "meanshift", paper="MS"))
+    run_table(rows, _differing_specs(), out, progress=False, log=lambda m: None)
+    cells = json.loads((out / "cells.json").read_text())["cells"]
+    by = {
+        (seq, row.label): cells[experiments.cell_key(seq, row, None)]
+        for seq in ("a", "b")
+        for row in rows
+    }
+    figures = {k: (c["acc@15"], c["mota"], c["hota"]) for k, c in by.items()}
+    assert len(set(figures.values())) == 4, figures  # every cell measures something else
+    got = {
+        (r["sequence"], r["method"]): r
+        for r in csv.DictReader(io.StringIO((out / "table.csv").read_text()))
+    }
+    assert set(got) == set(by)
+    for key, cell in by.items():
+        for metric in ("acc@15", "acc@5", "mota", "idf1", "hota"):
+            assert float(got[key][metric]) == pytest.approx(cell[metric], abs=5e-4), key
+    md = (out / "table.md").read_text()
+    section = md.split("## acc@15")[1].split("##")[0]
+    for row in rows:
+        line = next(ln for ln in section.splitlines() if ln.startswith(f"| {row.label} |"))
+        assert line.split(" | ")[1:3] == [f"{by[(s, row.label)]['acc@15']:.1f}%" for s in "ab"]
+
+
+def test_paper_columns_come_from_the_right_table():
+    paper = experiments.paper_numbers("ucf9")
+    want = json.loads((experiments_paper_file()).read_text())
+    seqs = [f"seq{i}" for i in range(1, 10)]
+    cell = {"acc@15": 50.0, "acc@5": 40.0, "mota": 1.0, "idf1": 2.0, "hota": 3.0, "fps": 9.0}
+    for rows, table in (
+        (experiments.COMPARE_ROWS, "acc@15"),
+        (experiments.ablation_rows(), "ablation@15"),
+    ):
+        cells = {(s, r.label): cell for s in seqs for r in rows}
+        got = list(
+            csv.DictReader(io.StringIO(experiments.table_csv(rows, seqs, cells, paper, table)))
+        )
+        text = experiments.format_table(rows, seqs, cells, paper, table)
+        section = text.split("## acc@15")[1].split("##")[0]
+        for r in rows:
+            line = next(ln for ln in section.splitlines() if ln.startswith(f"| {r.label} |"))
+            for s, shown in zip(seqs, line.split(" | ")[1:10], strict=True):
+                ref = want[table].get(r.paper, {}).get(s) if r.paper else None
+                assert shown == ("50.0%" if ref is None else f"50.0% ({ref:g})"), (r.label, s)
+                row = next(x for x in got if x["method"] == r.label and x["sequence"] == s)
+                assert row["paper_acc@15"] == ("" if ref is None else str(ref))
+                p5 = want["acc@5"].get(r.paper, {}).get(s) if r.paper else None
+                assert row["paper_acc@5"] == ("" if p5 is None else str(p5))
+    # the columns really differ: a mix-up of two would show
+    assert paper["acc@15"]["MS"]["seq2"] == 67 and paper["acc@15"]["PNMC"]["seq2"] == 100
+    assert paper["ablation@15"]["B (NCC)"]["seq1"] == 78.13
+
+
+def experiments_paper_file():
+    from synth_data.suites import suite_dir
+
+    return suite_dir("ucf9") / "paper.json"
+
+
+# ------------------------------------------------------------------ checked cells and flags
+def _fake_cell(seq_dir, tracker, overrides, frames):
+    from pathlib import Path
+
+    v = float(sum(map(ord, Path(seq_dir).name + tracker)) % 90)
+    return {k: v for k in ("acc@15", "acc@5", "mota", "idf1", "hota", "fps")} | {"curve": []}
+
+
+def test_a_hand_edited_cell_is_refused_naming_it(tmp_path, monkeypatch):
+    monkeypatch.setattr(experiments, "run_cell", _fake_cell)
+    out = tmp_path / "t"
+    text = run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
+    assert f"| NCC | {_fake_cell('a', 'ncc', {}, None)['acc@15']:.1f}% |" in text
+    assert f"| BQP | {_fake_cell('a', 'bqp', {}, None)['acc@15']:.1f}% |" in text
+    path = out / "cells.json"
+    original = path.read_bytes()
+    data = json.loads(original)
+    key = experiments.cell_key("a", ROWS[0], None)
+    data["cells"][key]["acc@15"] = 999.0
+    path.write_text(json.dumps(data))
+    before = path.read_bytes()
+    with pytest.raises(
+        ValueError, match=r"cells.json: cell 'a\|ncc\|.*does not match its checksum"
+    ):
+        run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
+    assert path.read_bytes() == before
+    # a cell moved under another key fails as well
+    data = json.loads(original)
+    other = experiments.cell_key("a", ROWS[1], None)
+    data["cells"][key], data["cells"][other] = data["cells"][other], data["cells"][key]
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="does not match its checksum"):
+        experiments.read_cells(path)
+    for bad, needle in ((b"\x00\xff binary", "damaged"), (b"[1, 2]", "no 'cells' object")):
+        path.write_bytes(bad)
+        with pytest.raises(ValueError, match=needle):
+            run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
+        assert path.read_bytes() == bad
+
+
+def test_address_needs_ray_and_a_suite_folder_brings_its_paper_figures(tmp_path, monkeypatch):
+    with pytest.raises(ValueError, match="--address needs --backend ray, got --address 'x:1'"):
+        run_table(ROWS, [tiny("a")], tmp_path / "t", address="x:1", progress=False)
+    assert not (tmp_path / "t").exists()
+    suite = tmp_path / "suite"
+    suite.mkdir()
+    (suite / "a.toml").write_text(
+        'name = "a"\nseed = 3\nframes = 6\n[scenario]\nname = "crossing"\nn_agents = 8\n'
+        "[camera]\npx_per_m = 14.0\n[appearance]\ntemplate_px = 8\n"
+    )
+    (suite / "paper.json").write_text('{"acc@15": {"NCC": {"a": 42.5}}}')
+    monkeypatch.setattr(experiments, "run_cell", _fake_cell)
+    text = run_table(ROWS, suite, tmp_path / "t", progress=False, log=lambda m: None)
+    assert f"| NCC | {_fake_cell('a', 'ncc', {}, None)['acc@15']:.1f}% (42.5) |" in text
+    (suite / "paper.json").write_text('{"acc@15": {"NCC": {"a": "high"}}}')
+    with pytest.raises(ValueError, match=r"paper.json: acc@15.NCC.a must be a percentage"):
+        run_table(ROWS, suite, tmp_path / "t", progress=False, log=lambda m: None)

@@ -1,0 +1,131 @@
+"""Result files a command may replace: only the ones it can prove it wrote.
+
+``crowdsim tune`` and ``crowdsim heldout`` write a JSON *record* (``best_params.json``,
+``heldout.json``) and files beside it (tables, plots) into a folder the user names. A rerun
+into the same folder must not replace a user's own ``heldout.md`` or ``history.png``:
+
+* the record is ours when its content says so (``is_ours(doc)``: the keys only we write);
+* every other output is ours when its SHA-256 is the one the record lists for it under
+  ``"files"`` (this run's) or ``"previous_files"`` (the run before; see below); a record from
+  an older crowdsim that lists no files vouches for the outputs beside it.
+
+:func:`write_outputs` renders every output to a temporary file beside its target first, then
+writes the record (listing the new digests under ``"files"`` and the digests of the files it
+replaces under ``"previous_files"``), and only then renames the outputs into place: a run
+killed at any point leaves every file in the folder provably ours, and none half-written.
+
+>>> import json, tempfile, pathlib
+>>> out = pathlib.Path(tempfile.mkdtemp())
+>>> record = {"kind": "demo"}
+>>> ours = lambda doc: doc.get("kind") == "demo"
+>>> _ = write_outputs(out, "r.json", record, {"t.md": lambda p: p.write_text("a\\n")})
+>>> check_outputs(out, "r.json", ("t.md",), ours, "a demo")  # a rerun may replace them
+>>> (out / "t.md").write_text("my notes\\n")
+9
+>>> try:
+...     check_outputs(out, "r.json", ("t.md",), ours, "a demo")
+... except ValueError as exc:
+...     print(str(exc).replace(str(out), "OUT").split(";")[0])
+--out: OUT/t.md exists and was not written by a demo
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable, Mapping, Sequence
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any
+
+from crowdsim.atomic import atomic_path, write_text_atomic
+from crowdsim.checks import require_output_dir
+
+
+def _sha256(path: Path) -> str:
+    from synth_data.mot import sha256_file
+
+    return sha256_file(path)
+
+
+def _refuse(path: Path, what: str, flag: str) -> ValueError:
+    return ValueError(
+        f"{flag}: {path} exists and was not written by {what}; refusing to replace it "
+        f"(move it away or choose another {flag})"
+    )
+
+
+def read_record(path: Path, is_ours: Callable[[Any], bool]) -> dict[str, Any] | None:
+    """The record at ``path`` if it is ours, ``None`` if there is none; ``ValueError`` from
+    :func:`check_outputs` otherwise (a foreign or unreadable file)."""
+    if not path.exists():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return {}
+    return doc if isinstance(doc, dict) and is_ours(doc) else {}
+
+
+def check_outputs(
+    out: str | os.PathLike[str],
+    record: str,
+    owned: Sequence[str],
+    is_ours: Callable[[Any], bool],
+    what: str,
+    flag: str = "--out",
+) -> None:
+    """Refuse (``ValueError`` naming ``flag`` and the file) to go on when ``out`` holds
+    ``record`` or one of ``owned`` that this program cannot prove it wrote (see the module
+    docstring); a folder that cannot be made or written (under a regular file, read-only)
+    and a folder where a file is expected are refused too. Reads only."""
+    out = require_output_dir(flag, out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{flag} {out}: is a file, not a folder")
+    if out.is_dir() and not os.access(out, os.W_OK | os.X_OK):
+        raise ValueError(f"{flag} {out}: the folder is not writable")
+    rec_path = out / record
+    if rec_path.is_dir():
+        raise ValueError(f"{flag}: {rec_path} is a folder, not a file")
+    doc = read_record(rec_path, is_ours)
+    if doc == {}:
+        raise _refuse(rec_path, what, flag)
+    listed: dict[str, set[str]] = {}
+    for key in ("files", "previous_files"):
+        for name, digest in ((doc or {}).get(key) or {}).items():
+            listed.setdefault(name, set()).add(digest)
+    legacy = doc is not None and "files" not in doc
+    for name in owned:
+        p = out / name
+        if p.is_dir():
+            raise ValueError(f"{flag}: {p} is a folder, not a file")
+        if not p.exists() or legacy:
+            continue
+        if doc is None or _sha256(p) not in listed.get(name, set()):
+            raise _refuse(p, what, flag)
+
+
+def write_outputs(
+    out: str | os.PathLike[str],
+    record: str,
+    doc: Mapping[str, Any],
+    outputs: Mapping[str, Callable[[Path], object]],
+) -> dict[str, Path]:
+    """Write ``outputs`` (``name -> writer(temporary path)``) and the JSON ``record`` (``doc``
+    plus the outputs' digests) into ``out``; ``{name: path}`` of everything written.
+
+    Call :func:`check_outputs` first (before any work): this function replaces what is there.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    previous = {name: _sha256(out / name) for name in outputs if (out / name).is_file()}
+    files: dict[str, str] = {}
+    with ExitStack() as stack:
+        for name, write in outputs.items():
+            tmp = stack.enter_context(atomic_path(out / name))
+            write(tmp)
+            files[name] = _sha256(tmp)
+        full = {**doc, "files": files, "previous_files": previous}
+        write_text_atomic(out / record, json.dumps(full, indent=2) + "\n")
+    # leaving the stack renamed every output into place (the record already lists them)
+    return {name: out / name for name in (*outputs, record)}

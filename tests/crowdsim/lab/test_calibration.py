@@ -1,0 +1,318 @@
+"""``crowdsim calibrate`` with a fake scorer: the bracketing, the figures it reports and
+writes, the calibrated suite folder, the suite's own specs and the study files it refuses."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from pathlib import Path
+
+import numpy as np
+import optuna
+import pytest
+
+from crowdsim.cli import main
+from crowdsim.jobs import Interrupted
+from crowdsim.knobs import knob
+from crowdsim.lab import calibration
+from synth_data.spec import load_spec
+from synth_data.suites import paper_numbers, suite_dir, suite_specs
+
+SPEC = """# {name}: a hand-written spec; comments survive calibration
+name = "{name}"
+seed = {seed}
+frames = 6
+
+[scenario]
+name = "crossing"  # two groups
+n_agents = 10
+
+[camera]
+px_per_m = 14.0
+
+[appearance]
+template_px = 8
+noise_sigma = 3.0
+
+[calibration]
+paper_ncc_15px = {target}
+{extra}"""
+
+
+def _curve(d: float) -> float:
+    """The fake NCC score (%) at difficulty ``d``: falls non-linearly, so bracketing and
+    bisection place their trials differently."""
+    return 90.0 - 80.0 * d * d
+
+
+def _difficulty(spec) -> float:
+    """The difficulty a scored spec was rendered at: dark_hair_fraction runs from 0 (these
+    specs) to its hard end 1 on the scale, so it *is* d (rounded to the knob's digits)."""
+    assert knob("dark_hair_fraction").hard == 1.0
+    return float(spec.appearance.dark_hair_fraction)
+
+
+@pytest.fixture
+def scored(monkeypatch):
+    """Replace the NCC scorer by :func:`_curve`; the list records every difficulty scored."""
+    calls: list[float] = []
+
+    def fake(spec, workdir):
+        d = _difficulty(spec)
+        calls.append(d)
+        return _curve(d)
+
+    monkeypatch.setattr(calibration, "ncc_score", fake)
+    return calls
+
+
+def _suite(root: Path, **targets: float | tuple[float, str]) -> Path:
+    root.mkdir(parents=True)
+    for i, (name, t) in enumerate(targets.items()):
+        target, extra = t if isinstance(t, tuple) else (t, "")
+        (root / f"{name}.toml").write_text(
+            SPEC.format(name=name, seed=i + 1, target=target, extra=extra)
+        )
+    ncc = {k: t[0] if isinstance(t, tuple) else t for k, t in targets.items()}
+    (root / "paper.json").write_text(json.dumps({"acc@15": {"NCC": ncc}}))
+    return root
+
+
+@pytest.fixture
+def suite(tmp_path) -> Path:
+    """Sequences ``a`` (paper 60 %) and ``b`` (paper 78.5 %, its spec records 80 achieved)."""
+    return _suite(tmp_path / "suite", a=60.0, b=(78.5, "achieved_ncc_15px = 80.0\n"))
+
+
+def test_bracketing_uses_the_scores_and_reports_the_measured_score(suite, scored):
+    (spec,) = suite_specs(suite, ["a"])
+    res = calibration.calibrate_spec(spec, 60.0, trials=4, log=lambda m: None)
+    # by hand: d = 0 -> 90, d = 1 -> 10; regula falsi in [0, 1]: (90 - 60) / 80 = 0.375 ->
+    # 78.75; in [0.375, 1]: 0.375 + 18.75 / 68.75 * 0.625 = 0.54545, rendered at 0.5455 (the
+    # knob's 4 digits) -> 66.194
+    want = [0.0, 1.0, 0.375, 0.375 + 18.75 / 68.75 * 0.625]
+    np.testing.assert_allclose(scored, want, atol=1e-4)
+    best = scored[3]
+    assert res["difficulty"] == pytest.approx(best, abs=1e-4)
+    assert res["ncc_15px"] == round(_curve(best), 2) == 66.19  # measured, above the target
+    assert res["error"] == 6.19
+    assert res["trials"] == 4
+    assert res["values"][("appearance", "dark_hair_fraction")] == round(best, 4)
+
+
+def test_a_study_stops_within_tolerance_and_a_harder_spec_is_not_searched(suite, scored):
+    (spec,) = suite_specs(suite, ["a"])
+    res = calibration.calibrate_spec(spec, 78.5, trials=12, log=lambda m: None)
+    assert scored[:3] == pytest.approx([0.0, 1.0, 0.14375], abs=1e-4)  # (90 - 78.5) / 80
+    assert len(scored) == res["trials"] and abs(res["ncc_15px"] - 78.5) <= calibration.TOLERANCE
+    scored.clear()
+    res = calibration.calibrate_spec(spec, 95.0, trials=12, log=lambda m: None)
+    assert scored == [0.0] and res["difficulty"] == 0.0 and res["ncc_15px"] == 90.0
+
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def test_calibrate_writes_a_new_suite_folder_and_leaves_the_suite_alone(suite, tmp_path, scored):
+    before = _tree(suite)
+    out = tmp_path / "cal"
+    res = calibration.calibrate_suite(suite, out=out, trials=4, log=lambda m: None)
+    assert _tree(suite) == before  # the suite calibrated from is untouched
+    assert set(res) == {"a", "b"} and res["a"]["suite_spec"] is None
+    assert sorted(p.name for p in out.iterdir()) == [
+        "README.md",
+        "a.toml",
+        "b.toml",
+        "calibrate.json",
+        "calibration.db",
+        "paper.json",
+    ]
+    a = load_spec(out / "a.toml")
+    measured = round(_curve(scored[3]), 2)
+    assert res["a"]["ncc_15px"] == a.calibration["achieved_ncc_15px"] == measured
+    assert a.appearance.dark_hair_fraction == round(scored[3], 4)
+    assert (out / "a.toml").read_text().startswith("# a: a hand-written spec")
+    assert "# two groups" in (out / "a.toml").read_text()
+    readme = (out / "README.md").read_text()
+    assert f"| a | crossing | 10 | 8 | 60.0 | {measured} |" in readme
+    assert calibration.README_MARK in readme
+    # the folder is a suite: its specs, its paper figures, a calibrate source
+    assert [s.name for s in suite_specs(out)] == ["a", "b"]
+    assert paper_numbers(out) == paper_numbers(suite)
+    record = json.loads((out / "calibrate.json").read_text())
+    assert record["source"] == str(suite.resolve()) and record["results"]["a"] == res["a"]
+    gen = tmp_path / "gen"
+    assert main(["generate", "--suite", str(out), "--out", str(gen), "--no-progress"]) == 0
+    meta = json.loads((gen / "a" / "meta.json").read_text())
+    assert meta["appearance"]["dark_hair_fraction"] == a.appearance.dark_hair_fraction
+    # a rerun resumes: no trial again, the same files
+    scored.clear()
+    again = calibration.calibrate_suite(suite, out=out, trials=4, log=lambda m: None)
+    assert scored == [] and again == res
+
+
+def test_cli_refuses_what_it_did_not_write(suite, tmp_path, scored, capsys):
+    out = tmp_path / "cal"
+    assert main(["calibrate", "--suite", str(suite), "--out", str(out), "--trials", "2"]) == 0
+    assert "calibrated suite -> " in capsys.readouterr().err
+    (out / "a.toml").write_text((out / "a.toml").read_text() + "# my note\n")
+    edited = _tree(out)
+    assert main(["calibrate", "--suite", str(suite), "--out", str(out), "--trials", "3"]) == 2
+    err = capsys.readouterr().err
+    assert "a.toml: not written by crowdsim calibrate, or changed since" in err
+    assert _tree(out) == edited
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    assert main(["calibrate", "--suite", str(suite), "--out", str(mine)]) == 2
+    assert "not empty and not written by crowdsim calibrate" in capsys.readouterr().err
+    assert main(["calibrate", "--suite", str(suite), "--out", str(suite)]) == 2
+    assert "is the suite folder itself" in capsys.readouterr().err
+    assert main(["calibrate", "--suite", "ucf9", "--out", str(out)]) == 2
+    assert "holds a calibration of the suite" in capsys.readouterr().err
+    assert _tree(out) == edited and sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+
+
+def test_update_suite_keeps_a_better_calibration_unless_forced(suite, tmp_path, scored):
+    logs: list[str] = []
+    # b's spec records 80.0 for a target of 78.5 (1.5 off); 2 trials reach 90 / 10 only
+    res = calibration.calibrate_suite(
+        suite, out=tmp_path / "o1", trials=2, update_suite=True, log=logs.append
+    )
+    assert res["b"]["suite_spec"] == "kept" and res["a"]["suite_spec"] == "updated"
+    assert any(m.startswith("b: kept the suite's calibration") for m in logs)
+    assert load_spec(suite / "b.toml").calibration["achieved_ncc_15px"] == 80.0
+    assert load_spec(suite / "a.toml").calibration["achieved_ncc_15px"] == res["a"]["ncc_15px"]
+    assert calibration.README_MARK in (suite / "README.md").read_text()
+    # --force writes the worse one
+    res = calibration.calibrate_suite(
+        suite, out=tmp_path / "o2", only=["b"], trials=2, update_suite=True, force=True,
+        log=logs.append,
+    )  # fmt: skip
+    assert res["b"]["suite_spec"] == "updated"
+    assert load_spec(suite / "b.toml").calibration["achieved_ncc_15px"] == res["b"]["ncc_15px"]
+    with pytest.raises(ValueError, match="--force needs --update-suite"):
+        calibration.calibrate_suite(suite, out=tmp_path / "o3", force=True)
+
+
+def test_a_users_readme_is_never_replaced(suite, tmp_path, scored):
+    (suite / "README.md").write_text("# my own notes\n")
+    logs: list[str] = []
+    calibration.calibrate_suite(
+        suite, out=tmp_path / "o", trials=1, update_suite=True, log=logs.append
+    )
+    assert (suite / "README.md").read_text() == "# my own notes\n"
+    assert any("not written by crowdsim calibrate; left unchanged" in m for m in logs)
+
+
+def _optuna_db(path: Path, marked: bool) -> None:
+    study = optuna.create_study(storage=f"sqlite:///{path}", study_name="someone-elses")
+    if marked:
+        study.set_user_attr(calibration.STUDY_ATTR, {"sequence": "x", "digest": "y"})
+
+
+@pytest.mark.parametrize(
+    "content, needle",
+    [
+        (b"not a database at all\n", "not an SQLite file"),
+        ("people", r"an SQLite database that is not an Optuna study \(tables people\)"),
+        ("optuna", "holds the Optuna study 'someone-elses', not made by crowdsim calibrate"),
+    ],
+)
+def test_foreign_study_files_are_refused_and_left_alone(suite, tmp_path, scored, content, needle):
+    db = tmp_path / "s.db"
+    if content == "people":
+        con = sqlite3.connect(db)
+        con.execute("CREATE TABLE people (id INTEGER)")
+        con.commit()
+        con.close()
+    elif content == "optuna":
+        _optuna_db(db, marked=False)
+    else:
+        db.write_bytes(content)
+    before = db.read_bytes()
+    out = tmp_path / "o"
+    with pytest.raises(ValueError, match=needle):
+        calibration.calibrate_suite(suite, out=out, study=db, log=lambda m: None)
+    assert db.read_bytes() == before and not out.exists() and scored == []
+    with pytest.raises(ValueError, match=needle):  # the API checks its storage too
+        spec = suite_specs(suite, ["a"])[0]
+        calibration.calibrate_spec(spec, 60.0, storage=f"sqlite:///{db}", log=lambda m: None)
+    assert db.read_bytes() == before
+
+
+def test_a_calibrate_study_file_is_accepted(suite, tmp_path, scored):
+    db = tmp_path / "s.db"
+    _optuna_db(db, marked=True)
+    calibration.calibrate_suite(suite, out=tmp_path / "o", study=db, trials=1)
+    names = {s.study_name for s in optuna.get_all_study_summaries(f"sqlite:///{db}")}
+    assert len(names) == 3  # the marked one and a study per sequence
+
+
+@pytest.mark.parametrize("signal_name, code", [("SIGTERM", 143), ("SIGINT", 130)])
+def test_an_interrupted_trial_ends_in_one_line(
+    suite, tmp_path, monkeypatch, capfd, signal_name, code
+):
+    calls = []
+
+    def fake(spec, workdir):
+        calls.append(_difficulty(spec))
+        if len(calls) == 2:
+            raise Interrupted(signal_name)
+        return _curve(calls[-1])
+
+    monkeypatch.setattr(calibration, "ncc_score", fake)
+    out = tmp_path / "o"
+    argv = ["calibrate", "--suite", str(suite), "--only", "a", "--out", str(out)]
+    assert main(argv) == code
+    lines = capfd.readouterr().err.strip().splitlines()
+    assert lines[0].startswith("a: trial 0: difficulty 0.000 -> NCC 90.0%")
+    assert len(lines) == 2 and "Traceback" not in lines[1], lines
+    assert lines[1].startswith(f"crowdsim calibrate: interrupted by {signal_name}; ")
+    assert "rerun the same command to resume" in lines[1]
+    (summary,) = [
+        s
+        for s in optuna.get_all_study_summaries(f"sqlite:///{out / 'calibration.db'}")
+        if s.study_name.startswith("calibrate-a-")
+    ]
+    study = optuna.load_study(
+        study_name=summary.study_name, storage=f"sqlite:///{out / 'calibration.db'}"
+    )
+    states = [t.state.name for t in study.trials]
+    assert states == ["COMPLETE", "FAIL"]
+    # a rerun resumes from the finished trial
+    calls.clear()
+    monkeypatch.setattr(calibration, "ncc_score", lambda spec, w: calls.append(1) or 10.0)
+    assert main([*argv, "--trials", "2"]) == 0
+    assert len(calls) == 1
+
+
+def test_suite_folders_are_named_clearly(tmp_path):
+    with pytest.raises(ValueError, match=r"got '.*nowhere' \(no such folder\)"):
+        suite_specs(tmp_path / "nowhere")
+    (tmp_path / "f.toml").write_text("")
+    with pytest.raises(ValueError, match="is a file, not a suite folder"):
+        suite_dir(tmp_path / "f.toml")
+    empty = tmp_path / "empty"
+    (empty / "seqA").mkdir(parents=True)
+    (empty / "seqA" / "seqinfo.ini").write_text("[Sequence]\n")
+    with pytest.raises(ValueError, match=r"no spec files \(\*.toml\).*tune and heldout"):
+        suite_specs(empty)
+    assert suite_dir("ucf9").name == "ucf9"  # a built-in name wins
+
+
+def test_the_closest_measured_trial_is_reported_not_the_last(suite, monkeypatch):
+    scores = iter([90.0, 10.0, 62.0, 55.0])  # noisy: the last trial lands further off
+    tried = []
+
+    def fake(spec, workdir):
+        tried.append(_difficulty(spec))
+        return next(scores)
+
+    monkeypatch.setattr(calibration, "ncc_score", fake)
+    (spec,) = suite_specs(suite, ["a"])
+    res = calibration.calibrate_spec(spec, 60.0, trials=4, log=lambda m: None)
+    # 62 at d = 30 / 80 = 0.375; then [0.375, 1]: f = 2 / 52 < 0.1 -> d = 0.4375 -> 55
+    assert tried == pytest.approx([0.0, 1.0, 0.375, 0.4375], abs=1e-4)
+    assert (res["difficulty"], res["ncc_15px"], res["error"]) == (0.375, 62.0, 2.0)
