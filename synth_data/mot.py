@@ -97,6 +97,17 @@ def write_mot(path: str | os.PathLike[str], rows: np.ndarray) -> Path:
     return path
 
 
+def _text_lines(path: Path, what: str) -> Iterator[str]:
+    """The lines of a UTF-8 text file, streamed (a BOM is dropped); ``ValueError`` naming the
+    file when it is binary or not UTF-8, so that no decoder error without a file name reaches
+    a user."""
+    try:
+        with open(path, encoding="utf-8-sig", newline="") as fh:
+            yield from fh
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not {what} (binary, not UTF-8 text: {exc.reason})") from None
+
+
 def read_mot_file(path: str | os.PathLike[str], min_columns: int = 6) -> np.ndarray:
     """Read a MOT text file (comma or whitespace separated) as ``(K, max(9, C))`` float64.
 
@@ -109,46 +120,41 @@ def read_mot_file(path: str | os.PathLike[str], min_columns: int = 6) -> np.ndar
         raise ValueError(f"{path}: no such MOT file")
     rows: list[list[float]] = []
     width = None
-    with open(path) as fh:
-        for lineno, line in enumerate(fh, 1):
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            parts = [p for p in text.replace(",", " ").split()]
-            if len(parts) < min_columns:
-                raise ValueError(
-                    f"{path}:{lineno}: expected at least {min_columns} columns "
-                    f"(frame,id,bb_left,bb_top,bb_width,bb_height,...), "
-                    f"got {len(parts)}: {text!r}"
-                )
-            try:
-                values = [float(p) for p in parts]
-            except ValueError:
-                bad = next(p for p in parts if not _is_float(p))
-                raise ValueError(
-                    f"{path}:{lineno}: non-numeric value {bad!r} in {text!r}"
-                ) from None
-            if not all(np.isfinite(values)):
-                raise ValueError(f"{path}:{lineno}: non-finite value in {text!r}")
-            frame = values[0]
-            if frame < 1 or frame != int(frame):
-                raise ValueError(
-                    f"{path}:{lineno}: frame must be a positive integer "
-                    f"(MOT frames are 1-based), got {parts[0]!r}"
-                )
-            if values[4] < 0 or values[5] < 0:
-                raise ValueError(
-                    f"{path}:{lineno}: box width/height must be >= 0, "
-                    f"got {parts[4]!r}, {parts[5]!r}"
-                )
-            if width is None:
-                width = len(values)
-            elif len(values) != width:
-                raise ValueError(
-                    f"{path}:{lineno}: expected {width} columns like the first "
-                    f"row, got {len(values)}"
-                )
-            rows.append(values)
+    for lineno, line in enumerate(_text_lines(path, "a MOT text file"), 1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        parts = [p for p in text.replace(",", " ").split()]
+        if len(parts) < min_columns:
+            raise ValueError(
+                f"{path}:{lineno}: expected at least {min_columns} columns "
+                f"(frame,id,bb_left,bb_top,bb_width,bb_height,...), "
+                f"got {len(parts)}: {text!r}"
+            )
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            bad = next(p for p in parts if not _is_float(p))
+            raise ValueError(f"{path}:{lineno}: non-numeric value {bad!r} in {text!r}") from None
+        if not all(np.isfinite(values)):
+            raise ValueError(f"{path}:{lineno}: non-finite value in {text!r}")
+        frame = values[0]
+        if frame < 1 or frame != int(frame):
+            raise ValueError(
+                f"{path}:{lineno}: frame must be a positive integer "
+                f"(MOT frames are 1-based), got {parts[0]!r}"
+            )
+        if values[4] < 0 or values[5] < 0:
+            raise ValueError(
+                f"{path}:{lineno}: box width/height must be >= 0, got {parts[4]!r}, {parts[5]!r}"
+            )
+        if width is None:
+            width = len(values)
+        elif len(values) != width:
+            raise ValueError(
+                f"{path}:{lineno}: expected {width} columns like the first row, got {len(values)}"
+            )
+        rows.append(values)
     if not rows:
         return np.zeros((0, 9))
     arr = np.array(rows, dtype=np.float64)
@@ -498,24 +504,21 @@ class MotSequence:
         path = self.path / "gt" / "agents.csv"
         if not path.is_file():
             return {}
-        with open(path, newline="") as fh:
-            reader = csv.reader(fh)
-            header = next(reader, None)
-            if header is None:
-                return {}
-            header = [h.strip() for h in header]
-            data = []
-            for lineno, row in enumerate(reader, 2):
-                if not row:
-                    continue
-                if len(row) != len(header):
-                    raise ValueError(
-                        f"{path}:{lineno}: expected {len(header)} columns, got {len(row)}"
-                    )
-                try:
-                    data.append([int(v) for v in row])
-                except ValueError:
-                    raise ValueError(f"{path}:{lineno}: non-integer value in {row!r}") from None
+        reader = csv.reader(_text_lines(path, "a CSV file"))
+        header = next(reader, None)
+        if header is None:
+            return {}
+        header = [h.strip() for h in header]
+        data = []
+        for lineno, row in enumerate(reader, 2):
+            if not row:
+                continue
+            if len(row) != len(header):
+                raise ValueError(f"{path}:{lineno}: expected {len(header)} columns, got {len(row)}")
+            try:
+                data.append([int(v) for v in row])
+            except ValueError:
+                raise ValueError(f"{path}:{lineno}: non-integer value in {row!r}") from None
         arr = np.array(data, dtype=np.int64).reshape(-1, len(header))
         return {h: arr[:, k] for k, h in enumerate(header)}
 
@@ -545,7 +548,7 @@ def read_sequence(path: str | os.PathLike[str]) -> MotSequence:
     parser = configparser.ConfigParser(interpolation=None)
     parser.optionxform = str  # keep the camelCase keys
     try:
-        parser.read(ini)
+        parser.read_string("".join(_text_lines(ini, "a seqinfo.ini file")), source=str(ini))
     except configparser.Error as exc:
         raise ValueError(f"{ini}: malformed ({exc.__class__.__name__})") from None
     if "Sequence" not in parser:

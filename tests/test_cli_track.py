@@ -172,6 +172,18 @@ def test_evaluate_bad_inputs(tmp_path, seq, scene, capsys):
     _error_line(capsys, "evaluate")
 
 
+def test_an_empty_results_file_scores_zero_and_says_so(tmp_path, seq, capsys):
+    """A tracker that found no one is a valid result, but its 0 is never silent."""
+    res = tmp_path / "empty.txt"
+    res.write_text("")
+    assert main(["evaluate", str(res), str(seq), "--json"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["acc@15"] == 0.0
+    assert f"note: {res} has no result rows; every score is 0" in out.err
+    assert main(["evaluate", str(res), str(seq)]) == 0
+    assert "the results hold no track" in capsys.readouterr().out
+
+
 def test_demo_writes_table_curve_and_overlay(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--frames", "6", "--no-progress"]) == 0

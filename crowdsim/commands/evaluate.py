@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 
@@ -44,17 +45,11 @@ def load_results(results: str, seq_dir: str):
     from synth_data.mot import read_mot_file, read_sequence
     from tracker.mot_io import mot_rows_to_tracks
 
-    try:
-        seq = read_sequence(seq_dir)
-        gt_ids, gt_pts = seq.gt_points()
-    except UnicodeDecodeError as exc:  # a binary seqinfo.ini or gt.txt
-        raise ValueError(f"{seq_dir}: a file of the sequence is not text ({exc.reason})") from None
+    seq = read_sequence(seq_dir)  # a binary seqinfo.ini or gt.txt is named by the reader
+    gt_ids, gt_pts = seq.gt_points()
     if len(gt_ids) == 0:
         raise ValueError(f"{seq_dir}: the sequence has no ground truth (gt/gt.txt)")
-    try:
-        rows = read_mot_file(results)
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{results}: not a text MOT results file ({exc.reason})") from None
+    rows = read_mot_file(results)
     ids, pts = mot_rows_to_tracks(rows, seq.length, source=str(results))
     if len(ids):
         finite = np.isfinite(pts).all(-1)
@@ -111,6 +106,11 @@ def run(args: argparse.Namespace) -> int:
     check_args(args)
     seq, gt_ids, gt_pts, ids, pts = load_results(args.results, args.sequence)
     verify_frames(seq)
+    if not len(ids):  # a valid result (a tracker that found no one), but never a silent 0
+        print(
+            f"crowdsim evaluate: note: {args.results} has no result rows; every score is 0",
+            file=sys.stderr,
+        )
     # any result ids: MOTA, IDF1 and HOTA need no correspondence; acc@T uses the ids as they
     # are when they are ground-truth ids (unknown ones unmatched), else a majority mapping
     report = evaluate(
@@ -144,6 +144,8 @@ def id_mapping_note(report: dict, gt_ids, ids) -> str:
             "acc@T: the result ids are not the ground truth's; each track stands for the "
             "person it follows in most frames (majority vote)"
         )
+    if not len(ids):
+        return "acc@T: the results hold no track (no rows), so nothing is matched"
     unknown = np.setdiff1d(np.asarray(ids), np.asarray(gt_ids))
     if not len(unknown):
         return "acc@T: the result ids are the ground truth's"

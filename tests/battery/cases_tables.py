@@ -333,13 +333,41 @@ case(
 case(
     "tables-eval-results-binary",
     "evaluate {w}/r.txt {seq}",
-    "r.txt: not a text MOT results file",
+    "r.txt: not a MOT text file (binary, not UTF-8 text",
     files=(("r.txt", b"\xfa\xfb\x00\x01binary"),),
 )
 case(
     "tables-eval-gt-binary",
     "evaluate {res} {w}/s",
-    "s: a file of the sequence is not text",
+    "gt.txt: not a MOT text file (binary, not UTF-8 text",
+    setup=lambda w, env: (
+        shutil.copytree(env.seq, w / "s"),
+        (w / "s" / "checksums.json").unlink(),
+        (w / "s" / "gt" / "gt.txt").write_bytes(b"\xfa\xfb\x00binary"),
+    ),
+)
+case(
+    "tables-eval-seqinfo-binary",
+    "evaluate {res} {w}/s",
+    "seqinfo.ini: not a seqinfo.ini file (binary, not UTF-8 text",
+    setup=lambda w, env: (
+        shutil.copytree(env.seq, w / "s"),
+        (w / "s" / "seqinfo.ini").write_bytes(b"\xff\xfe\x00garbage"),
+    ),
+)
+case(
+    "tables-track-seqinfo-binary",
+    "track {w}/s --out {w}/r.txt",
+    "seqinfo.ini: not a seqinfo.ini file (binary, not UTF-8 text",
+    setup=lambda w, env: (
+        shutil.copytree(env.seq, w / "s"),
+        (w / "s" / "seqinfo.ini").write_bytes(b"\xff\xfe\x00garbage"),
+    ),
+)
+case(
+    "tables-track-gt-binary",
+    "track {w}/s --out {w}/r.txt",
+    "gt.txt: not a MOT text file (binary, not UTF-8 text",
     setup=lambda w, env: (
         shutil.copytree(env.seq, w / "s"),
         (w / "s" / "checksums.json").unlink(),
