@@ -44,6 +44,11 @@ SECTIONS: tuple[str, ...] = ("appearance", "camera")
 """Spec sections a knob may live in."""
 AXES: tuple[str, ...] = ("scene", "camera")
 """Calibration axes, in the order the difficulty scale lists them."""
+PROFILES: tuple[str, ...] = ("hard", "static")
+"""Ends of the difficulty scale: ``"hard"`` moves every knob to its hard end (shake, strong
+noise and low bit rates included); ``"static"`` keeps the image formation within what real
+footage from a fixed camera has (each knob's ``static`` end and its ``source``): no shake,
+no camera motion blur, and the scene knobs at their hard ends."""
 
 
 @dataclass(frozen=True)
@@ -80,6 +85,12 @@ class Knob:
         (below ``on`` it stays at ``default``, i.e. off).
     digits : int
         Decimals a calibrated value is rounded to (``int`` knobs: whole numbers).
+    static : float, optional
+        The scale's end under the ``"static"`` profile (:data:`PROFILES`): the harshest value
+        real footage from a fixed surveillance or web camera has. ``None``: the same as
+        ``hard`` (a property of the scene, not of the camera).
+    source : str
+        Where the realistic range of a ``static`` end comes from.
     """
 
     name: str
@@ -98,6 +109,8 @@ class Knob:
     easy: float | None = None
     on: float | None = None
     digits: int = 4
+    static: float | None = None
+    source: str = ""
 
     def __post_init__(self) -> None:
         if self.section not in SECTIONS:
@@ -110,6 +123,15 @@ class Knob:
             raise ValueError(f"knob {self.name}: axis must be one of {AXES}")
         if (self.easy is None) != (self.on is None):
             raise ValueError(f"knob {self.name}: easy and on go together")
+        if self.static is not None and self.hard is None:
+            raise ValueError(f"knob {self.name}: a static end needs a hard end")
+
+    def end(self, profile: str = "hard") -> float:
+        """The scale's value at 1 under ``profile`` (:data:`PROFILES`)."""
+        require_choice("", "profile", profile, PROFILES)
+        if self.hard is None:
+            raise ValueError(f"knob {self.name} is not on the difficulty scale")
+        return self.hard if profile == "hard" or self.static is None else self.static
 
     @property
     def integer(self) -> bool:
@@ -159,16 +181,16 @@ class Knob:
                     f"got {value!r}"
                 )
 
-    def at(self, s: float, base: float) -> float:
-        """The knob's value at position ``s`` in [0, 1] of the difficulty scale from ``base``."""
-        if self.hard is None:
-            raise ValueError(f"knob {self.name} is not on the difficulty scale")
+    def at(self, s: float, base: float, profile: str = "hard") -> float:
+        """The knob's value at position ``s`` in [0, 1] of the difficulty scale from ``base``,
+        towards its end under ``profile`` (:meth:`end`)."""
+        end = self.end(profile)
         if self.on is not None:
             if s < self.on:
                 return float(self.default)
             f = (s - self.on) / (1.0 - self.on)
-            return round(self.easy * (self.hard / self.easy) ** f, self.digits)
-        v = base + s * (self.hard - base)
+            return round(self.easy * (end / self.easy) ** f, self.digits)
+        v = base + s * (end - base)
         return int(round(v)) if self.integer else round(v, self.digits)
 
 
@@ -211,23 +233,35 @@ KNOBS: tuple[Knob, ...] = (
        hard=0.15, axis="scene", group="clutter"),
     # -- image formation (camera axis)
     _a("noise_sigma", 3.0, "Sensor noise standard deviation, grey levels.", lo=0, hi=50,
-       hard=24.0, axis="camera", group="noise+codec"),
+       hard=24.0, axis="camera", group="noise+codec", static=10.0,
+       source="Liu et al., 'Automatic estimation and removal of noise from a single image', "
+       "PAMI 2008: real CCD noise up to sigma ~10 grey levels at high gain; daylight "
+       "surveillance 2-6"),
     _a("defocus_px", 0.0, "Gaussian defocus blur sigma, pixels (0 = sharp).", lo=0, hi=20,
-       hard=2.0, axis="camera", group="blur"),
+       hard=2.0, axis="camera", group="blur", static=1.5,
+       source="web and CCTV video resized from a larger sensor or slightly out of focus: "
+       "a Gaussian PSF of sigma 0.5-1.5 px at the delivered resolution"),
     _a("flicker", 0.0, "Standard deviation of an independent per-frame relative gain "
        "(illumination flicker, e.g. 50 Hz lights against the shutter).", lo=0, hi=0.5,
-       hard=0.08, axis="camera", group="flicker"),
+       hard=0.08, axis="camera", group="flicker", static=0.04,
+       source="fluorescent and LED lighting on 50/60 Hz mains against a short shutter: "
+       "frame-to-frame gain changes of a few per cent"),
     _a("motion_blur_px", 0.0, "Length of a horizontal-ish camera motion-blur kernel, pixels "
-       "(0 = off).", lo=0, hi=30, hard=3.5, axis="camera", group="blur"),
+       "(0 = off).", lo=0, hi=30, hard=3.5, axis="camera", group="blur", static=0.0,
+       source="a fixed camera does not move during the exposure"),
     _a("jpeg_quality", 90, "JPEG quality of the written frames (output encoding).", kind="int",
-       lo=1, hi=100, hard=40, axis="camera", group="noise+codec"),
+       lo=1, hi=100, hard=40, axis="camera", group="noise+codec", static=60,
+       source="frames dumped from web video and stored as JPEG: quality 60-95 (IJG scale)"),
     Knob("jitter_px", "camera", 0.0, "Camera shake: standard deviation (pixels) of a smooth, "
          "seeded per-frame image translation (hand-held or wind-shaken camera).", lo=0, hi=200,
-         hard=3.0, axis="camera", group="shake"),
+         hard=3.0, axis="camera", group="shake", static=0.0,
+         source="the papers' footage comes from fixed cameras (the ucf9-shake suite keeps shake)"),
     _a("video_kbps", 0.0, "Video-codec bit rate, kbit/s: frames pass through video_codec at this "
        "rate before the JPEGs are made (output encoding; 0 = no codec; real 720p CCTV runs at "
        "roughly 1000-4000 kbit/s).", lo=0, hi=1_000_000, off_below=1.0, hard=150.0,
-       axis="camera", group="noise+codec", easy=4000.0, on=0.1, digits=1),
+       axis="camera", group="noise+codec", easy=4000.0, on=0.1, digits=1, static=400.0,
+       source="low-rate web video (H.264 at 240p-360p streams at 0.3-0.7 Mbit/s) and CCTV "
+       "sub-streams (256-512 kbit/s)"),
     # -- settings the difficulty scale never moves
     _a("template_px", 12, "Template (sprite) size in pixels: shoulder width and the "
        "ground-truth box side.", kind="int", lo=4, hi=64),
@@ -313,18 +347,20 @@ def spec_value(spec: Any, k: Knob) -> Any:
     return spec.camera.get(k.name, k.default)
 
 
-def knob_values(spec: Any, scene: float, camera: float) -> dict[tuple[str, str], Any]:
+def knob_values(
+    spec: Any, scene: float, camera: float, profile: str = "hard"
+) -> dict[tuple[str, str], Any]:
     """Spec fields ``{(section, name): value}`` at the two difficulty scalars in [0, 1].
 
-    Every knob on the scale moves from the spec's own value (0) to its hard end (1) with the
-    scalar of its axis (:meth:`Knob.at`).
+    Every knob on the scale moves from the spec's own value (0) to its end under ``profile``
+    (1; :data:`PROFILES`) with the scalar of its axis (:meth:`Knob.at`).
     """
     at = {"scene": scene, "camera": camera}
     for axis, v in at.items():
         if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
             raise ValueError(f"calibration {axis} must be in [0, 1], got {v!r}")
     return {
-        (k.section, k.name): k.at(at[k.axis], float(spec_value(spec, k)))  # type: ignore[index]
+        (k.section, k.name): k.at(at[k.axis], float(spec_value(spec, k)), profile)  # type: ignore[index]
         for k in scaled()
     }
 
@@ -360,7 +396,10 @@ def reference(section: str | None = None) -> str:
         if k.axis is not None:
             head += f"    difficulty: {k.axis} axis -> {k.hard:g} ({k.group})"
         out.append(head)
-        out.extend(textwrap.wrap(k.doc, 88, initial_indent="    ", subsequent_indent="    "))
+        doc = k.doc
+        if k.static is not None:
+            doc += f" Realistic for a fixed camera: up to {k.static:g} ({k.source})."
+        out.extend(textwrap.wrap(doc, 88, initial_indent="    ", subsequent_indent="    "))
     return "\n".join(out)
 
 

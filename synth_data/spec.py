@@ -35,7 +35,8 @@ A spec describes one sequence. Example (TOML)::
     video = false            # video.mp4
 
     [calibration]            # free-form record (numbers and strings), not used to render
-    paper_ncc_15px = 58.0
+    paper_b_ncc_15px = 85.54 # the target of crowdsim calibrate --anchor b-ncc
+    paper_ncc_15px = 58.0    # ... and of --anchor ncc11
 
 Validation happens on load; every error names the file, the field and the value, e.g.
 ``seq3.toml: camera.tilt_deg must be in [0, 60), got 75``.

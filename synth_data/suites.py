@@ -4,7 +4,12 @@ Built-in suites (:data:`SUITE_NAMES`):
 
 * ``ucf9``: ``seq1`` … ``seq9``, counterparts of the papers' nine sequences (frames, people,
   template px and scene type from SPEC §4). Each spec keeps its appearance and noise knobs and
-  a ``[calibration]`` table with the paper's NCC score at 15 px, for the calibration step.
+  a ``[calibration]`` table with the papers' figures at 15 px for the calibration step: paper
+  1's B(NCC) row (``paper_b_ncc_15px``, the default anchor, static camera) and the NCC
+  column (``paper_ncc_15px``).
+* ``ucf9-shake``: the same nine sequences as calibrated on the NCC column with every knob
+  free (camera shake, sensor noise of sigma 8-22, H.264 down to 226 kbit/s): a shaky-camera variant,
+  for trackers that compensate camera motion (its ``README.md``).
 * ``galleria``: ``galleria1``, ``galleria2``: 2000-frame medium-density mall sequences.
 * ``stress``: ``stress-1k``, ``stress-10k``, ``stress-50k`` agents.
 
@@ -31,7 +36,7 @@ from typing import Any
 
 from synth_data.spec import SequenceSpec, load_spec
 
-SUITE_NAMES: tuple[str, ...] = ("ucf9", "galleria", "stress")
+SUITE_NAMES: tuple[str, ...] = ("ucf9", "ucf9-shake", "galleria", "stress")
 PAPER_FILE = "paper.json"
 """The papers' figures of a suite: ``{table: {column: {sequence: %}}}``, keys starting with
 ``_`` are comments."""

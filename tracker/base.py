@@ -26,6 +26,17 @@ inside it):
   Without this, a track runs on where its person vanished and every such frame counts as a
   false positive in MOTA, IDF1 and HOTA (the papers' accuracy metric is unaffected).
 
+Camera-motion compensation (beyond both papers, whose cameras are static): when a tracker's
+parameters say ``cmc = True``, :meth:`Tracker.step` first estimates the global motion ``A``
+(a 2x3 similarity, :class:`tracker.cmc.MotionCompensator`) from the previous frame to this
+one, then moves the tracker's state with the camera before the tracker's own ``_step``
+searches: ``points -> A p`` (so every search window and constant-velocity prediction built on
+them moves too) and each attribute named in :attr:`Tracker.camera_state` (velocities and
+other motion state). A velocity a tracker then measures as ``new - points`` is the motion
+relative to the ground. A frame that gives no estimate (blank, constant) moves nothing and is
+counted in :meth:`Tracker.stats`. The estimate's seconds are the ``"cmc"`` stage of
+``timings``. With ``cmc = False`` nothing of this runs.
+
 One contract check (:func:`tracker.testing.check_tracker_contract`) runs over every
 registered implementation.
 """
@@ -36,9 +47,12 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, fields
+from types import MappingProxyType
 from typing import Any, ClassVar
 
 import numpy as np
+
+from tracker.cmc import IDENTITY, CMCParams, MotionCompensator, warp_points, warp_vectors
 
 CONF_REF_RATE: float = 0.1
 """Weight of the newest frame in a target's running-mean confidence ``conf_ref``."""
@@ -135,6 +149,11 @@ class Tracker(ABC):
     """How far a tracked point may lie from the truth on the contract's exact scenes
     (:func:`tracker.testing.check_tracker_contract`); 0 for a tracker that recovers integer
     motion on textured ground exactly."""
+    camera_state: ClassVar[Mapping[str, str]] = MappingProxyType({})
+    """Attributes moved with the camera when ``params.cmc`` is on, besides ``points``: name ->
+    ``"points"`` (``(..., 2)`` pixel positions, ``p -> A p``), ``"vectors"`` (``(..., 2)``
+    displacements, turned and scaled by ``A``'s linear part) or ``"lengths"`` (``(...)``
+    distances, scaled by ``A``'s zoom)."""
 
     def __init__(self) -> None:
         self.params: Any = None
@@ -148,6 +167,8 @@ class Tracker(ABC):
         self.frame_index = 0
         self.timings: dict[str, float] = {}
         self._seen: set[int] = set()
+        self.compensator: MotionCompensator | None = None
+        self._last_frame: np.ndarray | None = None
 
     # ------------------------------------------------------------------ public API
     def init(self, frame: np.ndarray, ids, points, template_size: int) -> None:
@@ -171,6 +192,8 @@ class Tracker(ABC):
         self.confidence = np.zeros(0)
         self.lost = np.zeros(0, np.int64)
         self.conf_ref = np.zeros(0)
+        self._last_frame = frame
+        self._start_compensator()
         self._init(frame)
         self._add_targets(frame, ids, points)
 
@@ -190,11 +213,14 @@ class Tracker(ABC):
             b_ids, b_pts = as_points(*births, what="births")
         self.frame_index += 1
         t0 = time.perf_counter()
+        if self.compensator is not None:
+            self._compensate(frame)
         if len(self.ids):
             self.points = self._step(frame)
             self._terminate()
         if births is not None and len(b_ids):
             self._add_targets(frame, b_ids, b_pts)
+        self._last_frame = frame
         self._tick("total", t0)
         return self.ids.copy(), self.points.copy()
 
@@ -293,6 +319,17 @@ class Tracker(ABC):
             )
         self.params = params
         self._apply_params(old, frozenset(changed))
+        if {"cmc", "cmc_method"} & set(changed):
+            self._start_compensator()
+
+    def stats(self) -> dict[str, float]:
+        """Counters of the sequence so far, for reports and tuners (``{}`` when none).
+
+        With ``params.cmc``: ``cmc_frames``, ``cmc_failures`` (frames whose camera motion
+        fell back to the identity) and ``cmc_ms`` (ms per frame of the estimate), from
+        :meth:`tracker.cmc.MotionCompensator.stats`.
+        """
+        return {} if self.compensator is None else self.compensator.stats()
 
     # ------------------------------------------------------------------ subclass hooks
     def _apply_params(self, old: Any, changed: frozenset[str]) -> None:  # noqa: B027
@@ -321,6 +358,43 @@ class Tracker(ABC):
     def _predicted(self) -> np.ndarray:
         """``(n, 2)`` next-frame prediction used to decide that a target leaves the image."""
         return self.points
+
+    # ------------------------------------------------------------------ camera motion
+    def _start_compensator(self) -> None:
+        """A fresh :class:`MotionCompensator` when ``params.cmc`` (else none), shown the last
+        frame, so that switching it on mid-sequence acts as if it had been on from the start."""
+        self.compensator = None
+        if not getattr(self.params, "cmc", False):
+            return
+        self.compensator = MotionCompensator(CMCParams(method=self.params.cmc_method))
+        if self._last_frame is not None:
+            self.compensator.estimate(self._last_frame)
+
+    def _compensate(self, frame: np.ndarray) -> None:
+        """Estimate the camera's motion into ``frame`` and move the state with it."""
+        t0 = time.perf_counter()
+        cmc = self.compensator
+        a = cmc.estimate(
+            frame, exclude=self.points, exclude_px=cmc.params.exclude * self.template_size
+        )
+        if not np.array_equal(a, IDENTITY):
+            self.points = warp_points(a, self.points)
+            zoom = float(np.sqrt(abs(np.linalg.det(a[:, :2]))))
+            for name, kind in self.camera_state.items():
+                v = np.asarray(getattr(self, name), dtype=np.float64)
+                if kind == "points":
+                    v = warp_points(a, v).reshape(v.shape)
+                elif kind == "vectors":
+                    v = warp_vectors(a, v).reshape(v.shape)
+                else:
+                    v = v * zoom
+                setattr(self, name, v)
+        self._camera_moved(a)
+        self._tick("cmc", t0)
+
+    def _camera_moved(self, a: np.ndarray) -> None:  # noqa: B027
+        """Hook after the state moved with the camera (``a``: the ``(2, 3)`` transform, the
+        identity on a failed estimate); the default does nothing."""
 
     # ------------------------------------------------------------------ helpers
     def _tick(self, stage: str, t0: float) -> float:

@@ -8,7 +8,10 @@ is excluded from the timings):
    solve) and the accuracy at 5 and 15 px;
 2. speed-up sampling (Sec. 6: m = 3 extrema + 10 samples) against dense candidates on the same
    sequence: speed ratio (whole tracker and solve stage) and the accuracy@15 difference
-   (paper: about 6x faster for 0.2 points).
+   (paper: about 6x faster for 0.2 points);
+3. with ``--cmc``, the BQP tracker again with camera-motion compensation (:mod:`tracker.cmc`,
+   ``cmc=True``) on the same frames: its milliseconds per frame (the ``cmc`` column; the
+   crowds' camera is still, so the estimate is all it adds).
 
 Prints a table and one JSON object (last line).
 """
@@ -69,7 +72,7 @@ def run_tracker(tracker, crowd: InMemorySequence) -> dict:
         "acc@5": r.report["acc@5"],
         "acc@15": r.report["acc@15"],
     }
-    for k in ("appearance", "terms", "solve"):
+    for k in ("appearance", "terms", "solve", "cmc"):
         out[f"{k}_ms"] = r.stage_ms.get(k, 0.0)
     if hasattr(trk, "n_candidates"):
         out["candidates_per_target"] = trk.n_candidates / max(1, steps * out["targets"])
@@ -105,6 +108,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="SEQ_DIR",
         help="run the ablation on this MOT sequence (default: a low-contrast synthetic crowd)",
+    )
+    parser.add_argument(
+        "--cmc",
+        action="store_true",
+        help="also time BQP with camera-motion compensation (cmc=True) on every crowd",
     )
     parser.add_argument(
         "--quick",
@@ -146,11 +154,14 @@ def run(args: argparse.Namespace) -> int:
                 contrast=0.3 if packed else 1.0,
                 noise_sigma=8.0 if packed else 3.0,
             )
-            for label, tr in (
+            runs = [
                 ("bqp dense", make_tracker("bqp-dense")),
                 ("bqp speedup", make_tracker("bqp")),
                 ("ncc", make_tracker("ncc")),
-            ):
+            ]
+            if args.cmc:
+                runs.append(("bqp cmc", make_tracker("bqp", cmc=True)))
+            for label, tr in runs:
                 if packed and label == "bqp dense" and n > 300:
                     continue  # minutes per run; the sampling comparison below covers it
                 r = run_tracker(tr, crowd)
@@ -209,17 +220,20 @@ def run(args: argparse.Namespace) -> int:
                 speed=2.6,
             )
         ablation = run_ablation(a_crowd)
+    cmc_head = f"{'cmc':>8}" if args.cmc else ""
     head = (
         f"{'method':<13}{'targets':>8}{'frame':>10}{'fps':>8}{'app ms':>8}{'terms':>8}"
-        f"{'solve':>8}{'acc@5':>8}{'acc@15':>8}"
+        f"{'solve':>8}{cmc_head}{'acc@5':>8}{'acc@15':>8}"
     )
     print(head)
     print("-" * len(head))
     for r in rows:
         frame = f"{r['frame'][0]}x{r['frame'][1]}"
+        cmc = f"{r['cmc_ms']:>8.1f}" if args.cmc else ""
         print(
             f"{r['method']:<13}{r['targets']:>8}{frame:>10}{r['fps']:>8.1f}{r['appearance_ms']:>8.1f}"
-            f"{r['terms_ms']:>8.1f}{r['solve_ms']:>8.1f}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%"
+            f"{r['terms_ms']:>8.1f}{r['solve_ms']:>8.1f}"
+            f"{cmc}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%"
         )
     print(
         f"speed-up sampling at {n_sampling} targets in {sw}x{sh}: "

@@ -3,8 +3,9 @@
 ``crowdsim compare --suite NAME|DIR [--only SEQ ...] [--frames N] [--workers N] [--backend
 local|ray [--address ADDR]] --out DIR``
 
-``--suite`` is a built-in suite (ucf9, galleria, stress) or a suite folder of spec files, such
-as the one ``crowdsim calibrate --out`` writes (its ``paper.json`` gives the papers' column).
+``--suite`` is a built-in suite (ucf9, ucf9-shake, galleria, stress) or a suite folder of spec
+files, such as the one ``crowdsim calibrate --out`` writes (its ``paper.json`` gives the
+papers' column).
 Rows: NCC, mean-shift, PNMC, BQP (KCF), BQP (NCC appearance), ByteTrack and OC-SORT at
 detector miss rates 0.1 and 0.3. Per sequence: acc@15, acc@5, MOTA, IDF1, HOTA, frames/s.
 Writes ``table.md``, ``table.csv`` and accuracy-versus-threshold PNGs and prints the table.

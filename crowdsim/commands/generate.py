@@ -36,7 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument(
         "--suite",
         metavar="NAME|DIR",
-        help="built-in suite (ucf9, galleria, stress) or a suite folder of spec files",
+        help="built-in suite (ucf9, ucf9-shake, galleria, stress) or a suite folder of spec files",
     )
     src.add_argument(
         "--spec",

@@ -58,6 +58,13 @@ COMPARE_ROWS: tuple[Row, ...] = (
     Row("OC-SORT miss 0.3", "ocsort", {"miss_rate": 0.3}),
 )
 """Rows of ``crowdsim compare``: the papers' methods we have, and detection-based references."""
+ELEVEN: frozenset[str] = frozenset({"NCC", "MS"})
+"""Paper columns that come from reference [11]'s implementations, not from the papers' own."""
+ELEVEN_NOTE = (
+    "The NCC and MS figures in brackets are [11]'s implementations, as both papers report "
+    "them (paper 1 puts its own template baseline, B(NCC), about 30 points higher); our NCC "
+    "and mean-shift trackers are independent implementations."
+)
 
 METRICS: tuple[tuple[str, str, str], ...] = (
     ("acc@15", "acc@15", "%"),
@@ -349,6 +356,8 @@ def format_table(
             lines.append(f"| {row.label} | " + " | ".join(texts) + f" | {mean} |")
         lines.append("")
     lines.append("Figures in brackets: the papers' (paper 1 Tables 1-3, paper 2 Table 1).")
+    if any(r.paper in ELEVEN for r in rows):
+        lines.append(ELEVEN_NOTE)
     return "\n".join(lines) + "\n"
 
 

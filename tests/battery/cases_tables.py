@@ -17,7 +17,7 @@ import numpy as np
 
 from battery.harness import SPEC, Env, api_case, case
 
-PAPER_SPEC = SPEC + "\n[calibration]\npaper_ncc_15px = 50.0\n"
+PAPER_SPEC = SPEC + "\n[calibration]\npaper_b_ncc_15px = 50.0\npaper_ncc_15px = 50.0\n"
 RECORD = {
     "format": 1,
     "written_by": "crowdsim calibrate",
@@ -88,7 +88,19 @@ case("tables-cal-trials-neg", f"{CAL} --trials -3", "--trials must be&&got -3")
 case("tables-cal-trials-text", f"{CAL} --trials many", "invalid int value: 'many'")
 case("tables-cal-force-alone", f"{CAL} --force", "--force needs --update-suite")
 case("tables-cal-only-unknown", f"{CAL} --only seq99", "no sequence 'seq99' in suite 'ucf9'")
-case("tables-cal-galleria", f"{CAL} --suite galleria", "no spec records [calibration] paper_ncc")
+case("tables-cal-galleria", f"{CAL} --suite galleria", "no spec records [calibration] paper_b_ncc")
+case(
+    "tables-cal-anchor-unknown",
+    f"{CAL} --anchor kcf",
+    "--anchor must be one of ('b-ncc', 'ncc11'), got 'kcf'",
+)
+case(
+    "tables-cal-anchor-no-figures",
+    f"{CAL} --suite {{w}}/s",
+    "no spec records [calibration] paper_b_ncc_15px, the target of --anchor b-ncc (it has "
+    "figures for --anchor ncc11)",
+    files=(("s/tiny.toml", SPEC + "\n[calibration]\npaper_ncc_15px = 50\n"),),
+)
 
 # --- calibrate: suite folders ---------------------------------------------------------------
 case("tables-cal-suite-missing", f"{CAL} --suite {{w}}/nosuch", "nosuch' (no such folder)")
@@ -108,18 +120,18 @@ case(
 case(
     "tables-cal-suite-no-paper-figure",
     f"{CAL} --suite {{w}}/s",
-    "no spec records [calibration] paper_ncc_15px",
+    "no spec records [calibration] paper_b_ncc_15px",
     files=(("s/tiny.toml", SPEC),),
 )
 case(
     "tables-cal-suite-bad-target",
-    f"{CAL} --suite {{w}}/s",
+    f"{CAL} --suite {{w}}/s --anchor ncc11",
     "tiny.toml: calibration.paper_ncc_15px must be a finite number in [0, 100], got 150",
     files=(("s/tiny.toml", SPEC + "\n[calibration]\npaper_ncc_15px = 150\n"),),
 )
 case(
     "tables-cal-suite-text-target",
-    f"{CAL} --suite {{w}}/s",
+    f"{CAL} --suite {{w}}/s --anchor ncc11",
     "paper_ncc_15px must be a finite number in [0, 100], got 'high'",
     files=(("s/tiny.toml", SPEC + '\n[calibration]\npaper_ncc_15px = "high"\n'),),
 )
@@ -304,7 +316,7 @@ case(
 case(
     "tables-gen-suite-missing",
     "generate --suite {w}/nosuch --out {w}/o",
-    "--suite must be one of ucf9, galleria, stress or a suite folder of spec files",
+    "--suite must be one of ucf9, ucf9-shake, galleria, stress or a suite folder of spec files",
 )
 case(
     "tables-gen-suite-of-sequences",
@@ -490,12 +502,13 @@ api_case(
 api_case(
     "tables-api-calibrate-suite-not-a-name",
     lambda w, env: _calibrate_suite(w, suite=9),
-    "--suite must be one of ucf9, galleria, stress or a suite folder of spec files, got 9",
+    "--suite must be one of ucf9, ucf9-shake, galleria, stress or a suite folder of spec files, "
+    "got 9",
 )
 api_case(
     "tables-api-write-calibration-not-a-spec",
     lambda w, env: __import__("crowdsim.lab.calibration").lab.calibration.write_calibration(
-        w / "x.toml", {"values": {}, "difficulty": 0.0, "ncc_15px": 1.0, "trials": 1}
+        w / "x.toml", {"values": {}, "difficulty": 0.0, "score_15px": 1.0, "trials": 1}
     ),
     "x.toml: invalid TOML",
     files=(("x.toml", "name = [\n"),),

@@ -115,7 +115,8 @@ def test_calibration_records_and_reads_back_the_uncalibrated_value_of_every_scal
     spec = synth_data.spec.load_spec(path)
     values = knobs.knob_values(spec, 0.7, 0.7)
     calibration.write_calibration(
-        path, {"difficulty": 0.7, "ncc_15px": 50.0, "trials": 1, "values": values}
+        path,
+        {"anchor": "ncc11", "difficulty": 0.7, "score_15px": 50.0, "trials": 1, "values": values},
     )
     after = synth_data.spec.load_spec(path)
     base = calibration.uncalibrated_values(after)
@@ -153,3 +154,28 @@ def test_the_spec_docs_list_every_knob():
         entry = f"{k.section}.{k.name} = "
         assert entry in synth_data.spec.__doc__, k.name
         assert entry in helptext, k.name
+
+
+def test_the_static_profile_keeps_a_fixed_camera_and_realistic_image_formation():
+    """Every camera knob has a sourced realistic end; on the static profile no knob goes past
+    it, the camera never shakes or smears, and the scene knobs reach their hard ends."""
+    spec = synth_data.spec.spec_from_dict(
+        {"name": "s", "seed": 1, "frames": 3, "scenario": {"name": "marathon", "n_agents": 5}},
+        source="s.toml",
+    )
+    at_one = knobs.knob_values(spec, 1.0, 1.0, "static")
+    for k in SCALED:
+        value = at_one[(k.section, k.name)]
+        if k.axis == "camera":
+            assert k.static is not None and k.source, k.name
+            k.check(k.section, k.static)  # a realistic end is a valid value
+            assert value == k.static, k.name
+        else:
+            assert value == k.hard, k.name
+    assert at_one[("camera", "jitter_px")] == 0.0
+    assert at_one[("appearance", "motion_blur_px")] == 0.0
+    assert knobs.knob_values(spec, 1.0, 1.0) != at_one  # the hard profile goes further
+    docs = " ".join(knobs.reference("appearance").split())
+    assert "Realistic for a fixed camera: up to 10 (Liu et al." in docs
+    with pytest.raises(ValueError, match="profile must be one of"):
+        knobs.knob_values(spec, 0.5, 0.5, "shaky")

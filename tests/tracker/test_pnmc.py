@@ -284,6 +284,8 @@ CHANGES = {
     "seed": 5,
     "lost_ratio": 0.99,
     "max_lost": 0,
+    "cmc": True,
+    "cmc_method": "ecc",
 }
 # fields whose change must alter what the tracker does on the occlusion scene below
 MATTERS = {

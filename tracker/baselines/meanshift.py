@@ -27,6 +27,7 @@ from crowdsim.checks import require_choice, require_number
 from tracker.appearance import extract_patches
 from tracker.base import Tracker
 from tracker.candidates import search_radius
+from tracker.cmc import check_fields as check_cmc_fields
 
 COLOR_SPACES: tuple[str, ...] = ("hsv", "hue", "bgr")
 """Histogram features: hue-saturation (2-D), hue only (1-D), or B, G, R (3-D)."""
@@ -92,6 +93,14 @@ class MeanShiftParams:
         its usual value for ``max_lost`` frames in a row (0 = only when it leaves the image).
         The coefficient is compressed (a vanished person on textured ground still scores
         about half of its usual 0.9), hence 0.6 where the template trackers use 0.4.
+    cmc : bool
+        Camera-motion compensation (:mod:`tracker.cmc`; neither paper has one): before each
+        frame's search, the global motion since the previous frame, estimated from the frames
+        alone, moves the points and with them the back-projected search regions
+        (:class:`tracker.base.Tracker`). Off: the papers' static camera.
+    cmc_method : str
+        How that motion is estimated: ``"sparse"`` (BoT-SORT's sparse optical flow with a
+        RANSAC similarity) or ``"ecc"`` (:data:`tracker.cmc.METHODS`).
     """
 
     color_space: str = "bgr"
@@ -103,6 +112,8 @@ class MeanShiftParams:
     update_threshold: float = 0.5
     lost_ratio: float = 0.6
     max_lost: int = 5
+    cmc: bool = False
+    cmc_method: str = "sparse"
 
     def __post_init__(self) -> None:
         o = "MeanShiftParams"
@@ -116,6 +127,7 @@ class MeanShiftParams:
         require_number(o, "update_threshold", self.update_threshold, lo=0, hi=1)
         require_number(o, "lost_ratio", self.lost_ratio, lo=0, hi=1)
         require_number(o, "max_lost", self.max_lost, lo=0, integer=True)
+        check_cmc_fields(o, self)
 
 
 class MeanShiftTracker(Tracker):

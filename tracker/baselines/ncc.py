@@ -18,6 +18,7 @@ from crowdsim.checks import require_number
 from tracker.appearance import NCCAppearance
 from tracker.base import Tracker
 from tracker.candidates import grid_offsets, search_radius
+from tracker.cmc import check_fields as check_cmc_fields
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -36,6 +37,14 @@ class NCCParams:
         The track ends when the NCC score of its match stays below ``lost_ratio`` times
         its usual score for ``max_lost`` frames in a row (0 = only when it leaves the image);
         as :class:`tracker.bqp.params.BQPParams`.
+    cmc : bool
+        Camera-motion compensation (:mod:`tracker.cmc`; neither paper has one): before each
+        frame's search, the global motion since the previous frame, estimated from the frames
+        alone, moves the points and with them the search windows
+        (:class:`tracker.base.Tracker`). Off: the papers' static camera.
+    cmc_method : str
+        How that motion is estimated: ``"sparse"`` (BoT-SORT's sparse optical flow with a
+        RANSAC similarity) or ``"ecc"`` (:data:`tracker.cmc.METHODS`).
     """
 
     search_factor: float = 2.0
@@ -43,6 +52,8 @@ class NCCParams:
     update_every: int = 10
     lost_ratio: float = 0.4
     max_lost: int = 5
+    cmc: bool = False
+    cmc_method: str = "sparse"
 
     def __post_init__(self) -> None:
         require_number("NCCParams", "search_factor", self.search_factor, lo=1, lo_open=True, hi=8)
@@ -50,6 +61,7 @@ class NCCParams:
         require_number("NCCParams", "update_every", self.update_every, lo=1, integer=True)
         require_number("NCCParams", "lost_ratio", self.lost_ratio, lo=0, hi=1)
         require_number("NCCParams", "max_lost", self.max_lost, lo=0, integer=True)
+        check_cmc_fields("NCCParams", self)
 
 
 class NCCTracker(Tracker):

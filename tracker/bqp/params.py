@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields
 
 from crowdsim.checks import require_choice, require_number
 from tracker.bqp.frank_wolfe import VARIANTS as FW_VARIANTS
+from tracker.cmc import check_fields as check_cmc_fields
 
 APPEARANCE_MODELS: tuple[str, ...] = ("kcf", "ncc")
 
@@ -165,6 +166,15 @@ class BQPParams:
     max_lost : int
         Frames in a row below ``lost_ratio`` times the usual confidence that end a track;
         0 = tracks end only when they leave the image.
+    cmc : bool
+        Camera-motion compensation (:mod:`tracker.cmc`; neither paper has one): before each
+        frame's search, the global motion since the previous frame, estimated from the frames
+        alone, moves the points, the velocities ``p_dot`` (so the search windows and the motion
+        terms) and the groups' spanning-tree offsets (:attr:`BQPTracker.camera_state
+        <tracker.bqp.tracker.BQPTracker.camera_state>`). Off: the papers' static camera.
+    cmc_method : str
+        How that motion is estimated: ``"sparse"`` (BoT-SORT's sparse optical flow with a
+        RANSAC similarity) or ``"ecc"`` (:data:`tracker.cmc.METHODS`).
     """
 
     zeta: float = 0.3
@@ -208,6 +218,8 @@ class BQPParams:
     seed: int = 0
     lost_ratio: float = 0.4
     max_lost: int = 5
+    cmc: bool = False
+    cmc_method: str = "sparse"
 
     def __post_init__(self) -> None:
         own = "BQPParams"
@@ -264,6 +276,7 @@ class BQPParams:
         require_choice(own, "appearance", self.appearance, APPEARANCE_MODELS)
         require_choice(own, "kcf_kernel", self.kcf_kernel, ("gaussian", "linear"))
         require_choice(own, "fw_variant", self.fw_variant, FW_VARIANTS)
+        check_cmc_fields(own, self)
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:

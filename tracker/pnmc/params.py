@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from crowdsim.checks import require_choice, require_number
+from tracker.cmc import check_fields as check_cmc_fields
 from tracker.pnmc.queens import QUEEN_ORDERS
 
 QUEEN_MODES: tuple[str, ...] = ("prominence", "random")
@@ -93,6 +94,16 @@ class PNMCParams:
         The track ends when its update confidence ``(gamma + 1) / 2`` stays below
         ``lost_ratio`` times its usual value for ``max_lost`` frames in a row (0 = only when
         it leaves the image).
+    cmc : bool
+        Camera-motion compensation (:mod:`tracker.cmc`; neither paper has one): before each
+        frame's search, the global motion since the previous frame, estimated from the frames
+        alone, moves the points and velocities (so the predictions ``A x_i^{t-1}``, the search
+        regions and the neighbours' motions), and the flow prior's velocities lose the camera's
+        mean motion over their frames (:class:`tracker.base.Tracker`). Off: the papers' static
+        camera.
+    cmc_method : str
+        How that motion is estimated: ``"sparse"`` (BoT-SORT's sparse optical flow with a
+        RANSAC similarity) or ``"ecc"`` (:data:`tracker.cmc.METHODS`).
     """
 
     search_factor: float = 2.0
@@ -123,6 +134,8 @@ class PNMCParams:
     seed: int = 0
     lost_ratio: float = 0.75
     max_lost: int = 5
+    cmc: bool = False
+    cmc_method: str = "sparse"
 
     def __post_init__(self) -> None:
         o = "PNMCParams"
@@ -156,3 +169,4 @@ class PNMCParams:
         require_number(o, "seed", self.seed, lo=0, hi=2**63, hi_open=True, integer=True)
         require_number(o, "lost_ratio", self.lost_ratio, lo=0, hi=1)
         require_number(o, "max_lost", self.max_lost, lo=0, integer=True)
+        check_cmc_fields(o, self)

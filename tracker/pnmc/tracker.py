@@ -49,6 +49,10 @@ with each formula; the paper is the source where they differ):
   grid at every step so that frame pairs are matched once and cached
   (:mod:`tracker.pnmc.flow`); the flow prior of a target is computed once per frame, and for
   every target whose likelihood peak is already below ``tau`` in one batch up front.
+* **Camera motion** (``cmc``, beyond the paper, :class:`tracker.base.Tracker`): the positions
+  and velocities move with the camera before the likelihood is computed; the flow is looked
+  up where the targets were in the uncompensated frame, and the camera's mean shift over the
+  flow's frame pairs is taken off its velocities (it is already in the compensated positions).
 * **SPEC §6 and the paper** agree on every formula; where the spec abbreviates the prior as
   ``pS + pN``, the paper's Eq. 1-5 are used as written (``p_S`` weighted by the previous
   observation likelihood, ``p_N`` by Eq. 3 and ``lambda_j``).
@@ -68,6 +72,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
+from types import MappingProxyType
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -121,6 +126,9 @@ class PNMCTracker(Tracker):
 
     name = "pnmc"
     params_class = PNMCParams
+    camera_state = MappingProxyType({"velocity": "vectors"})
+    """With ``cmc``: the velocities behind the predictions ``A x_i^{t-1}`` move with the camera
+    (the flow prior is corrected in :meth:`_step`)."""
 
     def __init__(self, params: PNMCParams | None = None):
         super().__init__()
@@ -145,6 +153,10 @@ class PNMCTracker(Tracker):
         self.update_order = np.zeros(0, np.int64)
         self.delayed = np.zeros(0, np.int64)
         self.used_flow = np.zeros(0, bool)
+        # with cmc: the camera's last shifts (px), one per frame pair the flow averages over,
+        # and the targets' positions before this frame's compensation (the flow's frame)
+        self._camera_shifts: deque[np.ndarray] = deque(maxlen=p.flow_frames - 1)
+        self._flow_at = np.zeros((0, 2))
 
     def _set_radius(self) -> None:
         self.radius = search_radius(self.template_size, self.params.search_factor)
@@ -164,6 +176,7 @@ class PNMCTracker(Tracker):
             self.flow.reconfigure(
                 p.flow_patch, p.flow_spacing, p.flow_frames, self._flow_search(), p.flow_min_ncc
             )
+            self._camera_shifts = deque(self._camera_shifts, maxlen=p.flow_frames - 1)
         if changed & _QUEEN_FIELDS:
             self._select_queens()
 
@@ -219,6 +232,27 @@ class PNMCTracker(Tracker):
     def _predicted(self) -> np.ndarray:
         return self.points + self.velocity
 
+    def _compensate(self, frame: np.ndarray) -> None:
+        self._flow_at = self.points  # the flow's patches live in the uncompensated frame
+        super()._compensate(frame)
+
+    def _camera_moved(self, a: np.ndarray) -> None:
+        self._camera_shifts.append(a[:, 2].copy())
+
+    def _flow_origin(self, prev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where to look up the flow, and the camera's mean shift in its velocities.
+
+        Returns ``(n, 2)`` positions in the frame before the newest and the ``(2,)`` px/frame
+        to take off each flow velocity: the flow averages the image motion over its last
+        ``k`` frame pairs, and with ``cmc`` the camera's part of it is already in ``prev``.
+        Without ``cmc``: ``prev`` and zero.
+        """
+        k = len(self.flow.pairs)
+        if self.compensator is None or k == 0:
+            return prev, np.zeros(2)
+        shifts = list(self._camera_shifts)[-k:]
+        return self._flow_at, np.sum(shifts, axis=0) / k if shifts else np.zeros(2)
+
     # ------------------------------------------------------------------ one frame
     def _graph(self, prev: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Neighbour graph ``G`` in CSR form, rows sorted by distance.
@@ -272,9 +306,10 @@ class PNMCTracker(Tracker):
         t0 = self._tick("appearance", t0)
 
         flow_r = p.flow_radius * s
+        flow_at, camera_v = self._flow_origin(prev)
         if p.use_flow:
             # targets whose best likelihood is below tau will need the flow whatever the prior
-            self.flow.prefetch(prev[peak < p.tau], flow_r)
+            self.flow.prefetch(flow_at[peak < p.tau], flow_r)
         indptr, nbr, wts = self._graph(prev)
         sig2 = 2.0 * (p.prior_sigma * s) ** 2
         ws_self = np.maximum(self.obs, _PS_FLOOR)
@@ -323,13 +358,13 @@ class PNMCTracker(Tracker):
             if c < tau[i] and p.use_flow:
                 if i not in flow_map:  # the flow prior does not change within a frame
                     flow_map[i] = (-1, -1.0)
-                    fpos, fvel = self.flow.near(prev[i], flow_r)
+                    fpos, fvel = self.flow.near(flow_at[i], flow_r)
                     if len(fpos):
-                        dist = np.sqrt(((fpos - prev[i]) ** 2).sum(1))
+                        dist = np.sqrt(((fpos - flow_at[i]) ** 2).sum(1))
                         e = np.exp(-(dist - dist.min()) / p.weight_scale)
                         flow_map[i] = map_estimate(
                             i,
-                            np.concatenate([pred[i : i + 1], prev[i] + fvel]),
+                            np.concatenate([pred[i : i + 1], prev[i] + (fvel - camera_v)]),
                             np.concatenate([ws_self[i : i + 1], e / e.sum()]),
                         )
                 fb, fc = flow_map[i]

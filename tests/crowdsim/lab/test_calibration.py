@@ -15,7 +15,7 @@ from crowdsim.cli import main
 from crowdsim.jobs import Interrupted
 from crowdsim.knobs import knob
 from crowdsim.lab import calibration
-from synth_data.spec import load_spec
+from synth_data.spec import load_spec, parse_spec_text, spec_from_dict
 from synth_data.suites import paper_numbers, suite_dir, suite_specs
 
 SPEC = """# {name}: a hand-written spec; comments survive calibration
@@ -35,7 +35,7 @@ template_px = 8
 noise_sigma = 3.0
 
 [calibration]
-paper_ncc_15px = {target}
+paper_b_ncc_15px = {target}
 {extra}"""
 
 
@@ -57,12 +57,12 @@ def scored(monkeypatch):
     """Replace the NCC scorer by :func:`_curve`; the list records every difficulty scored."""
     calls: list[float] = []
 
-    def fake(spec, workdir):
+    def fake(spec, workdir, anchor="b-ncc"):
         d = _difficulty(spec)
         calls.append(d)
         return _curve(d)
 
-    monkeypatch.setattr(calibration, "ncc_score", fake)
+    monkeypatch.setattr(calibration, "score", fake)
     return calls
 
 
@@ -81,7 +81,7 @@ def _suite(root: Path, **targets: float | tuple[float, str]) -> Path:
 @pytest.fixture
 def suite(tmp_path) -> Path:
     """Sequences ``a`` (paper 60 %) and ``b`` (paper 78.5 %, its spec records 80 achieved)."""
-    return _suite(tmp_path / "suite", a=60.0, b=(78.5, "achieved_ncc_15px = 80.0\n"))
+    return _suite(tmp_path / "suite", a=60.0, b=(78.5, "achieved_b_ncc_15px = 80.0\n"))
 
 
 def test_bracketing_uses_the_scores_and_reports_the_measured_score(suite, scored):
@@ -94,7 +94,7 @@ def test_bracketing_uses_the_scores_and_reports_the_measured_score(suite, scored
     np.testing.assert_allclose(scored, want, atol=1e-4)
     best = scored[3]
     assert res["difficulty"] == pytest.approx(best, abs=1e-4)
-    assert res["ncc_15px"] == round(_curve(best), 2) == 66.19  # measured, above the target
+    assert res["score_15px"] == round(_curve(best), 2) == 66.19  # measured, above the target
     assert res["error"] == 6.19
     assert res["trials"] == 4
     assert res["values"][("appearance", "dark_hair_fraction")] == round(best, 4)
@@ -104,10 +104,10 @@ def test_a_study_stops_within_tolerance_and_a_harder_spec_is_not_searched(suite,
     (spec,) = suite_specs(suite, ["a"])
     res = calibration.calibrate_spec(spec, 78.5, trials=12, log=lambda m: None)
     assert scored[:3] == pytest.approx([0.0, 1.0, 0.14375], abs=1e-4)  # (90 - 78.5) / 80
-    assert len(scored) == res["trials"] and abs(res["ncc_15px"] - 78.5) <= calibration.TOLERANCE
+    assert len(scored) == res["trials"] and abs(res["score_15px"] - 78.5) <= calibration.TOLERANCE
     scored.clear()
     res = calibration.calibrate_spec(spec, 95.0, trials=12, log=lambda m: None)
-    assert scored == [0.0] and res["difficulty"] == 0.0 and res["ncc_15px"] == 90.0
+    assert scored == [0.0] and res["difficulty"] == 0.0 and res["score_15px"] == 90.0
 
 
 def _tree(folder: Path) -> dict[str, bytes]:
@@ -130,12 +130,12 @@ def test_calibrate_writes_a_new_suite_folder_and_leaves_the_suite_alone(suite, t
     ]
     a = load_spec(out / "a.toml")
     measured = round(_curve(scored[3]), 2)
-    assert res["a"]["ncc_15px"] == a.calibration["achieved_ncc_15px"] == measured
+    assert res["a"]["score_15px"] == a.calibration["achieved_b_ncc_15px"] == measured
     assert a.appearance.dark_hair_fraction == round(scored[3], 4)
     assert (out / "a.toml").read_text().startswith("# a: a hand-written spec")
     assert "# two groups" in (out / "a.toml").read_text()
     readme = (out / "README.md").read_text()
-    assert f"| a | crossing | 10 | 8 | 60.0 | {measured} |" in readme
+    assert f"| a | crossing | 10 | 8 | b-ncc | 60.0 | {measured} |" in readme
     assert calibration.README_MARK in readme
     # the folder is a suite: its specs, its paper figures, a calibrate source
     assert [s.name for s in suite_specs(out)] == ["a", "b"]
@@ -182,8 +182,8 @@ def test_update_suite_keeps_a_better_calibration_unless_forced(suite, tmp_path, 
     )
     assert res["b"]["suite_spec"] == "kept" and res["a"]["suite_spec"] == "updated"
     assert any(m.startswith("b: kept the suite's calibration") for m in logs)
-    assert load_spec(suite / "b.toml").calibration["achieved_ncc_15px"] == 80.0
-    assert load_spec(suite / "a.toml").calibration["achieved_ncc_15px"] == res["a"]["ncc_15px"]
+    assert load_spec(suite / "b.toml").calibration["achieved_b_ncc_15px"] == 80.0
+    assert load_spec(suite / "a.toml").calibration["achieved_b_ncc_15px"] == res["a"]["score_15px"]
     assert calibration.README_MARK in (suite / "README.md").read_text()
     # --force writes the worse one
     res = calibration.calibrate_suite(
@@ -191,7 +191,7 @@ def test_update_suite_keeps_a_better_calibration_unless_forced(suite, tmp_path, 
         log=logs.append,
     )  # fmt: skip
     assert res["b"]["suite_spec"] == "updated"
-    assert load_spec(suite / "b.toml").calibration["achieved_ncc_15px"] == res["b"]["ncc_15px"]
+    assert load_spec(suite / "b.toml").calibration["achieved_b_ncc_15px"] == res["b"]["score_15px"]
     with pytest.raises(ValueError, match="--force needs --update-suite"):
         calibration.calibrate_suite(suite, out=tmp_path / "o3", force=True)
 
@@ -256,25 +256,25 @@ def test_an_interrupted_trial_ends_in_one_line(
 ):
     calls = []
 
-    def fake(spec, workdir):
+    def fake(spec, workdir, anchor="b-ncc"):
         calls.append(_difficulty(spec))
         if len(calls) == 2:
             raise Interrupted(signal_name)
         return _curve(calls[-1])
 
-    monkeypatch.setattr(calibration, "ncc_score", fake)
+    monkeypatch.setattr(calibration, "score", fake)
     out = tmp_path / "o"
     argv = ["calibrate", "--suite", str(suite), "--only", "a", "--out", str(out)]
     assert main(argv) == code
     lines = capfd.readouterr().err.strip().splitlines()
-    assert lines[0].startswith("a: trial 0: difficulty 0.000 -> NCC 90.0%")
+    assert lines[0].startswith("a: trial 0: difficulty 0.000 -> b-ncc 90.0%")
     assert len(lines) == 2 and "Traceback" not in lines[1], lines
     assert lines[1].startswith(f"crowdsim calibrate: interrupted by {signal_name}; ")
     assert "rerun the same command to resume" in lines[1]
     (summary,) = [
         s
         for s in optuna.get_all_study_summaries(f"sqlite:///{out / 'calibration.db'}")
-        if s.study_name.startswith("calibrate-a-")
+        if s.study_name.startswith("calibrate-b-ncc-a-")
     ]
     study = optuna.load_study(
         study_name=summary.study_name, storage=f"sqlite:///{out / 'calibration.db'}"
@@ -283,7 +283,7 @@ def test_an_interrupted_trial_ends_in_one_line(
     assert states == ["COMPLETE", "FAIL"]
     # a rerun resumes from the finished trial
     calls.clear()
-    monkeypatch.setattr(calibration, "ncc_score", lambda spec, w: calls.append(1) or 10.0)
+    monkeypatch.setattr(calibration, "score", lambda spec, w, anchor=None: calls.append(1) or 10.0)
     assert main([*argv, "--trials", "2"]) == 0
     assert len(calls) == 1
 
@@ -306,13 +306,56 @@ def test_the_closest_measured_trial_is_reported_not_the_last(suite, monkeypatch)
     scores = iter([90.0, 10.0, 62.0, 55.0])  # noisy: the last trial lands further off
     tried = []
 
-    def fake(spec, workdir):
+    def fake(spec, workdir, anchor="b-ncc"):
         tried.append(_difficulty(spec))
         return next(scores)
 
-    monkeypatch.setattr(calibration, "ncc_score", fake)
+    monkeypatch.setattr(calibration, "score", fake)
     (spec,) = suite_specs(suite, ["a"])
     res = calibration.calibrate_spec(spec, 60.0, trials=4, log=lambda m: None)
     # 62 at d = 30 / 80 = 0.375; then [0.375, 1]: f = 2 / 52 < 0.1 -> d = 0.4375 -> 55
     assert tried == pytest.approx([0.0, 1.0, 0.375, 0.4375], abs=1e-4)
-    assert (res["difficulty"], res["ncc_15px"], res["error"]) == (0.375, 62.0, 2.0)
+    assert (res["difficulty"], res["score_15px"], res["error"]) == (0.375, 62.0, 2.0)
+
+
+def test_the_anchor_picks_target_tracker_and_profile(suite, tmp_path, monkeypatch):
+    """b-ncc scores with BQP's appearance term only (NCC) on the static profile: no shake, no
+    camera motion blur at any difficulty; ncc11 scores with the NCC tracker up to the hard
+    ends. The spec records the anchor, and another anchor's achieved score is dropped."""
+    seen: list[tuple[str, float, float]] = []
+
+    def fake(spec, workdir, anchor="b-ncc"):
+        app = spec.appearance
+        seen.append(
+            (anchor, spec.camera.get("jitter_px", 0.0), app.motion_blur_px, app.noise_sigma)
+        )
+        return _curve(_difficulty(spec))
+
+    monkeypatch.setattr(calibration, "score", fake)
+    (spec,) = suite_specs(suite, ["b"])  # its spec records an ncc11 calibration (80 achieved)
+    static = calibration.calibrate_spec(spec, 60.0, trials=3, log=lambda m: None)
+    assert {a for a, *_ in seen} == {"b-ncc"} and {(j, b) for _, j, b, _ in seen} == {(0.0, 0.0)}
+    assert seen[1][3] == knob("noise_sigma").static  # d = 1: a realistic end
+    seen.clear()
+    hard = calibration.calibrate_spec(spec, 60.0, anchor="ncc11", trials=3, log=lambda m: None)
+    assert {a for a, *_ in seen} == {"ncc11"} and hard["anchor"] == "ncc11"
+    ends = (knob("jitter_px").hard, knob("motion_blur_px").hard, knob("noise_sigma").hard)
+    assert seen[1][1:] == ends  # d = 1: every knob at its hard end
+
+    text = (suite / "b.toml").read_text().replace("achieved_b_ncc_15px", "achieved_ncc_15px")
+    new = calibration.calibrated_text(text, static)
+    written = spec_from_dict(parse_spec_text(new, "toml", "b.toml"), source="b.toml").calibration
+    assert written["anchor"] == "b-ncc" and written["achieved_b_ncc_15px"] == static["score_15px"]
+    assert "achieved_ncc_15px" not in written  # it described knobs that are gone
+    bncc = calibration.ANCHORS["b-ncc"]
+    assert (bncc.tracker, bncc.overrides["appearance"]) == ("bqp", "ncc")
+    assert all(bncc.overrides[w] == 0.0 for w in ("zeta", "eta", "w_sp", "w_g"))
+
+
+def test_the_b_ncc_anchor_is_paper_ones_table_3_row_in_the_suite():
+    """Every ucf9 spec's b-ncc target is Table 3's B(NCC) figure of its sequence."""
+    table = paper_numbers("ucf9")["ablation@15"]["B (NCC)"]
+    for spec in suite_specs("ucf9"):
+        assert spec.calibration["paper_b_ncc_15px"] == table[spec.name], spec.name
+    for spec in suite_specs("ucf9-shake"):  # the earlier calibration, kept as a variant
+        assert spec.calibration["anchor"] == "ncc11" and spec.camera["jitter_px"] > 0

@@ -77,6 +77,12 @@ def test_paper_figures_sit_beside_ours():
     }
     text = experiments.format_table((Row("NCC", "ncc", paper="NCC"),), ["seq5"], cells, paper)
     assert "| NCC | 31.2% (33) | 31.2% |" in text
+    assert "The NCC and MS figures in brackets are [11]'s implementations" in text
+    b = experiments.ablation_rows()[:1]
+    ablation = experiments.format_table(
+        b, ["seq5"], {("seq5", b[0].label): cells[("seq5", "NCC")]}, paper
+    )
+    assert "[11]" not in ablation  # paper 1's own rows are not labelled as [11]'s
     assert len(experiments.ablation_rows()) == 12
     assert {r.label for r in experiments.ablation_rows()} <= set(paper["ablation@15"])
 
@@ -94,12 +100,19 @@ def test_difficulty_makes_ncc_worse_and_calibration_lands_on_the_target(tmp_path
         },
         source="m.toml",
     )
-    easy = calibration.ncc_score(spec, tmp_path / "w")
-    hard = calibration.ncc_score(apply_knobs(spec, knob_values(spec, 1.0, 1.0)), tmp_path / "w")
+    easy = calibration.score(spec, tmp_path / "w", "ncc11")
+    hard = calibration.score(
+        apply_knobs(spec, knob_values(spec, 1.0, 1.0)), tmp_path / "w", "ncc11"
+    )
     assert hard < easy - 20
     target = (easy + hard) / 2
     res = calibration.calibrate_spec(
-        spec, target, trials=6, storage=f"sqlite:///{tmp_path / 'c.db'}", log=lambda m: None
+        spec,
+        target,
+        anchor="ncc11",
+        trials=6,
+        storage=f"sqlite:///{tmp_path / 'c.db'}",
+        log=lambda m: None,
     )
     assert res["error"] < min(easy - target, target - hard)
     assert 0 < res["difficulty"] < 1 and res["trials"] <= 6
@@ -107,6 +120,7 @@ def test_difficulty_makes_ncc_worse_and_calibration_lands_on_the_target(tmp_path
     again = calibration.calibrate_spec(
         spec,
         target,
+        anchor="ncc11",
         trials=6,
         storage=f"sqlite:///{tmp_path / 'c.db'}",
         log=lambda m: pytest.fail("a trial ran again"),
@@ -141,7 +155,8 @@ def test_write_calibration_keeps_the_file_and_records_the_base(tmp_path):
     before = load_spec(path)
     values = knob_values(before, 0.4, 0.4)
     calibration.write_calibration(
-        path, {"difficulty": 0.4, "ncc_15px": 85.5, "trials": 5, "values": values}
+        path,
+        {"anchor": "ncc11", "difficulty": 0.4, "score_15px": 85.5, "trials": 5, "values": values},
     )
     text = path.read_text()
     assert text.startswith("# a hand-written spec") and "# people leave through doors" in text
@@ -158,7 +173,8 @@ def test_write_calibration_keeps_the_file_and_records_the_base(tmp_path):
         path,
         {
             "difficulty": 0.9,
-            "ncc_15px": 40.0,
+            "anchor": "ncc11",
+            "score_15px": 40.0,
             "trials": 2,
             "values": knob_values(after, 0.9, 0.9),
         },
