@@ -74,6 +74,7 @@ from typing import Any
 
 from crowdsim.atomic import write_text_atomic
 from crowdsim.knobs import apply_knobs, knob_values, scaled
+from tracker.bqp.ablation import ablation_rows
 
 TOLERANCE: float = 1.0
 """A study stops early once the anchor's score is within this many points of the target."""
@@ -132,7 +133,7 @@ ANCHORS: dict[str, Anchor] = {
         "paper 1's B(NCC) row of Table 3: the BQP tracker with the appearance term only, NCC "
         "appearance (a plain template tracker); static camera",
         "bqp",
-        {"zeta": 0.0, "eta": 0.0, "w_sp": 0.0, "w_g": 0.0, "appearance": "ncc"},
+        dict(ablation_rows())["B (NCC)"],  # the same configuration as crowdsim ablation's row
         "b_ncc",
         "static",
     ),
@@ -625,16 +626,11 @@ def calibrate_suite(
         only = [only]
     source_dir = suite_dir(suite)
     files = suite_files(suite)
-    specs = suite_specs(suite, list(only) if only else None)
-    specs = [s for s in specs if a.paper_key in s.calibration]
+    listed = suite_specs(suite, list(only) if only else None)
+    specs = [s for s in listed if a.paper_key in s.calibration]
     if not specs:
         others = [
-            b.name
-            for b in ANCHORS.values()
-            if any(
-                b.paper_key in s.calibration
-                for s in suite_specs(suite, list(only) if only else None)
-            )
+            b.name for b in ANCHORS.values() if any(b.paper_key in s.calibration for s in listed)
         ]
         hint = f" (it has figures for --anchor {', '.join(others)})" if others else ""
         raise ValueError(

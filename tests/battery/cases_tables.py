@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from battery.harness import SPEC, Env, api_case, case
+from battery.harness import SPEC, Env, api_case, case, seq_copy
 
 PAPER_SPEC = SPEC + "\n[calibration]\npaper_b_ncc_15px = 50.0\npaper_ncc_15px = 50.0\n"
 RECORD = {
@@ -348,44 +348,21 @@ case(
     "r.txt: not a MOT text file (binary, not UTF-8 text",
     files=(("r.txt", b"\xfa\xfb\x00\x01binary"),),
 )
-case(
-    "tables-eval-gt-binary",
-    "evaluate {res} {w}/s",
-    "gt.txt: not a MOT text file (binary, not UTF-8 text",
-    setup=lambda w, env: (
-        shutil.copytree(env.seq, w / "s"),
-        (w / "s" / "checksums.json").unlink(),
-        (w / "s" / "gt" / "gt.txt").write_bytes(b"\xfa\xfb\x00binary"),
-    ),
-)
-case(
-    "tables-eval-seqinfo-binary",
-    "evaluate {res} {w}/s",
-    "seqinfo.ini: not a seqinfo.ini file (binary, not UTF-8 text",
-    setup=lambda w, env: (
-        shutil.copytree(env.seq, w / "s"),
-        (w / "s" / "seqinfo.ini").write_bytes(b"\xff\xfe\x00garbage"),
-    ),
-)
-case(
-    "tables-track-seqinfo-binary",
-    "track {w}/s --out {w}/r.txt",
-    "seqinfo.ini: not a seqinfo.ini file (binary, not UTF-8 text",
-    setup=lambda w, env: (
-        shutil.copytree(env.seq, w / "s"),
-        (w / "s" / "seqinfo.ini").write_bytes(b"\xff\xfe\x00garbage"),
-    ),
-)
-case(
-    "tables-track-gt-binary",
-    "track {w}/s --out {w}/r.txt",
-    "gt.txt: not a MOT text file (binary, not UTF-8 text",
-    setup=lambda w, env: (
-        shutil.copytree(env.seq, w / "s"),
-        (w / "s" / "checksums.json").unlink(),
-        (w / "s" / "gt" / "gt.txt").write_bytes(b"\xfa\xfb\x00binary"),
-    ),
-)
+_BINARY_GT = seq_copy(lambda s: (s / "gt" / "gt.txt").write_bytes(b"\xfa\xfb\x00binary"), False)
+_BINARY_INI = seq_copy(lambda s: (s / "seqinfo.ini").write_bytes(b"\xff\xfe\x00garbage"), True)
+for _cmd, _argv in (("eval", "evaluate {res} {w}/s"), ("track", "track {w}/s --out {w}/r.txt")):
+    case(
+        f"tables-{_cmd}-gt-binary",
+        _argv,
+        "gt.txt: not a MOT text file (binary, not UTF-8 text",
+        setup=_BINARY_GT,
+    )
+    case(
+        f"tables-{_cmd}-seqinfo-binary",
+        _argv,
+        "seqinfo.ini: not a seqinfo.ini file (binary, not UTF-8 text",
+        setup=_BINARY_INI,
+    )
 case(
     "tables-eval-semicolons",
     "evaluate {w}/r.txt {seq}",
