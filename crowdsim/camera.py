@@ -18,6 +18,12 @@ trajectories to the same pixels.
 * ``jitter_frames``: correlation time of that shake in frames (default
   :data:`JITTER_CORRELATION_FRAMES`: a slow sway); small values give a fast shake, 1 is
   nearly independent from frame to frame.
+* The drone profile, ``drift_px``, ``rotate_deg``, ``zoom`` (all ``0``: off) and
+  ``drone_frames``: a slow, smooth, seeded similarity of the whole view about the frame
+  centre (:meth:`Camera.drone`), applied after the shake: drift of up to ``drift_px`` per
+  axis, rotation of up to ``rotate_deg`` and zoom of up to ``1 +- zoom``, each a sum of three
+  sinusoids with periods of 0.5-1.5 ``drone_frames``. The renderer draws a larger canvas
+  (:meth:`Camera.canvas`) and warps it, so the view never shows an undrawn border.
 
 Examples
 --------
@@ -29,15 +35,26 @@ Examples
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
-from crowdsim.knobs import knob
+from crowdsim.knobs import knob, knobs
 
 JITTER_CORRELATION_FRAMES: float = knob("jitter_frames").default
 """Default time constant (frames) of the camera shake: an AR(1) process with this correlation
 time (``Camera.jitter_frames``)."""
+DRONE_FRAMES: float = knob("drone_frames").default
+"""Default time scale (frames) of the drone profile's drift, rotation and zoom."""
+MOTION_FIELDS: tuple[str, ...] = tuple(k.name for k in knobs("camera"))
+"""The camera's motion fields, one per camera knob (shake and drone profile): what a spec's
+``[camera]`` section may set besides the geometry (:func:`motion_values`)."""
+
+
+def motion_values(camera: Any) -> dict[str, float]:
+    """The motion fields of a spec's ``[camera]`` mapping, defaults filled in."""
+    return {n: float(camera.get(n, knob(n).default)) for n in MOTION_FIELDS}
 
 
 @dataclass(frozen=True)
@@ -62,7 +79,9 @@ class Camera:
     jitter_frames : float
         Correlation time of the translation in frames (``> 0``; default 12).
     seed : int
-        Seed of the jitter process.
+        Seed of the jitter process and of the drone profile.
+    drift_px, rotate_deg, zoom, drone_frames : float
+        The drone profile (knobs of :mod:`crowdsim.knobs`; ``0``, ``0``, ``0``: off).
     """
 
     px_per_m: float
@@ -74,6 +93,10 @@ class Camera:
     jitter_px: float = 0.0
     seed: int = 0
     jitter_frames: float = JITTER_CORRELATION_FRAMES
+    drift_px: float = 0.0
+    rotate_deg: float = 0.0
+    zoom: float = 0.0
+    drone_frames: float = DRONE_FRAMES
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.px_per_m) and self.px_per_m > 0):
@@ -86,8 +109,17 @@ class Camera:
             raise ValueError(f"camera.tilt_deg must be in [0, 60), got {self.tilt_deg!r}")
         if not (math.isfinite(self.distance_m) and self.distance_m > 0):
             raise ValueError(f"camera.distance_m must be > 0, got {self.distance_m!r}")
-        for name in ("jitter_px", "jitter_frames"):  # the shake knobs: ranges in crowdsim.knobs
-            knob(name).check("camera", getattr(self, name))
+        for k in knobs("camera"):  # the motion knobs: ranges in crowdsim.knobs
+            k.check("camera", getattr(self, k.name))
+        if self.drone_on:
+            mx, my = self._canvas_margins()
+            if max(self.width + 2 * mx, self.height + 2 * my) > 16384:
+                raise ValueError(
+                    f"camera.drift_px / rotate_deg / zoom ({self.drift_px:g}, "
+                    f"{self.rotate_deg:g}, {self.zoom:g}): the drone profile would draw a "
+                    f"{self.width + 2 * mx}x{self.height + 2 * my} canvas for a "
+                    f"{self.width}x{self.height} view, over 16384 px; lower them"
+                )
         if len(self.center) != 2 or not all(math.isfinite(c) for c in self.center):
             raise ValueError(f"camera.center must be two finite numbers, got {self.center!r}")
         object.__setattr__(self, "center", (float(self.center[0]), float(self.center[1])))
@@ -173,6 +205,78 @@ class Camera:
             out[t] = a * out[t - 1] + innov[t]
         return out
 
+    @property
+    def drone_on(self) -> bool:
+        """Whether the drone profile moves the view (any of drift, rotation, zoom)."""
+        return self.drift_px > 0 or self.rotate_deg > 0 or self.zoom > 0
+
+    @property
+    def moves(self) -> bool:
+        """Whether the image moves over the ground at all (shake or drone profile)."""
+        return self.jitter_px > 0 or self.drone_on
+
+    def drone(self, n_frames: int) -> np.ndarray:
+        """``(n_frames, 2, 3)`` affine maps of the drone profile, from the shaken image to the
+        one seen: ``q = c + d_t + z_t R(theta_t) (p - c)`` about the frame centre ``c``.
+
+        Drift ``d_t`` (each axis within ``drift_px``), rotation ``theta_t`` (within
+        ``rotate_deg``) and zoom ``z_t`` (within ``1 +- zoom``) are each a weighted sum of three
+        seeded sinusoids with periods of 0.5-1.5 ``drone_frames``: smooth, bounded, and frame
+        ``t``'s map does not depend on ``n_frames``. The identity when the profile is off.
+        """
+        if n_frames < 0:
+            raise ValueError(f"n_frames must be >= 0, got {n_frames}")
+        out = np.zeros((n_frames, 2, 3))
+        out[:, 0, 0] = out[:, 1, 1] = 1.0
+        if not self.drone_on or n_frames == 0:
+            return out
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 0xD209E]))
+        periods = self.drone_frames * rng.uniform(0.5, 1.5, (4, 3))
+        phases = rng.uniform(0.0, 2 * math.pi, (4, 3))
+        weights = rng.uniform(0.5, 1.0, (4, 3))
+        weights /= weights.sum(axis=1, keepdims=True)
+        t = np.arange(n_frames, dtype=np.float64)[:, None, None]
+        wave = (weights * np.sin(2 * math.pi * t / periods + phases)).sum(axis=2)  # (T, 4)
+        dx, dy = self.drift_px * wave[:, 0], self.drift_px * wave[:, 1]
+        theta = np.radians(self.rotate_deg) * wave[:, 2]
+        z = 1.0 + self.zoom * wave[:, 3]
+        c = np.array([self.width / 2.0, self.height / 2.0])
+        lin = np.empty((n_frames, 2, 2))
+        lin[:, 0, 0] = lin[:, 1, 1] = z * np.cos(theta)
+        lin[:, 0, 1] = -z * np.sin(theta)
+        lin[:, 1, 0] = z * np.sin(theta)
+        out[:, :, :2] = lin
+        out[:, :, 2] = c + np.stack([dx, dy], axis=1) - lin @ c
+        return out
+
+    def _canvas_margins(self) -> tuple[int, int]:
+        half_w, half_h = self.width / 2.0, self.height / 2.0
+        sin = math.sin(math.radians(self.rotate_deg))
+        z_min = 1.0 - self.zoom
+        reach_x = ((half_w + self.drift_px) + (half_h + self.drift_px) * sin) / z_min
+        reach_y = ((half_h + self.drift_px) + (half_w + self.drift_px) * sin) / z_min
+        # +2: the bilinear warp's neighbours
+        return int(math.ceil(reach_x - half_w)) + 2, int(math.ceil(reach_y - half_h)) + 2
+
+    def canvas(self) -> tuple[Camera, tuple[int, int]]:
+        """``(camera, (mx, my))``: the larger, drone-free camera the renderer draws before the
+        drone profile's warp, and its margins. It sees the same ground (same centre, scale,
+        tilt and shake) offset by ``(mx, my)`` pixels, with margins large enough that every
+        pixel of every view comes from inside it. ``(self, (0, 0))`` when the profile is off.
+        """
+        if not self.drone_on:
+            return self, (0, 0)
+        mx, my = self._canvas_margins()
+        big = replace(
+            self,
+            width=self.width + 2 * mx,
+            height=self.height + 2 * my,
+            drift_px=0.0,
+            rotate_deg=0.0,
+            zoom=0.0,
+        )
+        return big, (mx, my)
+
     def project(self, points: np.ndarray) -> np.ndarray:
         """Map ``(..., 2)`` metres to ``(..., 2)`` pixels (NaN stays NaN; no jitter)."""
         pts = np.asarray(points, dtype=np.float64)
@@ -195,11 +299,16 @@ class Camera:
         )
 
     def project_trajectories(self, positions: np.ndarray) -> np.ndarray:
-        """``(T, N, 2)`` metres -> ``(T, N, 2)`` pixels including the per-frame jitter."""
+        """``(T, N, 2)`` metres -> ``(T, N, 2)`` pixels including the per-frame jitter and the
+        drone profile's view (:meth:`drone`)."""
         pos = np.asarray(positions, dtype=np.float64)
         if pos.ndim != 3 or pos.shape[2] != 2:
             raise ValueError(f"positions must have shape (T, N, 2), got {pos.shape}")
-        return self.project(pos) + self.jitter(pos.shape[0])[:, None, :]
+        px = self.project(pos) + self.jitter(pos.shape[0])[:, None, :]
+        if self.drone_on:
+            m = self.drone(pos.shape[0])
+            px = np.einsum("tij,tnj->tni", m[:, :, :2], px) + m[:, None, :, 2]
+        return px
 
     def scale_at(self, points: np.ndarray) -> np.ndarray:
         """``(...)`` local scale in px/m at ground ``points`` (``px_per_m`` when untilted)."""

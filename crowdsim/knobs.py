@@ -1,7 +1,8 @@
 """Every rendering knob of a sequence spec, in one table: :data:`KNOBS`.
 
 A knob is one field of a spec's ``[appearance]`` section
-(:class:`crowdsim.appearance_model.AppearanceParams`) or one of the camera's shake fields. Its
+(:class:`crowdsim.appearance_model.AppearanceParams`) or one of the camera's motion fields
+(shake, and the drone profile's drift, rotation and zoom). Its
 row holds everything the rest of the project needs to know about it, so adding a knob means
 adding a row here, its field to ``AppearanceParams`` and drawing it in the renderer:
 
@@ -298,6 +299,17 @@ KNOBS: tuple[Knob, ...] = (
        "the 8x supersampling).", kind="int", lo=1, hi=4),
     Knob("jitter_frames", "camera", 12.0, "Correlation time of the camera shake, frames (small = "
          "fast shake, 1 = nearly independent from frame to frame).", lo=0, lo_open=True),
+    # -- the drone profile: slow drift, rotation and zoom of the whole view (0 = off)
+    Knob("drift_px", "camera", 0.0, "Drone profile: amplitude (pixels) of a slow, seeded drift "
+         "of the view, each axis (a hovering drone or a slowly panning camera; 0 = off).", lo=0,
+         hi=400),
+    Knob("rotate_deg", "camera", 0.0, "Drone profile: amplitude (degrees) of a slow, seeded "
+         "rotation of the view about the frame centre (a drone's yaw; 0 = off).", lo=0, hi=20),
+    Knob("zoom", "camera", 0.0, "Drone profile: relative amplitude of a slow, seeded zoom (a "
+         "drone's altitude; 0.05 = +-5 %; 0 = off).", lo=0, hi=0.3),
+    Knob("drone_frames", "camera", 150.0, "Drone profile: time scale of the drift, rotation and "
+         "zoom, frames (each is a sum of three sinusoids with periods 0.5-1.5 times this).",
+         lo=1),
 )  # fmt: skip
 """The table. Rows on the difficulty scale come first, in the order it lists them."""
 

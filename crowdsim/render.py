@@ -206,10 +206,10 @@ def prepare_agents(
         speed = np.linalg.norm(pos[hi] - pos[lo], axis=-1) / span
         speed_ok = speed > HEADING_MIN_SPEED
     # People face the way they walk on the ground: camera shake moves the image, it does not
-    # turn them. Headings from the shaken pixels turned ucf9 seq6's slow runners frame by
-    # frame: BQP at 15 px on its uncoded frames, 88.1 % static, 64.4 % shaken, 82.5 % shaken
-    # with headings from the ground.
-    walk_px = pixels if camera.jitter_px == 0 else camera.project(traj.positions)
+    # turn them (and the drone profile turns the drawn canvas as a whole). Headings from the
+    # shaken pixels turned ucf9 seq6's slow runners frame by frame: BQP at 15 px on its uncoded
+    # frames, 88.1 % static, 64.4 % shaken, 82.5 % shaken with headings from the ground.
+    walk_px = pixels if not camera.moves else camera.project(traj.positions)
     heading = _headings(walk_px, speed_ok, np.random.default_rng(s_head))
     gait = np.zeros((t_len, n))
     if (params.sway_deg > 0 or params.gait_phases > 1) and t_len > 1:
@@ -482,6 +482,9 @@ class SceneRenderer:
     ----------
     camera : Camera
         Frame size and jitter; the ground is rendered with a margin so it moves with the jitter.
+        With the drone profile (``camera.drone_on``) a larger canvas (:meth:`Camera.canvas`)
+        is drawn and warped into the view each frame; the sensor noise is part of the canvas,
+        so the bilinear warp softens it a little.
     params : AppearanceParams
         Look of people and scene.
     seed : int
@@ -497,6 +500,15 @@ class SceneRenderer:
         self.params = params
         self.fps = float(fps)
         self.seed = int(seed)
+        self._canvas: SceneRenderer | None = None
+        if camera.drone_on:
+            # The drone profile: draw a larger, drone-free canvas, then warp it into the view.
+            canvas, self._canvas_offset = camera.canvas()
+            self._canvas = SceneRenderer(canvas, params, seed, fps)
+            self.bank = self._canvas.bank
+            self.margin = self._canvas.margin
+            self._views = np.zeros((0, 2, 3))
+            return
         s_bank, s_ground, s_noise, s_light, s_shadow = np.random.SeedSequence(
             [int(seed), 0x5CE4E]
         ).spawn(5)
@@ -648,9 +660,10 @@ class SceneRenderer:
             0-based frame index (drives jitter of the ground, illumination, flicker, moving
             shadows and noise).
         pixels : (n, 2) float
-            Head centres in pixels (NaN rows are skipped).
+            Head centres in pixels of the view (NaN rows are skipped): with the drone profile,
+            where the ground truth puts them (:meth:`Camera.project_trajectories`).
         heading : (n,) float
-            Facing angles, radians.
+            Facing angles, radians (on the ground, before the drone profile's rotation).
         appearance : (n,) int
             Appearance index per agent.
         out : (H, W, 3) uint8, optional
@@ -663,6 +676,8 @@ class SceneRenderer:
             0 for agents entirely outside. Computed before the moving shadows and blurs,
             which do not hide a head.
         """
+        if self._canvas is not None:
+            return self._render_view(t, pixels, heading, appearance, out, pose, visibility)
         cam = self.camera
         h, w = cam.height, cam.width
         m = self.margin
@@ -801,6 +816,40 @@ class SceneRenderer:
             )
         if self._blur is not None:
             cv2.filter2D(out, -1, self._blur, dst=out, borderType=cv2.BORDER_REFLECT)
+        return out
+
+    def _render_view(
+        self,
+        t: int,
+        pixels: np.ndarray,
+        heading: np.ndarray,
+        appearance: np.ndarray,
+        out: np.ndarray | None,
+        pose: np.ndarray | None,
+        visibility: np.ndarray | None,
+    ) -> np.ndarray:
+        """The drone profile's frame ``t``: the canvas drawn at the heads' canvas positions
+        (the view's map inverted), then warped into the view (bilinear). Headings are the
+        canvas's (the ground's); occlusion is measured on the canvas."""
+        if t >= len(self._views):
+            self._views = self.camera.drone(max(t + 1, 2 * len(self._views)))
+        view = self._views[t]
+        lin, shift = view[:, :2], view[:, 2]
+        offset = np.asarray(self._canvas_offset, np.float64)
+        src = (np.asarray(pixels, np.float64) - shift) @ np.linalg.inv(lin).T + offset
+        canvas = self._canvas.render(t, src, heading, appearance, pose=pose, visibility=visibility)
+        warp = np.concatenate([lin, (shift - lin @ offset)[:, None]], axis=1)
+        h, w = self.camera.height, self.camera.width
+        if out is None:
+            out = np.empty((h, w, 3), np.uint8)
+        cv2.warpAffine(
+            canvas,
+            warp,
+            (w, h),
+            dst=out,
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
         return out
 
     def render_tracks(

@@ -1,9 +1,13 @@
-"""The tuned parameters of the BQP tracker as a box ``[-1, 1]^d``: one module for every tuner.
+"""The tuned parameters of a tracker as a box ``[-1, 1]^d``: one module for every tuner.
 
-:class:`ParamSpace` maps an action ``a`` in ``[-1, 1]^d`` to :class:`tracker.bqp.params.BQPParams`
-and back. The Gymnasium environments (:mod:`envs.tracker_tuning`), Optuna
-(:meth:`ParamSpace.optuna_suggest`) and Ray Tune (:meth:`ParamSpace.ray_search_space`) all use
-it, so a value found by one tuner means the same thing to the others.
+What a tuner may change is one row of :data:`TUNABLES` per tracker family (keyed by its
+parameter class; registry variants such as ``bqp-ncc`` share their family's row):
+:class:`ParamSpace` maps an action ``a`` in ``[-1, 1]^d`` to that tracker's parameters
+(:class:`tracker.bqp.params.BQPParams`, :class:`tracker.pnmc.params.PNMCParams`,
+:class:`tracker.baselines.ncc.NCCParams`) and back. The Gymnasium environments
+(:mod:`envs.tracker_tuning`), Optuna (:meth:`ParamSpace.optuna_suggest`) and Ray Tune
+(:meth:`ParamSpace.ray_search_space`) all use it, so a value found by one tuner means the
+same thing to the others.
 
 Each coordinate is **piecewise linear through the default**: ``a = -1`` gives the low end of the
 range, ``a = 0`` the default, ``a = +1`` the high end::
@@ -14,6 +18,8 @@ range, ``a = 0`` the default, ``a = +1`` the high end::
 so the all-zero action is exactly the paper's parameters (a policy initialised around a zero
 mean starts from them, and CMA-ES starts there), and every range holds 0 where switching a
 term off is meaningful (the ablation of the paper's Table 3 is reachable).
+
+BQP (``bqp``, ``bqp-ncc``, ``bqp-dense``):
 
 =====================  ======  ========  =====  ==========================================
 name                   low     default   high   meaning (``BQPParams`` field)
@@ -28,8 +34,17 @@ name                   low     default   high   meaning (``BQPParams`` field)
 ``kcf_learning_rate``  0.005   0.05      0.3    KCF model interpolation (extended)
 =====================  ======  ========  =====  ==========================================
 
-The defaults are the :class:`~tracker.bqp.params.BQPParams` defaults (the paper's values, with
-``w_sp = 0.3`` as documented there). Out-of-range actions are clipped to ``[-1, 1]``.
+PNMC (``pnmc``): ``tau`` (0.5 / 0.9 / 0.99, the update-confidence threshold of Algorithm 2),
+``prior_sigma`` (0.1 / 0.5 / 2, the NMC prior's sigma, template sizes), ``neighbour_radius``
+(0.5 / 2.5 / 6, the neighbour graph's radius), ``update_threshold`` (0 / 0.8 / 1, template
+refresh); extended: ``search_factor`` (1.5 / 2 / 3), ``flow_radius`` (0.25 / 0.75 / 2).
+
+NCC (``ncc``): ``update_threshold`` (0 / 0.6 / 1), ``search_factor`` (1.5 / 2 / 3); extended:
+``update_every`` (1 / 10 / 30, frames between template refreshes, rounded).
+
+The defaults are the parameter classes' defaults (the papers' values; for BQP ``w_sp = 0.3``
+as documented there); ``tests/envs/test_param_space.py`` holds every row to them.
+Out-of-range actions are clipped to ``[-1, 1]``.
 
 >>> space = ParamSpace()
 >>> space.names
@@ -51,8 +66,9 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields, is_dataclass, replace
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -62,17 +78,19 @@ from crowdsim.checks import require_number
 
 @dataclass(frozen=True, kw_only=True)
 class Tunable:
-    """One tuned parameter: a ``BQPParams`` field, its range and its default.
+    """One tuned parameter: a field of a tracker's parameters, its range and its default.
 
     Attributes
     ----------
     name : str
-        Field of :class:`tracker.bqp.params.BQPParams`.
+        Field of the tracker's parameter class.
     low, default, high : float
         Range ``[low, high]`` and the value at action 0 (``low <= default <= high``,
         ``low < high``).
     doc : str
         One line for tables and ``--help``.
+    integer : bool
+        An integer field: values are rounded.
     """
 
     name: str
@@ -80,6 +98,7 @@ class Tunable:
     default: float
     high: float
     doc: str = ""
+    integer: bool = False
 
     def __post_init__(self) -> None:
         owner = f"Tunable({self.name})"
@@ -90,11 +109,12 @@ class Tunable:
     def value(self, a: np.ndarray) -> np.ndarray:
         """Parameter value(s) for action coordinate(s) ``a`` in ``[-1, 1]`` (clipped)."""
         a = np.clip(np.asarray(a, dtype=np.float64), -1.0, 1.0)
-        return np.where(
+        v = np.where(
             a <= 0,
             self.default + a * (self.default - self.low),
             self.default + a * (self.high - self.default),
         )
+        return np.rint(v) if self.integer else v
 
     def action(self, v: np.ndarray) -> np.ndarray:
         """Action coordinate(s) of parameter value(s) ``v`` (clipped into the range)."""
@@ -135,7 +155,7 @@ BASE_TUNABLES: tuple[Tunable, ...] = (
         doc="appearance model updated only at confidence >= this (Sec. 7.1)",
     ),
 )
-"""The five tuned parameters of issue 9: four term weights and the update threshold."""
+"""BQP's five tuned parameters: four term weights and the update threshold."""
 
 EXTRA_TUNABLES: tuple[Tunable, ...] = (
     Tunable(
@@ -160,20 +180,119 @@ EXTRA_TUNABLES: tuple[Tunable, ...] = (
         doc="interpolation factor of the KCF model update",
     ),
 )
-"""Tunables added by ``ParamSpace(extended=True)``."""
+"""BQP's tunables added by ``ParamSpace(extended=True)``."""
+
+
+PNMC_TUNABLES: tuple[Tunable, ...] = (
+    Tunable(
+        name="tau",
+        low=0.5,
+        default=0.9,
+        high=0.99,
+        doc="update-confidence threshold tau: below it the flow prior, then a delayed update",
+    ),
+    Tunable(
+        name="prior_sigma",
+        low=0.1,
+        default=0.5,
+        high=2.0,
+        doc="sigma of the neighbourhood-motion prior's Gaussians, template sizes (Eq. 1-2)",
+    ),
+    Tunable(
+        name="neighbour_radius",
+        low=0.5,
+        default=2.5,
+        high=6.0,
+        doc="radius of the neighbour graph, template sizes (Sec. 3.4)",
+    ),
+    Tunable(
+        name="update_threshold",
+        low=0.0,
+        default=0.8,
+        high=1.0,
+        doc="template refreshed only at update confidence >= this",
+    ),
+)
+"""PNMC's tuned parameters (paper 2)."""
+
+PNMC_EXTRA: tuple[Tunable, ...] = (
+    Tunable(
+        name="search_factor", low=1.5, default=2.0, high=3.0, doc="search region, template sizes"
+    ),
+    Tunable(
+        name="flow_radius",
+        low=0.25,
+        default=0.75,
+        high=2.0,
+        doc="flow patches within this of a target are its neighbours, template sizes",
+    ),
+)
+
+NCC_TUNABLES: tuple[Tunable, ...] = (
+    Tunable(
+        name="update_threshold",
+        low=0.0,
+        default=0.6,
+        high=1.0,
+        doc="template refreshed only at NCC peak >= this",
+    ),
+    Tunable(
+        name="search_factor", low=1.5, default=2.0, high=3.0, doc="search region, template sizes"
+    ),
+)
+"""The NCC baseline's tuned parameters."""
+
+NCC_EXTRA: tuple[Tunable, ...] = (
+    Tunable(
+        name="update_every",
+        low=1,
+        default=10,
+        high=30,
+        doc="frames between template refreshes",
+        integer=True,
+    ),
+)
+
+
+@dataclass(frozen=True)
+class TunableRow:
+    """What a tuner may change in one tracker family: ``base`` always, ``extra`` with
+    ``extended``."""
+
+    base: tuple[Tunable, ...]
+    extra: tuple[Tunable, ...] = ()
+
+
+TUNABLES: Mapping[str, TunableRow] = MappingProxyType(
+    {
+        "tracker.bqp.params:BQPParams": TunableRow(BASE_TUNABLES, EXTRA_TUNABLES),
+        "tracker.pnmc.params:PNMCParams": TunableRow(PNMC_TUNABLES, PNMC_EXTRA),
+        "tracker.baselines.ncc:NCCParams": TunableRow(NCC_TUNABLES, NCC_EXTRA),
+    }
+)
+"""The one table of what a tuner may change: tracker family (its parameter class, as the
+registry names it) -> :class:`TunableRow`. Adding a tunable tracker is one row here."""
+
+
+def _row_key(params_cls: type) -> str:
+    return f"{params_cls.__module__}:{params_cls.__qualname__}"
 
 
 class ParamSpace:
-    """``[-1, 1]^d`` <-> :class:`~tracker.bqp.params.BQPParams` (see the module docstring).
+    """``[-1, 1]^d`` <-> a tracker's parameters (see the module docstring).
 
     Parameters
     ----------
     extended : bool
-        Add :data:`EXTRA_TUNABLES` (search factor, motion sigma, KCF learning rate): ``d = 8``
-        instead of 5.
-    base : BQPParams, optional
-        Values of every field that is not tuned (default: ``BQPParams()``, KCF appearance).
-        Its tuned fields are ignored: the action sets them.
+        Add the row's extra tunables (BQP: search factor, motion sigma, KCF learning rate,
+        ``d = 8`` instead of 5).
+    base : parameters, optional
+        Values of every field that is not tuned, an instance of the tracker's parameter
+        class. Its tuned fields are ignored: the action sets them. Default: ``tracker``'s
+        registry parameters.
+    tracker : str
+        Registry name whose row of :data:`TUNABLES` is tuned when ``base`` is not given
+        (default ``"bqp"``).
 
     Attributes
     ----------
@@ -184,29 +303,33 @@ class ParamSpace:
     dim : int
     """
 
-    def __init__(self, extended: bool = False, base: Any = None) -> None:
-        from tracker.bqp.params import BQPParams
+    def __init__(self, extended: bool = False, base: Any = None, tracker: str = "bqp") -> None:
+        from tracker.registry import get
 
         if base is None:
-            base = BQPParams()
-        elif not isinstance(base, BQPParams):
+            require_tunable(tracker, "tracker")
+            base = get(tracker).make_params()
+        row = TUNABLES.get(_row_key(type(base))) if is_dataclass(base) else None
+        if row is None:
             raise ValueError(
-                "ParamSpace(base=...) must be the parameters of a BQP tracker "
-                f"({', '.join(tunable_trackers())}: a BQPParams), got {type(base).__name__}"
+                "ParamSpace(base=...) must be the parameters of a tunable tracker "
+                f"({', '.join(tunable_trackers())}), got {type(base).__name__}"
             )
         self.extended = bool(extended)
         self.base = base
-        self.tunables = BASE_TUNABLES + (EXTRA_TUNABLES if extended else ())
+        self.params_class = type(base)
+        self.tunables = row.base + (row.extra if extended else ())
         self.names = tuple(t.name for t in self.tunables)
         self.low = np.array([t.low for t in self.tunables])
         self.high = np.array([t.high for t in self.tunables])
         self.default = np.array([t.default for t in self.tunables])
         self.dim = len(self.tunables)
-        valid = {f.name for f in fields(BQPParams)}
-        assert set(self.names) <= valid, "a Tunable names no BQPParams field"
 
     def __repr__(self) -> str:
-        return f"ParamSpace(extended={self.extended}, names={self.names})"
+        return (
+            f"ParamSpace({self.params_class.__name__}, extended={self.extended}, "
+            f"names={self.names})"
+        )
 
     # ------------------------------------------------------------------ action <-> params
     def clip(self, action: Any) -> tuple[np.ndarray, int]:
@@ -225,18 +348,22 @@ class ParamSpace:
         out = (a < -1.0) | (a > 1.0)
         return np.clip(a, -1.0, 1.0), int(out.sum())
 
-    def values(self, action: Any) -> dict[str, float]:
-        """``{name: value}`` for an action (clipped into ``[-1, 1]``)."""
+    def values(self, action: Any) -> dict[str, Any]:
+        """``{name: value}`` for an action (clipped into ``[-1, 1]``; integer fields as int)."""
         a, _ = self.clip(action)
-        return {t.name: float(t.value(a[i])) for i, t in enumerate(self.tunables)}
+        return {
+            t.name: (int if t.integer else float)(t.value(a[i]))
+            for i, t in enumerate(self.tunables)
+        }
 
     def to_params(self, action: Any) -> Any:
-        """The :class:`~tracker.bqp.params.BQPParams` of ``action`` ``(d,)`` (clipped)."""
+        """The tracker's parameters of ``action`` ``(d,)`` (clipped)."""
         return replace(self.base, **self.values(action))
 
     def to_action(self, params: Any) -> np.ndarray:
-        """``(d,)`` float64 action of ``params`` (a ``BQPParams`` or a ``{name: value}`` mapping
-        holding every tuned name); values outside a range map to its end (-1 or +1)."""
+        """``(d,)`` float64 action of ``params`` (the tracker's parameters or a
+        ``{name: value}`` mapping holding every tuned name); values outside a range map to its
+        end (-1 or +1)."""
         if isinstance(params, Mapping):
             missing = [n for n in self.names if n not in params]
             if missing:
@@ -250,15 +377,15 @@ class ParamSpace:
         return np.array([float(t.action(float(get(t.name)))) for t in self.tunables])
 
     def params_from_dict(self, values: Mapping[str, Any]) -> Any:
-        """``BQPParams`` from ``{field: value}`` (tuned names and any other field), validated
-        by ``BQPParams`` itself; unknown names raise ``ValueError`` listing the valid ones."""
-        from tracker.bqp.params import BQPParams
-
-        valid = set(BQPParams.field_names())
+        """The tracker's parameters from ``{field: value}`` (tuned names and any other field),
+        validated by the parameter class itself; unknown names raise ``ValueError`` listing the
+        valid ones."""
+        valid = {f.name for f in fields(self.params_class)}
         unknown = sorted(set(values) - valid)
         if unknown:
             raise ValueError(
-                f"unknown BQP parameter(s) {', '.join(unknown)}; valid: {', '.join(sorted(valid))}"
+                f"unknown {self.params_class.__name__} parameter(s) {', '.join(unknown)}; "
+                f"valid: {', '.join(sorted(valid))}"
             )
         return replace(self.base, **dict(values))
 
@@ -268,21 +395,44 @@ class ParamSpace:
         return np.zeros(self.dim)
 
     # ------------------------------------------------------------------ tuners
-    def optuna_suggest(self, trial: Any) -> dict[str, float]:
-        """Suggest every tuned parameter in its own units (uniform over ``[low, high]``)."""
-        return {t.name: float(trial.suggest_float(t.name, t.low, t.high)) for t in self.tunables}
+    def optuna_suggest(self, trial: Any) -> dict[str, Any]:
+        """Suggest every tuned parameter in its own units (uniform over ``[low, high]``;
+        integers for integer fields)."""
+        return {
+            t.name: (
+                int(trial.suggest_int(t.name, int(t.low), int(t.high)))
+                if t.integer
+                else float(trial.suggest_float(t.name, t.low, t.high))
+            )
+            for t in self.tunables
+        }
 
     def optuna_distributions(self) -> dict[str, Any]:
-        """``{name: optuna.distributions.FloatDistribution}`` (for ``enqueue_trial`` / ``add``)."""
-        from optuna.distributions import FloatDistribution
+        """``{name: optuna distribution}`` (for ``enqueue_trial`` / ``add``)."""
+        from optuna.distributions import FloatDistribution, IntDistribution
 
-        return {t.name: FloatDistribution(t.low, t.high) for t in self.tunables}
+        return {
+            t.name: (
+                IntDistribution(int(t.low), int(t.high))
+                if t.integer
+                else FloatDistribution(t.low, t.high)
+            )
+            for t in self.tunables
+        }
 
     def ray_search_space(self) -> dict[str, Any]:
-        """``{name: ray.tune.uniform(low, high)}`` for Ray Tune's ``param_space``."""
+        """``{name: ray.tune.uniform(low, high)}`` (``randint`` for integer fields) for Ray
+        Tune's ``param_space``."""
         from ray import tune
 
-        return {t.name: tune.uniform(t.low, t.high) for t in self.tunables}
+        return {
+            t.name: (
+                tune.randint(int(t.low), int(t.high) + 1)
+                if t.integer
+                else tune.uniform(t.low, t.high)
+            )
+            for t in self.tunables
+        }
 
     def describe(self) -> list[dict[str, Any]]:
         """JSON-ready table of the tunables (name, low, default, high, doc)."""
@@ -292,16 +442,19 @@ class ParamSpace:
         ]
 
     def signature(self) -> str:
-        """Short text naming the space (stored in studies so a foreign one is refused)."""
-        return ";".join(f"{t.name}:{t.low:g}:{t.default:g}:{t.high:g}" for t in self.tunables)
+        """Short text naming the space (stored in studies so a foreign one is refused): the
+        parameter class, then each tunable."""
+        own = ";".join(f"{t.name}:{t.low:g}:{t.default:g}:{t.high:g}" for t in self.tunables)
+        if self.params_class.__name__ == "BQPParams":
+            return own  # BQP studies written before other trackers could be tuned stay valid
+        return f"{self.params_class.__name__};{own}"
 
 
 def tunable_trackers() -> tuple[str, ...]:
-    """Registry names whose tracker :class:`ParamSpace` tunes (the BQP variants)."""
-    from tracker.bqp.tracker import BQPTracker
+    """Registry names whose family has a row of :data:`TUNABLES`."""
     from tracker.registry import TRACKERS
 
-    return tuple(n for n, e in TRACKERS.items() if issubclass(e.tracker_class(), BQPTracker))
+    return tuple(n for n, e in TRACKERS.items() if e.params in TUNABLES)
 
 
 def require_tunable(tracker: Any, flag: str = "--tracker") -> str:
@@ -313,7 +466,8 @@ def require_tunable(tracker: Any, flag: str = "--tracker") -> str:
     supported = tunable_trackers()
     if tracker not in supported:
         raise ValueError(
-            f"{flag} {tracker}: tuning supports the BQP trackers only ({', '.join(supported)})"
+            f"{flag} {tracker}: no row of tunables for this tracker in "
+            f"envs.param_space.TUNABLES (tunable: {', '.join(supported)})"
         )
     return tracker
 

@@ -1,14 +1,18 @@
-"""Gymnasium environments in which an agent sets the BQP tracker's parameters as it tracks.
+"""Gymnasium environments in which an agent sets a tracker's parameters as it tracks.
 
 ``crowdsim/TrackerTuning-v0`` (:class:`TrackerTuningEnv`): every step applies new parameters
-through :meth:`tracker.base.Tracker.set_params` and tracks the next ``K`` frames with the
-real BQP tracker; ``crowdsim/TrackerTuningBandit-v0`` (:class:`TrackerTuningBanditEnv`): one
-action scores a whole sequence (for black-box tuners). ``import envs`` registers both (the one
-table, :data:`envs.ENVS`).
+through :meth:`tracker.base.Tracker.set_params` and tracks the next ``K`` frames with a real
+registered tracker (BQP by default; any tracker with a row of
+:data:`envs.param_space.TUNABLES`: ``tracker="pnmc"``, ``"ncc"``);
+``crowdsim/TrackerTuningBandit-v0`` (:class:`TrackerTuningBanditEnv`): one action scores a
+whole sequence (for black-box tuners). ``import envs`` registers both (the one table,
+:data:`envs.ENVS`).
 
-The observation (:data:`OBS_FIELDS`) is computed from the tracker's own state only, never
-from the ground truth, so an adaptive policy runs on real video too (:class:`PolicyControlled`
-drives any source, a video file included).
+The observation (:data:`OBS_FIELDS`) is computed from the base tracker's state (points,
+velocities, the per-target ``confidence`` of each frame) and
+:meth:`tracker.base.Tracker.stats` (BQP's solver iterations and groups) only, never from the
+ground truth, so an adaptive policy runs on real video too (:class:`PolicyControlled` drives
+any source, a video file included). No tracker subclass exists for observation.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from gymnasium import spaces
 from crowdsim.checks import require_number
 from envs.episodes import EpisodeSource, ScenarioDistribution, make_episodes
 from envs.param_space import ParamSpace, require_tunable
-from tracker.bqp.tracker import BQPTracker
+from tracker.base import Tracker
 from tracker.metrics import point_errors
 
 ENV_ID = "crowdsim/TrackerTuning-v0"
@@ -37,12 +41,12 @@ OBS_FIELDS: tuple[tuple[str, float, float, str], ...] = (
     ("speed_mean", 0.0, 5.0, "mean tracker speed |p_dot|, template sizes per frame"),
     ("speed_std", 0.0, 5.0, "standard deviation of the speeds, template sizes per frame"),
     ("flow_order", 0.0, 1.0, "|mean unit velocity| of moving targets (1 one flow, 0 mixed)"),
-    ("conf_mean", -1.0, 2.0, "mean appearance confidence of the chosen candidates"),
+    ("conf_mean", -1.0, 2.0, "mean appearance confidence of the chosen positions"),
     ("conf_std", 0.0, 2.0, "standard deviation of that confidence"),
     ("conf_p10", -1.0, 2.0, "10th percentile of that confidence"),
-    ("low_conf_fraction", 0.0, 1.0, "fraction of target-frames below update_threshold"),
-    ("solver_iterations", 0.0, 100.0, "Frank-Wolfe iterations per target and frame"),
-    ("group_fraction", 0.0, 1.0, "fraction of targets in a coherent-motion group"),
+    ("low_conf_fraction", 0.0, 1.0, "fraction of target-frames below update_threshold (if any)"),
+    ("solver_iterations", 0.0, 100.0, "solver iterations per target and frame (BQP; else 0)"),
+    ("group_fraction", 0.0, 1.0, "fraction of targets in a coherent-motion group (BQP; else 0)"),
     ("progress", 0.0, 1.0, "frames tracked / (sequence length - 1)"),
 )
 """``(name, low, high, meaning)`` of the observation's first entries; the current parameters
@@ -51,25 +55,39 @@ entries cover the frames of the last step (0 before the first step); speeds and 
 tracker's state after the step. Every entry is clipped into its range."""
 
 
-class ObservedBQPTracker(BQPTracker):
-    """The BQP tracker, recording the appearance confidence of every target's chosen candidate
-    in each frame (``confidence``, what its model update sees) for the environment's
-    observation. Tracking is unchanged."""
+def make_tuned_tracker(tracker: str, params: Any) -> Tracker:
+    """The registered tracker ``tracker`` (one with a row of tunables) built on ``params``."""
+    from tracker.registry import get
 
-    def _init(self, frame: np.ndarray) -> None:
-        self.confidences: list[np.ndarray] = []
-        super()._init(frame)
-
-    def _step(self, frame: np.ndarray) -> np.ndarray:
-        new = super()._step(frame)
-        self.confidences.append(self.confidence.copy())
-        return new
-
-
-def make_observed_tracker(tracker: str, params: Any) -> ObservedBQPTracker:
-    """An :class:`ObservedBQPTracker` for a registry name whose class is the BQP tracker."""
     require_tunable(tracker, "tracker")
-    return ObservedBQPTracker(params)
+    return get(tracker).create(params)
+
+
+class StepStats:
+    """What a tracker showed over the frames of one step, for :func:`observe`: the
+    per-target confidence of each frame (the base ``Tracker.confidence``) and the solver
+    iterations spent (``Tracker.stats()["solver_iterations"]``, where the tracker reports
+    them). :meth:`frame` after each tracked frame; :meth:`restart` at the start of a step."""
+
+    def __init__(self, trk: Tracker) -> None:
+        self.trk = trk
+        self.restart()
+
+    def _iterations(self) -> float:
+        return float(self.trk.stats().get("solver_iterations", 0.0))
+
+    def restart(self) -> None:
+        self.confidences: list[np.ndarray] = []
+        self.frames = 0
+        self._it0 = self._iterations()
+
+    def frame(self) -> None:
+        self.confidences.append(np.asarray(self.trk.confidence, np.float64).copy())
+        self.frames += 1
+
+    @property
+    def iterations(self) -> float:
+        return self._iterations() - self._it0
 
 
 @dataclass
@@ -88,28 +106,29 @@ class _Episode:
 
 
 def observe(
-    trk: BQPTracker,
+    trk: Tracker,
     space: ParamSpace,
     action: np.ndarray,
     progress: float,
     confidences: list[np.ndarray],
-    iterations: int,
+    iterations: float,
     frames: int,
 ) -> np.ndarray:
     """The observation vector (:data:`OBS_FIELDS` + the action) of a tracker's state.
 
     Parameters
     ----------
-    trk : BQPTracker
-        After ``frames`` frames of the last step (its ``points``, ``velocities``, ``groups``).
+    trk : Tracker
+        After ``frames`` frames of the last step (its ``points``, ``velocities`` where it has
+        them, and :meth:`~tracker.base.Tracker.stats`).
     action : (d,) float
         The parameters in force, as the ``[-1, 1]`` action.
     progress : float
         Fraction of the sequence tracked.
     confidences : list of (n_t,) float
-        Chosen-candidate confidences of each frame of the step.
-    iterations : int
-        Frank-Wolfe iterations spent over the step.
+        Per-target confidences of each frame of the step (:class:`StepStats`).
+    iterations : float
+        Solver iterations spent over the step (0 for trackers without a solver).
     frames : int
         Frames tracked in the step.
     """
@@ -141,12 +160,12 @@ def observe(
         out[6] = conf.mean()
         out[7] = conf.std()
         out[8] = np.percentile(conf, 10)
-        out[9] = float((conf < trk.params.update_threshold).mean())
+        threshold = getattr(trk.params, "update_threshold", None)
+        if threshold is not None:
+            out[9] = float((conf < threshold).mean())
     if frames > 0 and n > 0:
         out[10] = iterations / float(frames * n)
-    groups = getattr(trk, "groups", np.zeros(0))
-    if len(groups):
-        out[11] = float((groups >= 0).mean())
+    out[11] = float(trk.stats().get("group_fraction", 0.0))
     out[12] = progress
     out[len(OBS_FIELDS) :] = action
     lo, hi = obs_bounds(space)
@@ -161,23 +180,25 @@ def obs_bounds(space: ParamSpace) -> tuple[np.ndarray, np.ndarray]:
 
 
 class TrackerTuningEnv(gym.Env):
-    """Set the BQP tracker's term weights and update threshold while it tracks a crowd.
+    """Set a tracker's parameters (BQP's term weights and update threshold) while it tracks.
 
     ## Description
 
-    The real BQP tracker (paper 1: one binary quadratic program per frame, solved by
-    Frank-Wolfe with SWAP steps) follows every person of a synthetic dense-crowd sequence. At
-    each step the agent chooses the tracker's parameters -- the weights ``zeta`` (motion),
-    ``eta`` (neighbourhood motion), ``w_sp`` (spatial proximity), ``w_g`` (grouping) and the
-    appearance-update threshold -- which the tracker applies through ``set_params`` from the
-    next frame on; the tracker then tracks the next ``K`` frames and the reward is its accuracy
-    on them. A policy can thus adapt the parameters to the crowd (dense, fast, counterflow,
-    low contrast) as it changes.
+    A real tracker -- by default BQP (paper 1: one binary quadratic program per frame, solved
+    by Frank-Wolfe with SWAP steps); PNMC or NCC with ``tracker=`` -- follows every person of
+    a synthetic dense-crowd sequence. At each step the agent chooses the tracker's
+    parameters -- for BQP the weights ``zeta`` (motion), ``eta`` (neighbourhood motion),
+    ``w_sp`` (spatial proximity), ``w_g`` (grouping) and the appearance-update threshold; for
+    the others their row of :data:`envs.param_space.TUNABLES` -- which the tracker applies
+    through ``set_params`` from the next frame on; the tracker then tracks the next ``K``
+    frames and the reward is its accuracy on them. A policy can thus adapt the parameters to
+    the crowd (dense, fast, counterflow, low contrast) as it changes.
 
     ## Action Space
 
-    ``Box(-1, 1, (5,), float32)`` (8 with ``extended=True``: also search factor, motion sigma,
-    KCF learning rate), mapped to parameter ranges by :class:`envs.param_space.ParamSpace`:
+    For BQP ``Box(-1, 1, (5,), float32)`` (8 with ``extended=True``: also search factor,
+    motion sigma, KCF learning rate; PNMC 4 / 6, NCC 2 / 3), mapped to parameter ranges by
+    :class:`envs.param_space.ParamSpace`:
     piecewise linear with ``-1`` the low end, ``0`` **the paper defaults exactly** and ``+1``
     the high end (zeta 0 / 0.3 / 1.5, eta 0 / 0.2 / 1, w_sp 0 / 0.3 / 1.5, w_g 0 / 1 / 3,
     update_threshold 0 / 0.6 / 1). Out-of-range actions are clipped; ``info["clipped"]``
@@ -196,18 +217,19 @@ class TrackerTuningEnv(gym.Env):
     3   speed_mean            [0, 5]      mean speed of the tracker's velocities, templates/frame
     4   speed_std             [0, 5]      their standard deviation
     5   flow_order            [0, 1]      ``|mean unit velocity|`` (1: one flow; 0: counterflow)
-    6   conf_mean             [-1, 2]     mean appearance confidence of the chosen candidates
+    6   conf_mean             [-1, 2]     mean appearance confidence of the chosen positions
     7   conf_std              [0, 2]      its standard deviation
     8   conf_p10              [-1, 2]     its 10th percentile
     9   low_conf_fraction     [0, 1]      fraction below the update threshold (not updated)
-    10  solver_iterations     [0, 100]    Frank-Wolfe iterations per target and frame
-    11  group_fraction        [0, 1]      fraction of targets in a coherent-motion group
+    10  solver_iterations     [0, 100]    solver iterations per target and frame (BQP)
+    11  group_fraction        [0, 1]      fraction of targets in a coherent-motion group (BQP)
     12  progress              [0, 1]      frames tracked / (length - 1)
     13+ parameters            [-1, 1]     the parameters in force, as the action
     ==  ====================  ==========  ======================================================
 
-    Entries 6-10 describe the frames of the last step (0 after ``reset``). Nothing in the
-    observation comes from the ground truth.
+    Entries 6-10 describe the frames of the last step (0 after ``reset``); 10 and 11 come
+    from :meth:`tracker.base.Tracker.stats` and are 0 for trackers that report neither.
+    Nothing in the observation comes from the ground truth.
 
     ## Rewards
 
@@ -244,8 +266,9 @@ class TrackerTuningEnv(gym.Env):
     * ``episode_seed`` -- the fixed-list stream (0 tuning, another value held-out);
     * ``k_frames`` (25) -- frames tracked per step; ``threshold_px`` (5) -- reward threshold;
     * ``extended`` (False) -- tune 8 parameters instead of 5;
-    * ``tracker`` (``"bqp"``) -- registry name of a BQP variant (``"bqp-ncc"``);
-    * ``start_params`` -- ``BQPParams`` at reset (default: the paper defaults);
+    * ``tracker`` (``"bqp"``) -- registry name of a tunable tracker (``"bqp-ncc"``,
+      ``"pnmc"``, ``"ncc"``: :func:`envs.param_space.tunable_trackers`);
+    * ``start_params`` -- that tracker's parameters at reset (default: its defaults);
     * ``render_mode`` -- ``None`` or ``"rgb_array"`` (the current frame with ground truth in
       green and tracks in yellow, RGB).
 
@@ -302,7 +325,8 @@ class TrackerTuningEnv(gym.Env):
         self.observation_space = spaces.Box(lo, hi, dtype=np.float32)
         self.render_mode = render_mode
         self._ep: _Episode | None = None
-        self._trk: ObservedBQPTracker | None = None
+        self._trk: Tracker | None = None
+        self._seen: StepStats | None = None
         self._action = self.start_action.copy()
         self._clipped_total = 0
 
@@ -334,8 +358,9 @@ class TrackerTuningEnv(gym.Env):
             frame=first,
         )
         self._action = self.start_action.copy()
-        self._trk = make_observed_tracker(self.tracker_name, self.space.to_params(self._action))
+        self._trk = make_tuned_tracker(self.tracker_name, self.space.to_params(self._action))
         self._trk.init(first, ids0, pts0, int(seq.template_size))
+        self._seen = StepStats(self._trk)
         self._record(0, self._trk.ids, self._trk.points)
         self._clipped_total = 0
         return observe(self._trk, self.space, self._action, 0.0, [], 0, 0)
@@ -357,6 +382,7 @@ class TrackerTuningEnv(gym.Env):
             frame = next(ep.frames)
             ep.t += 1
             ids, pts = trk.step(frame, ep.births.get(ep.t))
+            self._seen.frame()
             self._record(ep.t, ids, pts)
             ep.frame = frame
             done += 1
@@ -410,20 +436,19 @@ class TrackerTuningEnv(gym.Env):
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         clipped = self._apply(action)
-        trk = self._trk
-        trk.confidences = []
-        it0 = trk.solver_iterations
+        seen = self._seen
+        seen.restart()
         start, count = self._advance(self.k_frames)
         acc, gt_n = self._score(start, count)
         ep = self._ep
         progress = ep.t / max(ep.seq.length - 1, 1)
         obs = observe(
-            trk,
+            self._trk,
             self.space,
             self._action,
             progress,
-            trk.confidences,
-            trk.solver_iterations - it0,
+            seen.confidences,
+            seen.iterations,
             count,
         )
         terminated = ep.t + 1 >= ep.seq.length
@@ -450,6 +475,7 @@ class TrackerTuningEnv(gym.Env):
     def close(self) -> None:
         self._ep = None
         self._trk = None
+        self._seen = None
 
 
 class TrackerTuningBanditEnv(TrackerTuningEnv):
@@ -502,13 +528,12 @@ class TrackerTuningBanditEnv(TrackerTuningEnv):
         if self._ep.t > 0:
             raise gym.error.ResetNeeded("the bandit episode is over; call reset()")
         clipped = self._apply(action)
-        trk = self._trk
-        trk.confidences = []
-        it0 = trk.solver_iterations
+        seen = self._seen
+        seen.restart()
         start, count = self._advance(self._ep.seq.length)
         acc, gt_n = self._score(start, count)
         obs = observe(
-            trk, self.space, self._action, 1.0, trk.confidences, trk.solver_iterations - it0, count
+            self._trk, self.space, self._action, 1.0, seen.confidences, seen.iterations, count
         )
         return obs, float(acc), True, False, self._info(acc, gt_n, clipped, count)
 
@@ -526,8 +551,8 @@ class PolicyControlled:
     Parameters
     ----------
     source : sequence source
-    tracker : ObservedBQPTracker
-        The tracker that will consume the frames (see :func:`make_observed_tracker`).
+    tracker : Tracker
+        The tracker that will consume the frames (see :func:`make_tuned_tracker`).
     policy : object with ``predict(obs, deterministic=...) -> (action, state)``
         A stable-baselines3 model trained on ``TrackerTuning-v0`` with the same ``space``.
     space : ParamSpace
@@ -537,7 +562,7 @@ class PolicyControlled:
     def __init__(
         self,
         source: Any,
-        tracker: ObservedBQPTracker,
+        tracker: Tracker,
         policy: Any,
         space: ParamSpace,
         k_frames: int = 25,
@@ -564,25 +589,26 @@ class PolicyControlled:
         trk, space = self.tracker, self.space
         action = space.to_action(trk.params)
         n = max(int(self.length or 0), 2)
-        it0, since = 0, 0
+        seen = None
         for t, frame in enumerate(self.source.frames()):
+            if t >= 2:
+                seen.frame()  # the consumer tracked frame t-1 before asking for frame t
             if t >= 1 and (t - 1) % self.k_frames == 0:
                 # frames 0 .. t-1 are tracked: observe them and choose the next block's params
+                if seen is None:
+                    seen = StepStats(trk)  # the consumer initialised on frame 0
                 obs = observe(
                     trk,
                     space,
                     action,
                     (t - 1) / (n - 1),
-                    trk.confidences,
-                    trk.solver_iterations - it0,
-                    since,
+                    seen.confidences,
+                    seen.iterations,
+                    seen.frames,
                 )
                 act, _ = self.policy.predict(obs, deterministic=self.deterministic)
                 action, _ = space.clip(act)
                 self.actions.append(action)
                 trk.set_params(space.to_params(action))
-                trk.confidences = []
-                it0, since = trk.solver_iterations, 0
-            if t >= 1:
-                since += 1
+                seen.restart()
             yield frame

@@ -4,7 +4,7 @@
   environment's settings inside, :data:`POLICY_META`), ``learning_curve.json`` and a
   learning-curve PNG.
 * :func:`load_policy` -- read a ``model.zip`` back (refusing one for another environment).
-* :func:`policy_tracker` / :func:`tuned_tracker` -- a BQP tracker driven by a loaded policy (or
+* :func:`policy_tracker` / :func:`tuned_tracker` -- a tracker driven by a loaded policy (or
   by a ``best_params.json``) for ``crowdsim track`` and :mod:`envs.heldout`.
 
 torch and stable-baselines3 come from the ``rl`` extra and are imported on use; a missing one
@@ -260,7 +260,7 @@ def plot_learning_curve(curve: Sequence[dict[str, float]], path: Path, title: st
 def policy_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The metadata (:data:`POLICY_META`) of a ``model.zip`` written by :func:`train`, checked
     without loading the model: ``ValueError`` naming the file for anything but a sound zip
-    holding a model and the metadata of a ``TrackerTuning-v0`` policy of a BQP tracker."""
+    holding a model and the metadata of a ``TrackerTuning-v0`` policy of a tunable tracker."""
     import zlib
 
     from envs.tracker_tuning import ENV_ID
@@ -346,7 +346,9 @@ def load_policy(path: str | os.PathLike[str]) -> tuple[Any, dict[str, Any]]:
             f"{p}: a damaged policy: stable-baselines3 cannot load it "
             f"({type(exc).__name__}: {first[:200]})"
         ) from None
-    space = ParamSpace(extended=bool(kwargs.get("extended", False)))
+    space = ParamSpace(
+        extended=bool(kwargs.get("extended", False)), tracker=kwargs.get("tracker", "bqp")
+    )
     want_obs = (len(OBS_FIELDS) + space.dim,)
     if model.observation_space.shape != want_obs or model.action_space.shape != (space.dim,):
         raise ValueError(
@@ -366,8 +368,8 @@ def tuned_tracker(
 ) -> tuple[Any, Any, str]:
     """``(tracker, frame source, description)`` for ``crowdsim track --params | --policy``.
 
-    ``params``: a ``best_params.json`` -> the BQP tracker with those static parameters.
-    ``policy``: a ``model.zip`` from :func:`train` -> an observed BQP tracker and ``source``
+    ``params``: a ``best_params.json`` -> its tracker with those static parameters.
+    ``policy``: a ``model.zip`` from :func:`train` -> its tracker and ``source``
     wrapped in :class:`envs.tracker_tuning.PolicyControlled` (the policy sets the parameters
     every ``k_frames`` frames, as in training). ``overrides`` (e.g. ``appearance``) go on top.
     """
@@ -391,20 +393,20 @@ def tuned_tracker(
 def policy_tracker(
     source: Any, model: Any, meta: dict[str, Any], overrides: dict[str, Any] | None = None
 ) -> tuple[Any, Any, str]:
-    """``(observed tracker, source under the policy, description)`` for a loaded policy.
+    """``(tracker, source under the policy, description)`` for a loaded policy.
 
     ``model, meta`` come from :func:`load_policy` (load once, track many sequences). The
     tracker starts from the space's default action; the policy sets its parameters every
     ``k_frames`` frames (deterministically), as in training.
     """
-    from envs.tracker_tuning import PolicyControlled, make_observed_tracker
+    from envs.tracker_tuning import PolicyControlled, make_tuned_tracker
     from tracker.registry import get
 
     kwargs = meta.get("env_kwargs", {})
     name = kwargs.get("tracker", "bqp")
     base = get(name).make_params(**dict(overrides or {}))
     space = ParamSpace(extended=bool(kwargs.get("extended", False)), base=base)
-    trk = make_observed_tracker(name, space.to_params(space.default_action))
+    trk = make_tuned_tracker(name, space.to_params(space.default_action))
     k = int(kwargs.get("k_frames", 25))
     ctl = PolicyControlled(source, trk, model, space, k_frames=k)
     return trk, ctl, f"{name} with the {meta['algo'].upper()} policy (every {k} frames)"

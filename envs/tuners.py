@@ -1,4 +1,4 @@
-"""Tuners of the BQP tracker's static parameters: Optuna and Ray Tune drivers.
+"""Tuners of a tracker's static parameters (BQP, PNMC, NCC): Optuna and Ray Tune drivers.
 
 * :func:`tune` -- black-box search of the static parameters on the bandit environment
   (``crowdsim/TrackerTuningBandit-v0``): Optuna (TPE or CMA-ES) with its study in SQLite by
@@ -68,9 +68,9 @@ class Objective:
     threshold_px : float
         Accuracy threshold T, px.
     extended : bool
-        Tune 8 parameters instead of 5.
+        Tune the tracker's extra tunables too (BQP: 8 parameters instead of 5).
     tracker : str
-        Registry name of the BQP variant.
+        Registry name of a tunable tracker (a row of :data:`envs.param_space.TUNABLES`).
     """
 
     suite: str | None = None

@@ -99,7 +99,7 @@ def camera_for(
     frame is smaller than the extent it moves towards ``focus`` (e.g. the crowd's median
     position) as far as it can while staying inside the extent.
     """
-    from crowdsim.camera import JITTER_CORRELATION_FRAMES, Camera
+    from crowdsim.camera import Camera, motion_values
     from crowdsim.render import default_px_per_m
 
     cam = spec_camera
@@ -114,8 +114,7 @@ def camera_for(
         max_size=(cam.get("max_width", 1920), cam.get("max_height", 1080)),
         tilt_deg=float(cam.get("tilt_deg", 0.0)),
         distance_m=float(cam.get("distance_m", 60.0)),
-        jitter_px=float(cam.get("jitter_px", 0.0)),
-        jitter_frames=float(cam.get("jitter_frames", JITTER_CORRELATION_FRAMES)),
+        **motion_values(cam),
         seed=seed,
     )
     if "center" in cam:

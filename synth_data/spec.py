@@ -18,6 +18,7 @@ A spec describes one sequence. Example (TOML)::
     tilt_deg = 0.0
     jitter_px = 0.0          # camera shake, pixels (standard deviation)
     # jitter_frames = 12.0   shake correlation time in frames (small = fast shake)
+    # drift_px = 0.0         drone profile: slow drift / rotate_deg / zoom (see below)
     # px_per_m = 28.0        default: appearance.template_px / 0.5 m
     # width = 1280           default: the trajectories' extent, at most max_width
     # height = 720
@@ -41,8 +42,8 @@ A spec describes one sequence. Example (TOML)::
 Validation happens on load; every error names the file, the field and the value, e.g.
 ``seq3.toml: camera.tilt_deg must be in [0, 60), got 75``.
 
-The rendering knobs (``[appearance]`` and the camera shake), from :data:`crowdsim.knobs.KNOBS`
-(also printed by ``crowdsim generate --help``)::
+The rendering knobs (``[appearance]`` and the camera motion: shake and drone profile), from
+:data:`crowdsim.knobs.KNOBS` (also printed by ``crowdsim generate --help``)::
 
 """
 
@@ -84,6 +85,10 @@ CAMERA_FIELDS: dict[str, type | tuple[type, ...]] = {
     "distance_m": (int, float),
     "jitter_px": (int, float),
     "jitter_frames": (int, float),
+    "drift_px": (int, float),
+    "rotate_deg": (int, float),
+    "zoom": (int, float),
+    "drone_frames": (int, float),
     "max_width": int,
     "max_height": int,
     "margin_m": (int, float),
@@ -277,7 +282,7 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
         raise ValueError(
             f"{where}: camera.margin_m must be in [0, 1000], got {camera['margin_m']!r}"
         )
-    from crowdsim.camera import JITTER_CORRELATION_FRAMES, Camera
+    from crowdsim.camera import Camera, motion_values
 
     try:  # range checks of the camera itself, with placeholders for the fitted fields
         Camera(
@@ -287,8 +292,7 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
             center=tuple(camera.get("center", (0.0, 0.0))),
             tilt_deg=float(camera.get("tilt_deg", 0.0)),
             distance_m=float(camera.get("distance_m", 60.0)),
-            jitter_px=float(camera.get("jitter_px", 0.0)),
-            jitter_frames=float(camera.get("jitter_frames", JITTER_CORRELATION_FRAMES)),
+            **motion_values(camera),
         )
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None

@@ -10,6 +10,9 @@ Built-in suites (:data:`SUITE_NAMES`):
 * ``ucf9-shake``: the same nine sequences as calibrated on the NCC column with every knob
   free (camera shake, sensor noise of sigma 8-22, H.264 down to 226 kbit/s): a shaky-camera variant,
   for trackers that compensate camera motion (its ``README.md``).
+* ``ucf9-drone``: ``ucf9``'s specs with the camera's drone profile (slow drift, rotation and
+  zoom of the whole view: ``drift_px``, ``rotate_deg``, ``zoom``), for camera-motion
+  compensation on footage from a hovering drone (its ``README.md``).
 * ``galleria``: ``galleria1``, ``galleria2``: 2000-frame medium-density mall sequences.
 * ``stress``: ``stress-1k``, ``stress-10k``, ``stress-50k`` agents.
 
@@ -36,7 +39,7 @@ from typing import Any
 
 from synth_data.spec import SequenceSpec, load_spec
 
-SUITE_NAMES: tuple[str, ...] = ("ucf9", "ucf9-shake", "galleria", "stress")
+SUITE_NAMES: tuple[str, ...] = ("ucf9", "ucf9-shake", "ucf9-drone", "galleria", "stress")
 PAPER_FILE = "paper.json"
 """The papers' figures of a suite: ``{table: {column: {sequence: %}}}``, keys starting with
 ``_`` are comments."""

@@ -318,6 +318,10 @@ def write_sequence(
             "seed": camera.seed,
             "jitter_frames": camera.jitter_frames,
         }
+        if camera.drone_on:  # recorded only when on: drone-free folders stay byte-identical
+            meta_out["camera"].update(
+                {n: getattr(camera, n) for n in ("drift_px", "rotate_deg", "zoom", "drone_frames")}
+            )
         meta_out["appearance"] = appearance.to_dict()
         meta_out["frames"] = n_frames
         meta_out["versions"] = package_versions()

@@ -37,8 +37,8 @@ def add_table_arguments(p: argparse.ArgumentParser) -> None:
         "--suite",
         default="ucf9",
         metavar="NAME|DIR",
-        help="built-in suite (ucf9, ucf9-shake, galleria, stress) or a suite folder of spec "
-        "files, e.g. one written by crowdsim calibrate --out (default ucf9)",
+        help="built-in suite (ucf9, ucf9-shake, ucf9-drone, galleria, stress) or a suite "
+        "folder of spec files, e.g. one written by crowdsim calibrate --out (default ucf9)",
     )
     p.add_argument("--only", nargs="+", metavar="SEQ", help="only these sequences")
     p.add_argument(
@@ -97,7 +97,7 @@ def add_episode_arguments(p: argparse.ArgumentParser, only_help: str) -> None:
     src.add_argument(
         "--suite",
         metavar="NAME",
-        help="built-in suite (ucf9, ucf9-shake, galleria) or a folder of MOT sequences",
+        help="built-in suite (ucf9, ucf9-shake, ucf9-drone, galleria) or a folder of MOT sequences",
     )
     src.add_argument(
         "--scenarios",

@@ -57,8 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--suite",
         default="ucf9",
         metavar="NAME|DIR",
-        help="built-in suite (ucf9, ucf9-shake, galleria, stress) or a suite folder of spec files "
-        "(default ucf9)",
+        help="built-in suite (ucf9, ucf9-shake, ucf9-drone, galleria, stress) or a suite "
+        "folder of spec files (default ucf9)",
     )
     p.add_argument("--only", nargs="+", metavar="SEQ", help="only these sequences")
     p.add_argument(

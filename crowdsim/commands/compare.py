@@ -1,14 +1,17 @@
 """``crowdsim compare``: every tracker on a suite, the papers' figures beside ours.
 
-``crowdsim compare --suite NAME|DIR [--only SEQ ...] [--frames N] [--workers N] [--backend
-local|ray [--address ADDR]] --out DIR``
+``crowdsim compare --suite NAME|DIR [--only SEQ ...] [--trackers NAME ...] [--cmc] [--frames N]
+[--workers N] [--backend local|ray [--address ADDR]] --out DIR``
 
-``--suite`` is a built-in suite (ucf9, ucf9-shake, galleria, stress) or a suite folder of spec
-files, such as the one ``crowdsim calibrate --out`` writes (its ``paper.json`` gives the
-papers' column).
+``--suite`` is a built-in suite (ucf9, ucf9-shake, ucf9-drone, galleria, stress) or a suite
+folder of spec files, such as the one ``crowdsim calibrate --out`` writes (its ``paper.json``
+gives the papers' column).
 Rows: NCC, mean-shift, PNMC, BQP (KCF), BQP (NCC appearance), ByteTrack and OC-SORT at
-detector miss rates 0.1 and 0.3. Per sequence: acc@15, acc@5, MOTA, IDF1, HOTA, frames/s.
-Writes ``table.md``, ``table.csv`` and accuracy-versus-threshold PNGs and prints the table.
+detector miss rates 0.1 and 0.3; with ``--cmc``, each detection-free tracker also with
+camera-motion compensation (``<row> + CMC``); ``--trackers`` keeps only the rows of those
+registered trackers. Per sequence: acc@15, acc@5, MOTA, IDF1,
+HOTA, frames/s. Writes ``table.md``, ``table.csv`` and accuracy-versus-threshold PNGs and
+prints the table.
 Resumable: a rerun with the same ``--out`` skips finished cells, each checked against the
 checksum stored with it in ``cells.json`` (an edited cell is refused, naming it; see
 :mod:`crowdsim.lab.experiments`). A sequence folder in ``DIR/sequences`` made from another
@@ -29,10 +32,32 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__.splitlines()[0].replace("``", ""),
     )
     add_table_arguments(p)
+    p.add_argument(
+        "--cmc",
+        action="store_true",
+        help="add each detection-free tracker (NCC, mean-shift, PNMC, BQP) with camera-motion "
+        "compensation as a '+ CMC' row",
+    )
+    p.add_argument(
+        "--trackers",
+        nargs="+",
+        metavar="NAME",
+        help="only the rows of these registered trackers (default: every row; e.g. bqp pnmc)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from crowdsim.lab.experiments import COMPARE_ROWS
+    from crowdsim.lab.experiments import COMPARE_ROWS, with_cmc
 
-    return run_table_command(args, COMPARE_ROWS, f"compare on {args.suite}", "acc@15")
+    rows = COMPARE_ROWS
+    if args.trackers:
+        known = sorted({r.tracker for r in COMPARE_ROWS})
+        for name in args.trackers:
+            if name not in known:
+                raise ValueError(
+                    f"--trackers: no compare row runs {name!r} (rows run {', '.join(known)})"
+                )
+        rows = tuple(r for r in rows if r.tracker in args.trackers)
+    rows = with_cmc(rows) if args.cmc else rows
+    return run_table_command(args, rows, f"compare on {args.suite}", "acc@15")

@@ -28,15 +28,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="generate synthetic benchmark sequences (MOT layout)",
         description=__doc__.splitlines()[0].replace("``", ""),
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="The rendering knobs of a spec file (its [appearance] section and the camera "
-        "shake; a value\nout of range is refused on load, naming the file, the field and the "
-        "value):\n\n" + reference(),
+        epilog="The rendering knobs of a spec file (its [appearance] section and the camera's "
+        "shake and drone profile;\na value out of range is refused on load, naming the file, "
+        "the field and the value):\n\n" + reference(),
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument(
         "--suite",
         metavar="NAME|DIR",
-        help="built-in suite (ucf9, ucf9-shake, galleria, stress) or a suite folder of spec files",
+        help="built-in suite (ucf9, ucf9-shake, ucf9-drone, galleria, stress) or a suite "
+        "folder of spec files",
     )
     src.add_argument(
         "--spec",

@@ -6,7 +6,7 @@ sequences.
 
 Draws ``--seeds`` held-out sequences per family (each ``--only`` sequence of a built-in suite
 re-seeded, or each scenario family of a distribution) from seed streams that ``crowdsim tune``
-and ``crowdsim train`` never use, and tracks every one with the BQP tracker's paper defaults,
+and ``crowdsim train`` never use, and tracks every one with the tracker's paper defaults,
 with each ``best_params.json`` of ``crowdsim tune`` and with each ``model.zip`` of ``crowdsim
 train`` (the policy sets the parameters every K frames). Writes ``DIR/heldout.json`` (every
 sequence's acc@5, acc@15, HOTA, MOTA, IDF1; mean and std per family and overall),
@@ -54,7 +54,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--no-defaults", action="store_true", help="leave the paper defaults out of the table"
     )
-    p.add_argument("--tracker", default="bqp", help="BQP variant from the tracker registry")
+    p.add_argument(
+        "--tracker",
+        default="bqp",
+        help="tunable tracker from the registry (bqp, bqp-ncc, bqp-dense, pnmc, ncc; default bqp)",
+    )
     p.add_argument(
         "--metrics",
         choices=("full", "accuracy"),

@@ -75,12 +75,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     tuned.add_argument(
         "--params",
         metavar="JSON",
-        help="BQP with tuned static parameters (best_params.json of crowdsim tune)",
+        help="a tracker with tuned static parameters (best_params.json of crowdsim tune)",
     )
     tuned.add_argument(
         "--policy",
         metavar="ZIP",
-        help="BQP driven by an adaptive policy (model.zip of crowdsim train)",
+        help="a tracker driven by an adaptive policy (model.zip of crowdsim train)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -101,20 +101,29 @@ def _check_output(path: str, flag: str, suffix: str | None = None) -> Path:
     return out
 
 
+def _field_names(entry) -> set[str]:
+    from dataclasses import fields
+
+    return {f.name for f in fields(entry.params_class())}
+
+
 def _overrides(args: argparse.Namespace, name: str) -> dict:
     """``--set``, ``--appearance`` and ``--dense`` as parameter values of tracker ``name``,
     checked: unknown or out-of-range values and flags that contradict each other are named."""
     from crowdsim.commands.simulate import parse_assignments
-    from envs.param_space import tunable_trackers
-    from tracker.registry import get
+    from tracker.registry import TRACKERS, get
 
     entry = get(name)  # unknown names list the valid ones
     over = parse_assignments(args.set, "--set")
-    bqp = name in tunable_trackers()
-    for flag, given in (("--appearance", args.appearance is not None), ("--dense", args.dense)):
-        if given and not bqp:
+    own = _field_names(entry)
+    for flag, field, given in (
+        ("--appearance", "appearance", args.appearance is not None),
+        ("--dense", "speedup", args.dense),
+    ):
+        if given and field not in own:
+            having = [n for n, e in TRACKERS.items() if field in _field_names(e)]
             raise ValueError(
-                f"{flag} sets a parameter of the BQP trackers ({', '.join(tunable_trackers())}), "
+                f"{flag} sets a parameter of the BQP trackers ({', '.join(having)}), "
                 f"not of --tracker {name}"
             )
     if args.appearance is not None:

@@ -1,10 +1,10 @@
 """``crowdsim train``: learn an adaptive parameter policy with stable-baselines3.
 
 ``crowdsim train --algo ppo|sac [--envs N] [--steps N] (--scenarios DIST | --suite NAME)
---out DIR``
+[--tracker NAME] --out DIR``
 
-Trains on ``crowdsim/TrackerTuning-v0`` (the policy sets the BQP tracker's parameters every
-``--k`` frames) over ``--envs`` asynchronous environments (subprocesses). Writes
+Trains on ``crowdsim/TrackerTuning-v0`` (the policy sets the tracker's parameters, BQP's by
+default, every ``--k`` frames) over ``--envs`` asynchronous environments (subprocesses). Writes
 ``DIR/model.zip`` (for ``crowdsim track --policy``), ``DIR/learning_curve.png`` and
 ``DIR/learning_curve.json`` (a user's own files of those names are refused, never replaced).
 Needs the ``rl`` extra (torch, stable-baselines3). The environment processes die with this one
@@ -55,7 +55,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="PX",
         help="reward threshold T in px (default 5)",
     )
-    p.add_argument("--extended", action="store_true", help="8 tuned parameters instead of 5")
+    p.add_argument(
+        "--tracker",
+        default="bqp",
+        help="tunable tracker from the registry (bqp, bqp-ncc, bqp-dense, pnmc, ncc; default bqp)",
+    )
+    p.add_argument(
+        "--extended",
+        action="store_true",
+        help="the tracker's extra tunables too (BQP: 8 tuned parameters instead of 5)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -73,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
     if args.frames is not None:
         require_number("", "--frames", args.frames, lo=2, integer=True)
     kwargs = {"k_frames": args.k, "threshold_px": args.threshold, "extended": args.extended}
+    if args.tracker != "bqp":  # policies of the default tracker keep their metadata as before
+        kwargs["tracker"] = args.tracker
     if args.suite:
         kwargs.update(suite=args.suite, only=args.only)
     else:

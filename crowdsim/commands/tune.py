@@ -1,4 +1,4 @@
-"""``crowdsim tune``: tune the BQP tracker's parameters with Optuna (or Ray Tune).
+"""``crowdsim tune``: tune a tracker's parameters (BQP's by default) with Optuna (or Ray Tune).
 
 ``crowdsim tune (--suite NAME | --scenarios DIST) [--only SEQ ...] [--frames N] --trials N
 [--sampler tpe|cmaes] [--study URL] [--workers N] [--backend local|ray] [--address ADDR]
@@ -26,7 +26,7 @@ from crowdsim.commands._table_args import add_episode_arguments, episode_objecti
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "tune",
-        help="tune the BQP tracker's parameters (Optuna / Ray Tune)",
+        help="tune a tracker's parameters, BQP's by default (Optuna / Ray Tune)",
         description=__doc__.splitlines()[0].replace("``", ""),
     )
     add_episode_arguments(p, only_help="with --suite: tune on these")
@@ -81,7 +81,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also tune search factor, motion sigma and KCF learning rate",
     )
-    p.add_argument("--tracker", default="bqp", help="BQP variant from the tracker registry")
+    p.add_argument(
+        "--tracker",
+        default="bqp",
+        help="tunable tracker from the registry (bqp, bqp-ncc, bqp-dense, pnmc, ncc; default bqp)",
+    )
     p.add_argument("--seed", type=int, default=0, help="sampler seed")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")

@@ -14,7 +14,7 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -34,13 +34,16 @@ def _slug(group: str) -> str:
     return re.sub(r"[^a-z0-9]+", "-", group.lower()).strip("-")
 
 
-def variant_specs(spec: Any) -> list[tuple[str, Any]]:
-    """``[(variant, spec)]``: ``calibrated``, ``-<group>`` for every group, ``uncalibrated``.
+def variant_specs(spec: Any, groups: Sequence[str] | None = None) -> list[tuple[str, Any]]:
+    """``[(variant, spec)]``: ``calibrated``, ``-<group>`` for every group (or only ``groups``,
+    in table order), ``uncalibrated``.
 
     A variant's spec is named ``<sequence>.<variant>``; only its appearance and camera knobs
     differ (same seed, same crowd, same motion). Raises ``ValueError`` for a spec that was
-    never calibrated (no ``base_*`` values recorded in ``[calibration]``).
+    never calibrated (no ``base_*`` values recorded in ``[calibration]``) and for an unknown
+    group.
     """
+    chosen = check_groups(groups)
     from crowdsim.lab.calibration import uncalibrated_values
 
     base = uncalibrated_values(spec)
@@ -51,12 +54,30 @@ def variant_specs(spec: Any) -> list[tuple[str, Any]]:
         )
     section = {name: sec for sec, name in base}
     out = [("calibrated", replace(spec, name=f"{spec.name}.calibrated"))]
-    for group, names in DIFFICULTY_GROUPS.items():
+    for group in chosen:
+        names = DIFFICULTY_GROUPS[group]
         values = {(section[n], n): base[(section[n], n)] for n in names}
         v = apply_knobs(spec, values)
         out.append((f"-{group}", replace(v, name=f"{spec.name}.no-{_slug(group)}")))
     out.append(("uncalibrated", replace(apply_knobs(spec, base), name=f"{spec.name}.base")))
     return out
+
+
+def check_groups(groups: Sequence[str] | None) -> tuple[str, ...]:
+    """The groups to attribute, in :data:`DIFFICULTY_GROUPS` order (all when ``None``);
+    ``ValueError`` naming an unknown or repeated group."""
+    if groups is None:
+        return tuple(DIFFICULTY_GROUPS)
+    if isinstance(groups, str):
+        groups = (groups,)
+    for g in groups:
+        if g not in DIFFICULTY_GROUPS:
+            raise ValueError(
+                f"--groups: unknown group {g!r} (choose from {', '.join(DIFFICULTY_GROUPS)})"
+            )
+    if not groups or len(set(groups)) != len(groups):
+        raise ValueError(f"--groups: name each group once, got {' '.join(groups) or 'none'}")
+    return tuple(g for g in DIFFICULTY_GROUPS if g in groups)
 
 
 def attribute(
@@ -65,6 +86,8 @@ def attribute(
     *,
     only: Sequence[str] | None = None,
     trackers: Sequence[str] = DEFAULT_TRACKERS,
+    groups: Sequence[str] | None = None,
+    cmc: bool = False,
     frames: int | None = None,
     workers: int = 1,
     backend: str = "local",
@@ -75,7 +98,11 @@ def attribute(
     """Track every difficulty variant of the suite's calibrated sequences with ``trackers``.
 
     ``suite`` is a built-in name or a suite folder (e.g. one written by ``crowdsim calibrate
-    --out``).
+    --out``). ``groups`` limits the variants to those groups (default: all). With ``cmc``,
+    each tracker also runs with camera-motion compensation (``cmc=True``, row ``<name>+cmc``)
+    on every variant, and the attribution adds what compensation regains on the calibrated
+    spec (``cmc``) and, where shake costs the tracker points, the share of them it regains
+    (``cmc_share_of_shake``).
 
     Writes the full table of :func:`crowdsim.lab.experiments.run_table` (``OUT/table.md``,
     ``table.csv``, ``cells.json``, curves) and ``OUT/attribution.md`` / ``.json``: per
@@ -90,10 +117,15 @@ def attribute(
 
     if isinstance(trackers, str):
         trackers = (trackers,)  # one name, not its letters
+    chosen = check_groups(groups)
     rows = []
     for name in trackers:
-        get(name)  # an unknown name fails before any work
+        entry = get(name)  # an unknown name fails before any work
+        if cmc and "cmc" not in {f.name for f in fields(entry.params_class())}:
+            raise ValueError(f"--cmc: tracker {name!r} has no camera-motion compensation")
         rows.append(Row(name, name))
+        if cmc:
+            rows.append(Row(f"{name}+cmc", name, {"cmc": True}))
     if not rows:
         raise ValueError("--trackers: name at least one tracker")
     if len(set(trackers)) != len(trackers):
@@ -101,7 +133,7 @@ def attribute(
     specs = [s for s in suite_specs(suite, list(only) if only else None) if s.calibration]
     if not specs:
         raise ValueError(f"suite {str(suite)!r}: no calibrated sequence to attribute")
-    variants = {s.name: variant_specs(s) for s in specs}
+    variants = {s.name: variant_specs(s, chosen) for s in specs}
     all_specs = [v for vs in variants.values() for _, v in vs]
     run_table(
         rows,
@@ -116,18 +148,29 @@ def attribute(
         log=log,
     )
     cells = read_cells(Path(out) / CELLS_FILE)  # checked: figures as the trackers measured
-    doc: dict[str, Any] = {"suite": str(suite), "groups": DIFFICULTY_GROUPS, "sequences": {}}
+    doc: dict[str, Any] = {
+        "suite": str(suite),
+        "groups": {g: DIFFICULTY_GROUPS[g] for g in chosen},
+        "sequences": {},
+    }
     for seq, vs in variants.items():
         per = {}
         for row in rows:
             acc = {
                 label: float(cells[cell_key(sp.name, row, frames)]["acc@15"]) for label, sp in vs
             }
-            per[row.tracker] = {
+            per[row.label] = {
                 "calibrated": acc["calibrated"],
                 "uncalibrated": acc["uncalibrated"],
-                "regained": {g: acc[f"-{g}"] - acc["calibrated"] for g in DIFFICULTY_GROUPS},
+                "regained": {g: acc[f"-{g}"] - acc["calibrated"] for g in chosen},
             }
+        if cmc:
+            for name in trackers:
+                r, c = per[name], per[f"{name}+cmc"]
+                r["cmc"] = c["calibrated"] - r["calibrated"]
+                shake = r["regained"].get("shake")
+                if shake is not None and shake > 0:
+                    r["cmc_share_of_shake"] = r["cmc"] / shake
         doc["sequences"][seq] = per
     out = Path(out)
     write_text_atomic(out / "attribution.json", json.dumps(doc, indent=2) + "\n")
@@ -137,9 +180,13 @@ def attribute(
 
 def attribution_table(doc: dict[str, Any]) -> str:
     """Markdown: per sequence and tracker, acc@15 calibrated, the points each group costs
-    (acc@15 with the group removed minus calibrated) and acc@15 uncalibrated."""
+    (acc@15 with the group removed minus calibrated) and acc@15 uncalibrated; with ``cmc``
+    rows, the points compensation regains on the calibrated spec and its share of shake's."""
     groups = list(doc["groups"])
+    with_cmc = any("cmc" in r for per in doc["sequences"].values() for r in per.values())
+    extra = ["+cmc", "cmc / shake"] if with_cmc else []
     head = ["sequence", "tracker", "calibrated", *[f"-{g}" for g in groups], "uncalibrated"]
+    head += extra
     lines = [
         f"# Difficulty attribution on {doc['suite']} (acc@15 %, and points regained)",
         "",
@@ -149,9 +196,16 @@ def attribution_table(doc: dict[str, Any]) -> str:
     for seq, per in doc["sequences"].items():
         for trk, r in per.items():
             cells = [f"{r['regained'][g]:+.1f}" for g in groups]
+            if with_cmc:
+                share = r.get("cmc_share_of_shake")
+                cells += [
+                    f"{r['cmc']:+.1f}" if "cmc" in r else "",
+                    f"{share:.0%}" if share is not None else "",
+                ]
             lines.append(
                 f"| {seq} | {trk} | {r['calibrated']:.1f} | "
-                + " | ".join(cells)
+                + " | ".join(cells[: len(groups)])
                 + f" | {r['uncalibrated']:.1f} |"
+                + "".join(f" {c} |" for c in cells[len(groups) :])
             )
     return "\n".join(lines) + "\n"

@@ -26,7 +26,7 @@ import io
 import json
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -75,6 +75,20 @@ METRICS: tuple[tuple[str, str, str], ...] = (
     ("fps", "frames/s", ""),
 )
 """``(key, heading, unit)`` of every table section."""
+
+
+def with_cmc(rows: Sequence[Row]) -> tuple[Row, ...]:
+    """``rows``, each followed by the same row with camera-motion compensation on
+    (``<label> + CMC``, ``cmc=True``) where its tracker has the parameter (the detection-free
+    trackers; the detection-based references have no camera to compensate)."""
+    from tracker.registry import get
+
+    out: list[Row] = []
+    for row in rows:
+        out.append(row)
+        if "cmc" in {f.name for f in fields(get(row.tracker).params_class())}:
+            out.append(Row(f"{row.label} + CMC", row.tracker, {**row.overrides, "cmc": True}))
+    return tuple(out)
 
 
 def ablation_rows() -> tuple[Row, ...]:

@@ -84,9 +84,10 @@ tune_case("threshold-neg", "--threshold -1", "--threshold must be&&got -1.0")
 tune_case("train-episodes-0", "--train-episodes 0", "--train-episodes&&got 0")
 tune_case("frames-1", "--frames 1", "--frames must be >= 2, got 1")
 tune_case(
-    "tracker-ncc",
-    "--tracker ncc",
-    "--tracker ncc: tuning supports the BQP trackers only (bqp, bqp-ncc, bqp-dense)",
+    "tracker-bytetrack",
+    "--tracker bytetrack",
+    "--tracker bytetrack: no row of tunables for this tracker in envs.param_space.TUNABLES "
+    "(tunable: bqp, bqp-ncc, bqp-dense, ncc, pnmc)",
 )
 tune_case("tracker-unknown", "--tracker magic", "unknown tracker 'magic'")
 tune_case("address-local", "--address x:1", "--address needs --backend ray")
@@ -282,9 +283,9 @@ case(
     files=(*D, ("p.json", '{"tracker": "ncc", "params": {}}')),
 )
 case(
-    "envs-heldout-tracker-ncc",
-    f"{HELD} --tracker ncc",
-    "--tracker ncc: tuning supports the BQP trackers only",
+    "envs-heldout-tracker-meanshift",
+    f"{HELD} --tracker meanshift",
+    "--tracker meanshift: no row of tunables for this tracker",
     files=D,
 )
 case(
@@ -315,6 +316,12 @@ case(
 )
 case("envs-train-envs-huge", f"{TRAIN} --envs 1000", "--envs&&got 1000", files=D)
 case("envs-train-steps-0", f"{TRAIN} --steps 0", "--steps&&got 0", files=D)
+case(
+    "envs-train-tracker-bytetrack",
+    f"{TRAIN} --tracker bytetrack",
+    "tracker bytetrack: no row of tunables for this tracker",
+    files=D,
+)
 case("envs-train-k-0", f"{TRAIN} --k 0", "--k must be an integer >= 1, got 0", files=D)
 case("envs-train-frames-1", f"{TRAIN} --frames 1", "--frames&&got 1", files=D)
 case("envs-train-threshold-nan", f"{TRAIN} --threshold nan", "--threshold&&got nan", files=D)
@@ -452,9 +459,9 @@ api_case(
     "threshold_px&&got -1.0",
 )
 api_case(
-    "envs-api-make-ncc",
-    _make(scenarios=dict(TINY), tracker="ncc"),
-    "tracker ncc: tuning supports the BQP trackers only",
+    "envs-api-make-ocsort",
+    _make(scenarios=dict(TINY), tracker="ocsort"),
+    "tracker ocsort: no row of tunables for this tracker",
 )
 api_case(
     "envs-api-make-frames-huge",
@@ -533,13 +540,13 @@ def _space(call):
 api_case(
     "envs-api-space-base",
     _space(lambda P: P(base={"zeta": 1})),
-    "ParamSpace(base=...) must be the parameters of a BQP tracker",
+    "ParamSpace(base=...) must be the parameters of a tunable tracker",
 )
 api_case("envs-api-space-lack", _space(lambda P: P().to_action({"zeta": 1})), "lack eta")
 api_case(
     "envs-api-space-unknown",
     _space(lambda P: P().params_from_dict({"zeta2": 1})),
-    "unknown BQP parameter(s) zeta2",
+    "unknown BQPParams parameter(s) zeta2",
 )
 
 
@@ -592,7 +599,11 @@ def _objective(**kw):
     return call
 
 
-api_case("envs-api-objective-ncc", _objective(scenarios="all", tracker="ncc"), "--tracker ncc")
+api_case(
+    "envs-api-objective-meanshift",
+    _objective(scenarios="all", tracker="meanshift"),
+    "--tracker meanshift: no row of tunables",
+)
 api_case("envs-api-objective-none", _objective(), "give exactly one of --suite NAME")
 api_case(
     "envs-api-objective-episodes-0",

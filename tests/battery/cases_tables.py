@@ -316,7 +316,8 @@ case(
 case(
     "tables-gen-suite-missing",
     "generate --suite {w}/nosuch --out {w}/o",
-    "--suite must be one of ucf9, ucf9-shake, galleria, stress or a suite folder of spec files",
+    "--suite must be one of ucf9, ucf9-shake, ucf9-drone, galleria, stress or a suite folder "
+    "of spec files",
 )
 case(
     "tables-gen-suite-of-sequences",
@@ -333,6 +334,26 @@ case(
     "tables-diff-trackers-twice",
     "difficulty --trackers ncc ncc --out {w}/o",
     "--trackers: ncc, ncc names a tracker twice",
+)
+case(
+    "tables-compare-trackers-unknown",
+    "compare --trackers bqp nosuch --out {w}/o",
+    "--trackers: no compare row runs 'nosuch'&&bqp",
+)
+case(
+    "tables-diff-groups-unknown",
+    "difficulty --groups shake wobble --out {w}/o",
+    "--groups: unknown group 'wobble'&&shake",
+)
+case(
+    "tables-diff-groups-twice",
+    "difficulty --groups shake shake --out {w}/o",
+    "--groups: name each group once",
+)
+case(
+    "tables-diff-cmc-detection-tracker",
+    "difficulty --trackers bytetrack --cmc --out {w}/o",
+    "--cmc: tracker 'bytetrack' has no camera-motion compensation",
 )
 case(
     "tables-diff-not-calibrated",
@@ -479,8 +500,8 @@ api_case(
 api_case(
     "tables-api-calibrate-suite-not-a-name",
     lambda w, env: _calibrate_suite(w, suite=9),
-    "--suite must be one of ucf9, ucf9-shake, galleria, stress or a suite folder of spec files, "
-    "got 9",
+    "--suite must be one of ucf9, ucf9-shake, ucf9-drone, galleria, stress or a suite folder "
+    "of spec files, got 9",
 )
 api_case(
     "tables-api-write-calibration-not-a-spec",

@@ -34,9 +34,11 @@ HELPERS = textwrap.dedent("""
         raise ValueError(f"bad value {x}")
 
     def sleeper(folder, name):
-        # record the worker pid, then work for a long time
-        with open(os.path.join(folder, f"{name}.pid"), "w") as fh:
+        # record the worker pid (whole: written aside, then renamed), then work for a long time
+        path = os.path.join(folder, f"{name}.pid")
+        with open(path + ".tmp", "w") as fh:
             fh.write(str(os.getpid()))
+        os.replace(path + ".tmp", path)
         try:
             time.sleep(60)
         finally:

@@ -63,10 +63,47 @@ def test_base_params_keep_their_untuned_fields():
     base = BQPParams(appearance="ncc", fw_variant="away")
     p = ParamSpace(base=base).to_params(np.ones(5))
     assert (p.appearance, p.fw_variant, p.zeta) == ("ncc", "away", 1.5)
-    with pytest.raises(ValueError, match="BQPParams"):
+    with pytest.raises(ValueError, match="tunable tracker.*got dict"):
         ParamSpace(base={"zeta": 1})
-    with pytest.raises(ValueError, match="unknown BQP parameter"):
+    with pytest.raises(ValueError, match="unknown BQPParams parameter"):
         ParamSpace().params_from_dict({"zeta": 1.0, "gamma": 2})
+
+
+def test_every_row_of_tunables_names_real_fields_with_the_class_defaults():
+    """Action 0 is each tracker's own defaults, both range ends are valid parameters, and
+    every tunable registry name builds a space; trackers without a row are refused by name."""
+    from dataclasses import fields
+
+    from envs.param_space import TUNABLES, tunable_trackers
+    from tracker.registry import TRACKERS, get
+
+    assert set(tunable_trackers()) == {"bqp", "bqp-ncc", "bqp-dense", "pnmc", "ncc"}
+    assert set(TUNABLES) == {TRACKERS[n].params for n in tunable_trackers()}
+    for name in tunable_trackers():
+        for extended in (False, True):
+            space = ParamSpace(extended=extended, tracker=name)
+            base = get(name).make_params()
+            defaults = {f.name: f.default for f in fields(space.params_class)}
+            for t in space.tunables:
+                assert t.default == defaults[t.name], (name, t.name)
+            assert space.to_params(space.default_action) == base
+            space.to_params(-np.ones(space.dim))  # the parameter class validates both ends
+            space.to_params(np.ones(space.dim))
+            np.testing.assert_allclose(space.to_action(space.to_params(np.ones(space.dim))), 1)
+    assert ParamSpace(tracker="bqp-ncc").base.appearance == "ncc"
+    for name in ("bytetrack", "meanshift"):
+        with pytest.raises(ValueError, match=f"{name}: no row of tunables"):
+            ParamSpace(tracker=name)
+
+
+def test_integer_tunables_round_and_reach_their_ends():
+    space = ParamSpace(tracker="ncc", extended=True)
+    assert space.names == ("update_threshold", "search_factor", "update_every")
+    assert space.to_params([0, 0, -1]).update_every == 1
+    assert space.to_params([0, 0, 0.52]).update_every == 20  # 10 + 0.52 * 20 = 20.4
+    assert isinstance(space.values([0, 0, 0.3])["update_every"], int)
+    assert space.signature().startswith("NCCParams;")
+    assert not ParamSpace().signature().startswith("BQPParams")  # old studies stay valid
 
 
 def test_optuna_suggestions_use_the_same_ranges():

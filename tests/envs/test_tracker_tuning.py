@@ -18,7 +18,7 @@ from envs.tracker_tuning import (
     PolicyControlled,
     TrackerTuningBanditEnv,
     TrackerTuningEnv,
-    make_observed_tracker,
+    make_tuned_tracker,
 )
 
 TINY = tiny_scenarios()
@@ -53,6 +53,26 @@ def test_gymnasium_check_env_with_render(env_id):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a checker warning is a failure here
         check_env(env.unwrapped)
+    env.close()
+
+
+@pytest.mark.parametrize("tracker, dim", [("pnmc", 4), ("ncc", 2)])
+def test_any_tunable_tracker_makes_a_checked_env(tracker, dim):
+    """gymnasium.make(..., tracker=NAME) for the trackers beside BQP: the official checker, its
+    own action space, and set_params reaching the tracker."""
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make(ENV_ID, scenarios=dict(TINY), k_frames=5, tracker=tracker)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(env.unwrapped)
+    assert env.action_space.shape == (dim,)
+    env.reset(seed=3)
+    obs, r, *_, info = env.step(np.ones(dim, np.float32))
+    space = env.unwrapped.space
+    assert env.unwrapped._trk.params == space.to_params(np.ones(dim))
+    assert obs[len(OBS_FIELDS) :].tolist() == [1.0] * dim and 0 <= r <= 1
+    assert obs[10] == 0 and obs[11] == 0  # no solver and no groups to report
     env.close()
 
 
@@ -210,8 +230,8 @@ def test_bad_arguments():
         TrackerTuningEnv(suite="nope")
     with pytest.raises(ValueError, match="unknown tracker"):
         TrackerTuningEnv(scenarios=dict(TINY), tracker="kalman")
-    with pytest.raises(ValueError, match="BQP tracker"):
-        TrackerTuningEnv(scenarios=dict(TINY), tracker="ncc")
+    with pytest.raises(ValueError, match="bytetrack: no row of tunables"):
+        TrackerTuningEnv(scenarios=dict(TINY), tracker="bytetrack")
     env = tiny_env()
     with pytest.raises(gym.error.ResetNeeded):
         env.step(np.zeros(5))
@@ -261,8 +281,10 @@ def test_async_vector_env_default_context_in_a_fresh_process():
     assert out.stdout.strip() == "(2, 18) (2,)"
 
 
-def test_policy_controlled_tracking_follows_the_env():
-    """A policy run through PolicyControlled makes the same tracks as the env stepping it."""
+@pytest.mark.parametrize("tracker", ["bqp", "pnmc"])
+def test_policy_controlled_tracking_follows_the_env(tracker):
+    """A policy run through PolicyControlled makes the same tracks as the env stepping it and
+    sees the env's first observation, for BQP and for PNMC."""
 
     class Constant:
         def __init__(self, a):
@@ -275,16 +297,16 @@ def test_policy_controlled_tracking_follows_the_env():
 
     from tracker.runner import run_tracker
 
-    a = [0.8, -0.5, 0.2, -1.0, 0.4]
-    env = tiny_env()
+    a = [0.8, -0.5, 0.2, -1.0, 0.4][: ParamSpace(tracker=tracker).dim]
+    env = tiny_env(tracker=tracker)
     obs0, _ = env.reset(options={"episode": 4})
     done = False
     while not done:
         _, _, done, _, _ = env.step(a)
-    space = ParamSpace()
+    space = ParamSpace(tracker=tracker)
     pol = Constant(a)
     seq = env.episodes.episode(4)
-    trk = make_observed_tracker("bqp", space.to_params(space.default_action))
+    trk = make_tuned_tracker(tracker, space.to_params(space.default_action))
     run = run_tracker(trk, PolicyControlled(seq, trk, pol, space, k_frames=5), metrics="accuracy")
     assert len(pol.seen) == 3
     np.testing.assert_array_equal(pol.seen[0], obs0)
@@ -424,7 +446,7 @@ def test_policy_driven_tracker_sees_exactly_the_envs_observations():
     pol = Scripted()
     space = ParamSpace()
     seq = _GtEdited(env.episodes.episode(4), None)
-    trk = make_observed_tracker("bqp", space.to_params(space.default_action))
+    trk = make_tuned_tracker("bqp", space.to_params(space.default_action))
     run = run_tracker(trk, PolicyControlled(seq, trk, pol, space, k_frames=5), metrics="none")
     assert len(pol.seen) == 3
     for k, (a, b) in enumerate(zip(env_obs[:3], pol.seen, strict=True)):
@@ -453,7 +475,7 @@ def test_each_step_reward_covers_exactly_its_k_frames():
             self.n += 1
             return ACTIONS[self.n - 1], None
 
-    trk = make_observed_tracker("bqp", space.to_params(space.default_action))
+    trk = make_tuned_tracker("bqp", space.to_params(space.default_action))
     run = run_tracker(trk, PolicyControlled(seq, trk, Scripted(), space, 5), metrics="none")
     gt_ids, gt = seq.gt_points()
     tracked = dict(zip(run.result.ids.tolist(), range(len(run.result.ids)), strict=True))

@@ -94,6 +94,33 @@ def test_tune_writes_results_and_a_rerun_continues_the_study(tmp_path):
     assert name == "bqp" and params.zeta == pytest.approx(doc["params"]["zeta"])
 
 
+@pytest.mark.parametrize("tracker", ["pnmc", "ncc"])
+def test_tune_any_tunable_tracker_from_the_cli(tmp_path, tracker):
+    """crowdsim tune --tracker pnmc|ncc: the tracker's own row of tunables, trial 0 at its
+    defaults, a best_params.json that loads back into that tracker, and heldout reading it."""
+    from crowdsim.cli import main
+    from envs.param_space import ParamSpace
+    from tracker.registry import get
+
+    spec = tmp_path / "d.json"
+    spec.write_text(json.dumps(dict(TINY)))
+    out = tmp_path / "t"
+    args = ["--scenarios", str(spec), "--tracker", tracker, "--frames", "8", "--no-progress"]
+    assert main(["tune", *args, "--trials", "2", "--train-episodes", "1", "--heldout", "0",
+                 "--out", str(out)]) == 0  # fmt: skip
+    doc = json.loads((out / "best_params.json").read_text())
+    space = ParamSpace(tracker=tracker)
+    assert doc["tracker"] == tracker and set(doc["params"]) == set(space.names)
+    optuna = pytest.importorskip("optuna")
+    first = optuna.load_study(study_name="crowdsim-tune", storage=storage_url(None, out)).trials[0]
+    assert first.params == dict(zip(space.names, space.default.tolist(), strict=True))
+    name, params = load_params(out / "best_params.json")
+    assert name == tracker and isinstance(params, get(tracker).params_class())
+    held = tmp_path / "h"
+    assert main(["heldout", *args, "--params", str(out / "best_params.json"), "--seeds", "1",
+                 "--metrics", "accuracy", "--out", str(held)]) == 0  # fmt: skip
+
+
 def test_killed_run_resumes_without_losing_finished_trials(tmp_path):
     out = tmp_path / "k"
     spec = tmp_path / "tiny.json"
@@ -232,7 +259,7 @@ def test_train_ppo_saves_a_policy_that_tracks(tmp_path):
     pytest.importorskip("stable_baselines3")
     from envs.episodes import ScenarioDistribution, ScenarioEpisodes
     from envs.param_space import ParamSpace
-    from envs.tracker_tuning import PolicyControlled, make_observed_tracker
+    from envs.tracker_tuning import PolicyControlled, make_tuned_tracker
     from envs.training import train
     from tracker.runner import run_tracker
 
@@ -255,7 +282,7 @@ def test_train_ppo_saves_a_policy_that_tracks(tmp_path):
     d = ScenarioDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in TINY.items()})
     seq = ScenarioEpisodes(d, seed=7).episode(0)
     space = ParamSpace()
-    trk = make_observed_tracker("bqp", space.to_params(space.default_action))
+    trk = make_tuned_tracker("bqp", space.to_params(space.default_action))
     ctl = PolicyControlled(seq, trk, model, space, k_frames=5)
     run = run_tracker(trk, ctl, metrics="accuracy")
     assert len(ctl.actions) == 3 and run.result.n_frames == 12

@@ -245,7 +245,8 @@ def test_cmc_off_runs_no_compensation(name, scene, monkeypatch):
     tr = registry.make_tracker(name)
     assert tr.params.cmc is False
     res = scene.track(tr)
-    assert tr.compensator is None and tr.stats() == {} and "cmc" not in res.timings
+    assert tr.compensator is None and "cmc" not in res.timings
+    assert not [k for k in tr.stats() if k.startswith("cmc")]  # BQP reports its solver only
 
 
 @pytest.mark.parametrize("name", FAMILIES)

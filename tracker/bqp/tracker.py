@@ -154,6 +154,16 @@ class BQPTracker(Tracker):
         if "seed" in changed:
             self.rng = np.random.default_rng(p.seed)
 
+    def stats(self) -> dict[str, float]:
+        """The base counters (:meth:`tracker.base.Tracker.stats`) plus ``solver_iterations``
+        (Frank-Wolfe iterations summed over the frames so far) and ``group_fraction`` (the
+        share of targets now in a coherent-motion group)."""
+        out = super().stats()
+        out["solver_iterations"] = float(getattr(self, "solver_iterations", 0))
+        groups = getattr(self, "groups", np.zeros(0, np.int64))
+        out["group_fraction"] = float((groups >= 0).mean()) if len(groups) else 0.0
+        return out
+
     def _init(self, frame: np.ndarray) -> None:
         p = self.params
         self.appearance = self._make_appearance()

@@ -359,3 +359,17 @@ def test_the_b_ncc_anchor_is_paper_ones_table_3_row_in_the_suite():
         assert spec.calibration["paper_b_ncc_15px"] == table[spec.name], spec.name
     for spec in suite_specs("ucf9-shake"):  # the earlier calibration, kept as a variant
         assert spec.calibration["anchor"] == "ncc11" and spec.camera["jitter_px"] > 0
+
+
+def test_ucf9_drone_is_ucf9_with_the_drone_camera_and_nothing_else():
+    """ucf9-drone is a copy: a recalibrated ucf9 must be copied over (this fails until it is)."""
+    from dataclasses import replace
+
+    drone = {"drift_px": 24.0, "rotate_deg": 3.0, "zoom": 0.05, "drone_frames": 150.0}
+    base = {s.name: s for s in suite_specs("ucf9")}
+    specs = suite_specs("ucf9-drone")
+    assert [s.name for s in specs] == list(base)
+    for spec in specs:
+        assert {k: spec.camera[k] for k in drone} == drone, spec.name
+        camera = {k: v for k, v in spec.camera.items() if k not in drone}
+        assert replace(spec, camera=camera, source="") == replace(base[spec.name], source="")

@@ -10,6 +10,7 @@ import pytest
 from crowdsim.cli import main
 from crowdsim.lab.calibration import _uncalibrated
 from crowdsim.lab.difficulty import DIFFICULTY_GROUPS, attribute, variant_specs
+from crowdsim.lab.experiments import Row, cell_key
 from synth_data.suites import suite_specs
 
 
@@ -34,6 +35,49 @@ def test_each_variant_resets_exactly_one_group_to_the_uncalibrated_values():
         assert cal[names[0]] != base[names[0]]  # seq9 is calibrated hard: each group is on
         assert (v.seed, v.scenario, v.frames) == (spec.seed, spec.scenario, spec.frames)
     assert len({v.name for v in variants.values()}) == len(variants)
+
+
+def test_groups_limit_the_variants_in_table_order():
+    (spec,) = suite_specs("ucf9", ["seq9"])
+    names = [v for v, _ in variant_specs(spec, ["shake", "blur"])]
+    assert names == ["calibrated", "-blur", "-shake", "uncalibrated"]
+    with pytest.raises(ValueError, match="unknown group 'wobble'"):
+        variant_specs(spec, ["wobble"])
+
+
+def test_cmc_rows_report_what_compensation_regains_of_shake(tmp_path):
+    doc = attribute(
+        "ucf9-shake",
+        tmp_path,
+        only=["seq9"],
+        trackers=["ncc"],
+        groups=["shake"],
+        cmc=True,
+        frames=8,
+        progress=False,
+        log=print,
+    )
+    cells = json.loads((tmp_path / "cells.json").read_text())["cells"]
+    assert len(cells) == 6  # calibrated, -shake, uncalibrated; with and without cmc
+    acc = {
+        (v, c): cells[cell_key(v, Row("x", "ncc", {"cmc": True} if c else {}), 8)]["acc@15"]
+        for v in ("seq9.calibrated", "seq9.no-shake")
+        for c in (False, True)
+    }
+    per = doc["sequences"]["seq9"]
+    assert set(per) == {"ncc", "ncc+cmc"} and list(doc["groups"]) == ["shake"]
+    r = per["ncc"]
+    assert r["cmc"] == pytest.approx(
+        acc[("seq9.calibrated", True)] - acc[("seq9.calibrated", False)]
+    )
+    shake = acc[("seq9.no-shake", False)] - acc[("seq9.calibrated", False)]
+    assert r["regained"]["shake"] == pytest.approx(shake)
+    if shake > 0:
+        assert r["cmc_share_of_shake"] == pytest.approx(r["cmc"] / shake)
+    else:
+        assert "cmc_share_of_shake" not in r
+    text = (tmp_path / "attribution.md").read_text()
+    assert "| +cmc | cmc / shake |" in text and "| seq9 | ncc+cmc |" in text
 
 
 def test_an_uncalibrated_spec_is_refused():

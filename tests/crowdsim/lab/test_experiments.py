@@ -342,3 +342,33 @@ def test_address_needs_ray_and_a_suite_folder_brings_its_paper_figures(tmp_path,
     (suite / "paper.json").write_text('{"acc@15": {"NCC": {"a": "high"}}}')
     with pytest.raises(ValueError, match=r"paper.json: acc@15.NCC.a must be a percentage"):
         run_table(ROWS, suite, tmp_path / "t", progress=False, log=lambda m: None)
+
+
+def test_with_cmc_adds_a_compensated_row_for_each_detection_free_tracker():
+    from crowdsim.lab.experiments import COMPARE_ROWS, with_cmc
+
+    rows = with_cmc(COMPARE_ROWS)
+    added = [r for r in rows if r not in COMPARE_ROWS]
+    assert [r.tracker for r in added] == ["ncc", "meanshift", "pnmc", "bqp", "bqp-ncc"]
+    assert all(r.overrides == {"cmc": True} and r.label.endswith(" + CMC") for r in added)
+    assert rows[rows.index(COMPARE_ROWS[0]) + 1] == added[0]  # each beside its own row
+
+
+def test_compare_trackers_and_cmc_run_only_those_rows(tmp_path, capsys):
+    from crowdsim.cli import main
+
+    suite = tmp_path / "suite"
+    suite.mkdir()
+    (suite / "a.toml").write_text(
+        'name = "a"\nseed = 3\nframes = 5\nwarmup_steps = 2\n'
+        '[scenario]\nname = "crossing"\nn_agents = 14\ndensity = 1.0\n'
+        "[camera]\npx_per_m = 14.0\njitter_px = 1.0\n[appearance]\ntemplate_px = 8\n"
+    )
+    out = tmp_path / "cmp"
+    argv = ["compare", "--suite", str(suite), "--trackers", "ncc", "--cmc", "--no-progress"]
+    assert main([*argv, "--out", str(out)]) == 0
+    rows = {line.split("|")[1].strip() for line in (out / "table.md").read_text().splitlines()
+            if line.startswith("| ") and not line.startswith("| method")}  # fmt: skip
+    assert rows == {"NCC", "NCC + CMC"}
+    cells = json.loads((out / "cells.json").read_text())["cells"]
+    assert len(cells) == 2
