@@ -32,6 +32,7 @@ from crowdsim.commands import (
     difficulty,
     evaluate,
     generate,
+    headroom,
     heldout,
     render,
     simulate,
@@ -54,6 +55,7 @@ COMMANDS: tuple[ModuleType, ...] = (
     tune,
     train,
     heldout,
+    headroom,
     bench,
     demo,
 )

@@ -245,6 +245,17 @@ api_case("envs-tune-ray-missing", _tune_without_ray, "pip install 'crowdsim[dist
 
 # --- heldout ----------------------------------------------------------------------------
 HELD = "heldout --scenarios {w}/d.json --seeds 1 --no-progress --out {w}/o"
+ROOM = "headroom --scenarios {w}/d.json --seeds 1 --candidates 2 --no-progress --out {w}/o"
+case("envs-headroom-candidates-0", f"{ROOM} --candidates 0", "--candidates&&got 0", files=D)
+case("envs-headroom-k-0", f"{ROOM} --k 0", "--k must be an integer >= 1, got 0", files=D)
+case("envs-headroom-seeds-0", f"{ROOM} --seeds 0", "--seeds&&got 0", files=D)
+case("envs-headroom-threshold-neg", f"{ROOM} --threshold -1", "--threshold&&got -1", files=D)
+case(
+    "envs-headroom-tracker-bytetrack",
+    f"{ROOM} --tracker bytetrack",
+    "--tracker bytetrack: no row of tunables",
+    files=D,
+)
 case(
     "envs-heldout-users-md",
     HELD,
