@@ -3,8 +3,8 @@
 :func:`add_jobs_arguments`: ``--workers``, ``--backend``, ``--address`` of the jobs runner
 (:mod:`crowdsim.jobs`), for ``generate``, ``compare`` and ``ablation``;
 :func:`add_table_arguments`: everything ``compare`` and ``ablation`` take;
-:func:`add_episode_arguments` / :func:`episode_objective`: the sequences ``tune`` and
-``heldout`` score on.
+:func:`add_episode_arguments` / :func:`episode_objective`: the sequences ``tune``,
+``heldout`` and ``headroom`` score on; :func:`add_tracker_argument`: their ``--tracker``.
 """
 
 from __future__ import annotations
@@ -89,6 +89,16 @@ def run_table_command(args: argparse.Namespace, rows, title: str, paper_table: s
         file=sys.stderr,
     )
     return 0
+
+
+def add_tracker_argument(p: argparse.ArgumentParser) -> None:
+    """``--tracker NAME``: a tracker with a row of tunables (``tune``, ``train``, ``heldout``,
+    ``headroom``); checked by :func:`envs.param_space.require_tunable` when the work starts."""
+    p.add_argument(
+        "--tracker",
+        default="bqp",
+        help="tunable tracker from the registry (bqp, bqp-ncc, bqp-dense, pnmc, ncc; default bqp)",
+    )
 
 
 def add_episode_arguments(p: argparse.ArgumentParser, only_help: str) -> None:

@@ -20,7 +20,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from crowdsim.commands._table_args import add_episode_arguments, episode_objective
+from crowdsim.commands._table_args import (
+    add_episode_arguments,
+    add_tracker_argument,
+    episode_objective,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -54,11 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--no-defaults", action="store_true", help="leave the paper defaults out of the table"
     )
-    p.add_argument(
-        "--tracker",
-        default="bqp",
-        help="tunable tracker from the registry (bqp, bqp-ncc, bqp-dense, pnmc, ncc; default bqp)",
-    )
+    add_tracker_argument(p)
     p.add_argument(
         "--metrics",
         choices=("full", "accuracy"),

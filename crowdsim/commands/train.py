@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import argparse
 
+from crowdsim.commands._table_args import add_tracker_argument
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -55,11 +57,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="PX",
         help="reward threshold T in px (default 5)",
     )
-    p.add_argument(
-        "--tracker",
-        default="bqp",
-        help="tunable tracker from the registry (bqp, bqp-ncc, bqp-dense, pnmc, ncc; default bqp)",
-    )
+    add_tracker_argument(p)
     p.add_argument(
         "--extended",
         action="store_true",

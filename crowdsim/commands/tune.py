@@ -20,7 +20,11 @@ from __future__ import annotations
 
 import argparse
 
-from crowdsim.commands._table_args import add_episode_arguments, episode_objective
+from crowdsim.commands._table_args import (
+    add_episode_arguments,
+    add_tracker_argument,
+    episode_objective,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -81,11 +85,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also tune search factor, motion sigma and KCF learning rate",
     )
-    p.add_argument(
-        "--tracker",
-        default="bqp",
-        help="tunable tracker from the registry (bqp, bqp-ncc, bqp-dense, pnmc, ncc; default bqp)",
-    )
+    add_tracker_argument(p)
     p.add_argument("--seed", type=int, default=0, help="sampler seed")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
