@@ -47,6 +47,10 @@ JITTER_CORRELATION_FRAMES: float = knob("jitter_frames").default
 time (``Camera.jitter_frames``)."""
 DRONE_FRAMES: float = knob("drone_frames").default
 """Default time scale (frames) of the drone profile's drift, rotation and zoom."""
+MAX_SIDE: int = 16384
+"""Largest width or height of a camera's frame, px (the drone profile's canvas included)."""
+DRONE_FIELDS: tuple[str, ...] = ("drift_px", "rotate_deg", "zoom", "drone_frames")
+"""The drone profile's fields (:meth:`Camera.drone`)."""
 MOTION_FIELDS: tuple[str, ...] = tuple(k.name for k in knobs("camera"))
 """The camera's motion fields, one per camera knob (shake and drone profile): what a spec's
 ``[camera]`` section may set besides the geometry (:func:`motion_values`)."""
@@ -103,8 +107,10 @@ class Camera:
             raise ValueError(f"camera.px_per_m must be > 0, got {self.px_per_m!r}")
         for name in ("width", "height"):
             value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or value < 8 or value > 16384:
-                raise ValueError(f"camera.{name} must be an integer in [8, 16384], got {value!r}")
+            if not isinstance(value, (int, np.integer)) or value < 8 or value > MAX_SIDE:
+                raise ValueError(
+                    f"camera.{name} must be an integer in [8, {MAX_SIDE}], got {value!r}"
+                )
         if not (0.0 <= self.tilt_deg < 60.0):
             raise ValueError(f"camera.tilt_deg must be in [0, 60), got {self.tilt_deg!r}")
         if not (math.isfinite(self.distance_m) and self.distance_m > 0):
@@ -113,12 +119,12 @@ class Camera:
             k.check("camera", getattr(self, k.name))
         if self.drone_on:
             mx, my = self._canvas_margins()
-            if max(self.width + 2 * mx, self.height + 2 * my) > 16384:
+            if max(self.width + 2 * mx, self.height + 2 * my) > MAX_SIDE:
                 raise ValueError(
                     f"camera.drift_px / rotate_deg / zoom ({self.drift_px:g}, "
                     f"{self.rotate_deg:g}, {self.zoom:g}): the drone profile would draw a "
                     f"{self.width + 2 * mx}x{self.height + 2 * my} canvas for a "
-                    f"{self.width}x{self.height} view, over 16384 px; lower them"
+                    f"{self.width}x{self.height} view, over {MAX_SIDE} px; lower them"
                 )
         if len(self.center) != 2 or not all(math.isfinite(c) for c in self.center):
             raise ValueError(f"camera.center must be two finite numbers, got {self.center!r}")

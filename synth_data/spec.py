@@ -60,7 +60,7 @@ from pathlib import Path
 from typing import Any
 
 from crowdsim.appearance_model import AppearanceParams
-from crowdsim.knobs import reference
+from crowdsim.knobs import knobs, reference
 
 __doc__ = (__doc__ or "") + "\n".join("    " + line for line in reference().splitlines()) + "\n"
 
@@ -83,12 +83,7 @@ CAMERA_FIELDS: dict[str, type | tuple[type, ...]] = {
     "center": list,
     "tilt_deg": (int, float),
     "distance_m": (int, float),
-    "jitter_px": (int, float),
-    "jitter_frames": (int, float),
-    "drift_px": (int, float),
-    "rotate_deg": (int, float),
-    "zoom": (int, float),
-    "drone_frames": (int, float),
+    **{k.name: (int, float) for k in knobs("camera")},  # shake and drone profile
     "max_width": int,
     "max_height": int,
     "margin_m": (int, float),

@@ -253,6 +253,7 @@ def write_sequence(
     dict
         ``{"name", "frames", "files": {relative path: sha256}, "bytes"}``.
     """
+    from crowdsim.camera import DRONE_FIELDS
     from crowdsim.render import SceneRenderer, prepare_agents
 
     out_dir = Path(out_dir)
@@ -319,9 +320,7 @@ def write_sequence(
             "jitter_frames": camera.jitter_frames,
         }
         if camera.drone_on:  # recorded only when on: drone-free folders stay byte-identical
-            meta_out["camera"].update(
-                {n: getattr(camera, n) for n in ("drift_px", "rotate_deg", "zoom", "drone_frames")}
-            )
+            meta_out["camera"].update({n: getattr(camera, n) for n in DRONE_FIELDS})
         meta_out["appearance"] = appearance.to_dict()
         meta_out["frames"] = n_frames
         meta_out["versions"] = package_versions()

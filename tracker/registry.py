@@ -60,10 +60,14 @@ class TrackerEntry:
     def params_class(self) -> type:
         return _load(self.params)
 
+    def field_names(self) -> frozenset[str]:
+        """The fields of its parameter class (what ``--set`` and overrides may name)."""
+        return frozenset(f.name for f in fields(self.params_class()))
+
     def make_params(self, **overrides: Any) -> Any:
         """The variant's parameters, with ``overrides`` on top (unknown fields are refused)."""
         cls = self.params_class()
-        valid = {f.name for f in fields(cls)}
+        valid = self.field_names()
         unknown = sorted(set(overrides) - valid)
         if unknown:
             raise ValueError(

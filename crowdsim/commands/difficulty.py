@@ -21,12 +21,11 @@ import argparse
 import sys
 
 from crowdsim.commands._table_args import add_table_arguments, table_run_kwargs
-from crowdsim.knobs import difficulty_groups
-
-DIFFICULTY_GROUPS = tuple(difficulty_groups())
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from crowdsim.knobs import difficulty_groups
+
     p = sub.add_parser(
         "difficulty",
         help="attribute a calibrated suite's difficulty to its knob groups, per tracker",
@@ -44,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--groups",
         nargs="+",
         metavar="G",
-        help="only these knob groups (default: all of " + ", ".join(DIFFICULTY_GROUPS) + ")",
+        help="only these knob groups (default: all of " + ", ".join(difficulty_groups()) + ")",
     )
     p.add_argument(
         "--cmc",

@@ -101,12 +101,6 @@ def _check_output(path: str, flag: str, suffix: str | None = None) -> Path:
     return out
 
 
-def _field_names(entry) -> set[str]:
-    from dataclasses import fields
-
-    return {f.name for f in fields(entry.params_class())}
-
-
 def _overrides(args: argparse.Namespace, name: str) -> dict:
     """``--set``, ``--appearance`` and ``--dense`` as parameter values of tracker ``name``,
     checked: unknown or out-of-range values and flags that contradict each other are named."""
@@ -115,13 +109,13 @@ def _overrides(args: argparse.Namespace, name: str) -> dict:
 
     entry = get(name)  # unknown names list the valid ones
     over = parse_assignments(args.set, "--set")
-    own = _field_names(entry)
+    own = entry.field_names()
     for flag, field, given in (
         ("--appearance", "appearance", args.appearance is not None),
         ("--dense", "speedup", args.dense),
     ):
         if given and field not in own:
-            having = [n for n, e in TRACKERS.items() if field in _field_names(e)]
+            having = [n for n, e in TRACKERS.items() if field in e.field_names()]
             raise ValueError(
                 f"{flag} sets a parameter of the BQP trackers ({', '.join(having)}), "
                 f"not of --tracker {name}"

@@ -14,7 +14,7 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -121,7 +121,7 @@ def attribute(
     rows = []
     for name in trackers:
         entry = get(name)  # an unknown name fails before any work
-        if cmc and "cmc" not in {f.name for f in fields(entry.params_class())}:
+        if cmc and "cmc" not in entry.field_names():
             raise ValueError(f"--cmc: tracker {name!r} has no camera-motion compensation")
         rows.append(Row(name, name))
         if cmc:
@@ -195,17 +195,16 @@ def attribution_table(doc: dict[str, Any]) -> str:
     ]
     for seq, per in doc["sequences"].items():
         for trk, r in per.items():
-            cells = [f"{r['regained'][g]:+.1f}" for g in groups]
+            cells = [
+                f"{r['calibrated']:.1f}",
+                *[f"{r['regained'][g]:+.1f}" for g in groups],
+                f"{r['uncalibrated']:.1f}",
+            ]
             if with_cmc:
                 share = r.get("cmc_share_of_shake")
                 cells += [
                     f"{r['cmc']:+.1f}" if "cmc" in r else "",
                     f"{share:.0%}" if share is not None else "",
                 ]
-            lines.append(
-                f"| {seq} | {trk} | {r['calibrated']:.1f} | "
-                + " | ".join(cells[: len(groups)])
-                + f" | {r['uncalibrated']:.1f} |"
-                + "".join(f" {c} |" for c in cells[len(groups) :])
-            )
+            lines.append(f"| {seq} | {trk} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

@@ -26,7 +26,7 @@ import io
 import json
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -86,7 +86,7 @@ def with_cmc(rows: Sequence[Row]) -> tuple[Row, ...]:
     out: list[Row] = []
     for row in rows:
         out.append(row)
-        if "cmc" in {f.name for f in fields(get(row.tracker).params_class())}:
+        if "cmc" in get(row.tracker).field_names():
             out.append(Row(f"{row.label} + CMC", row.tracker, {**row.overrides, "cmc": True}))
     return tuple(out)
 
