@@ -69,6 +69,14 @@ WATCHDOG_PERIOD_S: float = 0.5
 """How often a worker checks that its parent is still alive (fallback to PDEATHSIG)."""
 
 
+def one_numba_thread() -> None:
+    """A ``worker_init`` for pools of one job per process: numba's parallel loops use one
+    thread each (the processes share the cores)."""
+    import numba
+
+    numba.set_num_threads(1)
+
+
 class JobError(RuntimeError):
     """A job failed or its worker died; ``key`` names it. Finished jobs stay recorded."""
 

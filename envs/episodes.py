@@ -24,8 +24,14 @@ length, template_size, frames(), gt_points(), births()``).
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import io
 import json
 import os
+import sys
+import time
+import zipfile
 from abc import ABC, abstractmethod
 from collections import OrderedDict
 from collections.abc import Iterator, Mapping, Sequence
@@ -301,16 +307,21 @@ def _read_table(p: Path) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- sequences
-def spec_sequence(spec: Any, cache_frames: bool = False) -> Any:
+def spec_sequence(spec: Any, cache_frames: bool = False, store: EpisodeCache | None = None) -> Any:
     """``spec`` simulated and rendered in memory (:class:`synth_data.sequence.InMemorySequence`;
-    frames drawn on demand, or all rendered now and kept with ``cache_frames``).
+    frames drawn on demand, or all rendered now and kept with ``cache_frames``), or read from
+    the episode cache ``store`` (rendered and stored there first when it is not in it).
 
     The frames pass through the spec's video codec and JPEG steps in memory, so an episode
     shows the tracker what ``crowdsim generate`` then ``crowdsim track`` would (the tuned
-    parameters meet the compression artefacts they will be scored on)."""
+    parameters meet the compression artefacts they will be scored on); a cached episode has
+    the same frames, decoded from the same JPEG bytes."""
     from synth_data.sequence import InMemorySequence
 
-    seq = InMemorySequence.from_spec(spec, camera_output=True)
+    if store is not None:
+        seq = store.sequence(spec)
+    else:
+        seq = InMemorySequence.from_spec(spec, camera_output=True)
     return seq.materialize() if cache_frames else seq
 
 
@@ -391,6 +402,279 @@ class _Cache:
         return value
 
 
+# ---------------------------------------------------------------------------- episode cache
+EPISODE_FORMAT = "crowdsim-episode"
+"""The ``format`` tag of an episode cache entry's ``episode.json``."""
+
+EPISODE_FORMAT_VERSION = 1
+
+_ENTRY_META = "episode.json"
+_ENTRY_FILES = ("frames.bin", "truth.npz")
+"""An entry's checksummed files: the JPEG file of every frame, back to back (``frames.bin``),
+and ``truth.npz`` (``offsets`` into it, ground-truth ``ids`` and ``points``)."""
+
+DAMAGED_DIR = "damaged"
+"""Sub-folder of the cache where a damaged entry is moved (never deleted, never trusted)."""
+
+
+@functools.cache
+def code_digest() -> str:
+    """SHA-256 of what makes an episode's frames: the source of ``crowdsim``'s modules and of
+    ``synth_data``, and the versions of numpy, OpenCV (its JPEG) and pymunk. An entry made by
+    other code is another key, so an upgrade never reads a stale episode."""
+    import cv2
+    import pymunk
+
+    import crowdsim
+    import synth_data
+
+    h = hashlib.sha256()
+    for pkg in (crowdsim, synth_data):
+        root = Path(pkg.__file__).parent
+        for p in sorted(root.glob("*.py")):
+            h.update(f"{pkg.__name__}/{p.name}\0".encode())
+            h.update(p.read_bytes())
+    h.update(f"numpy {np.__version__} cv2 {cv2.__version__} pymunk {pymunk.version}".encode())
+    return h.hexdigest()
+
+
+def episode_key(spec: Any) -> str:
+    """The cache key of a spec's episode: its :meth:`~synth_data.spec.SequenceSpec.digest`
+    (everything that changes the frames), the entry format and :func:`code_digest`."""
+    doc = [EPISODE_FORMAT, EPISODE_FORMAT_VERSION, spec.digest(), code_digest()]
+    return hashlib.sha256(json.dumps(doc).encode()).hexdigest()[:40]
+
+
+class _Damaged(Exception):
+    """An entry that fails its checks (the message says which)."""
+
+
+def _jpeg_sequence(meta: Mapping[str, Any], blob: bytes, truth: Mapping[str, np.ndarray]) -> Any:
+    """The in-memory sequence of an entry: each frame decoded from its JPEG on demand, as
+    :func:`synth_data.video.camera_output` decodes it (so the frames are the same)."""
+    import cv2
+
+    from synth_data.sequence import InMemorySequence
+
+    offsets = truth["offsets"]
+    buf = np.frombuffer(blob, np.uint8)
+
+    def frame(t: int) -> np.ndarray:
+        return cv2.imdecode(buf[offsets[t] : offsets[t + 1]], cv2.IMREAD_COLOR)
+
+    return InMemorySequence(
+        name=meta["name"],
+        frame_rate=meta["frame_rate"],
+        width=meta["width"],
+        height=meta["height"],
+        template_size=meta["template_size"],
+        render=frame,
+        length=len(offsets) - 1,
+        ids=truth["ids"],
+        points=truth["points"],
+    )
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+class EpisodeCache:
+    """Episodes rendered and encoded once, kept on disk and reused across resets, epochs and
+    processes: a reset that hits the cache costs a file read and a checksum, not a simulation,
+    a rendering and a video encoding.
+
+    An entry is the folder ``ROOT/<key>`` (:func:`episode_key`) with ``episode.json`` (the
+    spec, the frame geometry and the SHA-256 of the other two files), ``frames.bin`` (the
+    JPEG file of every frame, exactly the bytes ``crowdsim generate`` writes to ``img1/``) and
+    ``truth.npz``. Every load checks both checksums: a damaged entry is moved to
+    ``ROOT/damaged/`` (never deleted: the program keeps whatever it cannot prove it made) and
+    the episode is rendered again, never trusted. Entries are written into a temporary folder
+    and renamed into place, so a killed process leaves no half-written entry, and two
+    processes making the same episode keep one.
+
+    Parameters
+    ----------
+    root : path
+        The cache folder (made on the first store). Nothing else in it is touched.
+    log : callable, optional
+        ``log(message)`` for damaged entries (default: a warning on stderr).
+    """
+
+    def __init__(self, root: str | os.PathLike[str], log: Any = None) -> None:
+        self.root = Path(root)
+        if self.root.exists() and not self.root.is_dir():
+            raise ValueError(f"episode cache {self.root}: not a folder")
+        self.log = log or (lambda msg: print(msg, file=sys.stderr))
+        self.hits = 0
+        self.stores = 0
+        self.damaged = 0
+
+    def __repr__(self) -> str:
+        return f"EpisodeCache({str(self.root)!r})"
+
+    def entry(self, spec: Any) -> Path:
+        """The folder of ``spec``'s entry (present or not)."""
+        return self.root / episode_key(spec)
+
+    def has(self, spec: Any) -> bool:
+        """Whether an entry for ``spec`` is there (checked when it is loaded)."""
+        return (self.entry(spec) / _ENTRY_META).is_file()
+
+    def sequence(self, spec: Any) -> Any:
+        """``spec``'s episode: loaded from its entry, or rendered, encoded and stored first."""
+        seq = self.load(spec)
+        return seq if seq is not None else self.store(spec)
+
+    # -- load
+    def load(self, spec: Any) -> Any:
+        """``spec``'s episode from its entry, or ``None`` when there is none or it was damaged
+        (then moved to ``damaged/``)."""
+        path = self.entry(spec)
+        if not path.exists():
+            return None
+        try:
+            seq = self._read(path, spec)
+        except _Damaged as exc:
+            self._quarantine(path, str(exc))
+            return None
+        self.hits += 1
+        return seq
+
+    def _read(self, path: Path, spec: Any) -> Any:
+        try:
+            meta = json.loads((path / _ENTRY_META).read_text(encoding="utf-8"))
+            blobs = {name: (path / name).read_bytes() for name in _ENTRY_FILES}
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise _Damaged(f"unreadable: {exc}") from None
+        if not isinstance(meta, dict) or meta.get("format") != EPISODE_FORMAT:
+            raise _Damaged(f"{_ENTRY_META} is not a {EPISODE_FORMAT} record")
+        if meta.get("version") != EPISODE_FORMAT_VERSION or meta.get("key") != path.name:
+            raise _Damaged(f"{_ENTRY_META} names another format version or key")
+        sums = meta.get("sha256")
+        for name, blob in blobs.items():
+            if not isinstance(sums, dict) or sums.get(name) != _sha256(blob):
+                raise _Damaged(f"{name}: checksum mismatch")
+        try:
+            with np.load(io.BytesIO(blobs["truth.npz"]), allow_pickle=False) as z:
+                truth = {k: z[k] for k in ("offsets", "ids", "points")}
+            offsets = truth["offsets"]
+            if (
+                offsets.ndim != 1
+                or len(offsets) != spec.frames + 1
+                or offsets[0] != 0
+                or offsets[-1] != len(blobs["frames.bin"])
+                or (np.diff(offsets) <= 0).any()
+            ):
+                raise ValueError("frame offsets do not cover frames.bin")
+            return _jpeg_sequence(meta, blobs["frames.bin"], truth)
+        except (KeyError, ValueError, TypeError, zipfile.BadZipFile) as exc:
+            raise _Damaged(f"inconsistent: {exc}") from None
+
+    def _quarantine(self, path: Path, reason: str) -> None:
+        self.damaged += 1
+        dest = self.root / DAMAGED_DIR / f"{path.name}-{time.time_ns()}"
+        dest.parent.mkdir(exist_ok=True)
+        os.rename(path, dest)
+        self.log(f"episode cache: {path} is damaged ({reason}); moved to {dest}; re-rendering")
+
+    # -- store
+    def store(self, spec: Any) -> Any:
+        """Simulate, render and encode ``spec`` (the camera's codec and JPEG steps), write its
+        entry atomically and return the episode."""
+        import shutil
+        import tempfile
+
+        from synth_data.sequence import InMemorySequence
+        from synth_data.video import encode_output
+
+        raw = InMemorySequence.from_spec(spec)
+        jpegs = list(encode_output(raw.frames(), spec.fps, spec.appearance.encoding))
+        offsets = np.zeros(len(jpegs) + 1, np.int64)
+        offsets[1:] = np.cumsum([len(j) for j in jpegs])
+        blob = b"".join(jpegs)
+        ids, points = raw.gt_points()
+        truth = {"offsets": offsets, "ids": np.asarray(ids), "points": np.asarray(points)}
+        npz = io.BytesIO()
+        np.savez(npz, **truth)
+        files = {"frames.bin": blob, "truth.npz": npz.getvalue()}
+        path = self.entry(spec)
+        meta = {
+            "format": EPISODE_FORMAT,
+            "version": EPISODE_FORMAT_VERSION,
+            "key": path.name,
+            "name": raw.name,
+            "frame_rate": raw.frame_rate,
+            "width": raw.width,
+            "height": raw.height,
+            "template_size": raw.template_size,
+            "frames": raw.length,
+            "sha256": {name: _sha256(b) for name, b in files.items()},
+            "spec": spec.to_dict(),
+        }
+        self.root.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{path.name}-", dir=self.root))
+        try:
+            for name, data in files.items():
+                (tmp / name).write_bytes(data)
+            (tmp / _ENTRY_META).write_text(json.dumps(meta, indent=1), encoding="utf-8")
+            try:
+                os.rename(tmp, path)
+            except OSError:
+                if not path.exists():
+                    raise
+                shutil.rmtree(tmp)  # another process stored the same episode first
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        self.stores += 1
+        return _jpeg_sequence(meta, blob, truth)
+
+    def fill(self, specs: Sequence[Any], workers: int = 1, progress: bool = True) -> dict[str, Any]:
+        """Store every spec without an entry, over ``workers`` processes (a progress bar in
+        frames); return ``{"episodes", "stored", "present", "wall_s"}``. Run before training,
+        so that no environment renders while the others wait for it."""
+        import tempfile
+
+        from crowdsim.jobs import Job, one_numba_thread, run_jobs
+
+        require_number("EpisodeCache.fill", "workers", workers, lo=1, integer=True)
+        t0 = time.perf_counter()
+        todo: dict[str, Any] = {}
+        for spec in specs:
+            if not self.has(spec):
+                todo.setdefault(episode_key(spec), spec)
+        jobs = [
+            Job(key=k, fn=_store_one, args=(str(self.root), s), size=s.frames)
+            for k, s in todo.items()
+        ]
+        if jobs:
+            self.root.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryDirectory() as tmp:
+                run_jobs(
+                    jobs,
+                    Path(tmp) / "fill.json",
+                    workers=workers,
+                    progress=progress,
+                    desc="episode cache",
+                    unit="frame",
+                    worker_init=one_numba_thread if workers > 1 else None,
+                    passthrough=(ValueError, OSError, MemoryError),
+                )
+        return {
+            "episodes": len(specs),
+            "stored": len(jobs),
+            "present": len(specs) - len(jobs),
+            "wall_s": time.perf_counter() - t0,
+        }
+
+
+def _store_one(root: str, spec: Any) -> dict[str, Any]:
+    """Pool job of :meth:`EpisodeCache.fill`: store one episode."""
+    seq = EpisodeCache(root).store(spec)
+    return {"name": seq.name, "frames": seq.length}
+
+
 # ---------------------------------------------------------------------------- sources
 class EpisodeSource(ABC):
     """Where episodes come from: ``sample(rng)`` (random) or ``episode(i)`` (fixed list)."""
@@ -407,8 +691,21 @@ class EpisodeSource(ABC):
     def __len__(self) -> int:
         """Number of distinct episodes (a large number for a distribution)."""
 
-    def __init__(self, cache: int = 0) -> None:
+    def __init__(self, cache: int = 0, store: EpisodeCache | None = None) -> None:
         self._cache = _Cache(cache)
+        self.store = store
+
+    def cached_specs(self) -> list[Any]:
+        """The specs of every episode the source can give, where they are a finite list of
+        specs (what :meth:`fill` stores); ``[]`` otherwise."""
+        return []
+
+    def fill(self, workers: int = 1, progress: bool = True) -> dict[str, Any] | None:
+        """Store every episode of the source in its episode cache (:meth:`EpisodeCache.fill`)
+        before use; ``None`` when the source has no cache."""
+        if self.store is None:
+            return None
+        return self.store.fill(self.cached_specs(), workers=workers, progress=progress)
 
     def episode(self, index: int) -> Any:
         """Episode ``index`` (deterministic; the same sequence on every call)."""
@@ -426,7 +723,12 @@ class EpisodeSource(ABC):
 class ScenarioEpisodes(EpisodeSource):
     """Episodes from a :class:`ScenarioDistribution`; episode ``i`` of stream ``seed`` is
     drawn with ``default_rng(SeedSequence([seed, i]))``: different ``seed`` values give
-    disjoint sequences (train on ``seed=0``, score on ``seed=1``)."""
+    disjoint sequences (train on ``seed=0``, score on ``seed=1``).
+
+    ``pool=N``: ``sample`` draws one of the first ``N`` episodes of the stream (each one
+    reused across resets and epochs: what an episode cache ``store`` needs, and required with
+    one); without a pool every sample is a new scene.
+    """
 
     def __init__(
         self,
@@ -434,30 +736,48 @@ class ScenarioEpisodes(EpisodeSource):
         seed: int = 0,
         cache: int = 0,
         cache_frames: bool = False,
+        store: EpisodeCache | None = None,
+        pool: int | None = None,
     ) -> None:
-        super().__init__(cache)
+        super().__init__(cache, store)
         require_number("ScenarioEpisodes", "seed", seed, lo=0, integer=True)
+        if pool is not None:
+            require_number("ScenarioEpisodes", "pool", pool, lo=1, integer=True)
+        elif store is not None:
+            raise ValueError(
+                "ScenarioEpisodes: an episode cache needs pool=N, the number of distinct "
+                "episodes to draw from and reuse (a scenario distribution is endless)"
+            )
         self.dist = dist if dist is not None else ScenarioDistribution()
         self.seed = int(seed)
         self.cache_frames = bool(cache_frames)
+        self.pool = None if pool is None else int(pool)
 
     def __len__(self) -> int:
-        return 2**31 - 1
+        return 2**31 - 1 if self.pool is None else self.pool
+
+    def cached_specs(self) -> list[Any]:
+        return [self.spec(i) for i in range(self.pool or 0)]
 
     def spec(self, index: int) -> Any:
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, int(index)]))
         return self.dist.sample_spec(rng, name=f"s{self.seed}-e{int(index)}")
 
     def _build(self, index: int) -> Any:
-        return spec_sequence(self.spec(index), cache_frames=self.cache_frames)
+        return spec_sequence(self.spec(index), cache_frames=self.cache_frames, store=self.store)
 
     def sample(self, rng: np.random.Generator) -> Any:
+        if self.pool is not None:
+            return super().sample(rng)
         # drawn straight from the caller's generator (not via an index), so that every
         # choice of a random episode is the environment's np_random
         return spec_sequence(self.dist.sample_spec(rng, name="episode"))
 
     def describe(self) -> dict[str, Any]:
-        return {"kind": "scenarios", "seed": self.seed, "distribution": self.dist.to_dict()}
+        doc = {"kind": "scenarios", "seed": self.seed, "distribution": self.dist.to_dict()}
+        if self.pool is not None:
+            doc["pool"] = self.pool
+        return doc
 
 
 class SuiteEpisodes(EpisodeSource):
@@ -486,8 +806,9 @@ class SuiteEpisodes(EpisodeSource):
         reseed: int = 0,
         cache: int = 0,
         cache_frames: bool = False,
+        store: EpisodeCache | None = None,
     ) -> None:
-        super().__init__(cache)
+        super().__init__(cache, store)
         from synth_data.suites import SUITE_NAMES, suite_specs
 
         if frames is not None:
@@ -549,10 +870,13 @@ class SuiteEpisodes(EpisodeSource):
     def spec(self, index: int) -> Any:
         return self.items[int(index) % len(self.items)]
 
+    def cached_specs(self) -> list[Any]:
+        return [] if self.on_disk else list(self.items)
+
     def _build(self, index: int) -> Any:
         item = self.spec(index)
         if not self.on_disk:
-            return spec_sequence(item, cache_frames=self.cache_frames)
+            return spec_sequence(item, cache_frames=self.cache_frames, store=self.store)
         seq = folder_sequence(item, self.frames)  # checked again: it may have changed since
         if self.cache_frames:
             from synth_data.sequence import InMemorySequence
@@ -606,14 +930,21 @@ def make_episodes(
     cache: int = 0,
     cache_frames: bool = False,
     overrides: Mapping[str, Any] | None = None,
+    episode_cache: str | os.PathLike[str] | None = None,
+    pool: int | None = None,
 ) -> EpisodeSource:
-    """One source from the CLI's ``--suite NAME | --scenarios DIST [--only] [--frames]``.
+    """One source from the CLI's ``--suite NAME | --scenarios DIST [--only] [--frames]
+    [--episode-cache DIR --pool N]``.
 
     ``seed`` selects the scenario stream (or, for a built-in suite, the ``reseed`` offset),
-    so that tuning and held-out scoring draw disjoint sequences.
+    so that tuning and held-out scoring draw disjoint sequences. ``episode_cache``: episodes
+    of specs (scenario pools, built-in suites) are read from that :class:`EpisodeCache`
+    folder, rendered and stored there on first use; ``pool`` (scenario distributions only,
+    required with a cache): the number of distinct episodes drawn and reused.
     """
     if (suite is None) == (scenarios is None):
         raise ValueError("give exactly one of --suite NAME and --scenarios DIST")
+    store = None if episode_cache is None else EpisodeCache(episode_cache)
     if suite is not None:
         from synth_data.suites import SUITE_NAMES
 
@@ -623,8 +954,16 @@ def make_episodes(
                 f"{suite}: a folder of sequences cannot be re-seeded for held-out "
                 "scoring; give held-out sequences with --only or another folder"
             )
+        if pool is not None:
+            raise ValueError("--pool draws from a scenario distribution; a suite has its sequences")
         return SuiteEpisodes(
-            suite, only=only, frames=frames, reseed=reseed, cache=cache, cache_frames=cache_frames
+            suite,
+            only=only,
+            frames=frames,
+            reseed=reseed,
+            cache=cache,
+            cache_frames=cache_frames,
+            store=store,
         )
     if only:
         raise ValueError(
@@ -641,4 +980,6 @@ def make_episodes(
     )
     if isinstance(scenarios, ScenarioDistribution) and extra:
         dist = replace(dist, **extra)
-    return ScenarioEpisodes(dist, seed=seed, cache=cache, cache_frames=cache_frames)
+    return ScenarioEpisodes(
+        dist, seed=seed, cache=cache, cache_frames=cache_frames, store=store, pool=pool
+    )

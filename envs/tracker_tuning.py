@@ -263,6 +263,10 @@ class TrackerTuningEnv(gym.Env):
     * ``suite``, ``only``, ``frames`` -- episodes from a suite instead (built-in name or a
       folder of MOT sequences); ``frames`` also truncates scenario sequences;
     * ``episodes`` -- a ready :class:`envs.episodes.EpisodeSource` (overrides the above);
+    * ``episode_cache``, ``pool`` -- a folder of rendered episodes
+      (:class:`envs.episodes.EpisodeCache`: each episode is simulated, rendered and encoded
+      once, then every reset of every process reads it back, checksum checked) and, for a
+      scenario distribution, the number of distinct episodes drawn and reused;
     * ``episode_seed`` -- the fixed-list stream (0 tuning, another value held-out);
     * ``k_frames`` (25) -- frames tracked per step; ``threshold_px`` (5) -- reward threshold;
     * ``extended`` (False) -- tune 8 parameters instead of 5;
@@ -287,6 +291,8 @@ class TrackerTuningEnv(gym.Env):
         frames: int | None = None,
         episodes: EpisodeSource | None = None,
         episode_seed: int = 0,
+        episode_cache: str | None = None,
+        pool: int | None = None,
         k_frames: int = 25,
         threshold_px: float = 5.0,
         extended: bool = False,
@@ -305,7 +311,13 @@ class TrackerTuningEnv(gym.Env):
             if suite is None and scenarios is None:
                 scenarios = ScenarioDistribution()
             episodes = make_episodes(
-                suite=suite, scenarios=scenarios, only=only, frames=frames, seed=episode_seed
+                suite=suite,
+                scenarios=scenarios,
+                only=only,
+                frames=frames,
+                seed=episode_seed,
+                episode_cache=episode_cache,
+                pool=pool,
             )
         elif not isinstance(episodes, EpisodeSource):
             raise ValueError(

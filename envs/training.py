@@ -99,6 +99,14 @@ def train(
     env_kwargs = dict(env_kwargs or {})
     probe = TrackerTuningEnv(**env_kwargs)  # bad settings are refused before anything is made
     space = probe.space
+    # episodes rendered now, over every env's process, so that no env renders while the
+    # others wait for it in lockstep (an env's reset then reads its episode back)
+    filled = probe.episodes.fill(workers=n_envs, progress=progress)
+    if filled is not None:
+        log(
+            f"episode cache {probe.episodes.store.root}: {filled['stored']} episodes stored, "
+            f"{filled['present']} already there ({filled['wall_s']:.0f} s)"
+        )
     probe.close()
     # checked now, made when the results are written (a stopped run leaves no empty folder)
     check_outputs(out, TRAIN_FILES[0], TRAIN_FILES[1:], _is_train_record, "crowdsim train")
@@ -197,6 +205,7 @@ def train(
         "wall_s": wall,
         "steps_per_s": steps / wall if wall > 0 else None,
         "episodes": curve,
+        "episode_cache": filled,
     }
     title = f"{algo.upper()} on TrackerTuning-v0, {n_envs} env(s)"
     write_outputs(

@@ -53,6 +53,7 @@ from crowdsim.jobs import (
     JobError,
     lock_path,
     locked_manifest,
+    one_numba_thread,
     read_manifest,
 )
 from crowdsim.jobs import run_jobs as _run_jobs
@@ -103,13 +104,6 @@ def build_sequence(
     )
     entry["spec_sha256"] = spec.digest()
     return entry
-
-
-def _single_threaded() -> None:
-    """One sequence per worker process: keep numba's parallel loops to one thread."""
-    import numba
-
-    numba.set_num_threads(1)
 
 
 # ---------------------------------------------------------------------------- manifest
@@ -302,7 +296,7 @@ def _run(
             section=MANIFEST_SECTION,
             desc="generating",
             unit="frame",
-            worker_init=_single_threaded,
+            worker_init=one_numba_thread,
             passthrough=(ValueError, OSError, MemoryError),
         )
     except JobError as exc:

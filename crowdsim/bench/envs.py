@@ -16,13 +16,15 @@ Sections
     timed ones, each API from the same seed; ``--repeat`` rounds, the best counts. Target:
     >= 200 steps/s through the array API at 1,000 agents (issue 9).
 ``tuning``
-    ``crowdsim/TrackerTuning-v0`` (the real BQP tracker, ``--k`` frames per step) on an
-    in-memory counterflow crowd of ``--targets`` people (default 100 and 300; frames up to
-    1280x720, 12 px heads): env steps/s and tracked frames/s after ``--tuning-warmup``
-    untimed steps (a step renders its frames in memory and tracks them; the episode's
-    simulation happens in ``reset`` and is not timed). Then the speed-up of ``--workers``
-    asynchronous envs (Gymnasium ``AsyncVectorEnv``, ``spawn`` context, 100 targets): total
-    env steps/s over the vector against one env.
+    ``crowdsim/TrackerTuning-v0`` (the real BQP tracker, ``--k`` frames per step) on
+    counterflow crowds of ``--targets`` people (default 100 and 300; frames up to 1280x720,
+    12 px heads): a pool of ``--episodes`` episodes of ``--frames`` frames, each run from reset
+    to its end, env steps/s with resets counted -- first rendering each episode at its reset
+    (simulation, rendering, H.264 and JPEG), then reading it from the episode cache
+    (:class:`envs.episodes.EpisodeCache`, filled first and timed apart); "step only" is the
+    rate without the resets (tracking alone). Then ``--workers`` asynchronous envs
+    (Gymnasium ``AsyncVectorEnv``, ``spawn``, the first crowd size), with and without the
+    cache: env steps/s over the vector against one env.
 """
 
 from __future__ import annotations
@@ -161,64 +163,123 @@ def _tuning_kwargs(targets: int, frames: int, k: int) -> dict[str, Any]:
     }
 
 
-def bench_tuning(
-    targets: tuple[int, ...] = (100, 300),
-    workers: tuple[int, ...] = (1, 2),
-    steps: int = 4,
-    warmup: int = 1,
-    k: int = 25,
-    seed: int = 0,
-) -> dict[str, Any]:
-    """TrackerTuning-v0 env steps/s per crowd size, and the async vector-env speed-up."""
+def _run_episodes(env: Any, episodes: int) -> dict[str, float]:
+    """Every episode of the pool once (reset, then steps with the default action until it
+    ends): env steps, wall seconds in all and in ``step`` alone, mean targets."""
+    action = np.zeros(env.action_space.shape, np.float32)
+    steps, in_step, targets = 0, 0.0, []
+    t0 = time.perf_counter()
+    for i in range(episodes):
+        env.reset(seed=i, options={"episode": i})
+        done = False
+        while not done:
+            t1 = time.perf_counter()
+            _, _, done, _, info = env.step(action)
+            in_step += time.perf_counter() - t1
+            steps += 1
+            targets.append(info["targets"])
+    wall = time.perf_counter() - t0
+    return {
+        "env_steps": steps,
+        "wall_s": wall,
+        "steps_per_s": steps / wall,
+        "step_only_steps_per_s": steps / in_step,
+        "mean_targets": float(np.mean(targets)),
+    }
+
+
+def _vector_rate(kwargs: dict[str, Any], workers: int, steps: int, seed: int) -> dict[str, Any]:
+    """Env steps/s of ``workers`` asynchronous envs (``spawn``) over ``steps`` vector steps,
+    episodes reset as they end (Gymnasium's next-step autoreset): a reset call is not counted
+    as an env step, its time is."""
     from gymnasium.vector import AsyncVectorEnv
 
     from envs.tracker_tuning import TrackerTuningEnv
 
-    frames = (steps + warmup) * k + 1
-    sizes = []
-    for n in targets:
-        env = TrackerTuningEnv(**_tuning_kwargs(n, frames, k))
-        env.reset(seed=seed)
-        action = np.zeros(env.action_space.shape, np.float32)
-        counts: list[int] = []
+    vec = AsyncVectorEnv(
+        [lambda: TrackerTuningEnv(**kwargs) for _ in range(workers)], context="spawn"
+    )
+    try:
+        vec.reset(seed=[seed + i for i in range(workers)])
+        actions = np.zeros((workers,) + vec.single_action_space.shape, np.float32)
+        resetting = np.zeros(workers, bool)
+        counted = 0
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            _, _, term, trunc, _ = vec.step(actions)
+            counted += int((~resetting).sum())
+            resetting = term | trunc
+        wall = time.perf_counter() - t0
+    finally:
+        vec.close()
+    return {"workers": workers, "env_steps": counted, "wall_s": wall, "steps_per_s": counted / wall}
 
-        def one(_: int) -> None:
-            counts.append(env.step(action)[4]["targets"])  # noqa: B023
 
-        wall = _timed(one, warmup, steps)
-        sizes.append(
-            {
-                "people": n,
-                "mean_targets": float(np.mean(counts[warmup:])),
-                "frame": f"{env._ep.seq.width}x{env._ep.seq.height}",
-                "k": k,
-                "steps": steps,
-                "wall_s": wall,
-                "steps_per_s": steps / wall,
-                "frames_per_s": steps * k / wall,
-            }
-        )
-        env.close()
-    vec_rows = []
-    for w in workers:
-        kw = _tuning_kwargs(targets[0], frames, k)
-        vec = AsyncVectorEnv(
-            [lambda kw=kw: TrackerTuningEnv(**kw) for _ in range(w)], context="spawn"
-        )
-        try:
-            vec.reset(seed=[seed + i for i in range(w)])
-            actions = np.zeros((w,) + vec.single_action_space.shape, np.float32)
-            wall = _timed(lambda _k: vec.step(actions), warmup, steps)  # noqa: B023
-        finally:
-            vec.close()
-        vec_rows.append(
-            {"workers": w, "env_steps": w * steps, "wall_s": wall, "steps_per_s": w * steps / wall}
-        )
-    base = next((r["steps_per_s"] for r in vec_rows if r["workers"] == 1), None)
-    for r in vec_rows:
-        r["speedup"] = r["steps_per_s"] / base if base else None
+def bench_tuning(
+    targets: tuple[int, ...] = (100, 300),
+    workers: tuple[int, ...] = (1, 2),
+    episodes: int = 4,
+    frames: int = 100,
+    k: int = 25,
+    vector_steps: int = 24,
+    seed: int = 0,
+    cache_dir: str | None = None,
+) -> dict[str, Any]:
+    """TrackerTuning-v0 env steps/s with and without the episode cache, per crowd size, and
+    the speed-up of asynchronous envs.
+
+    Per size: a pool of ``episodes`` episodes of ``frames`` frames, each run once from reset
+    to its end -- first rendering every episode at its reset (no cache), then after filling
+    an :class:`envs.episodes.EpisodeCache` (the fill is timed apart), reading them back. The
+    rate counts resets; ``step_only`` leaves them out (the tracking alone). Then
+    ``workers`` asynchronous envs on the first size, with and without the cache.
+    """
     import os
+    import tempfile
+    from pathlib import Path
 
+    from envs.tracker_tuning import TrackerTuningEnv
+
+    with tempfile.TemporaryDirectory(prefix="crowdsim-bench-episodes-") as tmp:
+        root = cache_dir or tmp
+        sizes = []
+        for n in targets:
+            kw = dict(_tuning_kwargs(n, frames, k), pool=episodes)
+            plain = TrackerTuningEnv(**kw)
+            rendered = _run_episodes(plain, episodes)
+            t0 = time.perf_counter()
+            cached_env = TrackerTuningEnv(**kw, episode_cache=root)
+            fill = cached_env.episodes.fill(progress=False)
+            fill["wall_s"] = time.perf_counter() - t0
+            cached = _run_episodes(cached_env, episodes)
+            sizes.append(
+                {
+                    "people": n,
+                    "frames": frames,
+                    "k": k,
+                    "episodes": episodes,
+                    "frame": f"{plain._ep.seq.width}x{plain._ep.seq.height}",
+                    "rendered": rendered,
+                    "cached": cached,
+                    "fill": fill,
+                    "speedup": cached["steps_per_s"] / rendered["steps_per_s"],
+                }
+            )
+            plain.close()
+            cached_env.close()
+        kw = dict(_tuning_kwargs(targets[0], frames, k), pool=episodes)
+        vec_rows = []
+        for mode, extra in (("rendered", {}), ("cached", {"episode_cache": root})):
+            for w in workers:
+                row = _vector_rate(dict(kw, **extra), w, vector_steps, seed)
+                row["mode"] = mode
+                vec_rows.append(row)
+        cache_bytes = sum(p.stat().st_size for p in Path(root).rglob("*") if p.is_file())
+    for mode in ("rendered", "cached"):
+        rows = [r for r in vec_rows if r["mode"] == mode]
+        base = next((r["steps_per_s"] for r in rows if r["workers"] == 1), None)
+        for r in rows:
+            r["speedup"] = r["steps_per_s"] / base if base else None
     return {
         "env": "crowdsim/TrackerTuning-v0",
         "tracker": "bqp (paper defaults)",
@@ -226,26 +287,40 @@ def bench_tuning(
         "sizes": sizes,
         "vector": vec_rows,
         "vector_people": targets[0],
+        "vector_steps": vector_steps,
+        "cache_bytes": cache_bytes,
     }
 
 
 def _print_tuning(report: dict[str, Any]) -> None:
     print(f"TrackerTuning-v0 ({report['tracker']}), {report['cpus']} CPUs")
-    head = f"{'people':>7} {'targets':>8} {'frame':>9} {'K':>3} {'steps/s':>8} {'frames/s':>9}"
+    head = (
+        f"{'people':>7} {'targets':>8} {'frame':>9} {'K':>3} {'rendered':>9} {'cached':>8} "
+        f"{'speed-up':>9} {'step only':>10} {'fill s/ep':>10}"
+    )
     print(head)
     print("-" * len(head))
     for r in report["sizes"]:
+        ren, cac = r["rendered"], r["cached"]
         print(
-            f"{r['people']:>7} {r['mean_targets']:>8.0f} {r['frame']:>9} {r['k']:>3} "
-            f"{r['steps_per_s']:>8.2f} {r['frames_per_s']:>9.1f}"
+            f"{r['people']:>7} {cac['mean_targets']:>8.0f} {r['frame']:>9} {r['k']:>3} "
+            f"{ren['steps_per_s']:>9.2f} {cac['steps_per_s']:>8.2f} {r['speedup']:>8.2f}x "
+            f"{cac['step_only_steps_per_s']:>10.2f} {r['fill']['wall_s'] / r['episodes']:>10.2f}"
         )
+    print(
+        "(env steps/s over whole episodes, resets included: each reset renders its episode, "
+        "or reads it from the episode cache; 'step only' leaves resets out)"
+    )
     print(f"async vector env, {report['vector_people']} people per env")
-    head = f"{'workers':>7} {'env steps':>10} {'steps/s':>8} {'speed-up':>9}"
+    head = f"{'episodes':>9} {'workers':>7} {'env steps':>10} {'steps/s':>8} {'speed-up':>9}"
     print(head)
     print("-" * len(head))
     for r in report["vector"]:
         sp = "" if r["speedup"] is None else f"{r['speedup']:.2f}x"
-        print(f"{r['workers']:>7} {r['env_steps']:>10} {r['steps_per_s']:>8.2f} {sp:>9}")
+        print(
+            f"{r['mode']:>9} {r['workers']:>7} {r['env_steps']:>10} {r['steps_per_s']:>8.2f} "
+            f"{sp:>9}"
+        )
 
 
 # ------------------------------------------------------------------------------ CLI
@@ -256,7 +331,14 @@ SECTIONS: dict[
     "crowd": (lambda a: bench_crowd(a.agents, a.steps, a.warmup, a.seed, a.repeat), _print_crowd),
     "tuning": (
         lambda a: bench_tuning(
-            tuple(a.targets), tuple(a.workers), a.tuning_steps, a.tuning_warmup, a.k, a.seed
+            tuple(a.targets),
+            tuple(a.workers),
+            a.episodes,
+            a.frames,
+            a.k,
+            a.vector_steps,
+            a.seed,
+            a.episode_cache,
         ),
         _print_tuning,
     ),
@@ -297,13 +379,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="tuning: async env counts, e.g. 1 2 4 8 16 (default 1 2)",
     )
     parser.add_argument(
-        "--tuning-steps",
+        "--episodes",
         type=int,
         default=4,
-        help="tuning: timed env steps per measurement (default 4)",
+        help="tuning: episodes in the pool, each run once per measurement (default 4)",
     )
     parser.add_argument(
-        "--tuning-warmup", type=int, default=1, help="tuning: untimed env steps first (default 1)"
+        "--frames", type=int, default=100, help="tuning: frames per episode (default 100)"
+    )
+    parser.add_argument(
+        "--vector-steps",
+        type=int,
+        default=24,
+        help="tuning: vector steps per async measurement (default 24)",
+    )
+    parser.add_argument(
+        "--episode-cache",
+        default=None,
+        metavar="DIR",
+        help="tuning: keep the cached episodes in DIR (default: a temporary folder)",
     )
     parser.add_argument("--k", type=int, default=25, help="tuning: frames per env step (25)")
     parser.add_argument("--seed", type=int, default=0, help="seed of scenes and actions")
@@ -325,12 +419,14 @@ def _sections(text: str) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     chosen = _sections(args.only)
-    for name in ("agents", "steps", "repeat", "tuning_steps", "k"):
+    for name in ("agents", "steps", "repeat", "episodes", "vector_steps", "k"):
         if getattr(args, name, 1) < 1:
             raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
     if min(getattr(args, "targets", [1]) + getattr(args, "workers", [1])) < 1:
         raise ValueError("--targets and --workers must be >= 1")
-    if getattr(args, "warmup", 0) < 0 or getattr(args, "tuning_warmup", 0) < 0:
+    if getattr(args, "frames", 2) < 2:
+        raise ValueError(f"--frames must be >= 2, got {args.frames}")
+    if getattr(args, "warmup", 0) < 0:
         raise ValueError(f"--warmup must be >= 0, got {args.warmup}")
     report: dict[str, Any] = {"benchmark": "envs", "sections": {}}
     for name in chosen:

@@ -4,7 +4,9 @@
 (:mod:`crowdsim.jobs`), for ``generate``, ``compare`` and ``ablation``;
 :func:`add_table_arguments`: everything ``compare`` and ``ablation`` take;
 :func:`add_episode_arguments` / :func:`episode_objective`: the sequences ``tune``,
-``heldout`` and ``headroom`` score on; :func:`add_tracker_argument`: their ``--tracker``.
+``heldout`` and ``headroom`` score on; :func:`add_tracker_argument`: their ``--tracker``;
+:func:`add_episode_cache_arguments` / :func:`episode_cache_kwargs`: the episode cache of
+``train`` and ``bench envs``.
 """
 
 from __future__ import annotations
@@ -147,3 +149,46 @@ def episode_objective(args: argparse.Namespace, **fields: object) -> object:
         frames=args.frames,
         **fields,
     )
+
+
+DEFAULT_POOL = 64
+"""Distinct episodes of a scenario distribution kept in an episode cache (``--pool``)."""
+
+
+def add_episode_cache_arguments(p: argparse.ArgumentParser) -> None:
+    """``--episode-cache DIR`` and ``--pool N`` (:class:`envs.episodes.EpisodeCache`)."""
+    p.add_argument(
+        "--episode-cache",
+        metavar="DIR",
+        help="keep rendered episodes in DIR: each is simulated, rendered and encoded once "
+        "(checksummed, read back by every reset, epoch and process; reused by later runs)",
+    )
+    p.add_argument(
+        "--pool",
+        type=int,
+        metavar="N",
+        help="with --scenarios and --episode-cache: distinct episodes drawn and reused "
+        f"(default {DEFAULT_POOL})",
+    )
+
+
+def episode_cache_kwargs(args: argparse.Namespace) -> dict:
+    """``episode_cache`` / ``pool`` keyword arguments of ``TrackerTuning-v0`` from
+    :func:`add_episode_cache_arguments`' flags (checked)."""
+    from pathlib import Path
+
+    from crowdsim.checks import require_number
+
+    if args.episode_cache is None:
+        if args.pool is not None:
+            raise ValueError("--pool needs --episode-cache DIR")
+        return {}
+    out: dict = {"episode_cache": str(Path(args.episode_cache).absolute())}
+    if getattr(args, "suite", None) is not None:
+        if args.pool is not None:
+            raise ValueError("--pool draws from --scenarios; a --suite has its own sequences")
+        return out
+    pool = DEFAULT_POOL if args.pool is None else args.pool
+    require_number("", "--pool", pool, lo=1, integer=True)
+    out["pool"] = pool
+    return out

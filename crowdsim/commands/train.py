@@ -15,7 +15,11 @@ from __future__ import annotations
 
 import argparse
 
-from crowdsim.commands._table_args import add_tracker_argument
+from crowdsim.commands._table_args import (
+    add_episode_cache_arguments,
+    add_tracker_argument,
+    episode_cache_kwargs,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -50,6 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--only", nargs="+", metavar="SEQ", help="with --suite: these sequences")
     p.add_argument("--frames", type=int, metavar="N", help="frames per sequence")
     p.add_argument("--k", type=int, default=25, metavar="K", help="frames per step (25)")
+    add_episode_cache_arguments(p)
     p.add_argument(
         "--threshold",
         type=float,
@@ -88,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
         kwargs["scenarios"] = args.scenarios or "all"
     if args.frames is not None:
         kwargs["frames"] = args.frames
+    kwargs.update(episode_cache_kwargs(args))
     doc = train(
         args.algo,
         out=args.out,
