@@ -24,6 +24,8 @@ trajectories to the same pixels.
   axis, rotation of up to ``rotate_deg`` and zoom of up to ``1 +- zoom``, each a sum of three
   sinusoids with periods of 0.5-1.5 ``drone_frames``. The renderer draws a larger canvas
   (:meth:`Camera.canvas`) and warps it, so the view never shows an undrawn border.
+* ``shake_events``: shake bursts (:class:`crowdsim.events.Event` of kind ``shake``), each a
+  further seeded AR(1) translation of its own standard deviation acting only on its frames.
 
 Examples
 --------
@@ -40,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from crowdsim.events import Event
 from crowdsim.knobs import knob, knobs
 
 JITTER_CORRELATION_FRAMES: float = knob("jitter_frames").default
@@ -86,6 +89,9 @@ class Camera:
         Seed of the jitter process and of the drone profile.
     drift_px, rotate_deg, zoom, drone_frames : float
         The drone profile (knobs of :mod:`crowdsim.knobs`; ``0``, ``0``, ``0``: off).
+    shake_events : tuple of Event
+        Shake bursts (kind ``shake``; magnitude: standard deviation in px), added to the
+        jitter on their frames only.
     """
 
     px_per_m: float
@@ -101,6 +107,7 @@ class Camera:
     rotate_deg: float = 0.0
     zoom: float = 0.0
     drone_frames: float = DRONE_FRAMES
+    shake_events: tuple[Event, ...] = ()
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.px_per_m) and self.px_per_m > 0):
@@ -117,6 +124,10 @@ class Camera:
             raise ValueError(f"camera.distance_m must be > 0, got {self.distance_m!r}")
         for k in knobs("camera"):  # the motion knobs: ranges in crowdsim.knobs
             k.check("camera", getattr(self, k.name))
+        bad = [e for e in self.shake_events if not (isinstance(e, Event) and e.kind == "shake")]
+        if bad:
+            raise ValueError(f"camera.shake_events must be shake events, got {bad[0]!r}")
+        object.__setattr__(self, "shake_events", tuple(self.shake_events))
         if self.drone_on:
             mx, my = self._canvas_margins()
             if max(self.width + 2 * mx, self.height + 2 * my) > MAX_SIDE:
@@ -194,22 +205,40 @@ class Camera:
         """``(n_frames, 2)`` pixel offsets added to every projected point of a frame.
 
         A seeded AR(1) process with stationary standard deviation ``jitter_px`` and correlation
-        time ``jitter_frames`` (zeros when ``jitter_px == 0``). Frame ``t``'s offset does not
-        depend on ``n_frames``.
+        time ``jitter_frames`` (zeros when ``jitter_px == 0``), plus one such process per shake
+        burst (:attr:`shake_events`), of the burst's own standard deviation, on its frames
+        only. Frame ``t``'s offset does not depend on ``n_frames``.
         """
         if n_frames < 0:
             raise ValueError(f"n_frames must be >= 0, got {n_frames}")
         out = np.zeros((n_frames, 2))
-        if self.jitter_px == 0.0 or n_frames == 0:
+        if n_frames == 0:
             return out
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 0x4A17]))
+        if self.jitter_px > 0.0:
+            out += self._ar1(n_frames, self.jitter_px, [self.seed, 0x4A17])
+        for i, ev in enumerate(self.shake_events):
+            if ev.magnitude > 0.0:
+                burst = self._ar1(n_frames, ev.magnitude, [self.seed, 0x5B0057, i])
+                out += burst * ev.mask(n_frames)[:, None]
+        return out
+
+    def _ar1(self, n_frames: int, sigma: float, seed: list[int]) -> np.ndarray:
+        """``(n_frames, 2)`` seeded AR(1) offsets of stationary deviation ``sigma`` and
+        correlation time ``jitter_frames``; frame ``t``'s offset does not depend on
+        ``n_frames`` (drawn in frame order)."""
+        out = np.zeros((n_frames, 2))
+        rng = np.random.default_rng(np.random.SeedSequence(seed))
         a = math.exp(-1.0 / self.jitter_frames)
-        # Draw in frame order so that frame t's offset does not depend on n_frames.
-        out[0] = rng.standard_normal(2) * self.jitter_px
-        innov = rng.standard_normal((n_frames, 2)) * self.jitter_px * math.sqrt(1.0 - a * a)
+        out[0] = rng.standard_normal(2) * sigma
+        innov = rng.standard_normal((n_frames, 2)) * sigma * math.sqrt(1.0 - a * a)
         for t in range(1, n_frames):
             out[t] = a * out[t - 1] + innov[t]
         return out
+
+    @property
+    def shake_px(self) -> float:
+        """The largest shake deviation on any frame (``jitter_px`` plus the bursts)."""
+        return self.jitter_px + sum(e.magnitude for e in self.shake_events)
 
     @property
     def drone_on(self) -> bool:
@@ -219,7 +248,7 @@ class Camera:
     @property
     def moves(self) -> bool:
         """Whether the image moves over the ground at all (shake or drone profile)."""
-        return self.jitter_px > 0 or self.drone_on
+        return self.shake_px > 0 or self.drone_on
 
     def drone(self, n_frames: int) -> np.ndarray:
         """``(n_frames, 2, 3)`` affine maps of the drone profile, from the shaken image to the

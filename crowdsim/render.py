@@ -41,6 +41,7 @@ drawn to within ``1 / (2 * subpixel)`` pixels. The MOT rows are built by
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -60,6 +61,7 @@ from crowdsim.appearance_model import (
     cluster_weights,
 )
 from crowdsim.camera import Camera
+from crowdsim.events import Event, light_factor, noise_sigma, of_kind, parse_events
 from crowdsim.trajectories import Trajectories
 
 BODY_WIDTH_M: float = 0.5
@@ -493,18 +495,27 @@ class SceneRenderer:
         Frames per second (sets the illumination drift and the moving shadows' speed).
     """
 
-    def __init__(self, camera: Camera, params: AppearanceParams, seed: int, fps: float) -> None:
+    def __init__(
+        self,
+        camera: Camera,
+        params: AppearanceParams,
+        seed: int,
+        fps: float,
+        events: Sequence[Event] = (),
+    ) -> None:
         if not (fps > 0):
             raise ValueError(f"fps must be > 0, got {fps!r}")
         self.camera = camera
         self.params = params
         self.fps = float(fps)
         self.seed = int(seed)
+        # lighting and noise events (shake bursts live in the camera, which the truth shares)
+        self.events = of_kind(parse_events(events), ("lighting", "noise"))
         self._canvas: SceneRenderer | None = None
         if camera.drone_on:
             # The drone profile: draw a larger, drone-free canvas, then warp it into the view.
             canvas, self._canvas_offset = camera.canvas()
-            self._canvas = SceneRenderer(canvas, params, seed, fps)
+            self._canvas = SceneRenderer(canvas, params, seed, fps, self.events)
             self.bank = self._canvas.bank
             self.margin = self._canvas.margin
             self._views = np.zeros((0, 2, 3))
@@ -513,7 +524,7 @@ class SceneRenderer:
             [int(seed), 0x5CE4E]
         ).spawn(5)
         self.bank: SpriteBank = build_sprite_bank(params, np.random.default_rng(s_bank))
-        self.margin = int(math.ceil(4 * camera.jitter_px)) + 1 if camera.jitter_px > 0 else 0
+        self.margin = int(math.ceil(4 * camera.shake_px)) + 1 if camera.shake_px > 0 else 0
         h, w = camera.height, camera.width
         m = self.margin
         self.ground = make_ground(
@@ -605,14 +616,15 @@ class SceneRenderer:
 
     # ------------------------------------------------------------------ per frame
     def _frame_jitter(self, t: int) -> np.ndarray:
-        if self.camera.jitter_px == 0:
+        if self.camera.shake_px == 0:
             return np.zeros(2)
         if t >= len(self._jitter):
             self._jitter = self.camera.jitter(max(t + 1, 2 * len(self._jitter)))
         return self._jitter[t]
 
     def illumination(self, t: int) -> tuple[float, float, float]:
-        """``(gain, x gradient, y gradient)`` of frame ``t``, flicker included."""
+        """``(gain, x gradient, y gradient)`` of frame ``t``, flicker and lighting events
+        included."""
         p = self.params
         a = p.illumination_drift
         w = 2 * math.pi * t / (p.illumination_period_s * self.fps)
@@ -627,6 +639,9 @@ class SceneRenderer:
                 np.random.default_rng([self.seed, 0xF11C, int(t)]).standard_normal()
             )
             f = max(f, 0.0)
+            gain = (gain[0] * f, gain[1] * f, gain[2] * f)
+        if self.events:
+            f = light_factor(self.events, t)
             gain = (gain[0] * f, gain[1] * f, gain[2] * f)
         return gain
 
@@ -690,7 +705,10 @@ class SceneRenderer:
         g0, gx, gy = (np.float32(v) for v in self.illumination(t))
         rng = np.random.default_rng([self.seed, 0x7015E, int(t)])
         ny, nx = (int(v) for v in rng.integers(0, NOISE_POOL_MARGIN + 1, 2))
-        nscale = np.float32(self.params.noise_sigma / NOISE_POOL_SCALE)
+        sigma = self.params.noise_sigma
+        if self.events:
+            sigma = noise_sigma(self.events, t, sigma)
+        nscale = np.float32(sigma / NOISE_POOL_SCALE)
         gain_x = gx * (np.arange(w, dtype=np.float32) / np.float32(w) - np.float32(0.5))
         out2 = out.reshape(h, w * 3)
         _ground_pass(

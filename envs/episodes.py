@@ -13,6 +13,16 @@ Two sources, one face (:class:`EpisodeSource`):
   sequences written by ``crowdsim generate`` (each sub-folder one episode), ``only`` some of
   them.
 
+With ``events`` (``--scenarios nonstationary``) every episode of a distribution gets one
+scheduled change part-way through -- a lighting change, a noise or shake burst, the crowd
+stopping, a surge of arrivals (:mod:`crowdsim.events`) -- and its family is the event's kind:
+scenes where the best setting changes within a sequence.
+
+:class:`EpisodeCache` keeps rendered episodes on disk (``--episode-cache DIR``): each is
+simulated, rendered and encoded once, stored as the JPEG bytes of its frames with its ground
+truth and checksums, and read back (checked) by every reset, epoch and process; a damaged
+entry is moved aside and rendered again, never trusted.
+
 ``source.sample(rng)`` draws a random episode with the caller's generator (the environment's
 ``np_random``: every random choice comes from it); ``source.episode(i)`` is the ``i``-th
 episode of a fixed, seeded list (what tuners score every trial on, and what held-out
@@ -54,6 +64,26 @@ DEFAULT_SCENARIOS: tuple[str, ...] = (
     "anomalies",
 )
 """Scenario families of the default distribution (every scenario of :mod:`crowdsim.scenarios`)."""
+
+
+EVENT_STRENGTHS: dict[str, tuple[float, float]] = {
+    "lighting": (0.3, 0.6),
+    "noise": (15.0, 30.0),
+    "shake": (3.0, 8.0),
+    "stop": (0.6, 1.0),
+    "surge": (3.0, 8.0),
+}
+"""Event kind -> the range its strength is drawn from in a non-stationary distribution:
+a cloud or lights dimmed to 30-60 %; gain noise of sigma 15-30 grey levels; a shake of 3-8 px
+(a gust on a mast); 60-100 % of the crowd stopping; inflow 3-8 times its rate (a train
+arriving)."""
+INFLOW_SCENARIOS: tuple[str, ...] = ("marathon", "counterflow", "commuters", "anomalies", "station")
+"""Scenarios whose people arrive through inflows (what ``surge`` multiplies)."""
+NONSTATIONARY: dict[str, Any] = {
+    "scenarios": list(INFLOW_SCENARIOS),
+    "events": list(EVENT_STRENGTHS),
+}
+"""``--scenarios nonstationary``: every event kind over the scenarios with inflow."""
 
 
 def tiny_scenarios() -> dict[str, Any]:
@@ -118,6 +148,14 @@ class ScenarioDistribution:
     max_width, max_height : int
         Largest frame, px: the camera frames the crowd at the template's scale up to this size
         (small frames keep episodes fast).
+    events : tuple of str
+        Non-stationary families (kinds of :mod:`crowdsim.events`: ``lighting``, ``noise``,
+        ``shake``, ``stop``, ``surge``): when given, every episode gets one event of a kind
+        drawn uniformly, starting between a quarter and a half of the way in and lasting a
+        quarter to a half of the frames, of a strength drawn from :data:`EVENT_STRENGTHS`.
+        The episode's family is then the event's kind (:meth:`family`), so held-out scores
+        and headroom come per kind. ``surge`` needs scenarios with inflow
+        (:data:`INFLOW_SCENARIOS`).
     difficulty : (float, float)
         The calibration's difficulty scale (:func:`crowdsim.knobs.knob_values`: look-alike
         heads, packed bodies, gait and head turns, clutter, camera noise, blur, shake, JPEG
@@ -143,6 +181,7 @@ class ScenarioDistribution:
     max_width: int = 640
     max_height: int = 480
     difficulty: tuple[float, float] = (0.2, 0.9)
+    events: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         from crowdsim.scenarios import MAX_AGENTS, SCENARIOS
@@ -183,6 +222,22 @@ class ScenarioDistribution:
         object.__setattr__(
             self, "difficulty", _pair(own, "difficulty", self.difficulty, lo=0, hi=1)
         )
+        kinds = (self.events,) if isinstance(self.events, str) else self.events
+        if not isinstance(kinds, (tuple, list)):
+            raise ValueError(f"{own}.events must be an event kind or a list of them, got {kinds!r}")
+        for k in kinds:
+            if k not in EVENT_STRENGTHS:
+                raise ValueError(
+                    f"{own}.events: unknown kind {k!r}; valid kinds: {', '.join(EVENT_STRENGTHS)}"
+                )
+        object.__setattr__(self, "events", tuple(dict.fromkeys(kinds)))
+        if "surge" in self.events:
+            dry = [s for s in scen if s not in INFLOW_SCENARIOS]
+            if dry:
+                raise ValueError(
+                    f"{own}.events: surge needs scenarios with inflow "
+                    f"({', '.join(INFLOW_SCENARIOS)}); {', '.join(dry)} has none"
+                )
         tp = self.template_px
         tp = (tp,) if isinstance(tp, (int, float, np.integer, np.floating)) else tp
         if not isinstance(tp, (tuple, list)):
@@ -206,10 +261,10 @@ class ScenarioDistribution:
 
     @classmethod
     def from_arg(cls, text: str, **overrides: Any) -> ScenarioDistribution:
-        """From a CLI value: ``all``, a comma list of scenario names (``marathon,crossing``)
-        or a JSON/TOML file of fields; ``overrides`` (e.g. ``frames``) on top. Every problem
-        of a file (binary, broken, unknown or out-of-range fields) is a ``ValueError`` naming
-        it."""
+        """From a CLI value: ``all``, ``nonstationary`` (:data:`NONSTATIONARY`), a comma list
+        of scenario names (``marathon,crossing``) or a JSON/TOML file of fields; ``overrides``
+        (e.g. ``frames``) on top. Every problem of a file (binary, broken, unknown or
+        out-of-range fields) is a ``ValueError`` naming it."""
         text = str(text).strip()
         p = Path(text)
         if p.suffix.lower() in (".json", ".toml") or p.is_file():
@@ -218,6 +273,8 @@ class ScenarioDistribution:
             return cls.from_dict(_read_table(p), where=str(p), **overrides)
         if text in ("", "all"):
             return cls(**overrides)
+        if text == "nonstationary":
+            return cls.from_dict(NONSTATIONARY, **overrides)
         return cls(scenarios=tuple(s.strip() for s in text.split(",") if s.strip()), **overrides)
 
     @classmethod
@@ -244,6 +301,18 @@ class ScenarioDistribution:
 
     def to_dict(self) -> dict[str, Any]:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+
+    @property
+    def families(self) -> tuple[str, ...]:
+        """The families episodes are grouped by: the event kinds when there are any, else
+        the scenarios."""
+        return self.events or self.scenarios
+
+    def family(self, spec: Any) -> str:
+        """The family of one of this distribution's specs (:attr:`families`)."""
+        if self.events and spec.events:
+            return str(spec.events[0].kind)
+        return str(spec.scenario["name"])
 
     def sample_spec(self, rng: np.random.Generator, name: str = "episode") -> Any:
         """Draw one :class:`~synth_data.spec.SequenceSpec` (all choices from ``rng``)."""
@@ -277,6 +346,21 @@ class ScenarioDistribution:
             output={"images": True, "video": False},
             description=f"{scen}, {n} people at {density:.2f}/m^2, {template} px, difficulty {d:g}",
         )
+        if self.events:  # drawn last: distributions without events draw as before
+            from crowdsim.events import Event
+
+            kind = self.events[int(rng.integers(len(self.events)))]
+            lo, hi = EVENT_STRENGTHS[kind]
+            q = self.frames // 4
+            start = int(rng.integers(q, max(q, self.frames // 2) + 1))
+            length = int(rng.integers(max(1, q), max(1, 2 * q) + 1))
+            ev = Event(kind, start, length, round(float(rng.uniform(lo, hi)), 3))
+            spec = replace(
+                spec,
+                events=(ev,),
+                description=f"{spec.description}; {kind} x{ev.magnitude:g} "
+                f"at frames {start}-{start + length - 1}",
+            )
         if d <= 0:
             return spec
         from crowdsim.knobs import apply_knobs, knob_values

@@ -38,10 +38,11 @@ def heldout_episodes(
 
     Built-in suite: each tuned sequence (``objective.only``, default all) re-seeded with
     offsets ``HELDOUT_SEED .. HELDOUT_SEED + seeds - 1``; the family is the sequence's name.
-    Scenario distribution: episodes of stream ``HELDOUT_SEED`` until each scenario family has
-    ``seeds`` with someone to track (an episode whose camera sees nobody is passed over and
-    its name appended to ``skipped``). Suite folder: the ``objective.heldout_only`` sequences
-    once each (a folder cannot be re-seeded).
+    Scenario distribution: episodes of stream ``HELDOUT_SEED`` until each family (scenario,
+    or event kind for a non-stationary distribution) has ``seeds`` with someone to track (an
+    episode whose camera sees nobody is passed over and its name appended to ``skipped``).
+    Suite folder: the ``objective.heldout_only`` sequences once each (a folder cannot be
+    re-seeded).
     """
     require_number("heldout", "seeds", seeds, lo=1, integer=True)
     from synth_data.suites import SUITE_NAMES
@@ -63,11 +64,11 @@ def heldout_episodes(
                 yield src.spec(i).name, src.episode(i), src.spec(i)
         return
     src = objective.episodes(heldout=True)
-    families = tuple(src.dist.scenarios)
+    families = src.dist.families
     counts = dict.fromkeys(families, 0)
     for i in range(_MAX_DRAWS_PER_SEED * len(families) * seeds):
         spec = src.spec(i)
-        family = spec.scenario["name"]
+        family = src.dist.family(spec)
         if counts.get(family, seeds) >= seeds:
             continue
         seq = src.episode(i)
@@ -91,7 +92,7 @@ def heldout_count(objective: Any, seeds: int) -> int:
     from synth_data.suites import SUITE_NAMES
 
     if objective.suite is None:
-        return len(objective.episodes(heldout=True).dist.scenarios) * seeds
+        return len(objective.episodes(heldout=True).dist.families) * seeds
     if str(objective.suite) not in SUITE_NAMES:
         return len(objective.episodes(heldout=True))
     return len(make_episodes(suite=objective.suite, only=objective.only or None)) * seeds

@@ -54,8 +54,8 @@ class Objective:
     suite : str, optional
         Built-in suite name or folder of MOT sequences (exclusive with ``scenarios``).
     scenarios : str or dict, optional
-        ``"all"``, a comma list of scenarios, a distribution file, or the fields of
-        :class:`envs.episodes.ScenarioDistribution`.
+        ``"all"``, ``"nonstationary"``, a comma list of scenarios, a distribution file, or the
+        fields of :class:`envs.episodes.ScenarioDistribution`.
     only : tuple of str
         Suite sequences to tune on.
     heldout_only : tuple of str

@@ -95,6 +95,7 @@ def build_sequence(
         camera=scene.camera,
         appearance=scene.appearance,
         seed=scene.seed,
+        events=scene.events,
         name=spec.name,
         meta=meta,
         images=spec.output["images"],

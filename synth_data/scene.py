@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from crowdsim.events import CROWD_EVENTS, Event, of_kind
 from synth_data.spec import SequenceSpec
 
 EXTENT_PERCENTILE = 1.0
@@ -38,7 +39,11 @@ def simulate(spec: SequenceSpec) -> Any:
     if abs(sf.dt - 1.0 / spec.fps) > 1e-12:
         sf = replace(sf, dt=1.0 / spec.fps)
     sim = Simulation(scenario, seed=spec.seed, params=sf)
-    traj = sim.run(spec.warmup_steps + spec.frames - 1)
+    crowd = of_kind(spec.events, CROWD_EVENTS)
+    if crowd:
+        traj = _run_with_events(sim, spec, crowd)
+    else:
+        traj = sim.run(spec.warmup_steps + spec.frames - 1)
     pos = traj.positions[spec.warmup_steps :]
     keep = ~np.isnan(pos[..., 0]).all(axis=0)
     meta = dict(traj.meta)
@@ -50,6 +55,59 @@ def simulate(spec: SequenceSpec) -> Any:
         attributes={k: v[keep] for k, v in traj.attributes.items()},
         meta=meta,
     )
+
+
+def _run_with_events(sim: Any, spec: SequenceSpec, events: tuple[Event, ...]) -> Any:
+    """Step ``sim`` through the spec's frames with its crowd events (stop, surge).
+
+    Frame ``f`` is the state after ``warmup_steps + f`` steps; an event acting on frame ``f``
+    changes the step that produces it. ``stop`` holds the desired velocity of a seeded
+    fraction of the people present at zero (people who arrive meanwhile stop too, with the
+    same probability); ``surge`` multiplies every inflow's arrival rate.
+    """
+    from dataclasses import replace as dc_replace
+
+    if any(e.kind == "surge" for e in events) and not sim.sources:
+        raise ValueError(
+            f"{spec.name}: events: surge needs a scenario with inflow; "
+            f"{spec.scenario['name']} has none"
+        )
+    rng = np.random.default_rng(np.random.SeedSequence([spec.seed, 0x5709]))
+    base_sources = list(sim.sources)
+    none = np.zeros(0, np.int64)
+    # per stop event: the ids already drawn (sorted) and whether each stops
+    drawn = {i: (none, np.zeros(0, bool)) for i, e in enumerate(events) if e.kind == "stop"}
+    stopped = none
+    for step in range(spec.warmup_steps + spec.frames - 1):
+        f = step + 1 - spec.warmup_steps  # the frame this step produces
+        factor = float(np.prod([e.magnitude for e in events if e.kind == "surge" and e.active(f)]))
+        sim.sources = (
+            [dc_replace(src, rate=src.rate * factor) for src in base_sources]
+            if factor != 1.0
+            else base_sources
+        )
+        present = np.sort(sim.state.ids)
+        hold = none
+        for i, (ids, stops) in drawn.items():
+            if not events[i].active(f):
+                continue
+            new = present[~np.isin(present, ids)]
+            if len(new):  # each person draws once per event, in id order
+                ids = np.concatenate([ids, new])
+                stops = np.concatenate([stops, rng.random(len(new)) < events[i].magnitude])
+                order = np.argsort(ids, kind="stable")
+                drawn[i] = ids, stops = ids[order], stops[order]
+            hold = np.union1d(hold, ids[stops])
+        hold = np.intersect1d(hold, present)
+        release = np.intersect1d(np.setdiff1d(stopped, hold), present)
+        if len(release):
+            sim.clear_desired(release)
+        if len(hold):
+            sim.set_desired(hold, np.zeros(2))
+        stopped = hold
+        sim.step()
+    sim.sources = base_sources
+    return sim.trajectories
 
 
 def crowd_extent(
@@ -92,12 +150,14 @@ def camera_for(
     extent: tuple[float, ...],
     seed: int,
     focus: tuple[float, float] | None = None,
+    events: tuple[Event, ...] = (),
 ) -> Any:
     """The :class:`~crowdsim.camera.Camera` of a spec's ``[camera]`` table for ``extent``.
 
     Without an explicit ``center`` the camera looks at the centre of ``extent``; when the
     frame is smaller than the extent it moves towards ``focus`` (e.g. the crowd's median
-    position) as far as it can while staying inside the extent.
+    position) as far as it can while staying inside the extent. The shake ``events`` become
+    the camera's shake bursts.
     """
     from crowdsim.camera import Camera, motion_values
     from crowdsim.render import default_px_per_m
@@ -116,6 +176,7 @@ def camera_for(
         distance_m=float(cam.get("distance_m", 60.0)),
         **motion_values(cam),
         seed=seed,
+        shake_events=of_kind(events, ("shake",)),
     )
     if "center" in cam:
         camera = replace(camera, center=tuple(float(c) for c in cam["center"]))
@@ -145,6 +206,9 @@ class Scene:
     appearance : crowdsim.appearance_model.AppearanceParams
     seed : int
         Seed of the rendering randomness (as in :func:`synth_data.writer.write_sequence`).
+    events : tuple of crowdsim.events.Event
+        The spec's events; the renderer draws the lighting and noise ones (the shake bursts
+        are in the camera, the crowd events in the trajectories).
     """
 
     name: str
@@ -152,6 +216,7 @@ class Scene:
     camera: Any
     appearance: Any
     seed: int
+    events: tuple[Event, ...] = ()
 
     @classmethod
     def from_spec(cls, spec: SequenceSpec) -> Scene:
@@ -160,10 +225,20 @@ class Scene:
         xy = traj.positions[traj.present]
         focus = (float(np.median(xy[:, 0])), float(np.median(xy[:, 1])))
         camera = camera_for(
-            spec.camera, spec.appearance.template_px, crowd_extent(traj), spec.seed, focus=focus
+            spec.camera,
+            spec.appearance.template_px,
+            crowd_extent(traj),
+            spec.seed,
+            focus=focus,
+            events=spec.events,
         )
         return cls(
-            name=spec.name, traj=traj, camera=camera, appearance=spec.appearance, seed=spec.seed
+            name=spec.name,
+            traj=traj,
+            camera=camera,
+            appearance=spec.appearance,
+            seed=spec.seed,
+            events=spec.events,
         )
 
     @property
@@ -198,7 +273,9 @@ class Scene:
         """The :class:`~crowdsim.render.SceneRenderer` (stateless per frame index)."""
         from crowdsim.render import SceneRenderer
 
-        return SceneRenderer(self.camera, self.appearance, seed=self.seed, fps=self.traj.fps)
+        return SceneRenderer(
+            self.camera, self.appearance, seed=self.seed, fps=self.traj.fps, events=self.events
+        )
 
     def frame(self, t: int) -> np.ndarray:
         """Frame ``t`` (0-based) as a new ``(H, W, 3)`` uint8 BGR array."""

@@ -35,6 +35,12 @@ A spec describes one sequence. Example (TOML)::
     images = true            # img1/*.jpg
     video = false            # video.mp4
 
+    [[events]]               # optional: what changes part-way (crowdsim.events)
+    kind = "lighting"        # lighting | noise | shake | stop | surge
+    start = 60               # first frame it acts on (0-based, after the warm-up)
+    frames = 40              # how long; 0 = until the end
+    magnitude = 0.5          # factor / sigma / px / fraction / factor, by kind
+
     [calibration]            # free-form record (numbers and strings), not used to render
     paper_b_ncc_15px = 85.54 # the target of crowdsim calibrate --anchor b-ncc
     paper_ncc_15px = 58.0    # ... and of --anchor ncc11
@@ -60,6 +66,7 @@ from pathlib import Path
 from typing import Any
 
 from crowdsim.appearance_model import AppearanceParams
+from crowdsim.events import Event, parse_events
 from crowdsim.knobs import knobs, reference
 
 __doc__ = (__doc__ or "") + "\n".join("    " + line for line in reference().splitlines()) + "\n"
@@ -76,6 +83,8 @@ TOP_FIELDS: dict[str, tuple[type | tuple[type, ...], bool]] = {
 }
 """Top-level key -> (type, required)."""
 SECTIONS: tuple[str, ...] = ("scenario", "camera", "appearance", "output", "calibration")
+LISTS: tuple[str, ...] = ("events",)
+"""Top-level lists of tables (``[[events]]`` in TOML)."""
 CAMERA_FIELDS: dict[str, type | tuple[type, ...]] = {
     "px_per_m": (int, float),
     "width": int,
@@ -120,6 +129,9 @@ class SequenceSpec:
     appearance : AppearanceParams
     output : dict
         ``{"images": bool, "video": bool}``.
+    events : tuple of crowdsim.events.Event
+        What changes part-way through the sequence (lighting, noise, shake, stop, surge);
+        listed in :meth:`to_dict` and the digest only when there are any.
     calibration : dict
         Free-form calibration record (not part of :meth:`digest`).
     description : str
@@ -136,6 +148,7 @@ class SequenceSpec:
     camera: dict[str, Any] = field(default_factory=dict)
     appearance: AppearanceParams = field(default_factory=AppearanceParams)
     output: dict[str, bool] = field(default_factory=lambda: {"images": True, "video": False})
+    events: tuple[Event, ...] = ()
     calibration: dict[str, Any] = field(default_factory=dict)
     description: str = ""
     source: str = ""
@@ -154,7 +167,7 @@ class SequenceSpec:
             "appearance": self.appearance.to_dict(),
             "output": dict(self.output),
             "calibration": dict(self.calibration),
-        }
+        } | ({"events": [e.to_dict() for e in self.events]} if self.events else {})
 
     def digest(self) -> str:
         """SHA-256 of everything that changes the output (not description/calibration)."""
@@ -205,10 +218,10 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
     if not isinstance(data, dict):
         raise ValueError(f"{where}: a spec must be a table/mapping, got {type(data).__name__}")
     for key in data:
-        if key not in TOP_FIELDS and key not in SECTIONS:
+        if key not in TOP_FIELDS and key not in SECTIONS and key not in LISTS:
             raise ValueError(
                 f"{where}: unknown field {key!r}"
-                f"{_suggest(str(key), list(TOP_FIELDS) + list(SECTIONS))}"
+                f"{_suggest(str(key), list(TOP_FIELDS) + list(SECTIONS) + list(LISTS))}"
             )
     for key, (typ, required) in TOP_FIELDS.items():
         if key not in data:
@@ -331,6 +344,7 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
             raise ValueError(
                 f"{where}: calibration.{key} must be a number, string or list, got {value!r}"
             )
+    events = parse_events(data.get("events"), where, n_frames=int(data["frames"]))
     return SequenceSpec(
         name=name,
         seed=int(data["seed"]),
@@ -341,6 +355,7 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
         camera=camera,
         appearance=appearance,
         output=output,
+        events=events,
         calibration=sections["calibration"],
         description=data.get("description", ""),
         source=source,

@@ -215,6 +215,7 @@ def write_sequence(
     camera: Any,
     appearance: Any,
     seed: int,
+    events: Any = (),
     name: str | None = None,
     meta: dict[str, Any] | None = None,
     images: bool = True,
@@ -234,6 +235,8 @@ def write_sequence(
     appearance : crowdsim.appearance_model.AppearanceParams
     seed : int
         Seed of the rendering randomness.
+    events : sequence of crowdsim.events.Event
+        The spec's events; lighting and noise are drawn here (shake bursts are in ``camera``).
     name : str, optional
         Sequence name in seqinfo.ini (default: the folder name).
     meta : dict, optional
@@ -271,7 +274,7 @@ def write_sequence(
     total = 0
     try:
         tracks = prepare_agents(traj, camera, appearance, seed)
-        renderer = SceneRenderer(camera, appearance, seed=seed, fps=traj.fps)
+        renderer = SceneRenderer(camera, appearance, seed=seed, fps=traj.fps, events=events)
         n_frames = tracks.n_frames
         visibility = np.full(tracks.pixels.shape[:2], np.nan)
         if images:
@@ -321,6 +324,8 @@ def write_sequence(
         }
         if camera.drone_on:  # recorded only when on: drone-free folders stay byte-identical
             meta_out["camera"].update({n: getattr(camera, n) for n in DRONE_FIELDS})
+        if camera.shake_events:
+            meta_out["camera"]["shake_events"] = [e.to_dict() for e in camera.shake_events]
         meta_out["appearance"] = appearance.to_dict()
         meta_out["frames"] = n_frames
         meta_out["versions"] = package_versions()

@@ -52,6 +52,7 @@ CROWDSIM_LAYERS: dict[str, frozenset[str]] = {
             "crowdsim",
             "crowdsim.atomic",
             "crowdsim.checks",
+            "crowdsim.events",
             "crowdsim.jobs",
             "crowdsim.optional",
             "crowdsim.plotting",

@@ -114,8 +114,9 @@ def add_episode_arguments(p: argparse.ArgumentParser, only_help: str) -> None:
     src.add_argument(
         "--scenarios",
         metavar="DIST",
-        help="scenario distribution: 'all', a comma list (marathon,crossing) or a "
-        "JSON/TOML file of ScenarioDistribution fields",
+        help="scenario distribution: 'all', 'nonstationary' (one lighting, noise, shake, "
+        "stop or surge event per episode; families by event), a comma list "
+        "(marathon,crossing) or a JSON/TOML file of ScenarioDistribution fields",
     )
     p.add_argument("--only", nargs="+", metavar="SEQ", help=only_help)
     p.add_argument(

@@ -48,7 +48,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--scenarios",
         metavar="DIST",
         default=None,
-        help="scenario distribution (default 'all'; see crowdsim tune)",
+        help="scenario distribution (default 'all'; 'nonstationary': an event part-way "
+        "through every episode; see crowdsim tune)",
     )
     src.add_argument("--suite", metavar="NAME", help="built-in suite or folder of sequences")
     p.add_argument("--only", nargs="+", metavar="SEQ", help="with --suite: these sequences")

@@ -165,6 +165,7 @@ def test_the_digest_covers_everything_that_changes_the_output():
     import dataclasses
 
     from crowdsim import knobs
+    from crowdsim.events import Event
     from synth_data.spec import CAMERA_FIELDS, OUTPUT_FIELDS, SequenceSpec, spec_from_dict
 
     base = load_spec_text(GOOD)
@@ -179,6 +180,7 @@ def test_the_digest_covers_everything_that_changes_the_output():
         "camera": {**base.camera, "tilt_deg": 12.0},
         "appearance": dataclasses.replace(base.appearance, noise_sigma=4.0),
         "output": {"images": True, "video": True},
+        "events": (Event("lighting", start=2, frames=3, magnitude=0.5),),
     }
     kept = {"calibration": {"paper_ncc_15px": 1.0}, "description": "notes", "source": "x.toml"}
     fields = {f.name for f in dataclasses.fields(SequenceSpec)}
