@@ -602,6 +602,9 @@ class PolicyControlled:
         action = space.to_action(trk.params)
         n = max(int(self.length or 0), 2)
         seen = None
+        reset = getattr(self.policy, "reset", None)
+        if callable(reset):  # a policy with a per-sequence memory (envs.scene_aware)
+            reset()
         for t, frame in enumerate(self.source.frames()):
             if t >= 2:
                 seen.frame()  # the consumer tracked frame t-1 before asking for frame t

@@ -269,14 +269,18 @@ def plot_learning_curve(curve: Sequence[dict[str, float]], path: Path, title: st
 def policy_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The metadata (:data:`POLICY_META`) of a ``model.zip`` written by :func:`train`, checked
     without loading the model: ``ValueError`` naming the file for anything but a sound zip
-    holding a model and the metadata of a ``TrackerTuning-v0`` policy of a tunable tracker."""
+    holding a model and the metadata of a ``TrackerTuning-v0`` policy of a tunable tracker.
+    A ``.json`` path is a scene-aware policy (:mod:`envs.scene_aware`), checked whole."""
     import zlib
 
+    from envs.scene_aware import SceneAwarePolicy, is_scene_policy
     from envs.tracker_tuning import ENV_ID
 
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"{p}: no such policy file")
+    if is_scene_policy(p):
+        return SceneAwarePolicy.load(p).policy_meta()
     try:
         with zipfile.ZipFile(p) as zf:
             names = zf.namelist()
@@ -333,16 +337,22 @@ def policy_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 
 def load_policy(path: str | os.PathLike[str]) -> tuple[Any, dict[str, Any]]:
-    """``(stable-baselines3 model, metadata)`` of a ``model.zip`` written by :func:`train`.
+    """``(stable-baselines3 model, metadata)`` of a ``model.zip`` written by :func:`train`,
+    or ``(SceneAwarePolicy, metadata)`` of a ``scene_aware.json`` (a ``.json`` path: written
+    by ``crowdsim train --algo scene``, :mod:`envs.scene_aware`).
 
     Refuses (``ValueError`` naming the file) one that is not such a zip (not a zip, a
     damaged or truncated one, metadata that is not a JSON object, no model or truncated
     tensors inside: :func:`policy_meta`), a policy trained on another environment, or one
     whose spaces do not match ``TrackerTuning-v0``'s.
     """
+    from envs.scene_aware import SceneAwarePolicy, is_scene_policy
     from envs.tracker_tuning import ENV_ID, OBS_FIELDS
 
     p = Path(path)
+    if is_scene_policy(p):
+        pol = SceneAwarePolicy.load(p)
+        return pol, pol.policy_meta()
     meta = policy_meta(p)
     kwargs = meta.get("env_kwargs", {})
     sb3 = require("stable_baselines3", "rl", "--policy")
@@ -418,4 +428,6 @@ def policy_tracker(
     trk = make_tuned_tracker(name, space.to_params(space.default_action))
     k = int(kwargs.get("k_frames", 25))
     ctl = PolicyControlled(source, trk, model, space, k_frames=k)
+    if meta["algo"] == "scene":
+        return trk, ctl, f"{name} with the scene-aware choice (after {k + 1} frames)"
     return trk, ctl, f"{name} with the {meta['algo'].upper()} policy (every {k} frames)"

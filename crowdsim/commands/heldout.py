@@ -53,7 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         nargs="+",
         default=[],
         metavar="[LABEL=]FILE",
-        help="model.zip of crowdsim train (label default: policy)",
+        help="model.zip of crowdsim train, or scene_aware.json of crowdsim train --algo scene "
+        "(label default: policy)",
     )
     p.add_argument(
         "--no-defaults", action="store_true", help="leave the paper defaults out of the table"

@@ -80,7 +80,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     tuned.add_argument(
         "--policy",
         metavar="ZIP",
-        help="a tracker driven by an adaptive policy (model.zip of crowdsim train)",
+        help="a tracker driven by an adaptive policy (model.zip of crowdsim train) or a "
+        "scene-aware one (scene_aware.json of crowdsim train --algo scene)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -166,7 +167,11 @@ def _tuned(args: argparse.Namespace, src: object) -> tuple[object, object, str]:
     model, meta = load_policy(path)
     tracker, feed, _ = policy_tracker(src, model, meta, over)
     k = meta["env_kwargs"].get("k_frames", 25)
-    what = f"the {meta['algo'].upper()} policy (every {k} frames) of {path}"
+    what = (
+        f"the scene-aware choice (after {k + 1} frames) of {path}"
+        if meta["algo"] == "scene"
+        else f"the {meta['algo'].upper()} policy (every {k} frames) of {path}"
+    )
     return tracker, feed, f"{name}{followed} with {what}"
 
 

@@ -28,13 +28,35 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="train an adaptive parameter policy (PPO / SAC)",
         description=__doc__.splitlines()[0].replace("``", ""),
     )
-    p.add_argument("--algo", choices=("ppo", "sac"), required=True)
+    p.add_argument(
+        "--algo",
+        choices=("ppo", "sac", "scene"),
+        required=True,
+        help="ppo / sac: an adaptive policy (stable-baselines3, the rl extra); scene: a "
+        "scene-aware choice among --candidates settings after the first --k frames, from "
+        "the nearest of --episodes training episodes",
+    )
     p.add_argument(
         "--envs",
         type=int,
         default=1,
         metavar="N",
-        help="asynchronous environments (subprocesses; default 1)",
+        help="asynchronous environments (subprocesses; default 1); with --algo scene: "
+        "worker processes",
+    )
+    p.add_argument(
+        "--episodes",
+        type=int,
+        default=40,
+        metavar="N",
+        help="--algo scene: training episodes, each tracked with every candidate (40)",
+    )
+    p.add_argument(
+        "--candidates",
+        type=int,
+        default=17,
+        metavar="M",
+        help="--algo scene: the defaults and M-1 Sobol settings, as crowdsim headroom (17)",
     )
     p.add_argument(
         "--steps",
@@ -94,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
         kwargs["scenarios"] = args.scenarios or "all"
     if args.frames is not None:
         kwargs["frames"] = args.frames
+    if args.algo == "scene":
+        return _scene(args, kwargs)
     kwargs.update(episode_cache_kwargs(args))
     doc = train(
         args.algo,
@@ -114,4 +138,43 @@ def run(args: argparse.Namespace) -> int:
             f"{last:.2f} % (last {k})"
         )
     print(f"-> {args.out}/model.zip, learning_curve.png")
+    return 0
+
+
+def _scene(args: argparse.Namespace, kwargs: dict) -> int:
+    """``--algo scene``: fit and write a scene-aware policy (:mod:`envs.scene_aware`)."""
+    from envs.scene_aware import check_scene_out, fit_scene_aware, write_scene_aware
+    from envs.tuners import Objective
+
+    if args.episode_cache or args.pool is not None:
+        raise ValueError(
+            "--episode-cache and --pool are for ppo / sac (scene tracks each episode once)"
+        )
+    objective = Objective(
+        suite=kwargs.get("suite"),
+        scenarios=kwargs.get("scenarios"),
+        only=tuple(kwargs.get("only") or ()),
+        frames=kwargs.get("frames"),
+        threshold_px=kwargs["threshold_px"],
+        extended=kwargs["extended"],
+        tracker=kwargs.get("tracker", "bqp"),
+    )
+    check_scene_out(args.out)
+    pol, record = fit_scene_aware(
+        objective,
+        episodes=args.episodes,
+        candidates=args.candidates,
+        k_frames=args.k,
+        seed=args.seed,
+        workers=args.envs,
+        progress=not args.no_progress,
+    )
+    record["command"] = {
+        "scenarios": kwargs.get("scenarios"),
+        "suite": kwargs.get("suite"),
+        "only": kwargs.get("only"),
+        "frames": kwargs.get("frames"),
+    }
+    write_scene_aware(pol, record, args.out)
+    print(f"-> {args.out}/scene_aware.json, static_params.json, scene_fit.png")
     return 0
