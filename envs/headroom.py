@@ -30,24 +30,10 @@ from typing import Any
 import numpy as np
 
 from crowdsim.checks import require_number
-from envs.param_space import ParamSpace
-from tracker.metrics import point_errors
+from envs.param_space import ParamSpace, candidate_actions
+from envs.tracker_tuning import track_segment
 
 HEADROOM_FILES: tuple[str, ...] = ("headroom.json", "headroom.md")
-
-
-def candidate_actions(space: ParamSpace, m: int, seed: int = 0) -> np.ndarray:
-    """``(m, d)`` actions: row 0 the defaults (all zeros), then ``m - 1`` points of a seeded,
-    scrambled Sobol sequence over ``[-1, 1]^d``."""
-    require_number("headroom", "candidates", m, lo=1, hi=1024, integer=True)
-    from scipy.stats import qmc
-
-    out = np.zeros((m, space.dim))
-    if m > 1:
-        sobol = qmc.Sobol(space.dim, scramble=True, seed=seed)
-        pts = sobol.random(1 << int(np.ceil(np.log2(m - 1))))[: m - 1]
-        out[1:] = 2.0 * pts - 1.0
-    return out
 
 
 class _Counts:
@@ -64,27 +50,6 @@ class _Counts:
     @property
     def acc(self) -> float:
         return 100.0 * self.hits / self.total if self.total else 0.0
-
-
-def _segment(
-    trk: Any,
-    frames: list[np.ndarray],
-    births: Mapping[int, Any],
-    gt_ids: np.ndarray,
-    gt: np.ndarray,
-    start: int,
-    stop: int,
-    threshold_px: float,
-) -> tuple[int, int]:
-    """Track frames ``start .. stop - 1`` with ``trk``; ``(hits, scored points)``."""
-    hits = total = 0
-    for t in range(start, stop):
-        ids, pts = trk.step(frames[t], births.get(t))
-        err = point_errors(gt_ids, gt[t][None], np.asarray(ids), np.asarray(pts)[None])[0]
-        ok = ~np.isnan(err)
-        total += int(ok.sum())
-        hits += int((err[ok] <= threshold_px).sum())
-    return hits, total
 
 
 def sequence_headroom(
@@ -119,7 +84,7 @@ def sequence_headroom(
     static = []
     for a in actions:
         c = _Counts()
-        c.add(*_segment(fresh(a), frames, births, gt_ids, gt, 1, n, threshold_px))
+        c.add(*track_segment(fresh(a), frames, births, gt_ids, gt, 1, n, threshold_px))
         static.append(c.acc)
     oracle, choices = _Counts(), []
     trk = fresh(actions[0])
@@ -129,7 +94,9 @@ def sequence_headroom(
         for i, a in enumerate(actions):
             branch = copy.deepcopy(trk)
             branch.set_params(space.to_params(a))
-            hits, total = _segment(branch, frames, births, gt_ids, gt, start, stop, threshold_px)
+            hits, total = track_segment(
+                branch, frames, births, gt_ids, gt, start, stop, threshold_px
+            )
             if best is None or hits > best[0]:
                 best = (hits, total, i, branch)
         oracle.add(best[0], best[1])

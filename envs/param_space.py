@@ -511,3 +511,17 @@ def load_params(path: str | os.PathLike[str]) -> tuple[str, Any]:
         return name, entry.make_params(**values)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{p}: {exc}") from None
+
+
+def candidate_actions(space: ParamSpace, m: int, seed: int = 0) -> np.ndarray:
+    """``(m, d)`` actions: row 0 the defaults (all zeros), then ``m - 1`` points of a seeded,
+    scrambled Sobol sequence over ``[-1, 1]^d``."""
+    require_number("headroom", "candidates", m, lo=1, hi=1024, integer=True)
+    from scipy.stats import qmc
+
+    out = np.zeros((m, space.dim))
+    if m > 1:
+        sobol = qmc.Sobol(space.dim, scramble=True, seed=seed)
+        pts = sobol.random(1 << int(np.ceil(np.log2(m - 1))))[: m - 1]
+        out[1:] = 2.0 * pts - 1.0
+    return out

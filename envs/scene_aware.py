@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from crowdsim.checks import require_number
-from envs.param_space import ParamSpace, read_json, require_tunable
+from envs.param_space import ParamSpace, candidate_actions, read_json, require_tunable
 
 FORMAT = "crowdsim-scene-aware"
 VERSION = 1
@@ -276,9 +276,8 @@ def episode_scores(
     """Scene features after the first ``k_frames + 1`` frames (tracked with candidate
     ``opening``) and the accuracy (%) of every candidate over the whole sequence when it takes
     over from there: what :class:`PolicyControlled` would see and get.
-    ``{"features", "scores", "points"}``."""
-    from envs.headroom import _segment
-    from envs.tracker_tuning import StepStats, make_tuned_tracker, observe
+    ``{"features", "scores", "points"}``; ``{"skipped": True}`` when nobody is in view."""
+    from envs.tracker_tuning import StepStats, make_tuned_tracker, observe, track_segment
 
     frames = list(seq.frames())
     n = len(frames)
@@ -289,6 +288,8 @@ def episode_scores(
         )
     gt_ids, gt = seq.gt_points()
     gt_ids, gt = np.asarray(gt_ids, np.int64), np.asarray(gt, np.float64)
+    if len(gt_ids) == 0:  # the camera sees nobody: nothing to learn from
+        return {"skipped": True}
     (ids0, pts0), births = seq.births()
     births = dict(births)
     first = np.asarray(actions[opening], np.float64)
@@ -299,7 +300,7 @@ def episode_scores(
     seen = StepStats(trk)
     hits = total = 0
     for t in range(1, k_frames + 1):
-        h, m = _segment(trk, frames, births, gt_ids, gt, t, t + 1, threshold_px)
+        h, m = track_segment(trk, frames, births, gt_ids, gt, t, t + 1, threshold_px)
         hits, total = hits + h, total + m
         seen.frame()
     obs = observe(
@@ -309,7 +310,7 @@ def episode_scores(
     for a in actions:
         branch = copy.deepcopy(trk)
         branch.set_params(space.to_params(a))
-        h, m = _segment(branch, frames, births, gt_ids, gt, k_frames + 1, n, threshold_px)
+        h, m = track_segment(branch, frames, births, gt_ids, gt, k_frames + 1, n, threshold_px)
         scores.append(100.0 * (hits + h) / max(total + m, 1))
     idx = [i for i, _ in scene_features()]
     return {"features": obs[idx].tolist(), "scores": scores, "points": int(total)}
@@ -354,7 +355,6 @@ def fit_scene_aware(
     import tempfile
 
     from crowdsim.jobs import Job, one_numba_thread, run_jobs
-    from envs.headroom import candidate_actions
 
     log = log or (lambda msg: print(msg, file=sys.stderr))
     require_number("", "--episodes", episodes, lo=2, hi=100_000, integer=True)
@@ -388,9 +388,17 @@ def fit_scene_aware(
                 worker_init=one_numba_thread if workers > 1 else None,
                 passthrough=(ValueError, OSError, MemoryError),
             )
-        return [results[j.key] for j in jobs]
+        rows = [results[j.key] for j in jobs]
+        kept = [r for r in rows if not r.get("skipped")]
+        if len(kept) < 2:
+            raise ValueError(
+                f"scene-aware tuning needs at least 2 training episodes with someone in view; "
+                f"{len(kept)} of {n} had any (more agents or a higher density would help)"
+            )
+        return kept
 
     rows = scores_with(0, "opening with the defaults")
+    skipped = n - len(rows)
     first = np.array([r["scores"] for r in rows])
     static = int(np.argmax(first.mean(axis=0)))  # the best single setting of the training set
     if static != 0:
@@ -401,12 +409,14 @@ def fit_scene_aware(
         objective.tracker, objective.extended, k_frames, actions, features, scores, 1, static
     )
     table = {}
-    for k in sorted({*(k for k in NEIGHBOURS if k < n), n - 1}):
+    m = len(rows)
+    for k in sorted({*(k for k in NEIGHBOURS if k < m), m - 1}):
         table[k] = pol.leave_one_out(k)
     best_k = max(table, key=lambda k: (round(table[k], 9), k))  # ties: more neighbours
     pol.neighbours = best_k
     record = {
-        "episodes": n,
+        "episodes": len(rows),
+        "skipped_empty": skipped,
         "candidates": int(len(actions)),
         "k_frames": int(k_frames),
         "threshold_px": objective.threshold_px,
@@ -426,7 +436,8 @@ def fit_scene_aware(
     }
     pol.meta = {k: v for k, v in record.items() if k != "training"}
     log(
-        f"scene-aware fit on {n} episodes x {len(actions)} candidates in {record['wall_s']:.0f} s: "
+        f"scene-aware fit on {len(rows)} episodes x {len(actions)} candidates in "
+        f"{record['wall_s']:.0f} s: "
         f"leave-one-out acc@{objective.threshold_px:g} {table[best_k]:.2f} % with {best_k} "
         f"neighbours (the best single setting: {record['static_mean']:.2f} %; defaults "
         f"{record['defaults_mean']:.2f} %; best per episode {record['oracle_mean']:.2f} %)"

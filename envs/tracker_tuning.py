@@ -105,6 +105,27 @@ class _Episode:
     frame: np.ndarray | None = None
 
 
+def track_segment(
+    trk: Any,
+    frames: list[np.ndarray],
+    births: Mapping[int, Any],
+    gt_ids: np.ndarray,
+    gt: np.ndarray,
+    start: int,
+    stop: int,
+    threshold_px: float,
+) -> tuple[int, int]:
+    """Track frames ``start .. stop - 1`` with ``trk``; ``(hits, scored points)``."""
+    hits = total = 0
+    for t in range(start, stop):
+        ids, pts = trk.step(frames[t], births.get(t))
+        err = point_errors(gt_ids, gt[t][None], np.asarray(ids), np.asarray(pts)[None])[0]
+        ok = ~np.isnan(err)
+        total += int(ok.sum())
+        hits += int((err[ok] <= threshold_px).sum())
+    return hits, total
+
+
 def observe(
     trk: Tracker,
     space: ParamSpace,

@@ -1,7 +1,14 @@
-"""``crowdsim train``: learn an adaptive parameter policy with stable-baselines3.
+"""``crowdsim train``: learn an adaptive parameter policy (stable-baselines3) or a scene-aware one.
 
-``crowdsim train --algo ppo|sac [--envs N] [--steps N] (--scenarios DIST | --suite NAME)
+``crowdsim train --algo ppo|sac|scene [--envs N] [--steps N] (--scenarios DIST | --suite NAME)
 [--tracker NAME] --out DIR``
+
+``--algo scene`` (:mod:`envs.scene_aware`, no extra needed): tracks ``--episodes`` training
+episodes with each of ``--candidates`` settings from the ``--k``-th frame on, and writes
+``DIR/scene_aware.json`` (for ``--policy``: after the first ``--k`` + 1 frames it picks the
+setting that did best on the nearest training scenes), ``DIR/static_params.json`` (the best
+single setting of the same episodes, for ``--params``), ``DIR/scene_fit.json`` and
+``DIR/scene_fit.png`` (leave-one-out scores). ``--envs`` is then its worker processes.
 
 Trains on ``crowdsim/TrackerTuning-v0`` (the policy sets the tracker's parameters, BQP's by
 default, every ``--k`` frames) over ``--envs`` asynchronous environments (subprocesses). Writes
@@ -25,7 +32,7 @@ from crowdsim.commands._table_args import (
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "train",
-        help="train an adaptive parameter policy (PPO / SAC)",
+        help="train an adaptive parameter policy (PPO / SAC) or a scene-aware one",
         description=__doc__.splitlines()[0].replace("``", ""),
     )
     p.add_argument(
