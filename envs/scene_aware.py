@@ -276,7 +276,7 @@ def episode_scores(
     """Scene features after the first ``k_frames + 1`` frames (tracked with candidate
     ``opening``) and the accuracy (%) of every candidate over the whole sequence when it takes
     over from there: what :class:`PolicyControlled` would see and get.
-    ``{"features", "scores", "points"}``; ``{"skipped": True}`` when nobody is in view."""
+    ``{"features", "scores"}``; ``{"skipped": True}`` when nobody is in view."""
     from envs.tracker_tuning import StepStats, make_tuned_tracker, observe, track_segment
 
     frames = list(seq.frames())
@@ -313,7 +313,7 @@ def episode_scores(
         h, m = track_segment(branch, frames, births, gt_ids, gt, k_frames + 1, n, threshold_px)
         scores.append(100.0 * (hits + h) / max(total + m, 1))
     idx = [i for i, _ in scene_features()]
-    return {"features": obs[idx].tolist(), "scores": scores, "points": int(total)}
+    return {"features": obs[idx].tolist(), "scores": scores}
 
 
 def _episode_job(
@@ -359,7 +359,7 @@ def fit_scene_aware(
     log = log or (lambda msg: print(msg, file=sys.stderr))
     require_number("", "--episodes", episodes, lo=2, hi=100_000, integer=True)
     require_number("", "--k", k_frames, lo=1, integer=True)
-    require_number("", "--workers", workers, lo=1, hi=os.cpu_count() or 1, integer=True)
+    require_number("", "--envs", workers, lo=1, hi=os.cpu_count() or 1, integer=True)
     space = ParamSpace(extended=objective.extended, tracker=objective.tracker)
     actions = candidate_actions(space, candidates, seed=seed)
     src = objective.episodes()
