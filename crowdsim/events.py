@@ -35,7 +35,7 @@ ValueError: events[0].magnitude must be a finite number in [0, 1], got 1.5
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -72,14 +72,14 @@ class Event:
     magnitude : float
         Its strength, in the kind's unit and range (:data:`EVENT_KINDS`).
     index : int
-        Position in the spec's list (only for error messages).
+        Position in the spec's list (only for error messages; not compared).
     """
 
     kind: str
     start: int
     frames: int = 0
     magnitude: float = 1.0
-    index: int = 0
+    index: int = field(default=0, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         own = f"events[{self.index}]"

@@ -428,6 +428,13 @@ def policy_tracker(
     trk = make_tuned_tracker(name, space.to_params(space.default_action))
     k = int(kwargs.get("k_frames", 25))
     ctl = PolicyControlled(source, trk, model, space, k_frames=k)
+    return trk, ctl, f"{name} with {policy_description(meta)}"
+
+
+def policy_description(meta: dict[str, Any]) -> str:
+    """What a loaded policy does, in words: ``the PPO policy (every 25 frames)`` or ``the
+    scene-aware choice (after 26 frames)``."""
+    k = int(meta.get("env_kwargs", {}).get("k_frames", 25))
     if meta["algo"] == "scene":
-        return trk, ctl, f"{name} with the scene-aware choice (after {k + 1} frames)"
-    return trk, ctl, f"{name} with the {meta['algo'].upper()} policy (every {k} frames)"
+        return f"the scene-aware choice (after {k + 1} frames)"
+    return f"the {meta['algo'].upper()} policy (every {k} frames)"

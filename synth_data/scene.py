@@ -65,8 +65,6 @@ def _run_with_events(sim: Any, spec: SequenceSpec, events: tuple[Event, ...]) ->
     fraction of the people present at zero (people who arrive meanwhile stop too, with the
     same probability); ``surge`` multiplies every inflow's arrival rate.
     """
-    from dataclasses import replace as dc_replace
-
     if any(e.kind == "surge" for e in events) and not sim.sources:
         raise ValueError(
             f"{spec.name}: events: surge needs a scenario with inflow; "
@@ -82,7 +80,7 @@ def _run_with_events(sim: Any, spec: SequenceSpec, events: tuple[Event, ...]) ->
         f = step + 1 - spec.warmup_steps  # the frame this step produces
         factor = float(np.prod([e.magnitude for e in events if e.kind == "surge" and e.active(f)]))
         sim.sources = (
-            [dc_replace(src, rate=src.rate * factor) for src in base_sources]
+            [replace(src, rate=src.rate * factor) for src in base_sources]
             if factor != 1.0
             else base_sources
         )

@@ -145,7 +145,7 @@ def _tuned(args: argparse.Namespace, src: object) -> tuple[object, object, str]:
     from dataclasses import replace
 
     from envs.param_space import load_params
-    from envs.training import load_policy, policy_meta, policy_tracker
+    from envs.training import load_policy, policy_description, policy_meta, policy_tracker
     from tracker.registry import make_tracker
 
     if args.params:
@@ -166,12 +166,7 @@ def _tuned(args: argparse.Namespace, src: object) -> tuple[object, object, str]:
         return tracker, src, f"{name}{followed} with the parameters of {path}"
     model, meta = load_policy(path)
     tracker, feed, _ = policy_tracker(src, model, meta, over)
-    k = meta["env_kwargs"].get("k_frames", 25)
-    what = (
-        f"the scene-aware choice (after {k + 1} frames) of {path}"
-        if meta["algo"] == "scene"
-        else f"the {meta['algo'].upper()} policy (every {k} frames) of {path}"
-    )
+    what = f"{policy_description(meta)} of {path}"
     return tracker, feed, f"{name}{followed} with {what}"
 
 
