@@ -143,6 +143,10 @@ def test_track_bad_inputs(tmp_path, seq, capsys):
     pts.write_text("id,x,y\n1,5,5\n")
     assert main(["track", str(tmp_path / "video.mp4"), "--init", str(pts), "--out", str(out)]) == 2
     assert "video" in _error_line(capsys, "track")
+    for threads in ("0", "100000"):
+        assert main(["track", str(seq), "--out", str(out), "--threads", threads]) == 2
+        assert "--threads must be an integer in [1, " in _error_line(capsys, "track")
+    assert not out.exists()
 
 
 def test_evaluate_bad_inputs(tmp_path, seq, scene, capsys):

@@ -24,6 +24,8 @@ import numpy as np
 import scipy.fft
 from numpy.lib.stride_tricks import sliding_window_view
 
+from tracker.threads import current_threads
+
 KCF_KERNELS: tuple[str, ...] = ("gaussian", "linear")
 
 
@@ -155,7 +157,7 @@ class KCFAppearance(AppearanceModel):
         kernel: str = "linear",
         kernel_sigma: float = 0.2,
         target_window: float = 0.0,
-        workers: int = 1,
+        workers: int | None = None,
     ):
         super().__init__(template_size, radius, update_threshold)
         if not lam > 0:
@@ -170,7 +172,7 @@ class KCFAppearance(AppearanceModel):
         self.learning_rate = float(learning_rate)
         self.kernel = kernel
         self.kernel_sigma = float(kernel_sigma)
-        self.workers = int(workers)
+        self.workers = None if workers is None else int(workers)
         w = self.window
         self._hann_scaled = hann2d(w) * np.float32(1.0 / 255.0)
         self._train_window = self._hann_scaled
@@ -198,6 +200,10 @@ class KCFAppearance(AppearanceModel):
     def n(self) -> int:
         return self.xf.shape[0]
 
+    def _workers(self) -> int:
+        """FFT threads: ``workers``, or the tracker's threads (:mod:`tracker.threads`)."""
+        return self.workers if self.workers is not None else current_threads()
+
     def _features(self, frame: np.ndarray, centers: np.ndarray, train: bool = False) -> np.ndarray:
         """``(n, C, W, W//2+1)`` spectra of the windows centred at ``centers``.
 
@@ -211,7 +217,7 @@ class KCFAppearance(AppearanceModel):
         n, c = x.shape[:2]
         x -= x.reshape(n, c, -1).mean(axis=2)[:, :, None, None]
         x *= self._train_window if train else self._hann_scaled
-        return scipy.fft.rfft2(x, axes=(-2, -1), workers=self.workers)
+        return scipy.fft.rfft2(x, axes=(-2, -1), workers=self._workers())
 
     def _energy(self, xf: np.ndarray) -> np.ndarray:
         """``(n,)`` squared norm of the windows from their half spectra (Parseval)."""
@@ -225,10 +231,10 @@ class KCFAppearance(AppearanceModel):
         cross = _channel_sum(np.conj(xf) * zf)
         if self.kernel == "linear":
             return (cross / numel).astype(np.complex64)
-        xz = scipy.fft.irfft2(cross, s=(w, w), axes=(-2, -1), workers=self.workers)
+        xz = scipy.fft.irfft2(cross, s=(w, w), axes=(-2, -1), workers=self._workers())
         d = self._energy(xf)[:, None, None] + self._energy(zf)[:, None, None] - 2.0 * xz
         k = np.exp(-np.maximum(d, 0.0) / (numel * np.float32(self.kernel_sigma**2)))
-        return scipy.fft.rfft2(k.astype(np.float32), axes=(-2, -1), workers=self.workers)
+        return scipy.fft.rfft2(k.astype(np.float32), axes=(-2, -1), workers=self._workers())
 
     def _train(self, xf: np.ndarray) -> np.ndarray:
         return (self._yf / (self._kernel_f(xf, xf) + np.float32(self.lam))).astype(np.complex64)
@@ -258,7 +264,10 @@ class KCFAppearance(AppearanceModel):
         zf = self._features(frame, centers)
         w = self.window
         resp = scipy.fft.irfft2(
-            self.alphaf * self._kernel_f(self.xf, zf), s=(w, w), axes=(-2, -1), workers=self.workers
+            self.alphaf * self._kernel_f(self.xf, zf),
+            s=(w, w),
+            axes=(-2, -1),
+            workers=self._workers(),
         )
         c, r = w // 2, self.radius
         return np.ascontiguousarray(resp[:, c - r : c + r + 1, c - r : c + r + 1], dtype=np.float32)

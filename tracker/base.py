@@ -53,6 +53,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from tracker.cmc import IDENTITY, CMCParams, MotionCompensator, warp_points, warp_vectors
+from tracker.threads import check_threads, using_threads
 
 CONF_REF_RATE: float = 0.1
 """Weight of the newest frame in a target's running-mean confidence ``conf_ref``."""
@@ -135,6 +136,11 @@ class Tracker(ABC):
         the frames it was not low in; NaN until its first tracked frame.
     timings : dict[str, float]
         Seconds spent per stage since :meth:`init`.
+    threads : int or None
+        Threads of the tracker's parallel kernels and FFTs during :meth:`init` and
+        :meth:`step` (:mod:`tracker.threads`); ``None`` (default) keeps numba's setting.
+        Tracks do not depend on it. An execution setting, not a parameter: it is never
+        tuned, recorded in params files or changed by :meth:`set_params`.
     """
 
     name: str = "tracker"
@@ -149,6 +155,7 @@ class Tracker(ABC):
     """How far a tracked point may lie from the truth on the contract's exact scenes
     (:func:`tracker.testing.check_tracker_contract`); 0 for a tracker that recovers integer
     motion on textured ground exactly."""
+    _threads: int | None = None
     camera_state: ClassVar[Mapping[str, str]] = MappingProxyType({})
     """Attributes moved with the camera when ``params.cmc`` is on, besides ``points``: name ->
     ``"points"`` (``(..., 2)`` pixel positions, ``p -> A p``), ``"vectors"`` (``(..., 2)``
@@ -169,6 +176,15 @@ class Tracker(ABC):
         self._seen: set[int] = set()
         self.compensator: MotionCompensator | None = None
         self._last_frame: np.ndarray | None = None
+        self._threads: int | None = None
+
+    @property
+    def threads(self) -> int | None:
+        return self._threads
+
+    @threads.setter
+    def threads(self, value: int | None) -> None:
+        self._threads = None if value is None else check_threads(value, "threads")
 
     # ------------------------------------------------------------------ public API
     def init(self, frame: np.ndarray, ids, points, template_size: int) -> None:
@@ -183,7 +199,11 @@ class Tracker(ABC):
         if not (isinstance(template_size, (int, np.integer)) and template_size >= 2):
             raise ValueError(f"template_size must be an integer >= 2 px, got {template_size!r}")
         ids, points = as_points(ids, points, "initial targets")
-        self.template_size = int(template_size)
+        with using_threads(self._threads):
+            self._start(frame, ids, points, int(template_size))
+
+    def _start(self, frame: np.ndarray, ids: np.ndarray, points: np.ndarray, size: int) -> None:
+        self.template_size = size
         self.frame_index = 0
         self.timings = {}
         self._seen = set()
@@ -213,13 +233,14 @@ class Tracker(ABC):
             b_ids, b_pts = as_points(*births, what="births")
         self.frame_index += 1
         t0 = time.perf_counter()
-        if self.compensator is not None:
-            self._compensate(frame)
-        if len(self.ids):
-            self.points = self._step(frame)
-            self._terminate()
-        if births is not None and len(b_ids):
-            self._add_targets(frame, b_ids, b_pts)
+        with using_threads(self._threads):
+            if self.compensator is not None:
+                self._compensate(frame)
+            if len(self.ids):
+                self.points = self._step(frame)
+                self._terminate()
+            if births is not None and len(b_ids):
+                self._add_targets(frame, b_ids, b_pts)
         self._last_frame = frame
         self._tick("total", t0)
         return self.ids.copy(), self.points.copy()

@@ -11,7 +11,11 @@ is excluded from the timings):
    (paper: about 6x faster for 0.2 points);
 3. with ``--cmc``, the BQP tracker again with camera-motion compensation (:mod:`tracker.cmc`,
    ``cmc=True``) on the same frames: its milliseconds per frame (the ``cmc`` column; the
-   crowds' camera is still, so the estimate is all it adds).
+   crowds' camera is still, so the estimate is all it adds);
+4. scaling with ``--threads 1 2 ...``: the BQP tracker (speed-up sampling) at each thread
+   count (:mod:`tracker.threads`) on the same frames, its speed-up over the first count and
+   whether the tracks are identical (they must be: every parallel kernel is deterministic).
+   The other methods run at the largest count.
 
 Prints a table and one JSON object (last line).
 """
@@ -22,6 +26,8 @@ import argparse
 import json
 import math
 import os
+
+import numpy as np
 
 from synth_data.sequence import InMemorySequence, load_crowd, synthetic_crowd
 
@@ -56,15 +62,19 @@ def run_ablation(crowd: InMemorySequence) -> list[dict]:
     return rows
 
 
-def run_tracker(tracker, crowd: InMemorySequence) -> dict:
-    """Track ``crowd`` with :func:`tracker.runner.run_tracker` (births from ground truth);
-    returns the targets, fps, per-stage ms and the accuracy at 5 and 15 px."""
+def run_tracker(tracker, crowd: InMemorySequence, threads: int | None = None) -> dict:
+    """Track ``crowd`` with :func:`tracker.runner.run_tracker` (births from ground truth) on
+    ``threads`` threads (``None``: numba's setting); returns the targets, fps, per-stage ms,
+    the accuracy at 5 and 15 px and (key ``"_tracks"``) the ``(T, N, 2)`` tracks."""
     from tracker.runner import run_tracker as run
 
+    tracker.threads = threads
     r = run(tracker, crowd, metrics="accuracy")
     res, trk = r.result, tracker
     steps = max(res.n_frames - 1, 1)
     out = {
+        "threads": threads,
+        "_tracks": res.positions,
         "targets": int(len(crowd.births()[0][0])),
         "frames": int(res.n_frames),
         "fps": r.fps,
@@ -115,6 +125,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also time BQP with camera-motion compensation (cmc=True) on every crowd",
     )
     parser.add_argument(
+        "--threads",
+        type=int,
+        nargs="+",
+        default=None,
+        metavar="N",
+        help="thread counts of the BQP scaling runs (default: 1 and all cores; at most the cores)",
+    )
+    parser.add_argument(
         "--quick",
         action="store_true",
         help="small run (50 and 200 targets, 12 frames) for smoke tests",
@@ -123,12 +141,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from tracker.registry import make_tracker
+    from tracker.threads import check_threads, max_threads
 
     targets, frames, n_sampling = args.targets, args.frames, args.sampling_targets
     if args.quick:
         targets, frames, n_sampling = [50, 200], 12, 100
     if frames < 2 or min(targets) < 1 or n_sampling < 1:
         raise ValueError("need --frames >= 2 and crowd sizes >= 1")
+    threads = args.threads or sorted({1, max_threads()})
+    threads = [check_threads(t, "--threads") for t in threads]
+    top = max(threads)
     # warm the numba solver so compilation is not timed
     warm = synthetic_crowd(4, 3, args.seed, args.template, size=(160, 120))
     run_tracker(make_tracker("bqp"), warm)
@@ -154,19 +176,24 @@ def run(args: argparse.Namespace) -> int:
                 contrast=0.3 if packed else 1.0,
                 noise_sigma=8.0 if packed else 3.0,
             )
-            runs = [
-                ("bqp dense", make_tracker("bqp-dense")),
-                ("bqp speedup", make_tracker("bqp")),
-                ("ncc", make_tracker("ncc")),
-            ]
+            runs = [("bqp dense", "bqp-dense", {}, top)]
+            runs += [("bqp speedup", "bqp", {}, t) for t in threads]
+            runs.append(("ncc", "ncc", {}, top))
             if args.cmc:
-                runs.append(("bqp cmc", make_tracker("bqp", cmc=True)))
-            for label, tr in runs:
+                runs.append(("bqp cmc", "bqp", {"cmc": True}, top))
+            first = None
+            for label, name, over, t in runs:
                 if packed and label == "bqp dense" and n > 300:
                     continue  # minutes per run; the sampling comparison below covers it
-                r = run_tracker(tr, crowd)
+                r = run_tracker(make_tracker(name, **over), crowd, t)
                 r["method"] = label
                 r["frame"] = list(size)
+                if label == "bqp speedup":
+                    first = first or r
+                    r["speedup_vs_first"] = r["fps"] / max(first["fps"], 1e-9)
+                    r["tracks_identical"] = bool(
+                        np.array_equal(r["_tracks"], first["_tracks"], equal_nan=True)
+                    )
                 speed_runs.append(r)
                 rows.append(r)
     if args.sampling_frame is None:
@@ -188,8 +215,8 @@ def run(args: argparse.Namespace) -> int:
         noise_sigma=8.0,
         speed=2.6,
     )
-    dense = run_tracker(make_tracker("bqp-dense"), crowd)
-    fast = run_tracker(make_tracker("bqp"), crowd)
+    dense = run_tracker(make_tracker("bqp-dense"), crowd, top)
+    fast = run_tracker(make_tracker("bqp"), crowd, top)
     sampling = {
         "targets": n_sampling,
         "frame": [sw, sh],
@@ -222,8 +249,8 @@ def run(args: argparse.Namespace) -> int:
         ablation = run_ablation(a_crowd)
     cmc_head = f"{'cmc':>8}" if args.cmc else ""
     head = (
-        f"{'method':<13}{'targets':>8}{'frame':>10}{'fps':>8}{'app ms':>8}{'terms':>8}"
-        f"{'solve':>8}{cmc_head}{'acc@5':>8}{'acc@15':>8}"
+        f"{'method':<13}{'threads':>8}{'targets':>8}{'frame':>10}{'fps':>8}{'app ms':>8}"
+        f"{'terms':>8}{'solve':>8}{cmc_head}{'acc@5':>8}{'acc@15':>8}"
     )
     print(head)
     print("-" * len(head))
@@ -231,10 +258,20 @@ def run(args: argparse.Namespace) -> int:
         frame = f"{r['frame'][0]}x{r['frame'][1]}"
         cmc = f"{r['cmc_ms']:>8.1f}" if args.cmc else ""
         print(
-            f"{r['method']:<13}{r['targets']:>8}{frame:>10}{r['fps']:>8.1f}{r['appearance_ms']:>8.1f}"
-            f"{r['terms_ms']:>8.1f}{r['solve_ms']:>8.1f}"
+            f"{r['method']:<13}{r['threads']:>8}{r['targets']:>8}{frame:>10}{r['fps']:>8.1f}"
+            f"{r['appearance_ms']:>8.1f}{r['terms_ms']:>8.1f}{r['solve_ms']:>8.1f}"
             f"{cmc}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%"
         )
+    scaling = [r for r in rows if "tracks_identical" in r]
+    if len(threads) > 1:
+        print("\nBQP (speed-up) scaling, same frames:")
+        for r in scaling:
+            frame = f"{r['frame'][0]}x{r['frame'][1]}"
+            same = "identical" if r["tracks_identical"] else "DIFFERENT"
+            print(
+                f"  {r['targets']:>6} targets {frame:>10}: {r['threads']} threads "
+                f"{r['fps']:.1f} frames/s = {r['speedup_vs_first']:.2f}x, tracks {same}"
+            )
     print(
         f"speed-up sampling at {n_sampling} targets in {sw}x{sh}: "
         f"{sampling['speed_ratio_total']:.2f}x "
@@ -251,11 +288,15 @@ def run(args: argparse.Namespace) -> int:
                 f"{a['terms']:<16}{a['acc@5']:>7.1f}%{a['acc@15']:>7.1f}%"
                 f"{b['acc@5']:>7.1f}%{b['acc@15']:>7.1f}%"
             )
+    for r in rows:
+        del r["_tracks"]
     print(
         json.dumps(
             {
                 "benchmark": "track",
                 "cpu_count": os.cpu_count(),
+                "threads": threads,
+                "tracks_identical": all(r["tracks_identical"] for r in scaling),
                 "runs": rows,
                 "sampling": sampling,
                 "ablation": ablation,

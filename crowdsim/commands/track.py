@@ -83,6 +83,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="a tracker driven by an adaptive policy (model.zip of crowdsim train) or a "
         "scene-aware one (scene_aware.json of crowdsim train --algo scene)",
     )
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        metavar="N",
+        help="threads of the tracker's parallel stages, 1..cores (default: all cores); the "
+        "tracks are the same for any N",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -179,7 +187,10 @@ def run(args: argparse.Namespace) -> int:
     from tracker.mot_io import tracks_to_mot_rows
     from tracker.registry import make_tracker
     from tracker.runner import run_tracker
+    from tracker.threads import check_threads
 
+    if args.threads is not None:
+        check_threads(args.threads, "--threads")
     if args.frames is not None and args.frames < 1:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
     size = args.template_size
@@ -202,6 +213,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"tracking with {what}", file=sys.stderr)
     else:
         tracker, feed = make_tracker(args.tracker or "bqp", **over), src
+    tracker.threads = args.threads
     run = run_tracker(
         tracker,
         feed,

@@ -128,7 +128,7 @@ def test_each_term_weight_scales_exactly_its_own_term(name, value):
     c0, _ = base.candidates(frame)
     c1, _ = alt.candidates(frame)
     np.testing.assert_array_equal(c0.positions, c1.positions)  # dense: the same candidates
-    q0, q1 = base.quadratic(c0), alt.quadratic(c1)
+    q0, q1 = base.quadratic(c0)[0], alt.quadratic(c1)[0]
 
     p, pos = tr.params, c0.positions
     n, k = pos.shape[:2]
@@ -193,3 +193,33 @@ def test_update_threshold_gates_the_appearance_update(appearance, quantile):
     np.testing.assert_array_equal(run.confidence, conf)  # the threshold acts after scoring
     changed = (model(run) != before).reshape(len(conf), -1).any(axis=1)
     np.testing.assert_array_equal(changed, conf >= threshold)
+
+
+def test_tracks_are_the_same_for_any_number_of_threads(monkeypatch):
+    """Parallel terms, FFTs and component solves: 1 and 2 threads give identical tracks, on a
+    spread-out crowd whose frames split into independent components."""
+    import tracker.bqp.frank_wolfe as fw
+    from synth_data.sequence import synthetic_crowd
+    from tracker.runner import run_tracker
+    from tracker.threads import max_threads
+
+    if max_threads() < 2:
+        pytest.skip("needs 2 cores")
+    split = []
+    solve_split = fw._solve_split
+    monkeypatch.setattr(fw, "_solve_split", lambda *a: split.append(solve_split(*a)) or split[-1])
+    crowd = synthetic_crowd(120, 8, 3, 12, size=(480, 270))
+    tracks = []
+    for threads in (1, 2):
+        tr = BQPTracker()
+        tr.threads = threads
+        tracks.append(run_tracker(tr, crowd, metrics="none").result.positions)
+    assert any(s is not None for s in split)  # some frames were solved component-wise
+    np.testing.assert_array_equal(tracks[0], tracks[1])
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, 10**6, "2"])
+def test_threads_out_of_range_are_refused(bad):
+    tr = BQPTracker()
+    with pytest.raises(ValueError, match="threads must be"):
+        tr.threads = bad

@@ -383,3 +383,101 @@ def test_bench_solver_on_tracker_frames(capsys):
     report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert report["source"] == "tracker" and len(report["problems"]) == 2
     assert report["summary"]["6"]["all_converged"]
+
+
+# ------------------------------------------------------------ independent components
+def interleaved_components(seed: int, parts: int, n: int, kmax: int) -> tuple[BlockQP, np.ndarray]:
+    """``parts`` independent random problems whose blocks are shuffled together: the joint
+    ``Q`` is block-diagonal up to a permutation of the blocks. Returns it and the labels."""
+    rng = np.random.default_rng(seed)
+    qps = [random_qp(int(rng.integers(2**31)), n, kmax) for _ in range(parts)]
+    labels = rng.permutation(np.repeat(np.arange(parts), n))
+    where = [np.flatnonzero(labels == p) for p in range(parts)]
+    sizes = np.zeros(parts * n, np.int64)
+    for p, qp in enumerate(qps):
+        sizes[where[p]] = qp.block_sizes
+    bp = np.concatenate([[0], np.cumsum(sizes)])
+    c = np.zeros(bp[-1])
+    rows, cols, vals = [], [], []
+    for p, qp in enumerate(qps):
+        # variable v of problem p sits at the same place of its block in the joint problem
+        new = np.concatenate([np.arange(bp[b], bp[b + 1]) for b in where[p]])
+        c[new] = qp.c
+        q = qp.Q.tocoo()
+        rows.append(new[q.row])
+        cols.append(new[q.col])
+        vals.append(q.data)
+    l = int(bp[-1])
+    Q = sp.csc_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(l, l)
+    )
+    return BlockQP(c, Q, bp), labels
+
+
+@FAST
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    parts=st.integers(2, 6),
+    n=st.integers(1, 8),
+    variant=st.sampled_from(VARIANTS),
+)
+def test_components_solved_apart_meet_the_whole_problems_gap(seed, parts, n, variant):
+    qp, labels = interleaved_components(seed, parts, n, 5)
+    eps = 1e-4
+    params = FWParams(variant=variant, eps=eps, max_iter=20_000)
+    split = solve(qp, params=params, components=labels)
+    whole = solve(qp, params=params)
+    check_result(qp, split, eps)
+    if variant != "plain":  # plain FW zig-zags: 1e-4 may take more than max_iter
+        assert split.converged
+    if split.converged and whole.converged:  # both eps-optimal for the same problem
+        assert abs(split.objective - whole.objective) <= 2 * eps
+    # a component solved on its own with its share of eps gives the same blocks
+    p0 = np.flatnonzero(labels == labels[0])
+    sub_vars = np.concatenate([np.arange(qp.block_ptr[b], qp.block_ptr[b + 1]) for b in p0])
+    sub = BlockQP(
+        qp.c[sub_vars], qp.Q[sub_vars][:, sub_vars], np.r_[0, np.cumsum(qp.block_sizes[p0])]
+    )
+    alone = solve(
+        sub,
+        params=FWParams(
+            variant=variant,
+            eps=eps * len(p0) / qp.n_blocks,
+            max_iter=20_000 * len(p0) // qp.n_blocks + 1,
+        ),
+    )
+    np.testing.assert_array_equal(split.x[sub_vars], alone.x)
+
+
+def test_components_split_is_the_same_for_any_number_of_threads():
+    numba = pytest.importorskip("numba")
+    from tracker.threads import max_threads, using_threads
+
+    if max_threads() < 2:
+        pytest.skip("needs 2 cores")
+    qp, labels = interleaved_components(7, 40, 6, 6)
+    with using_threads(1):
+        one = solve(qp, components=labels)
+    with using_threads(2):
+        assert numba.get_num_threads() == 2
+        two = solve(qp, components=labels)
+    np.testing.assert_array_equal(one.x, two.x)
+    assert one.objective == two.objective and one.iterations == two.iterations
+
+
+def test_one_dominant_component_is_solved_whole():
+    qp, labels = interleaved_components(3, 2, 10, 4)
+    labels[:] = 0
+    labels[0] = 1  # 19 of 20 blocks in one component: above SPLIT_MAX_SHARE
+    whole = solve(qp)
+    same = solve(qp, components=labels)
+    np.testing.assert_array_equal(whole.x, same.x)
+    assert whole.iterations == same.iterations
+
+
+def test_components_labels_are_checked():
+    qp, labels = interleaved_components(3, 2, 4, 3)
+    with pytest.raises(ValueError, match="components must be"):
+        solve(qp, components=labels[:-1])
+    with pytest.raises(ValueError, match="components must be"):
+        solve(qp, components=labels.astype(float))

@@ -271,3 +271,50 @@ def test_quadratic_matrix_is_canonical_csc():
     ref.sum_duplicates()
     np.testing.assert_array_equal(ref.indices, q.indices)
     np.testing.assert_allclose(q.toarray(), q.toarray().T, atol=1e-14)
+
+
+def _crowd_terms(components: bool = True):
+    """A crowd of 300 targets in three separate clusters, with tree edges inside them."""
+    rng = np.random.default_rng(11)
+    centres = np.array([[50.0, 50.0], [400.0, 60.0], [220.0, 400.0]])
+    pos = np.concatenate([c + rng.uniform(-40, 40, (100, 2)) for c in centres])
+    cand = pos[:, None, :] + rng.uniform(-5, 5, (300, 9, 2))
+    edges = np.array([[i, i + 1] for i in range(0, 299) if i % 100 != 99])
+    lengths = np.linalg.norm(pos[edges[:, 0]] - pos[edges[:, 1]], axis=1)
+    return quadratic_matrix(
+        cand, 0.5, 4.0, 3.0, 1.0, edges, lengths, 2.0, 2.0, 1.0, components=components
+    )
+
+
+def test_quadratic_matrix_is_the_same_for_any_number_of_threads():
+    from tracker.threads import max_threads, using_threads
+
+    if max_threads() < 2:
+        pytest.skip("needs 2 cores")
+    with using_threads(1):
+        q1, lab1 = _crowd_terms()
+    with using_threads(2):
+        q2, lab2 = _crowd_terms()
+    np.testing.assert_array_equal(q1.indptr, q2.indptr)
+    np.testing.assert_array_equal(q1.indices, q2.indices)
+    np.testing.assert_array_equal(q1.data, q2.data)  # bit for bit
+    np.testing.assert_array_equal(lab1, lab2)
+
+
+def test_quadratic_matrix_components_are_independent():
+    q, labels = _crowd_terms()
+    assert labels.shape == (300,)
+    # the three clusters are 150+ px apart: at least three components, none spanning two
+    assert len(np.unique(labels)) >= 3
+    for cluster in range(3):
+        assert (
+            len(
+                np.intersect1d(labels[: 100 * cluster], labels[100 * cluster : 100 * cluster + 100])
+            )
+            == 0
+        )
+    coo = q.tocoo()
+    k = 9
+    assert (labels[coo.row // k] == labels[coo.col // k]).all()
+    # exactly symmetric: every value is computed once per side from the same operands
+    np.testing.assert_array_equal(q.toarray(), q.toarray().T)

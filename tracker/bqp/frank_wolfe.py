@@ -57,7 +57,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from crowdsim.checks import require_choice, require_number
 from tracker.bqp.qp import BlockQP
@@ -68,6 +68,10 @@ _PLAIN, _AWAY, _SWAP = 0, 1, 2
 STALL_RTOL: float = 1e-13
 """A largest block gap below this times the size of the gradient entries it is computed
 from is round-off: the solver stops (``converged`` then says whether ``eps`` was met)."""
+SPLIT_MAX_SHARE: float = 0.9
+""":func:`solve` with ``components`` solves the components apart only when the largest holds
+less than this share of the blocks; otherwise one problem (the permutation would cost more
+than the threads gain)."""
 STEP_KINDS: tuple[str, ...] = ("fw", "away", "swap", "drop")
 """Kinds counted in :attr:`FWResult.steps` (``drop``: away/SWAP steps that emptied ``alpha_y``)."""
 
@@ -543,6 +547,86 @@ def _fw_loop(
     return it, converged, total, f, counts
 
 
+# ------------------------------------------------------------------ independent components
+@njit(cache=True, nogil=True, parallel=True)
+def _permute_csc(indptr, indices, data, var_order, var_rank, new_indptr, new_indices, new_data):
+    """``Q[var_order][:, var_order]`` where the order keeps each component's variables in
+    their original order: every column's rows stay in one component, so the renamed rows of
+    a sorted column are still sorted. One column per loop iteration."""
+    for jn in prange(var_order.shape[0]):
+        j = var_order[jn]
+        q = new_indptr[jn]
+        for p in range(indptr[j], indptr[j + 1]):
+            new_indices[q] = var_rank[indices[p]]
+            new_data[q] = data[p]
+            q += 1
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _fw_components(
+    indptr,
+    indices,
+    data,
+    c,
+    block_ptr,
+    x,
+    variant,
+    eps,
+    max_iter,
+    comp_ptr,
+    out_it,
+    out_conv,
+    out_gap,
+    out_f,
+    out_counts,
+):
+    """Frank-Wolfe on each component (blocks ``comp_ptr[i]:comp_ptr[i + 1]``, contiguous
+    with its variables) on its own, one component per loop iteration.
+
+    A component of ``n_i`` of the ``n`` blocks stops at gap ``eps n_i / n`` or after
+    ``ceil(max_iter n_i / n)`` block steps: the gaps then sum to ``eps`` at most, the
+    stopping test of the whole problem, and no stopping rule depends on another component
+    (so the result does not depend on the number of threads).
+    """
+    n = block_ptr.shape[0] - 1
+    for ci in prange(comp_ptr.shape[0] - 1):
+        b0 = comp_ptr[ci]
+        b1 = comp_ptr[ci + 1]
+        v0 = block_ptr[b0]
+        v1 = block_ptr[b1]
+        e0 = indptr[v0]
+        e1 = indptr[v1]
+        sub_indptr = indptr[v0 : v1 + 1] - e0
+        sub_indices = indices[e0:e1] - v0
+        sub_bp = block_ptr[b0 : b1 + 1] - v0
+        nb = b1 - b0
+        sub_of = np.empty(v1 - v0, np.int64)
+        for b in range(nb):
+            for j in range(sub_bp[b], sub_bp[b + 1]):
+                sub_of[j] = b
+        none = np.zeros(0)
+        it, conv, gap, f, counts = _fw_loop(
+            sub_indptr,
+            sub_indices,
+            data[e0:e1],
+            c[v0:v1],
+            sub_bp,
+            sub_of,
+            x[v0:v1],
+            variant,
+            eps * nb / n,
+            (max_iter * nb + n - 1) // n,
+            none,
+            none,
+        )
+        out_it[ci] = it
+        out_conv[ci] = conv
+        out_gap[ci] = gap
+        out_f[ci] = f
+        for s in range(4):
+            out_counts[ci, s] = counts[s]
+
+
 # --------------------------------------------------------------------------------- public
 def default_start(qp: BlockQP) -> np.ndarray:
     """Per block the vertex with the smallest linear cost ``c`` (ties: first)."""
@@ -558,7 +642,12 @@ def round_choice(qp: BlockQP, x: np.ndarray) -> np.ndarray:
     return _block_argext(np.ascontiguousarray(x, dtype=np.float64), qp.block_ptr, True)
 
 
-def solve(qp: BlockQP, x0: np.ndarray | None = None, params: FWParams | None = None) -> FWResult:
+def solve(
+    qp: BlockQP,
+    x0: np.ndarray | None = None,
+    params: FWParams | None = None,
+    components: np.ndarray | None = None,
+) -> FWResult:
     """Minimise ``qp`` over its product of simplices with Frank-Wolfe (plain/away/SWAP).
 
     Parameters
@@ -570,6 +659,14 @@ def solve(qp: BlockQP, x0: np.ndarray | None = None, params: FWParams | None = N
         block the vertex with the smallest linear cost.
     params : FWParams, optional
         Variant, ``eps``, ``max_iter``; default ``FWParams()`` (SWAP, eps 0.01).
+    components : (n,) int, optional
+        A label per block such that ``Q`` has no entry between blocks of different labels
+        (:func:`tracker.bqp.terms.quadratic_matrix` with ``components=True``). The
+        components are then independent problems: when the largest holds less than
+        :data:`SPLIT_MAX_SHARE` of the blocks they are solved apart, in parallel on numba's
+        threads, each with its share of ``eps`` and ``max_iter`` (the gaps still sum to at
+        most ``eps``). The result does not depend on the number of threads. Ignored with
+        ``record_history``.
 
     Returns
     -------
@@ -600,6 +697,10 @@ def solve(qp: BlockQP, x0: np.ndarray | None = None, params: FWParams | None = N
             gap_history=None if hist is None else hist.copy(),
             steps=dict.fromkeys(STEP_KINDS, 0),
         )
+    if components is not None and not params.record_history:
+        split = _solve_split(qp, x, params, components)
+        if split is not None:
+            return split
     m = params.max_iter + 1 if params.record_history else 0
     hist_f = np.zeros(m)
     hist_gap = np.zeros(m)
@@ -631,5 +732,81 @@ def solve(qp: BlockQP, x0: np.ndarray | None = None, params: FWParams | None = N
         converged=bool(converged),
         history=hist_f[: it + 1].copy() if params.record_history else None,
         gap_history=hist_gap[: it + 1].copy() if params.record_history else None,
+        steps=dict(zip(STEP_KINDS, (int(v) for v in counts), strict=True)),
+    )
+
+
+def _solve_split(
+    qp: BlockQP, x: np.ndarray, params: FWParams, components: np.ndarray
+) -> FWResult | None:
+    """:func:`solve` component by component; ``None`` when one component dominates."""
+    n = qp.n_blocks
+    labels = np.asarray(components)
+    if labels.shape != (n,) or not np.issubdtype(labels.dtype, np.integer):
+        raise ValueError(
+            f"components must be ({n},) integer labels, one per block, got "
+            f"shape {labels.shape} dtype {labels.dtype}"
+        )
+    _, labels, sizes = np.unique(labels, return_inverse=True, return_counts=True)
+    if sizes.max() >= SPLIT_MAX_SHARE * n:
+        return None
+    # blocks grouped by component, each component's blocks (and variables) in their order
+    block_order = np.argsort(labels, kind="stable")
+    comp_ptr = np.zeros(len(sizes) + 1, np.int64)
+    np.cumsum(sizes, out=comp_ptr[1:])
+    bsizes = qp.block_sizes[block_order]
+    new_bp = np.zeros(n + 1, np.int64)
+    np.cumsum(bsizes, out=new_bp[1:])
+    starts = qp.block_ptr[:-1][block_order]
+    var_order = np.repeat(starts - new_bp[:-1], bsizes) + np.arange(qp.n_vars)
+    var_rank = np.empty_like(var_order)
+    var_rank[var_order] = np.arange(qp.n_vars)
+    Q = qp.Q
+    col_nnz = np.diff(Q.indptr)[var_order]
+    new_indptr = np.zeros(qp.n_vars + 1, np.int64)
+    np.cumsum(col_nnz, out=new_indptr[1:])
+    new_indices = np.empty(Q.nnz, np.int64)
+    new_data = np.empty(Q.nnz)
+    _permute_csc(
+        Q.indptr, Q.indices, Q.data, var_order, var_rank, new_indptr, new_indices, new_data
+    )
+    nc = len(sizes)
+    out_it = np.zeros(nc, np.int64)
+    out_conv = np.zeros(nc, np.bool_)
+    out_gap = np.zeros(nc)
+    out_f = np.zeros(nc)
+    out_counts = np.zeros((nc, 4), np.int64)
+    xp = np.ascontiguousarray(x[var_order])
+    _fw_components(
+        new_indptr,
+        new_indices,
+        new_data,
+        np.ascontiguousarray(qp.c[var_order]),
+        new_bp,
+        xp,
+        _VARIANT_CODE[params.variant],
+        float(params.eps),
+        int(params.max_iter),
+        comp_ptr,
+        out_it,
+        out_conv,
+        out_gap,
+        out_f,
+        out_counts,
+    )
+    x = np.empty_like(xp)
+    x[var_order] = xp
+    choice = _block_argext(x, qp.block_ptr, True)
+    counts = out_counts.sum(axis=0)
+    return FWResult(
+        x=x,
+        choice=choice,
+        objective=float(out_f.sum()),
+        rounded_objective=float(
+            _vertex_objective(Q.indptr, Q.indices, Q.data, qp.c, qp.block_ptr, choice)
+        ),
+        gap=float(out_gap.sum()),
+        iterations=int(out_it.sum()),
+        converged=bool(out_conv.all()),
         steps=dict(zip(STEP_KINDS, (int(v) for v in counts), strict=True)),
     )

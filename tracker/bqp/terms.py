@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from numba import njit
+from numba import njit, prange
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
@@ -261,40 +261,24 @@ def _pair_value(
     return s, g
 
 
-@njit(cache=True)
-def _pair_entries_kernel(
-    cand,
-    box,
-    pa,
-    pb,
-    flags,
-    ref,
-    mode_g,
-    inv_s,
-    reach2_s,
-    inv_g,
-    reach2_g,
-    rows,
-    cols,
-    s_out,
-    g_out,
-    fill,
-):
-    """Count (``fill`` False) or write the linked candidate pairs of the target pairs.
+@njit(cache=True, nogil=True, parallel=True)
+def _pair_counts(cand, box, pa, pb, flags, ref, mode_g, inv_s, reach2_s, inv_g, reach2_g, out):
+    """``out[p]``: the number of linked candidate pairs of target pair ``p`` (no ``exp``).
 
-    Entries come out in the order (pair, i, j); with pairs sorted by ``(a, b)``, ``a < b``,
-    every CSC column built from them is already sorted (see :func:`_csc_kernel`).
+    One target pair per loop iteration, each written by one thread: the counts (and so the
+    entries' layout) do not depend on the number of threads.
     """
     k = cand.shape[1]
-    m = 0
-    for p in range(pa.shape[0]):
+    for p in prange(pa.shape[0]):
         a = pa[p]
         b = pb[p]
+        m = 0
         if flags[p] == 1:
             # proximity only: skip pairs whose candidate boxes are farther apart than reach
             gx = max(0.0, max(box[a, 0] - box[b, 2], box[b, 0] - box[a, 2]))
             gy = max(0.0, max(box[a, 1] - box[b, 3], box[b, 1] - box[a, 3]))
             if gx * gx + gy * gy > reach2_s:
+                out[p] = 0
                 continue
         for i in range(k):
             for j in range(k):
@@ -312,53 +296,143 @@ def _pair_entries_kernel(
                     reach2_s,
                     inv_g,
                     reach2_g,
-                    fill,
+                    False,
                 )
                 if s > 0.0 or g > 0.0:
-                    if fill:
-                        rows[m] = a * k + i
-                        cols[m] = b * k + j
-                        s_out[m] = s
-                        g_out[m] = g
                     m += 1
-    return m
+        out[p] = m
 
 
-@njit(cache=True)
-def _csc_kernel(rows, cols, vals, diag, size, indptr, indices, data):
-    """Symmetric CSC of upper-half entries plus a diagonal, rows sorted in every column.
+@njit(cache=True, nogil=True, parallel=True)
+def _pair_fill(
+    cand, pa, pb, flags, ref, mode_g, inv_s, reach2_s, inv_g, reach2_g, offsets, loc, s_out, g_out
+):
+    """Write the linked candidate pairs of target pair ``p`` at ``offsets[p]:offsets[p + 1]``:
+    ``loc = i k + j`` (candidate ``i`` of ``a``, ``j`` of ``b``) in ``(i, j)`` order, and
+    ``(S, Gamma)`` (Eq. 9, 10)."""
+    k = cand.shape[1]
+    for p in prange(pa.shape[0]):
+        m = offsets[p]
+        if m == offsets[p + 1]:
+            continue
+        a = pa[p]
+        b = pb[p]
+        for i in range(k):
+            for j in range(k):
+                s, g = _pair_value(
+                    cand,
+                    a,
+                    i,
+                    b,
+                    j,
+                    flags[p],
+                    ref[p, 0],
+                    ref[p, 1],
+                    mode_g,
+                    inv_s,
+                    reach2_s,
+                    inv_g,
+                    reach2_g,
+                    True,
+                )
+                if s > 0.0 or g > 0.0:
+                    loc[m] = i * k + j
+                    s_out[m] = s
+                    g_out[m] = g
+                    m += 1
 
-    Column ``c`` receives, in this order, the rows ``r < c`` of the upper entries, the
-    diagonal, then the rows ``> c`` of the mirrored entries; entries sorted by target pair
-    ``(a, b)`` and then ``(i, j)`` keep each part sorted, so the result is canonical.
+
+@njit(cache=True, nogil=True, parallel=True)
+def _degrees(k, offsets, loc, s_val, g_val, a_ptr, b_order, b_ptr, deg_s, deg_g, n_up, n_low):
+    """Per candidate: the degrees ``D_s, D_g`` and how many entries it has as the second
+    (``n_up``) and the first (``n_low``) target of a pair.
+
+    One target per loop iteration, summing its pairs in a fixed order (as first target by
+    partner, then as second target by partner): the sums do not depend on the threads.
     """
-    count = np.zeros(size + 1, np.int64)
-    for e in range(rows.shape[0]):
-        count[cols[e] + 1] += 1
-        count[rows[e] + 1] += 1
-    for c in range(size):
-        if diag[c] != 0.0:
-            count[c + 1] += 1
-    for c in range(size):
-        count[c + 1] += count[c]
-    for c in range(size + 1):
-        indptr[c] = count[c]
-    pos = count[:size].copy()
-    for e in range(rows.shape[0]):  # rows above the diagonal
-        c = cols[e]
-        indices[pos[c]] = rows[e]
-        data[pos[c]] = vals[e]
-        pos[c] += 1
-    for c in range(size):
-        if diag[c] != 0.0:
-            indices[pos[c]] = c
-            data[pos[c]] = diag[c]
-            pos[c] += 1
-    for e in range(rows.shape[0]):  # rows below the diagonal
-        r = rows[e]
-        indices[pos[r]] = cols[e]
-        data[pos[r]] = vals[e]
-        pos[r] += 1
+    for t in prange(a_ptr.shape[0] - 1):
+        base = t * k
+        for p in range(a_ptr[t], a_ptr[t + 1]):  # t is the first target: rows of t
+            for e in range(offsets[p], offsets[p + 1]):
+                i = loc[e] // k
+                deg_s[base + i] += s_val[e]
+                deg_g[base + i] += g_val[e]
+                n_low[base + i] += 1
+        for q in range(b_ptr[t], b_ptr[t + 1]):  # t is the second target: columns of t
+            p = b_order[q]
+            for e in range(offsets[p], offsets[p + 1]):
+                j = loc[e] % k
+                deg_s[base + j] += s_val[e]
+                deg_g[base + j] += g_val[e]
+                n_up[base + j] += 1
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _csc_fill(
+    k,
+    pa,
+    pb,
+    offsets,
+    loc,
+    s_val,
+    g_val,
+    a_ptr,
+    b_order,
+    b_ptr,
+    w_sp,
+    norm_s,
+    w_g,
+    norm_g,
+    diag,
+    n_up,
+    indptr,
+    indices,
+    data,
+):
+    """The symmetric CSC ``w_sp C_sp + w_g C_g``, written one target's ``k`` columns per loop
+    iteration (so no two threads write the same column).
+
+    Column ``c`` of target ``t`` holds, in this order: the rows ``r < c`` of the pairs where
+    ``t`` is the second target (partners ascending, then ``i`` ascending), the diagonal, then
+    the rows of the pairs where ``t`` is the first target (partners ascending, then ``j``):
+    sorted rows, no duplicates, a canonical CSC. An entry's value is computed from the same
+    operands in the same order on both sides, so the matrix is exactly symmetric.
+    """
+    for t in prange(a_ptr.shape[0] - 1):
+        base = t * k
+        pos = np.empty(k, np.int64)
+        for j in range(k):
+            pos[j] = indptr[base + j]
+        for q in range(b_ptr[t], b_ptr[t + 1]):  # rows above the diagonal
+            p = b_order[q]
+            abase = pa[p] * k
+            for e in range(offsets[p], offsets[p + 1]):
+                i = loc[e] // k
+                j = loc[e] % k
+                r = abase + i
+                c = base + j
+                indices[pos[j]] = r
+                data[pos[j]] = (
+                    w_sp * s_val[e] * norm_s[r] * norm_s[c] - w_g * g_val[e] * norm_g[r] * norm_g[c]
+                )
+                pos[j] += 1
+        for j in range(k):
+            if diag[base + j] != 0.0:
+                indices[pos[j]] = base + j
+                data[pos[j]] = diag[base + j]
+                pos[j] += 1
+        for p in range(a_ptr[t], a_ptr[t + 1]):  # rows below the diagonal
+            bbase = pb[p] * k
+            for e in range(offsets[p], offsets[p + 1]):
+                i = loc[e] // k
+                j = loc[e] % k
+                r = base + i
+                c = bbase + j
+                indices[pos[i]] = c
+                data[pos[i]] = (
+                    w_sp * s_val[e] * norm_s[r] * norm_s[c] - w_g * g_val[e] * norm_g[r] * norm_g[c]
+                )
+                pos[i] += 1
 
 
 def proximity_pairs(cand: np.ndarray, reach: float) -> np.ndarray:
@@ -417,7 +491,8 @@ def quadratic_matrix(
     g_sigma: float,
     g_cutoff: float,
     tau: float = 0.0,
-) -> sp.csc_matrix:
+    components: bool = False,
+):
     """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over candidates ``cand (n, k, 2)``, ``(l, l)`` CSC.
 
     ``C_sp = (D_s + tau I)^-1/2 (D_s + S) (D_s + tau I)^-1/2`` with ``S`` of Eq. 9 between
@@ -428,7 +503,14 @@ def quadratic_matrix(
     paper's ``I -/+ D^-1/2 W D^-1/2`` (identity only where ``D > 0``); see the module docstring.
 
     Compiled kernels evaluate each linked candidate pair once and write a canonical CSC
-    (sorted rows, no duplicates) directly: no COO stage, no dense matrix.
+    (sorted rows, no duplicates) directly: no COO stage, no dense matrix. They run on numba's
+    threads (:func:`numba.set_num_threads`), one target pair or one target per loop
+    iteration with sums in a fixed order, so the matrix is the same bit for bit for any
+    number of threads.
+
+    With ``components=True`` returns ``(Q, labels)``: ``labels (n,)`` int64 names the
+    connected component of every target in the graph of linked target pairs (targets of
+    two components share no entry of ``Q``: their sub-problems are independent).
     """
     n, k = cand.shape[:2]
     size = n * k
@@ -441,7 +523,8 @@ def quadratic_matrix(
         edges = np.zeros((0, 2), np.int64)
         lengths = np.zeros(0)
     if len(pairs) == 0 and len(edges) == 0:
-        return sp.csc_matrix((size, size))
+        empty = sp.csc_matrix((size, size))
+        return (empty, np.arange(n, dtype=np.int64)) if components else empty
     pa, pb, flags, ref, mode_g = _merged_pairs(n, pairs, edges, lengths)
     box = np.concatenate([cand.min(axis=1), cand.max(axis=1)], axis=1)  # (n, 4) x0 y0 x1 y1
     args = (
@@ -457,28 +540,65 @@ def quadratic_matrix(
         1.0 / (2.0 * g_sigma * g_sigma),
         (g_cutoff * g_sigma) ** 2,
     )
-    e_i = np.zeros(0, np.int64)
-    e_f = np.zeros(0)
-    m = _pair_entries_kernel(*args, e_i, e_i, e_f, e_f, False)
-    rows = np.empty(m, np.int64)
-    cols = np.empty(m, np.int64)
+    counts = np.empty(len(pa), np.int64)
+    _pair_counts(*args, counts)
+    offsets = np.zeros(len(pa) + 1, np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    m = int(offsets[-1])
+    loc = np.empty(m, np.int32)  # i k + j < k^2
     s_val = np.empty(m)
     g_val = np.empty(m)
-    _pair_entries_kernel(*args, rows, cols, s_val, g_val, True)
-    deg_s = np.bincount(rows, s_val, size) + np.bincount(cols, s_val, size)
-    deg_g = np.bincount(rows, g_val, size) + np.bincount(cols, g_val, size)
+    _pair_fill(cand, *args[2:], offsets, loc, s_val, g_val)
+    # pairs are sorted by (a, b): as first target a target's pairs are one run; as second
+    # target a stable sort by b keeps them in order of a
+    targets = np.arange(n + 1)
+    a_ptr = np.searchsorted(pa, targets)
+    b_order = np.argsort(pb, kind="stable")
+    b_ptr = np.searchsorted(pb[b_order], targets)
+    deg_s = np.zeros(size)
+    deg_g = np.zeros(size)
+    n_up = np.zeros(size, np.int64)
+    n_low = np.zeros(size, np.int64)
+    _degrees(k, offsets, loc, s_val, g_val, a_ptr, b_order, b_ptr, deg_s, deg_g, n_up, n_low)
     norm_s, diag_s = _degree_norm(deg_s, tau)
     norm_g, diag_g = _degree_norm(deg_g, tau)
-    vals = w_sp * s_val * norm_s[rows] * norm_s[cols] - w_g * g_val * norm_g[rows] * norm_g[cols]
     diag = w_sp * diag_s + w_g * diag_g
-    nnz = 2 * m + int(np.count_nonzero(diag))
-    indptr = np.empty(size + 1, np.int64)
-    indices = np.empty(nnz, np.int64)
-    data = np.empty(nnz, np.float64)
-    _csc_kernel(rows, cols, vals, diag, size, indptr, indices, data)
+    indptr = np.zeros(size + 1, np.int64)
+    np.cumsum(n_up + n_low + (diag != 0.0), out=indptr[1:])
+    indices = np.empty(indptr[-1], np.int64)
+    data = np.empty(indptr[-1], np.float64)
+    _csc_fill(
+        k,
+        pa,
+        pb,
+        offsets,
+        loc,
+        s_val,
+        g_val,
+        a_ptr,
+        b_order,
+        b_ptr,
+        float(w_sp),
+        norm_s,
+        float(w_g),
+        norm_g,
+        diag,
+        n_up,
+        indptr,
+        indices,
+        data,
+    )
     out = sp.csc_matrix((data, indices, indptr), shape=(size, size))
     out.has_sorted_indices = True
+    if components:
+        return out, _target_components(n, pa[counts > 0], pb[counts > 0])
     return out
+
+
+def _target_components(n: int, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
+    """(n,) int64 connected-component label of every target over the linked pairs."""
+    g = sp.coo_matrix((np.ones(len(pa), np.int8), (pa, pb)), shape=(n, n))
+    return connected_components(g, directed=False)[1].astype(np.int64)
 
 
 def _degree_norm(deg: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:

@@ -18,7 +18,13 @@ Stages of a frame (their seconds are accumulated in ``timings``):
     :mod:`tracker.bqp.terms`) and, every ``group_refresh`` frames, the coherent-motion groups and
     their spanning trees.
 ``solve``
-    Building the :class:`tracker.bqp.qp.BlockQP` and running Frank-Wolfe.
+    Building the :class:`tracker.bqp.qp.BlockQP` and running Frank-Wolfe. Where the targets
+    fall into independent groups (no proximity or grouping entry between them), each group
+    is solved apart, in parallel (:func:`tracker.bqp.frank_wolfe.solve` with
+    ``components``).
+
+The stages run on the tracker's ``threads`` (:mod:`tracker.threads`); tracks are the same for
+any number of threads.
 
 Search windows are centred on the constant-velocity prediction ``p + p_dot`` (with ``cmc``, on
 the camera-compensated one: :class:`tracker.base.Tracker`); targets whose prediction leaves the
@@ -254,8 +260,9 @@ class BQPTracker(Tracker):
         self._tick("terms", t0)
         return cands, centers
 
-    def quadratic(self, cands: Candidates) -> sp.csc_matrix:
-        """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over the candidates, ``(l, l)`` CSC."""
+    def quadratic(self, cands: Candidates) -> tuple[sp.csc_matrix, np.ndarray]:
+        """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over the candidates, ``(l, l)`` CSC, and the
+        connected component of every target (no entry of ``Q`` joins two components)."""
         p = self.params
         ref = self.tree_offsets if p.group_offsets else self.tree_lengths
         return quadratic_matrix(
@@ -269,6 +276,7 @@ class BQPTracker(Tracker):
             self._px(p.group_sigma),
             p.group_cutoff,
             p.laplacian_tau,
+            components=True,
         )
 
     def _step(self, frame: np.ndarray) -> np.ndarray:
@@ -279,13 +287,15 @@ class BQPTracker(Tracker):
         n = len(self.points)
         cands, _ = self.candidates(frame)
         t0 = time.perf_counter()
-        q = self.quadratic(cands)
+        q, components = self.quadratic(cands)
         t0 = self._tick("terms", t0)
         qp = BlockQP(cands.cost.ravel(), q, cands.block_ptr)
         if self.record_qps:
             self.recorded_qps.append(qp)
         res = solve(
-            qp, params=FWParams(variant=p.fw_variant, eps=p.fw_eps, max_iter=p.fw_max_iter * n)
+            qp,
+            params=FWParams(variant=p.fw_variant, eps=p.fw_eps, max_iter=p.fw_max_iter * n),
+            components=components,
         )
         self.solver_iterations += res.iterations
         self.n_candidates += cands.n * cands.k
