@@ -21,6 +21,7 @@ import math
 
 import numba as nb
 import numpy as np
+import pymunk
 
 from crowdsim.params import SocialForceParams
 
@@ -649,3 +650,20 @@ def social_force(
         acc,
     )
     return acc
+
+
+def contact_space(params: SocialForceParams, walls: np.ndarray) -> pymunk.Space:
+    """A pymunk space with the contact solver's settings of ``params`` and the wall segments
+    ``walls (W, 5)`` (x0, y0, x1, y1, half-thickness m) as static shapes: the one home of
+    these settings for the one-process simulator and every worker of a split one."""
+    space = pymunk.Space()
+    space.iterations = int(params.solver_iterations)
+    space.collision_slop = params.contact_slop
+    space.collision_bias = params.contact_bias
+    space.damping = 1.0
+    for x0, y0, x1, y1, th in walls:
+        seg = pymunk.Segment(space.static_body, (x0, y0), (x1, y1), th)
+        seg.friction = params.friction
+        seg.elasticity = 0.0
+        space.add(seg)
+    return space

@@ -21,6 +21,15 @@ No Python loop runs over the agents in a step (only over the few that enter or l
 Everything random comes from the seed: the same scenario, parameters and seed give
 bit-identical trajectories however the steps are split across :meth:`Simulation.run` calls.
 
+``Simulation(..., workers=N)`` with ``N > 1`` steps the world in ``N`` worker processes, one
+strip each (:mod:`crowdsim.decomposition`); ``workers=1`` (the default) is the one-process
+path above, unchanged. Not available with ``workers > 1``: the control hook
+(``step(desired_velocity, controlled)`` and :meth:`Simulation.set_desired`); group terms
+near a strip border see only the members within the strip's halo. Sources, sinks, periodic
+worlds, :meth:`Simulation.add_agents`, :meth:`Simulation.remove_agents` and
+:meth:`Simulation.set_state` work. Call :meth:`Simulation.close` (or use ``with``) to stop
+the workers early; they also stop when the simulation is garbage-collected or at exit.
+
 >>> from crowdsim.scenarios import make_scenario
 >>> sim = Simulation(make_scenario("counterflow", n_agents=20, inflow=False), seed=1)
 >>> traj = sim.run(5)
@@ -30,6 +39,7 @@ bit-identical trajectories however the steps are split across :meth:`Simulation.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,7 +48,7 @@ import pymunk
 import pymunk.batch as pb
 
 from crowdsim.checks import require_number
-from crowdsim.forces import WallGrid, social_force
+from crowdsim.forces import WallGrid, contact_space, social_force
 from crowdsim.params import SocialForceParams
 from crowdsim.scenarios import Scenario
 from crowdsim.trajectories import Trajectories, TrajectoryRecorder
@@ -123,6 +133,11 @@ class Simulation:
         Model parameters; defaults to Helbing & Molnár (1995) values.
     record : bool
         Keep positions of every step for :attr:`trajectories` (turn off for pure speed runs).
+    workers : int
+        Processes that step the world, ``1 .. os.cpu_count()`` (keyword-only). 1 runs in
+        this process; more split the world into strips (:mod:`crowdsim.decomposition`):
+        results are deterministic for a given ``workers`` and seed, but differ from those
+        of another worker count.
 
     Attributes
     ----------
@@ -140,7 +155,20 @@ class Simulation:
         seed: int = 0,
         params: SocialForceParams | None = None,
         record: bool = True,
+        *,
+        workers: int = 1,
     ) -> None:
+        cpus = os.cpu_count() or 1
+        if (
+            isinstance(workers, bool)
+            or not isinstance(workers, (int, np.integer))
+            or not 1 <= workers <= cpus
+        ):
+            raise ValueError(
+                f"workers must be an integer in [1, {cpus}] (os.cpu_count()), got {workers!r}"
+            )
+        self.workers = int(workers)
+        self._engine: Any = None
         if not isinstance(scenario, Scenario):
             raise ValueError(f"scenario must be a Scenario, got {type(scenario).__name__}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -180,7 +208,10 @@ class Simulation:
         self._held_vel = np.zeros((0, 2))
         self._add_agents(setup.agents)
         self._refresh_desired()
-        self._sync_order()
+        if self.workers > 1:
+            self._start_engine()
+        else:
+            self._sync_order()
         self._record()
 
     # ------------------------------------------------------------------ public API
@@ -204,6 +235,9 @@ class Simulation:
             Which agents ``desired_velocity`` drives (ids must be present). ``None`` with a
             ``desired_velocity`` means every present agent, in :attr:`state` order.
         """
+        if self._engine is not None:
+            self._step_split(desired_velocity, controlled)
+            return
         command = self._command(desired_velocity, controlled)
         p = self.params
         self._refresh_desired()
@@ -250,6 +284,8 @@ class Simulation:
         """Hold the desired velocity of agents ``ids`` ``(m,)`` at ``velocity`` ``(m, 2)``
         or ``(2,)`` m/s from the next step on, until :meth:`clear_desired` (or until they
         leave); see :meth:`step` for what a desired velocity replaces."""
+        if self._engine is not None:
+            raise ValueError(_unsupported("set_desired"))
         ids = self._present_ids(ids, "set_desired")
         vel = _velocities(velocity, len(ids), "set_desired.velocity")
         ids, first = np.unique(ids[::-1], return_index=True)  # the last entry of an id wins
@@ -398,6 +434,9 @@ class Simulation:
             setattr(self.state, name, value)
         if self.world.period > 0:
             self.state.pos[:, 0] %= self.world.period
+        if self._engine is not None:
+            self._engine_write(self.state.ids, self.state.pos, self.state.vel)
+            return
         if self._order_dirty:
             self._sync_order()
         buf = pb.Buffer()
@@ -451,6 +490,7 @@ class Simulation:
                 "numpy": np.__version__,
             },
             "info": _jsonable(self.info),
+            **({"workers": self.workers} if self.workers > 1 else {}),
         }
 
     # ------------------------------------------------------------------ internals
@@ -510,21 +550,10 @@ class Simulation:
         return e, v0
 
     def _make_space(self) -> pymunk.Space:
-        p = self.params
-        space = pymunk.Space()
-        space.iterations = int(p.solver_iterations)
-        space.collision_slop = p.contact_slop
-        space.collision_bias = p.contact_bias
-        space.damping = 1.0
         # Broad phase: pymunk's default bounding-box tree. Measured on the benchmark corridor
         # it beats the spatial hash (cells of one body diameter, 10 n cells) 3.5x at 10k and
         # 100k agents (0.6 vs 2.1 ms and 19 vs 70 ms a sub-step).
-        for x0, y0, x1, y1, th in self.world.walls:
-            seg = pymunk.Segment(space.static_body, (x0, y0), (x1, y1), th)
-            seg.friction = p.friction
-            seg.elasticity = 0.0
-            space.add(seg)
-        return space
+        return contact_space(self.params, self.world.walls)
 
     def _add_body(self, body: pymunk.Body, x: float, y: float, radius: float) -> int:
         body.position = (x, y)
@@ -541,6 +570,23 @@ class Simulation:
             return
         ids = np.arange(self._n_total, self._n_total + n, dtype=np.int64)
         self._n_total += n
+        if self.workers == 1:
+            self._add_bodies(batch)
+        elif self._engine is not None:  # the workers learn them at the next step
+            from crowdsim.decomposition import STATIC_FIELDS
+
+            self._engine.add(ids, {f: getattr(batch, f) for f in STATIC_FIELDS})
+        self.state.append(batch, ids)
+        self._attrs["group"].append(batch.group)
+        self._attrs["prominent"].append(batch.prominent)
+        self._attrs["anomaly"].append(batch.anomaly)
+        self._attrs["radius"].append(batch.radius)
+        self._attrs["desired_speed"].append(batch.desired_speed)
+        self._order_dirty = True
+
+    def _add_bodies(self, batch: AgentBatch) -> None:
+        """One pymunk body per agent of ``batch`` (and a ghost in a periodic world)."""
+        n = len(batch)
         body_ids = np.empty(n, np.int64)
         ghost_ids = np.empty(n, np.int64)
         for k in range(n):  # only the entering agents
@@ -554,16 +600,15 @@ class Simulation:
         self._body_ids = np.concatenate([self._body_ids, body_ids])
         if self.world.period > 0:
             self._ghost_ids = np.concatenate([self._ghost_ids, ghost_ids])
-        self.state.append(batch, ids)
-        self._attrs["group"].append(batch.group)
-        self._attrs["prominent"].append(batch.prominent)
-        self._attrs["anomaly"].append(batch.anomaly)
-        self._attrs["radius"].append(batch.radius)
-        self._attrs["desired_speed"].append(batch.desired_speed)
-        self._order_dirty = True
 
     def _remove(self, mask: np.ndarray) -> None:
         """Drop the agents where ``mask`` is True (they left the scene)."""
+        if self.workers > 1:
+            if self._engine is not None:
+                sh = self._engine.shared
+                sh.alive[self._engine.current(self.steps), self.state.ids[mask]] = 0
+            self.state.keep(~mask)
+            return
         gone = [self._body_ids[mask]]
         if self.world.period > 0:
             gone.append(self._ghost_ids[mask])
@@ -694,6 +739,80 @@ class Simulation:
             ok[i] &= bool(np.all((d > radius[:i] + radius[i] + 0.05) | ~ok[:i]))
         return ok
 
+    # ------------------------------------------------------------------ workers > 1
+    def _start_engine(self) -> None:
+        from crowdsim.decomposition import STATIC_FIELDS, StripEngine
+
+        st, n = self.state, self._n_total
+        by_id: dict[str, np.ndarray] = {}
+        for f in (*STATIC_FIELDS, "pos", "vel", "waypoint"):
+            rows = getattr(st, f)
+            by_id[f] = np.zeros((n, *rows.shape[1:]), rows.dtype)
+            by_id[f][st.ids] = rows
+        alive = np.zeros(n, bool)
+        alive[st.ids] = True
+        capacity = 2 * n + 1024 if self.sources else n
+        self._engine = StripEngine(
+            self.world,
+            self.routes,
+            self.params,
+            self.workers,
+            {f: by_id[f] for f in STATIC_FIELDS},
+            by_id["pos"],
+            by_id["vel"],
+            by_id["waypoint"],
+            alive,
+            capacity,
+        )
+        self._n_pushed = n
+
+    def _engine_write(self, ids: np.ndarray, pos: np.ndarray, vel: np.ndarray) -> None:
+        """Overwrite agents' positions and velocities in the state the next step reads."""
+        sh, cur = self._engine.shared, self._engine.current(self.steps)
+        sh.pos[cur, ids], sh.vel[cur, ids] = pos, vel
+
+    def _step_split(self, desired_velocity: Any, controlled: Any) -> None:
+        """One step over the worker processes (see :mod:`crowdsim.decomposition`)."""
+        if desired_velocity is not None or controlled is not None:
+            raise ValueError(_unsupported("step(desired_velocity, controlled)"))
+        if not self._engine.procs:
+            raise ValueError("this simulation's workers were stopped (close() or a failure)")
+        st = self.state
+        self._desired_cache = (np.zeros((st.n, 2)), np.zeros(st.n))  # _spawn extends it
+        self._spawn()
+        eng, st = self._engine, self.state
+        if self._n_total > self._n_pushed:  # entered since the last step: rows at the end
+            new = st.ids >= self._n_pushed
+            ids = st.ids[new]
+            cur = eng.current(self.steps)
+            self._engine_write(ids, st.pos[new], st.vel[new])
+            eng.shared.wp[cur, ids] = st.waypoint[new]
+            eng.shared.alive[cur, ids] = 1
+            self._n_pushed = self._n_total
+        eng.step(self.steps, self.time)
+        self.time = (self.steps + 1) * self.params.dt
+        self.steps += 1
+        sh, cur = eng.shared, eng.current(self.steps)
+        present = sh.alive[cur, st.ids].astype(bool)
+        if not present.all():
+            st.keep(present)
+        st.pos = sh.pos[cur, st.ids]
+        st.vel = sh.vel[cur, st.ids]
+        st.waypoint = sh.wp[cur, st.ids]
+        self._record()
+
+    def close(self) -> None:
+        """Stop the worker processes and free their shared memory (``workers > 1``; a
+        no-op otherwise). The simulation cannot step after this."""
+        if self._engine is not None:
+            self._engine.close()
+
+    def __enter__(self) -> Simulation:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def _record(self) -> None:
         if self._recorder is not None:
             self._recorder.record(self.state.ids, self.state.pos)
@@ -709,6 +828,10 @@ def _jsonable(obj: Any) -> Any:
     if isinstance(obj, np.generic):
         return obj.item()
     return obj
+
+
+def _unsupported(feature: str) -> str:
+    return f"{feature} is not supported with workers > 1; use workers=1"
 
 
 def _ids_array(ids: Any, where: str) -> np.ndarray:

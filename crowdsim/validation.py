@@ -9,11 +9,15 @@
   ``1 / (neighbours in the band)`` for a random mix, which :func:`random_mix_lane_order`
   estimates on the same positions by shuffling the walking directions.
 * :func:`max_overlap` returns the deepest body overlap as a fraction of the smaller radius.
+* :func:`split_validation` checks that splitting the simulator across worker processes
+  (``Simulation(..., workers=N)``) changes no physics: speed-density points, overlaps and
+  lane order at each worker count next to the one-process run and its seed-to-seed spread.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -30,8 +34,14 @@ def max_overlap(pos: np.ndarray, radius: np.ndarray, period: float = 0.0) -> flo
     ----------
     pos : (n, 2) m; radius : (n,) m; period : periodic x length in m (0 = none).
     """
+    return overlap_stats(pos, radius, period)[1]
+
+
+def overlap_stats(pos: np.ndarray, radius: np.ndarray, period: float = 0.0) -> tuple[float, float]:
+    """Mean and deepest overlap ``(r_i + r_j - d_ij) / min(r_i, r_j)`` over the overlapping
+    pairs (``(0, 0)`` if none); arguments as :func:`max_overlap`."""
     if len(pos) < 2:
-        return 0.0
+        return 0.0, 0.0
     rmax = float(radius.max())
     if period > 0:
         span = float(pos[:, 1].max() - pos[:, 1].min()) + 4 * rmax + 1.0
@@ -45,11 +55,12 @@ def max_overlap(pos: np.ndarray, radius: np.ndarray, period: float = 0.0) -> flo
         pairs = tree.query_pairs(2 * rmax, output_type="ndarray")
         d = pos[pairs[:, 0]] - pos[pairs[:, 1]]
     if len(pairs) == 0:
-        return 0.0
+        return 0.0, 0.0
     dist = np.hypot(d[:, 0], d[:, 1])
     depth = radius[pairs[:, 0]] + radius[pairs[:, 1]] - dist
     rel = depth / np.minimum(radius[pairs[:, 0]], radius[pairs[:, 1]])
-    return float(max(0.0, rel.max()))
+    rel = rel[rel > 0]
+    return (float(rel.mean()), float(rel.max())) if len(rel) else (0.0, 0.0)
 
 
 def lane_order_parameter(
@@ -117,8 +128,12 @@ def periodic_corridor(
     right_fraction: float = 1.0,
     seed: int = 0,
     params: SocialForceParams | None = None,
+    record: bool = True,
+    *,
+    workers: int = 1,
 ) -> Simulation:
-    """A periodic corridor filled at ``density`` (the scenario used by the validations)."""
+    """A periodic corridor filled at ``density`` (the scenario used by the validations),
+    stepped by ``workers`` processes."""
     n = max(2, int(round(density * length * width)))
     sc = make_scenario(
         "counterflow",
@@ -129,7 +144,7 @@ def periodic_corridor(
         periodic=True,
         inflow=False,
     )
-    return Simulation(sc, seed=seed, params=params)
+    return Simulation(sc, seed=seed, params=params, record=record, workers=workers)
 
 
 def fundamental_diagram(
@@ -226,8 +241,11 @@ def lane_formation(
     every_s: float = 2.0,
     seed: int = 0,
     params: SocialForceParams | None = None,
+    *,
+    workers: int = 1,
 ) -> dict[str, list[float]]:
-    """Lane order over time in a periodic counterflow corridor, and the random-mix level."""
+    """Lane order over time in a periodic counterflow corridor, and the random-mix level
+    (``workers`` processes step the corridor)."""
     sc = make_scenario(
         "counterflow",
         n_agents=n_agents,
@@ -237,7 +255,7 @@ def lane_formation(
         periodic=True,
         inflow=False,
     )
-    sim = Simulation(sc, seed=seed, params=params, record=False)
+    sim = Simulation(sc, seed=seed, params=params, record=False, workers=workers)
     sign = np.where(sim.state.route == 0, 1, -1)
     period = sim.world.period
     rng = np.random.default_rng(seed)
@@ -249,4 +267,135 @@ def lane_formation(
             order.append(lane_order_parameter(sim.state.pos, sign, period=period))
             mix.append(random_mix_lane_order(sim.state.pos, sign, rng, period=period))
         sim.step()
+    sim.close()
     return {"time": times, "lane_order": order, "random_mix": mix}
+
+
+SPLIT_SPEED_BAND = 0.2
+"""Fundamental-diagram band of :func:`split_validation`: within ±20 % of Weidmann (SPEC §3)."""
+
+
+def corridor_speed(
+    density: float,
+    seed: int = 0,
+    length: float = 20.0,
+    width: float = 5.0,
+    warmup_s: float = 10.0,
+    measure_s: float = 10.0,
+    *,
+    workers: int = 1,
+) -> dict[str, float]:
+    """Mean walking speed (m/s) and overlaps of a unidirectional periodic corridor.
+
+    A light fundamental-diagram point (no PedPy): the global density ``n / (L W)`` and the
+    mean x-velocity of all agents over ``measure_s`` seconds after ``warmup_s``; mean and
+    deepest overlap over the measured steps (sampled every 25 steps).
+    """
+    with periodic_corridor(density, length, width, seed=seed, record=False, workers=workers) as sim:
+        dt, period = sim.params.dt, sim.world.period
+        sim.run(int(round(warmup_s / dt)))
+        speeds, means, worst = [], [], 0.0
+        for t in range(int(round(measure_s / dt))):
+            sim.step()
+            speeds.append(float(sim.state.vel[:, 0].mean()))
+            if t % 25 == 0:
+                mean_ov, max_ov = overlap_stats(sim.state.pos, sim.state.radius, period)
+                means.append(mean_ov)
+                worst = max(worst, max_ov)
+        rho = sim.state.n / (period * width)
+    speed = float(np.mean(speeds))
+    return {
+        "density": rho,
+        "speed": speed,
+        "weidmann": float(weidmann_speed(rho)),
+        "ratio": speed / float(weidmann_speed(rho)),
+        "mean_overlap": float(np.mean(means)),
+        "max_overlap": worst,
+    }
+
+
+def split_validation(
+    workers: list[int],
+    densities: tuple[float, ...] = (1.0, 2.0, 3.0),
+    seeds: tuple[int, int] = (0, 1),
+    lane_seconds: float = 30.0,
+    warmup_s: float = 10.0,
+    measure_s: float = 10.0,
+) -> dict[str, Any]:
+    """Does splitting the simulator across processes change its physics?
+
+    For each worker count (and a second seed of the one-process run, the run-to-run
+    noise): speed-density points of periodic corridors (:func:`corridor_speed`), checked
+    against Weidmann's band (±20 %); mean and deepest overlaps; the final lane order of
+    :func:`lane_formation` (mean of its last quarter). A worker count passes when its
+    points lie in the band and each figure is within the one-process value by at most
+    ``max(2 x seed spread, floor)`` (floors: 0.05 m/s, 0.05 lane order, 0.05 overlap).
+
+    Returns ``{"runs": [{"label", "workers", "seed", "points", "lane_order", ...}],
+    "checks": {workers: {...}}}`` (JSON-ready).
+    """
+    runs = []
+    plan = [(1, seeds[0]), (1, seeds[1])] + [(w, seeds[0]) for w in workers if w != 1]
+    for w, seed in plan:
+        points = [
+            corridor_speed(rho, seed, warmup_s=warmup_s, measure_s=measure_s, workers=w)
+            for rho in densities
+        ]
+        lanes = lane_formation(seconds=lane_seconds, seed=seed, workers=w)
+        late = max(1, len(lanes["lane_order"]) // 4)
+        runs.append(
+            {
+                "label": f"{w} worker{'s' if w > 1 else ''}, seed {seed}",
+                "workers": w,
+                "seed": seed,
+                "points": points,
+                "lane_order": float(np.mean(lanes["lane_order"][-late:])),
+                "random_mix": float(np.mean(lanes["random_mix"][-late:])),
+                "in_band": all(abs(p["ratio"] - 1) <= SPLIT_SPEED_BAND for p in points),
+            }
+        )
+    ref, other = runs[0], runs[1]
+
+    def tol(key: str, floor: float, a: dict[str, Any], b: dict[str, Any]) -> float:
+        return max(2 * abs(a[key] - b[key]), floor)
+
+    checks: dict[str, Any] = {}
+    for run in runs[2:]:
+        speed_ok = all(
+            abs(p["speed"] - q["speed"]) <= tol("speed", 0.05, q, o)
+            for p, q, o in zip(run["points"], ref["points"], other["points"], strict=True)
+        )
+        overlap_ok = all(
+            p["max_overlap"] <= q["max_overlap"] + tol("max_overlap", 0.05, q, o)
+            for p, q, o in zip(run["points"], ref["points"], other["points"], strict=True)
+        )
+        lane_ok = abs(run["lane_order"] - ref["lane_order"]) <= tol("lane_order", 0.05, ref, other)
+        checks[str(run["workers"])] = {
+            "fd_in_band": run["in_band"],
+            "speed_matches": speed_ok,
+            "overlap_matches": overlap_ok,
+            "lanes_match": lane_ok,
+            "passed": bool(run["in_band"] and speed_ok and overlap_ok and lane_ok),
+        }
+    return {"runs": runs, "checks": checks}
+
+
+def format_split_validation(report: dict[str, Any]) -> str:
+    """The table of :func:`split_validation` (one row per run and density)."""
+    lines = [
+        f"{'run':<22} {'rho':>5} {'v (m/s)':>8} {'Weidmann':>9} {'ratio':>6} "
+        f"{'mean ov':>8} {'max ov':>7} {'lanes':>6} {'mix':>5}"
+    ]
+    for run in report["runs"]:
+        for k, p in enumerate(run["points"]):
+            lanes = f"{run['lane_order']:>6.2f} {run['random_mix']:>5.2f}" if k == 0 else ""
+            lines.append(
+                f"{run['label'] if k == 0 else '':<22} {p['density']:>5.2f} {p['speed']:>8.3f} "
+                f"{p['weidmann']:>9.3f} {p['ratio']:>6.2f} {p['mean_overlap']:>8.3f} "
+                f"{p['max_overlap']:>7.3f} {lanes}"
+            )
+    for w, c in report["checks"].items():
+        verdict = "passed" if c["passed"] else "FAILED"
+        detail = ", ".join(f"{k}={v}" for k, v in c.items() if k != "passed")
+        lines.append(f"{w} workers vs 1: {verdict} ({detail})")
+    return "\n".join(lines)

@@ -62,6 +62,7 @@ CROWDSIM_LAYERS: dict[str, frozenset[str]] = {
     ),
     "sim": frozenset(
         {
+            "crowdsim.decomposition",
             "crowdsim.forces",
             "crowdsim.params",
             "crowdsim.scenarios",

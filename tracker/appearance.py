@@ -22,6 +22,7 @@ from abc import ABC, abstractmethod
 import cv2
 import numpy as np
 import scipy.fft
+from numba import njit, prange
 from numpy.lib.stride_tricks import sliding_window_view
 
 from tracker.threads import current_threads
@@ -81,6 +82,29 @@ def gaussian_label(size: int, sigma: float) -> np.ndarray:
     d = np.arange(size) - size // 2
     g = np.exp(-0.5 * (d / sigma) ** 2)
     return np.outer(g, g).astype(np.float32)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _cross_spectrum(xf, zf, out):
+    """``out[i] = sum_c conj(xf[i, c]) zf[i, c]`` over ``(n, C, F)`` spectra, one target per
+    loop iteration (the same result for any number of threads)."""
+    for i in prange(xf.shape[0]):
+        for f in range(xf.shape[2]):
+            acc = np.conj(xf[i, 0, f]) * zf[i, 0, f]
+            for c in range(1, xf.shape[1]):
+                acc += np.conj(xf[i, c, f]) * zf[i, c, f]
+            out[i, f] = acc
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _blend_rows(dst, rows, src, rate):
+    """``dst[rows[q]] = (1 - rate) dst[rows[q]] + rate src[q]`` in place, one row per loop
+    iteration (the running-average model update of :meth:`KCFAppearance.update`)."""
+    keep = 1 - rate
+    for q in prange(rows.shape[0]):
+        r = rows[q]
+        for e in range(dst.shape[1]):
+            dst[r, e] = keep * dst[r, e] + rate * src[q, e]
 
 
 def _channel_sum(a: np.ndarray) -> np.ndarray:
@@ -228,7 +252,11 @@ class KCFAppearance(AppearanceModel):
         """Spectrum ``k_hat^{xz}`` of the kernel correlation over all cyclic shifts."""
         w = self.window
         numel = np.float32(w * w * xf.shape[1])
-        cross = _channel_sum(np.conj(xf) * zf)
+        n, c = xf.shape[:2]
+        cross = np.empty((n,) + xf.shape[2:], np.complex64)
+        _cross_spectrum(
+            xf.reshape(n, c, -1), np.ascontiguousarray(zf).reshape(n, c, -1), cross.reshape(n, -1)
+        )
         if self.kernel == "linear":
             return (cross / numel).astype(np.complex64)
         xz = scipy.fft.irfft2(cross, s=(w, w), axes=(-2, -1), workers=self._workers())
@@ -282,8 +310,15 @@ class KCFAppearance(AppearanceModel):
             return
         xf = self._features(frame, np.asarray(centers).reshape(-1, 2)[sel], train=True)
         lr = np.float32(self.learning_rate)
-        self.xf[sel] = (1 - lr) * self.xf[sel] + lr * xf
-        self.alphaf[sel] = (1 - lr) * self.alphaf[sel] + lr * self._train(xf)
+        n, m = self.n, len(sel)
+        alphaf = self._train(xf)
+        # in place: the models must be C-contiguous for their (n, -1) reshape to be a view
+        self.xf = np.ascontiguousarray(self.xf)
+        self.alphaf = np.ascontiguousarray(self.alphaf)
+        _blend_rows(
+            self.xf.reshape(n, -1), sel, xf.astype(np.complex64, copy=False).reshape(m, -1), lr
+        )
+        _blend_rows(self.alphaf.reshape(n, -1), sel, alphaf.reshape(m, -1), lr)
 
 
 class NCCAppearance(AppearanceModel):

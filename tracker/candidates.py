@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import minimum_filter
+from numba import njit, prange
 
 
 @dataclass
@@ -164,28 +164,94 @@ def speedup_candidates(
     k = m * (1 + ns)
     if n == 0:
         return Candidates.empty(k)
-    flat = cost_map.reshape(n, -1).astype(np.float64)
-    is_min = cost_map == minimum_filter(cost_map, size=(1, 3, 3), mode="nearest")
+    flat = np.ascontiguousarray(cost_map, dtype=np.float64).reshape(n, side, side)
     big = (np.abs(flat).max() + 1.0) * 4.0
-    key = flat + np.where(is_min.reshape(n, -1), 0.0, big)
-    ext = (
-        np.argpartition(key, m - 1, axis=1)[:, :m]
-        if m < key.shape[1]
-        else np.tile(np.arange(key.shape[1]), (n, 1))
-    )
-    ext = np.take_along_axis(ext, np.argsort(np.take_along_axis(key, ext, 1), 1), 1)
-    ey, ex = np.divmod(ext, side)  # (n, m)
     lo = window // 2
     d = np.arange(-lo, window - lo)
     oy, ox = np.meshgrid(d, d, indexing="ij")
     keep = ~((oy == 0) & (ox == 0)).ravel()
-    offs = np.stack([ox.ravel()[keep], oy.ravel()[keep]], 1)  # (n_off, 2)
-    pick = np.argsort(rng.random((n, m, n_off)), axis=2)[:, :, :ns]  # (n, m, ns)
-    sx = np.clip(ex[:, :, None] + offs[pick, 0], 0, side - 1)
-    sy = np.clip(ey[:, :, None] + offs[pick, 1], 0, side - 1)
-    samples = (sy * side + sx).reshape(n, m * ns)
-    cell = np.concatenate([ext, samples], axis=1)
-    return _gather(centers, radius, cost_map, app_map, cell)
+    offs = np.stack([ox.ravel()[keep], oy.ravel()[keep]], 1).astype(np.int64)  # (n_off, 2)
+    draws = rng.random((n, m, n_off))  # one draw per target, extremum and offset
+    cell = np.empty((n, k), np.int64)
+    _speedup_cells(flat, big, m, ns, offs, draws, cell)
+    pos = np.empty((n, k, 2))
+    cost = np.empty((n, k))
+    app = np.empty((n, k), np.float32)
+    _gather_cells(
+        np.asarray(centers, np.float64).reshape(-1, 2),
+        radius,
+        flat,
+        np.ascontiguousarray(app_map, dtype=np.float32).reshape(n, side, side),
+        cell,
+        pos,
+        cost,
+        app,
+    )
+    return Candidates(pos, cost, app, cell)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _speedup_cells(cost, big, m, ns, offs, draws, cell):
+    """The cells of :func:`speedup_candidates`, one target per loop iteration (the same for
+    any number of threads).
+
+    A cell is a local minimum when no cell of its 3x3 neighbourhood (clipped to the grid, as
+    ``mode="nearest"``) is lower. Extrema: the ``m`` lowest local minima, then the lowest other
+    cells (``big`` added to their cost), ties to the lower index. Around extremum ``e`` the
+    ``ns`` offsets with the smallest ``draws[t, e]`` (a random permutation's first ``ns``).
+    """
+    n, side = cost.shape[0], cost.shape[1]
+    cells = side * side
+    n_off = offs.shape[0]
+    for t in prange(n):
+        key = np.empty(cells)
+        for y in range(side):
+            for x in range(side):
+                v = cost[t, y, x]
+                low = v
+                for yy in range(max(y - 1, 0), min(y + 2, side)):
+                    for xx in range(max(x - 1, 0), min(x + 2, side)):
+                        if cost[t, yy, xx] < low:
+                            low = cost[t, yy, xx]
+                key[y * side + x] = v if v == low else v + big
+        # the m lowest keys, ascending (ties: lower index), by repeated selection
+        taken = np.zeros(cells, np.bool_)
+        for e in range(m):
+            best = -1
+            for q in range(cells):
+                if not taken[q] and (best < 0 or key[q] < key[best]):
+                    best = q
+            taken[best] = True
+            cell[t, e] = best
+        used = np.zeros(n_off, np.bool_)
+        for e in range(m):
+            ey = cell[t, e] // side
+            ex = cell[t, e] % side
+            for q in range(n_off):
+                used[q] = False
+            for s in range(ns):
+                best = -1
+                for q in range(n_off):
+                    if not used[q] and (best < 0 or draws[t, e, q] < draws[t, e, best]):
+                        best = q
+                used[best] = True
+                sx = min(max(ex + offs[best, 0], 0), side - 1)
+                sy = min(max(ey + offs[best, 1], 0), side - 1)
+                cell[t, m + e * ns + s] = sy * side + sx
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _gather_cells(centers, radius, cost_map, app_map, cell, pos, cost, app):
+    """Positions, linear costs and appearance scores of the chosen ``cell`` (per target)."""
+    side = cost_map.shape[1]
+    for t in prange(cell.shape[0]):
+        for q in range(cell.shape[1]):
+            cy = cell[t, q] // side
+            cx = cell[t, q] % side
+            pos[t, q, 0] = centers[t, 0] + (cx - radius)
+            pos[t, q, 1] = centers[t, 1] + (cy - radius)
+            cost[t, q] = cost_map[t, cy, cx]
+            app[t, q] = app_map[t, cy, cx]
 
 
 def search_radius(template_size: int, search_factor: float) -> int:

@@ -3,7 +3,8 @@
 A tracker runs its numba kernels (``parallel=True``) and SciPy FFTs on the threads set here.
 :class:`tracker.base.Tracker` enters :func:`using_threads` around every frame with its
 ``threads`` attribute; ``None`` leaves numba's current setting alone (all cores in a plain
-process, one in :mod:`crowdsim.jobs` pool workers).
+process, one in :mod:`crowdsim.jobs` pool workers). Frames with fewer than
+``Tracker.parallel_min_targets`` targets run on one thread.
 
 Every parallel kernel gives each loop iteration (a target pair, a target, a connected
 component of the problem) to one thread and sums in a fixed order, so tracks are the same

@@ -12,6 +12,14 @@ reported so that speed is never bought with interpenetration.
 Peers come from the ``bench`` extra (``pip install -e '.[bench]'``); a missing peer is
 reported as skipped. ``--scale N`` also runs ours alone with N agents in a fresh process and
 reports its steps/s and peak memory (RSS).
+
+``--workers 1 2 4`` adds the simulator split across processes (:mod:`crowdsim.decomposition`):
+ours alone on the same corridor at each ``--split-sizes`` count (default 10k and 100k
+agents), each worker count in a fresh process, with steps/s and the speed-up over one
+worker (SPEC §9: 100k agents >= 1.7x with 2 workers). ``--validate`` also checks that the
+split changes no physics, at every worker count next to the 1-worker run
+(:func:`crowdsim.validation.split_validation`: fundamental-diagram band, overlaps, lane
+order). Without ``--workers`` the benchmark is the one-process comparison above.
 """
 
 from __future__ import annotations
@@ -139,15 +147,16 @@ def _ours_scenario(layout: Layout):
     )
 
 
-def run_ours(layout: Layout) -> dict[str, Any]:
+def run_ours(layout: Layout, workers: int = 1) -> dict[str, Any]:
     from crowdsim.simulation import Simulation
 
-    sim = Simulation(_ours_scenario(layout), seed=0, record=False)
-    wall = _timed(sim.step)
+    with Simulation(_ours_scenario(layout), seed=0, record=False, workers=workers) as sim:
+        wall = _timed(sim.step)
     if sim.state.n != len(layout.radii):
         raise RuntimeError("agents left the benchmark corridor; make it longer")
+    extra = {"workers": workers} if workers > 1 else {}
     return _result(
-        "crowdsim", len(layout.radii), sim.params.dt, wall, sim.state.pos, sim.state.radius
+        "crowdsim", len(layout.radii), sim.params.dt, wall, sim.state.pos, sim.state.radius, **extra
     )
 
 
@@ -250,11 +259,12 @@ def run_pysocialforce(layout: Layout, dt: float = 0.4) -> dict[str, Any]:
 # ------------------------------------------------------------------------------ scale run
 
 
-def run_scale(n: int) -> dict[str, Any]:
-    """Ours alone with ``n`` agents, in a fresh process (for a clean peak-RSS figure)."""
+def run_scale(n: int, workers: int = 1) -> dict[str, Any]:
+    """Ours alone with ``n`` agents, in a fresh process (for a clean peak-RSS figure; with
+    ``workers > 1`` the RSS is the parent's only)."""
     code = (
         "import json,resource,sys;from crowdsim.bench.sim import corridor_layout,run_ours;"
-        f"r=run_ours(corridor_layout({n}));"
+        f"r=run_ours(corridor_layout({n}),{int(workers)});"
         "r['peak_rss_mb']=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss/1024;"
         "print(json.dumps(r))"
     )
@@ -293,6 +303,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="peers to run: jupedsim, pysocialforce, or none",
     )
     parser.add_argument(
+        "--workers",
+        type=int,
+        nargs="+",
+        default=None,
+        metavar="N",
+        help="also run ours split across N worker processes, for each N given "
+        "(1..os.cpu_count(), e.g. --workers 1 2 4), and report the speed-up over 1",
+    )
+    parser.add_argument(
+        "--split-sizes",
+        default="10000,100000",
+        help="agent counts for the --workers runs (default 10000,100000)",
+    )
+    parser.add_argument(
+        "--validate",
+        action="store_true",
+        help="with --workers: check the split changes no physics (fundamental diagram, "
+        "overlaps, lane order at each worker count next to 1 worker)",
+    )
+    parser.add_argument(
         "--json-out", default=None, metavar="FILE", help="also write the JSON to FILE"
     )
 
@@ -307,8 +337,40 @@ def _parse_sizes(text: str) -> list[int]:
     return sizes
 
 
+def _parse_workers(values: list[int] | None) -> list[int]:
+    import os
+
+    if values is None:
+        return []
+    cpus = os.cpu_count() or 1
+    bad = [w for w in values if not 1 <= w <= cpus]
+    if bad:
+        raise ValueError(f"--workers must be in [1, {cpus}] (os.cpu_count()), got {bad[0]}")
+    return sorted(set(values) | {1})
+
+
+def run_split(sizes: list[int], workers: list[int]) -> list[dict[str, Any]]:
+    """Steps/s of ours at each worker count (fresh process each) and the speed-up over 1."""
+    from crowdsim.progress import progress_bar
+
+    rows = []
+    jobs = [(n, w) for n in sizes for w in workers]
+    for n, w in progress_bar(jobs, desc="bench sim --workers", unit="run", leave=True):
+        r = run_scale(n, w)
+        r["workers"] = w
+        rows.append(r)
+    for r in rows:
+        base = next(b for b in rows if b["agents"] == r["agents"] and b["workers"] == 1)
+        r["speedup"] = r["steps_per_s"] / base["steps_per_s"]
+    return rows
+
+
 def run(args: argparse.Namespace) -> int:
     sizes = _parse_sizes(args.sizes)
+    workers = _parse_workers(args.workers)
+    split_sizes = _parse_sizes(args.split_sizes) if workers else []
+    if args.validate and not workers:
+        raise ValueError("--validate needs --workers (e.g. --workers 1 2 4)")
     peers = {p.strip() for p in args.peers.split(",") if p.strip() and p.strip() != "none"}
     unknown = peers - {"jupedsim", "pysocialforce"}
     if unknown:
@@ -340,6 +402,12 @@ def run(args: argparse.Namespace) -> int:
         except DependencyNotInstalled as exc:
             skipped[name] = str(exc)
     scale = run_scale(args.scale) if args.scale else None
+    split = run_split(split_sizes, workers) if workers else None
+    validation = None
+    if args.validate:
+        from crowdsim.validation import split_validation
+
+        validation = split_validation(workers)
     ratios = []
     for ours in (r for r in results if r["simulator"] == "crowdsim"):
         for peer in results:
@@ -362,6 +430,8 @@ def run(args: argparse.Namespace) -> int:
         "results": results,
         "ratios": ratios,
         "scale": scale,
+        "split": split,
+        "split_validation": validation,
         "skipped": skipped,
     }
     _print_table(report)
@@ -397,5 +467,17 @@ def _print_table(report: dict[str, Any]) -> None:
             f"\nscale: {s['agents']} agents, {s['steps_per_s']:.1f} steps/s, "
             f"peak RSS {s['peak_rss_mb']:.0f} MB"
         )
+    if report.get("split"):
+        print("\nsplit across processes (ours alone, fresh process per run)")
+        print(f"  {'agents':>7} {'workers':>7} {'steps/s':>9} {'speed-up':>9} {'mean ov':>8}")
+        for r in report["split"]:
+            print(
+                f"  {r['agents']:>7} {r['workers']:>7} {r['steps_per_s']:>9.2f} "
+                f"{r['speedup']:>8.2f}x {r['mean_overlap']:>8.3f}"
+            )
+    if report.get("split_validation"):
+        from crowdsim.validation import format_split_validation
+
+        print("\n" + format_split_validation(report["split_validation"]))
     for name, why in report["skipped"].items():
         print(f"skipped {name}: {why}")

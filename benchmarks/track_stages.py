@@ -1,0 +1,92 @@
+"""BQP per-stage milliseconds on fixed frames, for comparing two versions of the code.
+
+Runs the BQP tracker (speed-up sampling) on the ``crowdsim bench track`` crowds of
+``--targets`` people (spread over 1280x720 and packed at 2.5 people/m^2, 30 frames) and, with
+``--sequence DIR``, on the first ``--frames`` frames of a MOT sequence (e.g. the stress
+suite's 10k sequence); best of ``--repeats`` runs. It only uses interfaces that older
+versions have too, so the same frames can be timed before and after a change::
+
+    git archive 4860528 | tar -x -C /tmp/before
+    (cd /tmp && PYTHONPATH=/tmp/before python /path/to/benchmarks/track_stages.py --threads 1)
+    python benchmarks/track_stages.py --threads 1
+    python benchmarks/track_stages.py --threads 2
+
+``--threads`` sets numba's threads (the code before threads existed used one). Prints a
+table and one JSON object; ``tracks_sha1`` identifies the tracks (equal across thread counts).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+
+import numba
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--targets", type=int, default=1000)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--sequence", default=None, metavar="DIR")
+    ap.add_argument("--frames", type=int, default=9)
+    args = ap.parse_args()
+    if not 1 <= args.threads <= numba.config.NUMBA_NUM_THREADS:
+        ap.error(f"--threads must be in [1, {numba.config.NUMBA_NUM_THREADS}], got {args.threads}")
+    numba.set_num_threads(args.threads)
+
+    from crowdsim.bench.track import packed_size
+    from crowdsim.render import default_px_per_m
+    from synth_data.sequence import open_sequence, synthetic_crowd
+    from tracker.registry import make_tracker
+    from tracker.runner import run_tracker
+
+    warm = synthetic_crowd(4, 3, 0, 12, size=(160, 120))
+    run_tracker(make_tracker("bqp"), warm, metrics="none")
+    cases = {}
+    for packed in (False, True):
+        size = packed_size(args.targets, default_px_per_m(12)) if packed else (1280, 720)
+        crowd = synthetic_crowd(
+            args.targets,
+            30,
+            0,
+            12,
+            size=size,
+            contrast=0.3 if packed else 1.0,
+            noise_sigma=8.0 if packed else 3.0,
+        )
+        cases[f"{args.targets} {'packed' if packed else 'spread'} {size[0]}x{size[1]}"] = (
+            crowd,
+            None,
+            "accuracy",
+        )
+    if args.sequence:
+        cases[args.sequence] = (open_sequence(args.sequence), args.frames, "none")
+    rows = {}
+    for name, (src, frames, metrics) in cases.items():
+        best = None
+        for _ in range(args.repeats):
+            r = run_tracker(make_tracker("bqp"), src, frames=frames, metrics=metrics)
+            row = {
+                "fps": r.fps,
+                **{k: r.stage_ms.get(k, 0.0) for k in ("appearance", "terms", "solve")},
+            }
+            if metrics == "accuracy":
+                row["acc@15"] = r.report["acc@15"]
+            row["tracks_sha1"] = hashlib.sha1(r.result.positions.tobytes()).hexdigest()[:12]
+            if best is None or row["fps"] > best["fps"]:
+                best = row
+        rows[name] = best
+    print(f"{'case':<44}{'fps':>7}{'app ms':>8}{'terms':>8}{'solve':>8}  tracks")
+    for name, r in rows.items():
+        print(
+            f"{name[-44:]:<44}{r['fps']:>7.2f}{r['appearance']:>8.1f}{r['terms']:>8.1f}"
+            f"{r['solve']:>8.1f}  {r['tracks_sha1']}"
+        )
+    print(json.dumps({"benchmark": "track_stages", "threads": args.threads, "cases": rows}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

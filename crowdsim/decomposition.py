@@ -1,0 +1,650 @@
+"""The simulator split across worker processes: domain decomposition over strips.
+
+Two pymunk spaces in two threads do not run in parallel (pymunk holds the GIL while it
+steps), so :class:`crowdsim.simulation.Simulation` with ``workers=N > 1`` cuts the world into
+``N`` strips and steps each in its own process with its own pymunk space.
+
+Strips
+    The world is cut into ``N`` equal strips along its longer axis (along x for a periodic
+    world), chosen from the world geometry and ``N`` only (:func:`strip_layout`). An agent
+    belongs to the strip that holds its centre; the first and last strips extend to
+    infinity (a periodic world wraps instead).
+
+Halo
+    Worker ``k`` keeps one pymunk body for every agent within ``halo = cutoff + 0.5 m`` of its
+    strip: its own agents and *halo* copies of its neighbours' agents near the borders. Halo
+    bodies are ordinary dynamic bodies with the same mass, radius and social force as the
+    original, so contacts across a border are resolved with the right masses; their result
+    is thrown away, and at the start of every step they are reset to their owner's state.
+    Social forces of the owned agents are exact (every neighbour within ``cutoff`` is
+    present); only the outer edge of a halo, at least 0.5 m from the owned agents, misses
+    some of its own contacts within one step.
+
+Migration
+    Ownership follows positions: after a step an agent whose centre crossed a border is
+    owned by the neighbour from the next step on. It already has a halo body there (it was
+    within the halo), and it stays a halo body on the side it left, so migration changes
+    no body, only who writes the agent's state back.
+
+Shared memory and step barrier
+    Positions, velocities, route progress and the "present" flag live in one
+    ``multiprocessing.shared_memory`` block indexed by agent id, twice: step ``k`` reads
+    buffer ``k % 2`` and each worker writes the agents it owns into the other one, so no
+    worker ever reads a half-written state. The parent sends "step" to every worker and
+    waits for all replies (the barrier), watching the process sentinels: a worker that
+    dies ends the run with :class:`WorkerFailed` naming the worker and the step, and every
+    worker is stopped and the memory unlinked (also on ``close()``, garbage collection and
+    interpreter exit).
+
+Determinism
+    Each worker sees exactly the same inputs at every step whatever the timing (the double
+    buffer and the barrier), adds and removes bodies in ascending id order, and the force
+    kernels sum in a fixed order whatever their thread count: the same scenario, seed and
+    ``N`` give bit-identical trajectories. Different ``N`` give different (equally valid)
+    trajectories: sums run in another order and border contacts are solved in two spaces.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import traceback
+import types
+import weakref
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from multiprocessing import connection, shared_memory
+from typing import Any
+
+import numpy as np
+import pymunk
+import pymunk.batch as pb
+
+from crowdsim.forces import WallGrid, contact_space, social_force
+from crowdsim.params import SocialForceParams
+from crowdsim.world import RouteTable, World
+
+_BODY = pb.BodyFields
+
+HALO_MARGIN = 0.5
+"""Metres of halo beyond the interaction cutoff: halo bodies within this distance of the
+owned agents have all their contacts and all their social forces."""
+
+START_TIMEOUT_S = 120.0
+"""Seconds a worker may take to start (import numba and pymunk, build its space)."""
+
+HASH_CELL = 2.0
+"""Cell size (m) of the spatial hash that is each worker's pymunk broad phase."""
+
+STOP_GRACE_S = 2.0
+"""Seconds a worker gets to exit after "stop" before it is terminated, then killed."""
+
+STATIC_FIELDS = ("radius", "desired_speed", "route", "group", "stop_start", "stop_end")
+"""Per-agent attributes that never change during a run: sent once to every worker."""
+
+_TEST_DIE_AT: tuple[int, int] | None = None
+"""Test hook: ``(worker, step)`` makes that worker kill itself (SIGKILL) at that step."""
+
+
+class WorkerFailed(RuntimeError):
+    """A worker process died or raised; ``worker`` and ``step`` say which and when.
+
+    The message is one line: ``worker 1 (pid 4242) died at step 17 (killed by SIGKILL)``.
+    """
+
+    def __init__(self, worker: int, step: int, message: str) -> None:
+        super().__init__(message)
+        self.worker = worker
+        self.step = step
+
+
+# ------------------------------------------------------------------------------ strips
+
+
+@dataclass(frozen=True)
+class StripLayout:
+    """How the world is cut: ``n`` strips of ``width`` m along ``axis`` from ``lo``.
+
+    Attributes
+    ----------
+    axis : int
+        0 = strips side by side along x, 1 = along y.
+    lo, width : float
+        Start of the first strip and width of every strip, m.
+    n : int
+        Number of strips (= workers).
+    period : float
+        Periodic length of the x axis (0 = none); then ``axis = 0``, ``lo = 0``.
+    halo : float
+        Halo width, m.
+    """
+
+    axis: int
+    lo: float
+    width: float
+    n: int
+    period: float
+    halo: float
+
+    def owner(self, coord: np.ndarray) -> np.ndarray:
+        """Strip ``(m,)`` int64 of the coordinates ``coord`` ``(m,)`` along ``axis`` (m)."""
+        k = np.floor((coord - self.lo) / self.width)
+        return np.clip(k, 0, self.n - 1).astype(np.int64)
+
+    def window(self, k: int) -> tuple[float, float]:
+        """``(lo, hi)`` of the bodies worker ``k`` keeps: its strip plus the halo (an end
+        strip of a non-periodic world reaches to infinity)."""
+        lo = self.lo + k * self.width - self.halo
+        hi = self.lo + (k + 1) * self.width + self.halo
+        if self.period <= 0:
+            lo = -np.inf if k == 0 else lo
+            hi = np.inf if k == self.n - 1 else hi
+        return lo, hi
+
+    def local(self, k: int, coord: np.ndarray) -> np.ndarray:
+        """Coordinates ``(m,)`` in worker ``k``'s unwrapped frame: in a periodic world the
+        image nearest to the strip's centre (the worker's space has no seam)."""
+        if self.period <= 0:
+            return coord
+        c = self.lo + (k + 0.5) * self.width
+        return c + np.mod(coord - c + 0.5 * self.period, self.period) - 0.5 * self.period
+
+
+def strip_layout(world: World, n: int, cutoff: float) -> StripLayout:
+    """Cut ``world`` into ``n`` equal strips along its longer axis (x when periodic).
+
+    Raises ``ValueError`` when a strip would be narrower than twice the halo
+    (``cutoff + HALO_MARGIN``): the halo must come from the immediate neighbours only.
+    """
+    halo = float(cutoff) + HALO_MARGIN
+    if world.period > 0:
+        axis, lo, span = 0, 0.0, float(world.period)
+    else:
+        xmin, ymin, xmax, ymax = (float(b) for b in world.bounds)
+        axis = 0 if xmax - xmin >= ymax - ymin else 1
+        lo, span = (xmin, xmax - xmin) if axis == 0 else (ymin, ymax - ymin)
+    width = span / n
+    if n > 1 and width < 2 * halo:
+        raise ValueError(
+            f"workers={n}: strips of {width:.2f} m along the world's {'xy'[axis]} axis are "
+            f"narrower than twice the halo ({2 * halo:g} m); use fewer workers or workers=1"
+        )
+    return StripLayout(axis, lo, width, n, float(world.period), halo)
+
+
+# ------------------------------------------------------------------------------ shared state
+
+
+class SharedState:
+    """Agent state in shared memory, indexed by agent id, double-buffered.
+
+    ``pos, vel`` ``(2, cap, 2)`` float64 (m, m/s), ``wp`` ``(2, cap)`` int64 (current gate),
+    ``alive`` ``(2, cap)`` uint8 (1 = present). Buffer ``k % 2`` holds the state before
+    step ``k``.
+    """
+
+    def __init__(self, cap: int, name: str | None = None) -> None:
+        self.cap = int(cap)
+        size = self.cap * (2 * 16 + 2 * 16 + 2 * 8 + 2)
+        if name is None:
+            self.shm = shared_memory.SharedMemory(create=True, size=max(size, 1))
+        else:
+            self.shm = shared_memory.SharedMemory(name=name)
+        buf, c = self.shm.buf, self.cap
+        self.pos = np.ndarray((2, c, 2), np.float64, buf, 0)
+        self.vel = np.ndarray((2, c, 2), np.float64, buf, 32 * c)
+        self.wp = np.ndarray((2, c), np.int64, buf, 64 * c)
+        self.alive = np.ndarray((2, c), np.uint8, buf, 80 * c)
+
+    @property
+    def name(self) -> str:
+        return self.shm.name
+
+    def close(self, unlink: bool = False) -> None:
+        """Drop the views and unmap the block (and remove its name when ``unlink``)."""
+        del self.pos, self.vel, self.wp, self.alive
+        self.shm.close()
+        if unlink:
+            try:
+                self.shm.unlink()
+            except FileNotFoundError:
+                pass
+
+
+# ------------------------------------------------------------------------------ parent side
+
+
+class StripEngine:
+    """``n`` worker processes stepping the strips of one simulation (the parent side).
+
+    Parameters
+    ----------
+    world : World
+    routes : RouteTable
+    params : SocialForceParams
+    n_workers : int
+        Number of worker processes (>= 2).
+    static : dict of str to ndarray
+        :data:`STATIC_FIELDS` of the agents with ids ``0 .. n-1``, each ``(n,)``, by id.
+    pos, vel : (n, 2) float64
+        Their positions and velocities, by id.
+    wp : (n,) int64
+        Their current gates, by id.
+    alive : (n,) bool
+        Which of them are present.
+    capacity : int
+        Agent ids the shared memory holds before it must grow (it grows by doubling).
+    """
+
+    def __init__(
+        self,
+        world: World,
+        routes: RouteTable,
+        params: SocialForceParams,
+        n_workers: int,
+        static: dict[str, np.ndarray],
+        pos: np.ndarray,
+        vel: np.ndarray,
+        wp: np.ndarray,
+        alive: np.ndarray,
+        capacity: int,
+    ) -> None:
+        import multiprocessing as mp
+
+        self.layout = strip_layout(world, n_workers, params.cutoff)
+        self.n_workers = n_workers
+        n = len(pos)
+        self.n_known = n
+        self.shared = SharedState(max(capacity, n, 1))
+        self._old_shared: list[SharedState] = []
+        self._pending_static: list[dict[str, np.ndarray]] = []
+        self.procs: list[Any] = []
+        self.conns: list[Any] = []
+        self._state = {"procs": self.procs, "conns": self.conns, "shared": [self.shared]}
+        self._finalizer = weakref.finalize(self, _shutdown, self._state)
+        sh = self.shared
+        sh.alive[:] = 0
+        sh.pos[0, :n], sh.vel[0, :n], sh.wp[0, :n], sh.alive[0, :n] = pos, vel, wp, alive
+        ctx = mp.get_context("spawn")  # numba's thread pools are not fork-safe
+        threads = max(1, (os.cpu_count() or 1) // n_workers)
+        for k in range(n_workers):
+            parent_end, child_end = ctx.Pipe()
+            init = {
+                "index": k,
+                "layout": self.layout,
+                "world": world,
+                "routes": routes,
+                "params": params,
+                "static": static,
+                "shm": sh.name,
+                "cap": sh.cap,
+                "threads": threads,
+                "parent_pid": os.getpid(),
+                "die_at": _TEST_DIE_AT[1] if _TEST_DIE_AT and _TEST_DIE_AT[0] == k else -1,
+            }
+            proc = ctx.Process(
+                target=_worker_main, args=(child_end, init), name=f"crowdsim-strip-{k}"
+            )
+            proc.daemon = True
+            with _bare_main():
+                proc.start()
+            child_end.close()
+            self.procs.append(proc)
+            self.conns.append(parent_end)
+        self._gather(-1, ("ready",), START_TIMEOUT_S)
+
+    @property
+    def pids(self) -> list[int]:
+        """Process ids of the workers, by strip."""
+        return [int(p.pid) for p in self.procs]
+
+    def current(self, steps: int) -> int:
+        """Index of the buffer that holds the state after ``steps`` steps."""
+        return steps & 1
+
+    def add(self, ids: np.ndarray, static: dict[str, np.ndarray]) -> None:
+        """Register new agents ``ids`` (the next ids, ascending) with their static fields;
+        workers learn them with the next step. Their state is written with :meth:`write`."""
+        if len(ids) == 0:
+            return
+        need = int(ids[-1]) + 1
+        if need > self.shared.cap:
+            self._grow(max(need, 2 * self.shared.cap))
+        self.n_known = need
+        self._pending_static.append({k: np.asarray(static[k]) for k in STATIC_FIELDS})
+
+    def _grow(self, cap: int) -> None:
+        old = self.shared
+        new = SharedState(cap)
+        new.alive[:] = 0
+        c = old.cap
+        new.pos[:, :c], new.vel[:, :c] = old.pos, old.vel
+        new.wp[:, :c], new.alive[:, :c] = old.wp, old.alive
+        self.shared = new
+        self._state["shared"].append(new)
+        self._old_shared.append(old)
+
+    def step(self, steps: int, time: float) -> None:
+        """Advance every strip by one step (the barrier); ``steps`` steps were taken before.
+
+        Raises :class:`WorkerFailed` (after stopping every worker) if a worker dies or fails.
+        """
+        static = None
+        if self._pending_static:
+            static = {
+                k: np.concatenate([s[k] for s in self._pending_static]) for k in STATIC_FIELDS
+            }
+            self._pending_static = []
+        shm = (self.shared.name, self.shared.cap) if self._old_shared else None
+        self.shared.alive[self.current(steps + 1)] = 0  # workers write who is still there
+        msg = ("step", steps, time, self.n_known, static, shm)
+        for k, conn in enumerate(self.conns):
+            try:
+                conn.send(msg)
+            except OSError:
+                self._fail(k, steps, self._death_note(k, steps))
+        self._gather(steps, ("done",), None)
+        for old in self._old_shared:
+            self._state["shared"].remove(old)
+            old.close(unlink=True)
+        self._old_shared = []
+
+    def _gather(self, steps: int, expect: tuple[str, ...], timeout: float | None) -> None:
+        """Wait for one reply from every worker; a death or an error raises WorkerFailed."""
+        waiting = dict(enumerate(self.conns))
+        sentinels = {p.sentinel: k for k, p in enumerate(self.procs)}
+        while waiting:
+            ready = connection.wait([*waiting.values(), *sentinels], timeout=timeout)
+            if not ready:
+                k = min(waiting)
+                self._fail(k, steps, f"worker {k} did not start within {timeout:g} s")
+            for obj in ready:
+                if obj in sentinels:
+                    k = sentinels[obj]
+                    if k in waiting and not waiting[k].poll():
+                        self._fail(k, steps, self._death_note(k, steps))
+                    continue
+                k = next(i for i, c in waiting.items() if c is obj)
+                try:
+                    reply = obj.recv()
+                except (EOFError, OSError):
+                    self._fail(k, steps, self._death_note(k, steps))
+                if reply[0] == "error":
+                    self._fail(k, steps, f"worker {k} failed at step {steps}: {reply[1]}")
+                del waiting[k]
+
+    def _death_note(self, k: int, steps: int) -> str:
+        proc = self.procs[k]
+        proc.join(0.5)
+        code = proc.exitcode
+        if code is not None and code < 0:
+            try:
+                how = f"killed by {signal.Signals(-code).name}"
+            except ValueError:
+                how = f"killed by signal {-code}"
+        else:
+            how = f"exit code {code}"
+        where = "while starting" if steps < 0 else f"at step {steps}"
+        return f"worker {k} (pid {proc.pid}) died {where} ({how})"
+
+    def _fail(self, k: int, steps: int, message: str) -> None:
+        self.close()
+        raise WorkerFailed(k, steps, message)
+
+    def close(self) -> None:
+        """Stop every worker and unlink the shared memory (idempotent)."""
+        self._finalizer()
+
+
+@contextmanager
+def _bare_main() -> Iterator[None]:
+    """Start spawned workers without re-running the caller's ``__main__``.
+
+    A spawned child imports the parent's main script first, which restarts the caller's
+    own work in every worker when the script lacks an ``if __name__ == "__main__"`` guard.
+    The workers need nothing from it (their target and arguments live in crowdsim), so the
+    main module is hidden while the child's start-up data is taken.
+    """
+    main = sys.modules.get("__main__")
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        if main is not None:
+            sys.modules["__main__"] = main
+
+
+def _shutdown(state: dict[str, Any]) -> None:
+    """Stop the workers (politely, then terminate, then kill) and unlink the memory."""
+    for conn in state["conns"]:
+        try:
+            conn.send(("stop",))
+        except (OSError, ValueError):
+            pass
+    for proc in state["procs"]:
+        proc.join(STOP_GRACE_S)
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(STOP_GRACE_S)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+    for conn in state["conns"]:
+        conn.close()
+    for sh in state["shared"]:
+        sh.close(unlink=True)
+    state["conns"].clear()
+    state["procs"].clear()
+    state["shared"].clear()
+
+
+# ------------------------------------------------------------------------------ worker side
+
+
+class _Strip:
+    """One worker's strip: its pymunk space with the owned and halo bodies."""
+
+    def __init__(self, init: dict[str, Any]) -> None:
+        self.k = int(init["index"])
+        self.layout: StripLayout = init["layout"]
+        self.world: World = init["world"]
+        self.routes: RouteTable = init["routes"]
+        self.params: SocialForceParams = init["params"]
+        self.static = {f: np.asarray(v) for f, v in init["static"].items()}
+        self.shared = SharedState(init["cap"], name=init["shm"])
+        self.die_at = int(init["die_at"])
+        self.wall_grid = WallGrid(self.world.walls, self.params.cutoff)
+        self.space = self._make_space()
+        self.agents = np.zeros(0, np.int64)  # ids of the bodies in the space, ascending
+        self.body_id = np.zeros(len(self.static["radius"]), np.int64)  # by agent id
+        self.shapes: dict[int, tuple[pymunk.Body, pymunk.Circle]] = {}
+        self.rows = np.zeros(0, np.int64)  # pymunk row of each body in self.agents
+
+    def _make_space(self) -> pymunk.Space:
+        walls = self.world.walls
+        period = self.layout.period
+        if period > 0:  # the worker's frame is unwrapped: walls one period away too
+            shifted = [walls.copy() for _ in range(2)]
+            for s, sign in zip(shifted, (-1.0, 1.0), strict=True):
+                s[:, [0, 2]] += sign * period
+            walls = np.vstack([walls, *shifted])
+        space = contact_space(self.params, walls)
+        # Broad phase: a spatial hash, not pymunk's default bounding-box tree. The tree pads
+        # each leaf by 0.1 s of its body's motion and re-inserts the leaf (and re-queries its
+        # pairs) once the body leaves it, so a walking crowd rebuilds most of the tree every
+        # ~8 sub-steps in bursts of 0.3 s per 50k bodies; the bursts fall on different steps
+        # in different strips and the barrier waits for the slowest: 2 strips of the 100k
+        # corridor took 87 and 124 ms of pymunk a step (measured per worker), the hash 60-75
+        # (2 m cells, 8 bodies a cell at 2 /m^2; 0.5 m and 1 m cells were slower).
+        n_est = len(self.static["radius"]) // self.layout.n
+        space.use_spatial_hash(HASH_CELL, max(10_000, 2 * n_est))
+        return space
+
+    def learn(
+        self, n_known: int, static: dict[str, np.ndarray] | None, shm: tuple[str, int] | None
+    ) -> None:
+        """Take in agents that entered (their static fields) and a grown shared block."""
+        if static is not None:
+            for f in STATIC_FIELDS:
+                self.static[f] = np.concatenate([self.static[f], static[f]])
+            self.body_id = np.concatenate([self.body_id, np.zeros(len(static["radius"]), np.int64)])
+        if shm is not None and shm[0] != self.shared.name:
+            old = self.shared
+            self.shared = SharedState(shm[1], name=shm[0])
+            old.close()
+        assert len(self.static["radius"]) == n_known, "agent tables out of step"
+
+    def step(self, steps: int, time: float) -> None:
+        """Step ``steps`` -> ``steps + 1`` of this strip (see the module docstring)."""
+        if steps == self.die_at:
+            os.kill(os.getpid(), signal.SIGKILL)
+        sh, lay, p, k = self.shared, self.layout, self.params, self.k
+        rb, wb = steps & 1, (steps + 1) & 1
+        n = len(self.body_id)
+        cand = np.flatnonzero(sh.alive[rb, :n])
+        gpos = sh.pos[rb, cand]
+        local = lay.local(k, gpos[:, lay.axis])
+        lo, hi = lay.window(k)
+        near = (local >= lo) & (local < hi)
+        ids, gpos, local = cand[near], gpos[near], local[near]
+        # Routes on the global state: owner and halo copies get the same directions, and an
+        # agent past its last gate is gone for every worker at once.
+        e, wp, done = self.routes.desired(gpos, self.static["route"][ids], sh.wp[rb, ids])
+        if done.any():
+            keep = ~done
+            ids, gpos, local, e, wp = ids[keep], gpos[keep], local[keep], e[keep], wp[keep]
+        vel = sh.vel[rb, ids]
+        self._sync_bodies(ids, gpos, local, vel)
+        own = lay.owner(gpos[:, lay.axis]) == k
+        if len(ids) == 0:
+            return
+        lpos = gpos.copy()
+        lpos[:, lay.axis] = local
+        rows = np.empty((len(ids), 4))
+        rows[self.rows, :2] = lpos
+        rows[self.rows, 2:] = vel
+        buf = pb.Buffer()
+        buf.set_float_buf(rows.ravel())
+        pb.set_space_bodies(self.space, _BODY.POSITION | _BODY.VELOCITY, buf)
+        st = self.static
+        standing = (time >= st["stop_start"][ids]) & (time < st["stop_end"][ids])
+        v0 = np.where(standing, 0.0, st["desired_speed"][ids])
+        acc = social_force(
+            gpos,
+            vel,
+            st["radius"][ids],
+            v0,
+            e,
+            st["group"][ids],
+            self.world.walls,
+            p,
+            lay.period,
+            self.wall_grid,
+        )
+        forces = np.empty((len(ids), 2))
+        forces[self.rows] = acc * p.mass
+        fbuf = pb.Buffer()
+        fbuf.set_float_buf(forces.ravel())
+        sub_dt = p.dt / p.contact_substeps
+        for _ in range(int(p.contact_substeps)):
+            pb.set_space_bodies(self.space, _BODY.FORCE, fbuf)  # pymunk clears forces
+            self.space.step(sub_dt)
+        out = pb.Buffer()
+        pb.get_space_bodies(self.space, _BODY.POSITION | _BODY.VELOCITY, out)
+        mine = np.frombuffer(out.float_buf(), dtype=np.float64).reshape(-1, 4)[self.rows[own]]
+        if not np.isfinite(mine).all():
+            raise FloatingPointError(
+                f"non-finite agent state at step {steps}; reduce dt (now {p.dt} s)"
+            )
+        new_pos = mine[:, :2].copy()
+        period = lay.period
+        if period > 0:
+            new_pos[:, 0] %= period
+        xmin, ymin, xmax, ymax = self.world.bounds
+        gone = (new_pos[:, 1] < ymin - 1) | (new_pos[:, 1] > ymax + 1)
+        if period <= 0:
+            gone |= (new_pos[:, 0] < xmin - 1) | (new_pos[:, 0] > xmax + 1)
+        stay = ~gone
+        mine_ids = ids[own][stay]
+        sh.pos[wb, mine_ids] = new_pos[stay]
+        sh.vel[wb, mine_ids] = mine[stay, 2:]
+        sh.wp[wb, mine_ids] = wp[own][stay]
+        sh.alive[wb, mine_ids] = 1
+
+    def _sync_bodies(
+        self, ids: np.ndarray, gpos: np.ndarray, local: np.ndarray, vel: np.ndarray
+    ) -> None:
+        """Bodies for exactly the agents ``ids`` (ascending): remove those that left the
+        window, add those that entered (a handful per step, in id order)."""
+        gone = np.setdiff1d(self.agents, ids, assume_unique=True)
+        new = np.setdiff1d(ids, self.agents, assume_unique=True)
+        for a in gone:  # only the agents that left the window
+            self.space.remove(*self.shapes.pop(int(self.body_id[a])))
+            self.body_id[a] = 0
+        if len(new):
+            rows = np.searchsorted(ids, new)
+            radius = self.static["radius"]
+            axis = self.layout.axis
+            p = self.params
+            for a, r in zip(new.tolist(), rows.tolist(), strict=True):  # entering agents only
+                body = pymunk.Body(p.mass, float("inf"))
+                xy = [float(gpos[r, 0]), float(gpos[r, 1])]
+                xy[axis] = float(local[r])
+                body.position = (xy[0], xy[1])
+                body.velocity = (float(vel[r, 0]), float(vel[r, 1]))
+                shape = pymunk.Circle(body, float(radius[a]))
+                shape.friction = p.friction
+                shape.elasticity = 0.0
+                self.space.add(body, shape)
+                self.shapes[body.id] = (body, shape)
+                self.body_id[a] = body.id
+        if len(gone) or len(new):
+            self.agents = ids
+            buf = pb.Buffer()
+            pb.get_space_bodies(self.space, _BODY.BODY_ID, buf)
+            space_ids = np.frombuffer(buf.int_buf(), dtype=np.uintp).astype(np.int64)
+            sorter = np.argsort(space_ids)
+            self.rows = sorter[np.searchsorted(space_ids, self.body_id[ids], sorter=sorter)]
+
+    def close(self) -> None:
+        self.shared.close()
+
+
+def _worker_main(conn: Any, init: dict[str, Any]) -> None:
+    """Entry point of a worker process: build the strip, then serve "step" messages."""
+    from crowdsim.jobs import die_with_parent
+
+    die_with_parent(int(init["parent_pid"]))
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
+    strip = None
+    try:
+        import numba
+
+        numba.set_num_threads(int(init["threads"]))
+        strip = _Strip(init)
+        conn.send(("ready",))
+        while True:
+            msg = conn.recv()
+            if msg[0] != "step":
+                break
+            _, steps, time, n_known, static, shm = msg
+            try:
+                strip.learn(n_known, static, shm)
+                strip.step(steps, time)
+            except Exception as exc:  # reported to the parent as one line
+                conn.send(("error", f"{type(exc).__name__}: {exc}"))
+                continue
+            conn.send(("done",))
+    except (EOFError, OSError, KeyboardInterrupt):
+        pass
+    except Exception as exc:  # failed to start
+        try:
+            conn.send(("error", f"{type(exc).__name__}: {exc} [{traceback.format_exc(-1)}]"))
+        except OSError:
+            pass
+    finally:
+        if strip is not None:
+            strip.close()
+        conn.close()

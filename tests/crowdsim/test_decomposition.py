@@ -1,0 +1,195 @@
+"""The simulator split across worker processes (crowdsim.decomposition, issue 16).
+
+Each test that starts workers pays about 2 s of process start-up (spawn imports numba and
+pymunk), so the scenes are small and the tests few.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import multiprocessing
+import os
+
+import numpy as np
+import pytest
+
+import crowdsim.decomposition as dec
+from crowdsim.cli import main
+from crowdsim.decomposition import StripLayout, WorkerFailed, strip_layout
+from crowdsim.scenarios import make_scenario
+from crowdsim.simulation import Simulation
+from crowdsim.validation import corridor_speed, lane_formation, overlap_stats
+from crowdsim.world import World, polyline
+
+TWO_CORES = (os.cpu_count() or 1) >= 2
+needs_two = pytest.mark.skipif(not TWO_CORES, reason="needs 2 CPU cores for workers=2")
+
+# sha256 of the trajectories below, computed with the simulator *before* workers existed
+# (git HEAD 2026-05, crowdsim/simulation.py without the workers keyword).
+WORKERS_1_DIGEST = "6fcb4ae8615807cb78323446d6477a40c2f933651025d6e08bc97ba5e8872b42"
+
+
+def _digest(**kw) -> str:
+    h = hashlib.sha256()
+    for name, skw in [
+        ("counterflow", dict(n_agents=60)),
+        ("counterflow", dict(n_agents=60, periodic=True, inflow=False)),
+        ("marathon", dict(n_agents=60)),
+        ("groups", dict(n_agents=40)),
+    ]:
+        tr = Simulation(make_scenario(name, **skw), seed=3, **kw).run(60)
+        h.update(np.ascontiguousarray(tr.positions).tobytes())
+        h.update(tr.ids.tobytes())
+    return h.hexdigest()
+
+
+def test_workers_1_is_bit_identical_to_the_plain_simulator():
+    assert _digest() == WORKERS_1_DIGEST
+    assert _digest(workers=1) == WORKERS_1_DIGEST
+
+
+@pytest.mark.parametrize("bad", [0, -1, 10_000, 1.5, True, "2"])
+def test_bad_worker_counts_name_the_value(bad):
+    with pytest.raises(ValueError, match=r"workers must be an integer in \[1, \d+\].*got"):
+        Simulation(make_scenario("counterflow", n_agents=5), workers=bad)
+
+
+@pytest.mark.parametrize("bad", ["0", str((os.cpu_count() or 1) + 1)])
+def test_cli_workers_out_of_range_exit_2(bad, capsys):
+    rc = main(["simulate", "marathon", "--agents", "5", "--steps", "1", "--workers", bad])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1
+    assert f"--workers must be in [1, {os.cpu_count()}] (os.cpu_count()), got {bad}" in err[0]
+
+
+def test_strips_follow_the_geometry_only():
+    world = World(polyline([(0, 0), (100, 0)]), (-1.0, -1.0, 101.0, 21.0))
+    lay = strip_layout(world, 2, cutoff=1.5)
+    assert (lay.axis, lay.lo, lay.width, lay.halo) == (0, -1.0, 51.0, 2.0)
+    np.testing.assert_array_equal(lay.owner(np.array([-5.0, 49.9, 50.0, 500.0])), [0, 0, 1, 1])
+    assert lay.window(0) == (-np.inf, 52.0) and lay.window(1) == (48.0, np.inf)
+    tall = World(np.zeros((0, 5)), (0.0, 0.0, 10.0, 40.0))
+    assert strip_layout(tall, 2, 1.5).axis == 1
+    with pytest.raises(ValueError, match="workers=16: strips of 2.50 m .* use fewer workers"):
+        strip_layout(tall, 16, 1.5)
+
+
+def test_periodic_windows_unwrap_around_the_strip():
+    lay = StripLayout(axis=0, lo=0.0, width=10.0, n=2, period=20.0, halo=2.0)
+    assert lay.window(0) == (-2.0, 12.0)
+    # x = 19 is 1 m left of worker 0's strip across the seam; x = 1 is 1 m right of worker 1's.
+    np.testing.assert_allclose(lay.local(0, np.array([19.0, 1.0, 11.0])), [-1.0, 1.0, 11.0])
+    np.testing.assert_allclose(lay.local(1, np.array([1.0, 19.0, 9.0])), [21.0, 19.0, 9.0])
+
+
+def _lanes_corridor(**kw):
+    return make_scenario(
+        "counterflow",
+        n_agents=240,
+        density=1.0,
+        width=6.0,
+        right_fraction=0.5,
+        periodic=True,
+        inflow=False,
+        **kw,
+    )
+
+
+@needs_two
+def test_two_workers_are_deterministic_and_close_to_one():
+    runs = []
+    for _ in range(2):
+        with Simulation(_lanes_corridor(), seed=4, workers=2) as sim:
+            runs.append(sim.run(50))
+    a, b = runs
+    np.testing.assert_array_equal(a.positions, b.positions)  # every step, bit for bit
+    one = Simulation(_lanes_corridor(), seed=4).run(50)
+    # Same start; after one step only floating-point order and border contacts differ.
+    np.testing.assert_array_equal(a.positions[0], one.positions[0])
+    d = np.abs(a.positions[1] - one.positions[1])
+    d[:, 0] = np.minimum(d[:, 0], 40.0 - d[:, 0])  # across the seam of the 40 m period
+    assert d.max() < 1e-3
+    assert not np.array_equal(a.positions[-1], one.positions[-1])
+
+
+@needs_two
+def test_sources_sinks_and_migration_keep_every_agent_once():
+    # A non-periodic corridor with inflow at one end and sinks at the other: agents enter
+    # (the shared memory grows), walk across the strip border and leave.
+    sc = make_scenario("counterflow", n_agents=80, width=4.0)
+    with Simulation(sc, seed=2, workers=2) as sim:
+        lay = sim._engine.layout
+        start_strip = lay.owner(sim.state.pos[:, lay.axis])
+        tr = sim.run(150)
+        ids = sim.state.ids
+        assert np.all(np.diff(ids) > 0) and sim.n_total > 80  # sorted, new agents came in
+        assert np.isfinite(sim.state.pos).all()
+        end_strip = lay.owner(sim.state.pos[:, lay.axis])
+        moved = start_strip[ids[ids < 80]] != end_strip[ids < 80]
+        assert moved.any()  # somebody migrated to the other worker
+        mean_ov, max_ov = overlap_stats(sim.state.pos, sim.state.radius)
+        assert max_ov < 0.3
+    assert tr.positions.shape[1] == sim.n_total
+
+
+@needs_two
+def test_unsupported_features_say_so():
+    with Simulation(_lanes_corridor(), seed=0, workers=2) as sim:
+        with pytest.raises(ValueError, match="set_desired is not supported with workers > 1"):
+            sim.set_desired(sim.state.ids[:2], (1.0, 0.0))
+        with pytest.raises(ValueError, match=r"step\(desired_velocity.*workers=1"):
+            sim.step(np.zeros((sim.state.n, 2)))
+        # remove_agents and set_state are supported
+        sim.remove_agents(sim.state.ids[:3])
+        sim.set_state(vel=np.zeros((sim.state.n, 2)))
+        sim.step()
+        assert sim.state.n == 237 and 0 not in sim.state.ids
+    with pytest.raises(ValueError, match="workers were stopped"):
+        sim.step()
+
+
+@needs_two
+def test_killed_worker_stops_the_run_and_leaves_nothing(tmp_path):
+    sim = Simulation(_lanes_corridor(), seed=0, workers=2)
+    sim.run(3)
+    pids = sim._engine.pids
+    os.kill(pids[1], 9)
+    with pytest.raises(WorkerFailed, match=r"^worker 1 \(pid \d+\) died at step 3 \(killed by"):
+        sim.step()
+    assert multiprocessing.active_children() == []
+    for pid in pids:
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)
+
+
+@needs_two
+def test_cli_worker_death_one_line_exit_2_no_output(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(dec, "_TEST_DIE_AT", (1, 5))
+    out = tmp_path / "t.npz"
+    argv = ["simulate", "counterflow", "--agents", "80", "--steps", "20", "--no-progress"]
+    rc = main([*argv, "--set", "periodic=true", "--workers", "2", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1
+    assert "worker 1" in err[0] and "died at step 5" in err[0] and "nothing written" in err[0]
+    assert list(tmp_path.iterdir()) == []
+    assert multiprocessing.active_children() == []
+
+
+@needs_two
+def test_split_changes_no_physics():
+    """1 vs 2 workers on a periodic counterflow corridor: the lane order and walking speed
+    of the split run stay within the spread between two seeds of the 1-worker run."""
+    kw = dict(n_agents=240, density=1.0, width=6.0, seconds=16.0, every_s=2.0)
+    one = [lane_formation(seed=s, **kw) for s in (0, 1)]
+    two = lane_formation(seed=0, workers=2, **kw)
+    late = [np.mean(r["lane_order"][-3:]) for r in (*one, two)]
+    noise = max(2 * abs(late[0] - late[1]), 0.05)
+    assert abs(late[2] - late[0]) <= noise
+    assert late[2] > 2 * np.mean(two["random_mix"])  # lanes did form
+    # A fundamental-diagram point: speed within Weidmann's band and the seed spread.
+    pts = [corridor_speed(2.0, seed=s, warmup_s=6.0, measure_s=6.0) for s in (0, 1)]
+    p2 = corridor_speed(2.0, seed=0, warmup_s=6.0, measure_s=6.0, workers=2)
+    assert abs(p2["ratio"] - 1) <= 0.2
+    spread = max(2 * abs(pts[0]["speed"] - pts[1]["speed"]), 0.05)
+    assert abs(p2["speed"] - pts[0]["speed"]) <= spread
+    assert p2["max_overlap"] <= pts[0]["max_overlap"] + 0.05
