@@ -719,19 +719,45 @@ def solve(
         hist_f,
         hist_gap,
     )
+    return _result(
+        qp,
+        x,
+        f,
+        gap,
+        it,
+        converged,
+        counts,
+        history=hist_f[: it + 1].copy() if params.record_history else None,
+        gap_history=hist_gap[: it + 1].copy() if params.record_history else None,
+    )
+
+
+def _result(
+    qp: BlockQP,
+    x: np.ndarray,
+    objective: float,
+    gap: float,
+    iterations: int,
+    converged: bool,
+    counts: np.ndarray,
+    history: np.ndarray | None = None,
+    gap_history: np.ndarray | None = None,
+) -> FWResult:
+    """The :class:`FWResult` of a solved ``x``: its rounding (Eq. 14) and that vertex's ``f``."""
+    Q = qp.Q
     choice = _block_argext(x, qp.block_ptr, True)
     return FWResult(
         x=x,
         choice=choice,
-        objective=float(f),
+        objective=float(objective),
         rounded_objective=float(
             _vertex_objective(Q.indptr, Q.indices, Q.data, qp.c, qp.block_ptr, choice)
         ),
         gap=float(gap),
-        iterations=int(it),
+        iterations=int(iterations),
         converged=bool(converged),
-        history=hist_f[: it + 1].copy() if params.record_history else None,
-        gap_history=hist_gap[: it + 1].copy() if params.record_history else None,
+        history=history,
+        gap_history=gap_history,
         steps=dict(zip(STEP_KINDS, (int(v) for v in counts), strict=True)),
     )
 
@@ -796,17 +822,6 @@ def _solve_split(
     )
     x = np.empty_like(xp)
     x[var_order] = xp
-    choice = _block_argext(x, qp.block_ptr, True)
-    counts = out_counts.sum(axis=0)
-    return FWResult(
-        x=x,
-        choice=choice,
-        objective=float(out_f.sum()),
-        rounded_objective=float(
-            _vertex_objective(Q.indptr, Q.indices, Q.data, qp.c, qp.block_ptr, choice)
-        ),
-        gap=float(out_gap.sum()),
-        iterations=int(out_it.sum()),
-        converged=bool(out_conv.all()),
-        steps=dict(zip(STEP_KINDS, (int(v) for v in counts), strict=True)),
+    return _result(
+        qp, x, out_f.sum(), out_gap.sum(), out_it.sum(), out_conv.all(), out_counts.sum(axis=0)
     )

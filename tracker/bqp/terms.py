@@ -262,24 +262,47 @@ def _pair_value(
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _pair_counts(cand, box, pa, pb, flags, ref, mode_g, inv_s, reach2_s, inv_g, reach2_g, out):
-    """``out[p]``: the number of linked candidate pairs of target pair ``p`` (no ``exp``).
+def _pair_entries(
+    cand,
+    box,
+    pa,
+    pb,
+    flags,
+    ref,
+    mode_g,
+    inv_s,
+    reach2_s,
+    inv_g,
+    reach2_g,
+    offsets,
+    loc,
+    s_out,
+    g_out,
+    fill,
+):
+    """Count (``fill`` False: ``offsets[p + 1]`` = the number of linked candidate pairs of
+    target pair ``p``, no ``exp``) or write them at ``offsets[p]:offsets[p + 1]``: ``loc =
+    i k + j`` (candidate ``i`` of ``a``, ``j`` of ``b``) in ``(i, j)`` order, and ``(S, Gamma)``
+    (Eq. 9, 10).
 
-    One target pair per loop iteration, each written by one thread: the counts (and so the
-    entries' layout) do not depend on the number of threads.
+    One target pair per loop iteration, each written by one thread: the counts, and so the
+    entries' layout, do not depend on the number of threads.
     """
     k = cand.shape[1]
     for p in prange(pa.shape[0]):
         a = pa[p]
         b = pb[p]
-        m = 0
-        if flags[p] == 1:
+        if fill:
+            if offsets[p] == offsets[p + 1]:
+                continue
+        elif flags[p] == 1:
             # proximity only: skip pairs whose candidate boxes are farther apart than reach
             gx = max(0.0, max(box[a, 0] - box[b, 2], box[b, 0] - box[a, 2]))
             gy = max(0.0, max(box[a, 1] - box[b, 3], box[b, 1] - box[a, 3]))
             if gx * gx + gy * gy > reach2_s:
-                out[p] = 0
+                offsets[p + 1] = 0
                 continue
+        m = offsets[p] if fill else 0
         for i in range(k):
             for j in range(k):
                 s, g = _pair_value(
@@ -296,50 +319,16 @@ def _pair_counts(cand, box, pa, pb, flags, ref, mode_g, inv_s, reach2_s, inv_g, 
                     reach2_s,
                     inv_g,
                     reach2_g,
-                    False,
+                    fill,
                 )
                 if s > 0.0 or g > 0.0:
+                    if fill:
+                        loc[m] = i * k + j
+                        s_out[m] = s
+                        g_out[m] = g
                     m += 1
-        out[p] = m
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _pair_fill(
-    cand, pa, pb, flags, ref, mode_g, inv_s, reach2_s, inv_g, reach2_g, offsets, loc, s_out, g_out
-):
-    """Write the linked candidate pairs of target pair ``p`` at ``offsets[p]:offsets[p + 1]``:
-    ``loc = i k + j`` (candidate ``i`` of ``a``, ``j`` of ``b``) in ``(i, j)`` order, and
-    ``(S, Gamma)`` (Eq. 9, 10)."""
-    k = cand.shape[1]
-    for p in prange(pa.shape[0]):
-        m = offsets[p]
-        if m == offsets[p + 1]:
-            continue
-        a = pa[p]
-        b = pb[p]
-        for i in range(k):
-            for j in range(k):
-                s, g = _pair_value(
-                    cand,
-                    a,
-                    i,
-                    b,
-                    j,
-                    flags[p],
-                    ref[p, 0],
-                    ref[p, 1],
-                    mode_g,
-                    inv_s,
-                    reach2_s,
-                    inv_g,
-                    reach2_g,
-                    True,
-                )
-                if s > 0.0 or g > 0.0:
-                    loc[m] = i * k + j
-                    s_out[m] = s
-                    g_out[m] = g
-                    m += 1
+        if not fill:
+            offsets[p + 1] = m
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -540,15 +529,17 @@ def quadratic_matrix(
         1.0 / (2.0 * g_sigma * g_sigma),
         (g_cutoff * g_sigma) ** 2,
     )
-    counts = np.empty(len(pa), np.int64)
-    _pair_counts(*args, counts)
     offsets = np.zeros(len(pa) + 1, np.int64)
-    np.cumsum(counts, out=offsets[1:])
+    none_i = np.zeros(0, np.int32)
+    none_f = np.zeros(0)
+    _pair_entries(*args, offsets, none_i, none_f, none_f, False)  # counts at offsets[1:]
+    linked = offsets[1:] > 0
+    np.cumsum(offsets, out=offsets)
     m = int(offsets[-1])
     loc = np.empty(m, np.int32)  # i k + j < k^2
     s_val = np.empty(m)
     g_val = np.empty(m)
-    _pair_fill(cand, *args[2:], offsets, loc, s_val, g_val)
+    _pair_entries(*args, offsets, loc, s_val, g_val, True)
     # pairs are sorted by (a, b): as first target a target's pairs are one run; as second
     # target a stable sort by b keeps them in order of a
     targets = np.arange(n + 1)
@@ -591,7 +582,7 @@ def quadratic_matrix(
     out = sp.csc_matrix((data, indices, indptr), shape=(size, size))
     out.has_sorted_indices = True
     if components:
-        return out, _target_components(n, pa[counts > 0], pb[counts > 0])
+        return out, _target_components(n, pa[linked], pb[linked])
     return out
 
 
