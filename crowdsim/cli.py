@@ -29,6 +29,8 @@ from crowdsim.commands import (
     calibrate,
     compare,
     demo,
+    detect,
+    detector,
     difficulty,
     evaluate,
     generate,
@@ -45,6 +47,7 @@ from crowdsim.jobs import EXIT_CODES, interruptible
 COMMANDS: tuple[ModuleType, ...] = (
     simulate,
     track,
+    detect,
     evaluate,
     render,
     generate,
@@ -56,6 +59,7 @@ COMMANDS: tuple[ModuleType, ...] = (
     train,
     heldout,
     headroom,
+    detector,
     bench,
     demo,
 )

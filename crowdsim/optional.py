@@ -27,7 +27,8 @@ from types import ModuleType
 EXTRAS: dict[str, str] = {
     "rl": "stable-baselines3, the CPU build of torch and cmaes (train, --policy, CMA-ES)",
     "distributed": "Ray and Ray Tune (--backend ray)",
-    "detect": "the trackers package (ByteTrack / OC-SORT)",
+    "detect": "the CPU build of torch (head detector) and the trackers package (ByteTrack / "
+    "OC-SORT)",
     "bench": "JuPedSim, PySocialForce, Clarabel and OSQP (crowdsim bench)",
 }
 """Every extra a :func:`require` may name, with what it brings (``tests/test_packaging.py``

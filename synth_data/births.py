@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import csv
 import os
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -137,3 +138,92 @@ def births_from_init(
                 f"{init}: ids {unknown[:5]} are unknown to the ground truth of {where}"
             )
     return births_from_points(frames, ids, pts)
+
+
+def births_from_detections(points: np.ndarray, first_id: int = 1) -> Births:
+    """Initial targets from the heads a detector found in the first frame: ids
+    ``first_id, first_id + 1, ...`` in the detector's order, no later births."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    return (np.arange(first_id, first_id + len(pts), dtype=np.int64), pts), {}
+
+
+class DetectionBirths:
+    """Births found by a head detector while tracking (``crowdsim track --births detect``).
+
+    Every ``every`` frames the detector runs on the frame; each head farther than ``radius``
+    px from every current target starts a new track with a fresh id. Scheduled births (a
+    points CSV, the ground truth) are kept and added at their own frames. Called by
+    :meth:`tracker.base.Tracker.track` with the targets' positions in the previous frame.
+
+    Parameters
+    ----------
+    detect_points : callable
+        ``detect_points(frame) -> (points (m, 2) px, scores (m,))``, e.g.
+        :meth:`tracker.detect.HeadDetector.detect_points`.
+    every : int
+        Frames between detections (``>= 1``).
+    radius : float
+        A head within this distance (px) of a target is that target, not a newcomer.
+    first_id : int
+        The first id given to a newcomer (above every id the sequence already uses).
+    scheduled : mapping, optional
+        ``{t: (ids, points)}`` births known in advance.
+
+    >>> found = lambda frame: (np.array([[10.0, 10.0], [40.0, 12.0]]), np.ones(2))
+    >>> births = DetectionBirths(found, every=2, radius=6.0, first_id=100)
+    >>> frame = np.zeros((32, 64, 3), np.uint8)
+    >>> births(1, frame, np.array([1]), np.array([[11.0, 9.0]])) is None
+    True
+    >>> ids, pts = births(2, frame, np.array([1]), np.array([[11.0, 9.0]]))
+    >>> ids.tolist(), pts.tolist(), births.born
+    ([100], [[40.0, 12.0]], 1)
+    """
+
+    def __init__(
+        self,
+        detect_points: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+        *,
+        every: int = 10,
+        radius: float,
+        first_id: int,
+        scheduled: Mapping[int, tuple[np.ndarray, np.ndarray]] | None = None,
+    ) -> None:
+        if not isinstance(every, (int, np.integer)) or isinstance(every, bool) or every < 1:
+            raise ValueError(f"detection births: every must be a whole number >= 1, got {every!r}")
+        if not (np.isfinite(radius) and radius > 0):
+            raise ValueError(f"detection births: radius must be > 0 px, got {radius!r}")
+        self.detect_points = detect_points
+        self.every = int(every)
+        self.radius = float(radius)
+        self.next_id = int(first_id)
+        self.scheduled = dict(scheduled or {})
+        self.born = 0
+
+    def __call__(
+        self, t: int, frame: np.ndarray, ids: np.ndarray, points: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        known = self.scheduled.get(t)
+        if t % self.every:
+            return known
+        found, _ = self.detect_points(frame)
+        found = np.asarray(found, dtype=np.float64).reshape(-1, 2)
+        current = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        if known is not None:
+            current = np.concatenate([current, np.asarray(known[1], np.float64).reshape(-1, 2)])
+        current = current[np.isfinite(current).all(1)]
+        if len(found) and len(current):
+            from scipy.spatial import cKDTree
+
+            dist, _ = cKDTree(current).query(found, distance_upper_bound=self.radius)
+            found = found[~np.isfinite(dist)]
+        if not len(found):
+            return known
+        new_ids = np.arange(self.next_id, self.next_id + len(found), dtype=np.int64)
+        self.next_id += len(found)
+        self.born += len(found)
+        if known is None:
+            return new_ids, found
+        return (
+            np.concatenate([np.asarray(known[0], np.int64), new_ids]),
+            np.concatenate([np.asarray(known[1], np.float64).reshape(-1, 2), found]),
+        )

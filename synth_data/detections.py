@@ -17,9 +17,13 @@ from *detection*:
   ``N(false_score_mean, score_std)`` for false alarms, clipped to ``[0.01, 1]`` (ByteTrack's
   two-stage association splits detections by score).
 
-The result is one :class:`Detections` per frame, a struct of arrays in the ``supervision``
-style (``xyxy (m, 4)``, ``confidence (m,)``) plus, **for evaluation only**, the gt id each
-detection came from (``-1`` for a false alarm). Trackers never read ``gt_id``.
+The result is one :class:`crowdsim.detections.Detections` per frame, a struct of arrays in the
+``supervision`` style (``xyxy (m, 4)``, ``confidence (m,)``) plus, **for evaluation only**, the
+gt id each detection came from (``-1`` for a false alarm). Trackers never read ``gt_id``.
+
+These settings belong to the detector, not to the tracker that consumes its output: a
+tracking-by-detection tracker's parameters hold only association settings, and
+:func:`attach_detections` takes the detector's :class:`DetectionParams` explicitly.
 
 Everything is vectorised over ``(T, N)`` and deterministic under ``DetectionParams.seed`` (or
 an injected generator).
@@ -33,12 +37,15 @@ an injected generator).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from crowdsim.checks import require_number
+from crowdsim.detections import Detections
+
+__all__ = ["DetectionParams", "Detections", "attach_detections", "simulate_detections"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -52,11 +59,12 @@ class DetectionParams:
         per head and frame).
     false_alarm_rate : float
         Mean number of false alarms per frame **per 100 people in view** in that frame
-        (Poisson), ``>= 0``.
+        (Poisson), in ``[0, 1000]``.
     jitter_px : float
-        Standard deviation (px) of the Gaussian noise on each detection's centre, ``>= 0``.
+        Standard deviation (px) of the Gaussian noise on each detection's centre, in
+        ``[0, 1000]``.
     box_px : float or None
-        Side (px) of the square boxes; ``None``: the ``template_size`` given to
+        Side (px, ``[1, 4096]``) of the square boxes; ``None``: the ``template_size`` given to
         :func:`simulate_detections` (the sequence's head size).
     score_mean, score_std : float
         Mean and standard deviation of the confidence of true detections.
@@ -78,49 +86,14 @@ class DetectionParams:
     def __post_init__(self) -> None:
         own = "DetectionParams"
         require_number(own, "miss_rate", self.miss_rate, lo=0, hi=1)
-        require_number(own, "false_alarm_rate", self.false_alarm_rate, lo=0)
-        require_number(own, "jitter_px", self.jitter_px, lo=0)
+        require_number(own, "false_alarm_rate", self.false_alarm_rate, lo=0, hi=1000)
+        require_number(own, "jitter_px", self.jitter_px, lo=0, hi=1000)
         if self.box_px is not None:
-            require_number(own, "box_px", self.box_px, lo=1)
+            require_number(own, "box_px", self.box_px, lo=1, hi=4096)
         require_number(own, "score_mean", self.score_mean, lo=0, hi=1)
         require_number(own, "score_std", self.score_std, lo=0)
         require_number(own, "false_score_mean", self.false_score_mean, lo=0, hi=1)
-        require_number(own, "seed", self.seed, lo=0, integer=True)
-
-    @classmethod
-    def from_fields(cls, obj: Any) -> DetectionParams:
-        """The detector described by the same-named attributes of ``obj`` (e.g. the
-        parameters of a detection tracker); attributes ``obj`` lacks keep their defaults."""
-        names = [f.name for f in fields(cls)]
-        return cls(**{n: getattr(obj, n) for n in names if hasattr(obj, n)})
-
-
-@dataclass(frozen=True)
-class Detections:
-    """Detections of one frame (struct of arrays, ``supervision.Detections`` style).
-
-    Attributes
-    ----------
-    xyxy : (m, 4) float64
-        Boxes ``(x_min, y_min, x_max, y_max)``, px.
-    confidence : (m,) float64
-        Detector scores in ``[0.01, 1]``.
-    gt_id : (m,) int64
-        Ground-truth id each detection was drawn from, ``-1`` for a false alarm. For
-        evaluation only: trackers must not read it.
-    """
-
-    xyxy: np.ndarray
-    confidence: np.ndarray
-    gt_id: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.confidence)
-
-    @property
-    def centers(self) -> np.ndarray:
-        """``(m, 2)`` box centres, px."""
-        return 0.5 * (self.xyxy[:, :2] + self.xyxy[:, 2:])
+        require_number(own, "seed", self.seed, lo=0, hi=2**63, hi_open=True, integer=True)
 
 
 def simulate_detections(
@@ -205,21 +178,13 @@ def simulate_detections(
     conf = np.clip(np.concatenate([score[t_idx, col], fa_score]), 0.01, 1.0)
     gt = np.concatenate([ids[col], np.full(k, -1, np.int64)])
     frame = np.concatenate([t_idx, np.repeat(np.arange(t_len), n_fa)])
-    half = 0.5 * float(side)
-    xyxy = np.concatenate([centres - half, centres + half], axis=1)
-    np.clip(xyxy, 0.0, [width, height, width, height], out=xyxy)
+    every = Detections.from_points(centres, conf, float(side), width, height, gt_id=gt)
 
     order = np.argsort(frame, kind="stable")  # true detections of a frame before its alarms
-    bounds = np.cumsum(np.bincount(frame, minlength=t_len))[:-1]
-    return [
-        Detections(xyxy=b, confidence=c, gt_id=g)
-        for b, c, g in zip(
-            np.split(xyxy[order], bounds),
-            np.split(conf[order], bounds),
-            np.split(gt[order], bounds),
-            strict=True,
-        )
-    ]
+    every = every[order]
+    counts = np.bincount(frame, minlength=t_len)
+    ends = np.cumsum(counts)
+    return [every[int(e - c) : int(e)] for c, e in zip(counts, ends, strict=True)]
 
 
 def attach_detections(
@@ -242,16 +207,18 @@ def attach_detections(
     source : sequence source
         Reads ``gt_points()``, ``width``, ``height`` and ``template_size``.
     params : DetectionParams, optional
-        Default: :meth:`DetectionParams.from_fields` of the tracker's parameters (its
-        ``miss_rate``, ``false_alarm_rate``, ``jitter_px``, ... fields).
+        The simulated detector (default: ``DetectionParams()``). Detector settings belong to
+        the detection source, never to the tracker's parameters.
     rng : numpy.random.Generator, optional
         Default ``numpy.random.default_rng(params.seed)``.
     """
     use = getattr(tracker, "use_detections", None)
     if use is None:
         return None
-    if params is None:
-        params = DetectionParams.from_fields(tracker.params)
+    if params is not None and not isinstance(params, DetectionParams):
+        raise ValueError(
+            f"attach_detections: params must be a DetectionParams, got {type(params).__name__}"
+        )
     gt_ids, gt_pts = source.gt_points()
     if len(gt_ids) == 0:
         raise ValueError(

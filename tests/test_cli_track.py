@@ -122,9 +122,6 @@ def test_track_video_with_points_csv(tmp_path, scene, capsys):
     )
     rows = np.loadtxt(out, delimiter=",")
     assert rows.shape[1] == 10 and set(rows[:, 1].astype(int)) == set(scene.ids.tolist())
-    capsys.readouterr()
-    assert main(["track", str(video), "--out", str(out)]) == 2
-    assert "--init" in _error_line(capsys, "track")
 
 
 def test_track_bad_inputs(tmp_path, seq, capsys):

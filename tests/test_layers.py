@@ -6,7 +6,8 @@ function) included, and so is every target of a string registry. An import insid
 
 1. **Every ``crowdsim`` module is classified** as base, sim, render, lab or app (:func:`layer`).
    ``crowdsim.trajectories`` is base: it is the data contract the simulator writes and the
-   renderer reads, and imports only base itself.
+   renderer reads, and imports only base itself. ``crowdsim.detections`` is base for the same
+   reason: the detections type that detectors (``synth_data``) produce and ``tracker`` reads.
 2. **The floors** (:data:`FORBIDDEN`): base imports nothing above it; sim and render import only
    base (and each other never); none of them imports ``tracker``, ``synth_data``, ``envs`` or
    the lab; ``tracker`` imports from ``crowdsim`` only base and never ``synth_data`` or
@@ -52,6 +53,7 @@ CROWDSIM_LAYERS: dict[str, frozenset[str]] = {
             "crowdsim",
             "crowdsim.atomic",
             "crowdsim.checks",
+            "crowdsim.detections",
             "crowdsim.events",
             "crowdsim.jobs",
             "crowdsim.optional",

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, fields
 from types import MappingProxyType
 from typing import Any, ClassVar
@@ -60,6 +60,8 @@ CONF_REF_RATE: float = 0.1
 
 Births = tuple[np.ndarray, np.ndarray]
 """``(ids (m,) int, points (m, 2) float px)`` of targets entering in a frame."""
+LiveBirths = Callable[[int, np.ndarray, np.ndarray, np.ndarray], "Births | None"]
+"""``births(t, frame, ids, points) -> (ids, points) | None``: births found while tracking."""
 
 
 @dataclass
@@ -257,7 +259,7 @@ class Tracker(ABC):
         ids,
         points,
         template_size: int,
-        births: Mapping[int, Births] | None = None,
+        births: Mapping[int, Births] | LiveBirths | None = None,
         n_frames: int | None = None,
         progress: bool = False,
     ) -> TrackResult:
@@ -271,14 +273,19 @@ class Tracker(ABC):
             Targets at frame 0.
         template_size : int
             Template (head) size, px.
-        births : mapping frame index (0-based) -> (ids, points), optional
-            Targets entering at that frame, at their position in that frame.
+        births : mapping frame index (0-based) -> (ids, points), or callable, optional
+            Targets entering at that frame, at their position in that frame. A callable
+            ``births(t, frame, ids, points)`` is asked at every frame ``t >= 1`` with the
+            targets' ids and positions in frame ``t - 1`` (births found while tracking, e.g.
+            by a head detector: :class:`synth_data.births.DetectionBirths`); it returns
+            ``(ids, points)`` or ``None``.
         n_frames : int, optional
             Number of frames (for the progress bar and to preallocate).
         progress : bool
             Show a tqdm progress bar with frames/s.
         """
-        births = dict(births or {})
+        live = births if callable(births) else None
+        births = {} if live is not None else dict(births or {})
         rows: list[tuple[np.ndarray, np.ndarray]] = []
         it = iter(frames)
         bar = None
@@ -301,7 +308,8 @@ class Tracker(ABC):
         if bar is not None:
             bar.update(1)
         for t, frame in enumerate(it, start=1):
-            rows.append(self.step(frame, births.get(t)))
+            born = live(t, frame, self.ids, self.points) if live is not None else births.get(t)
+            rows.append(self.step(frame, born))
             if bar is not None:
                 bar.update(1)
                 total = self.timings.get("total", 0.0)

@@ -142,15 +142,13 @@ TRACKERS: Mapping[str, TrackerEntry] = MappingProxyType(
                 "bytetrack",
                 "tracker.baselines.detection:ByteTrackTracker",
                 "tracker.baselines.detection:ByteTrackParams",
-                "ByteTrack on simulated head detections",
-                miss_rate=0.1,
+                "ByteTrack on a detection feed (simulated head detections by default)",
             ),
             _entry(
                 "ocsort",
                 "tracker.baselines.detection:OCSORTTracker",
                 "tracker.baselines.detection:OCSORTParams",
-                "OC-SORT on simulated head detections",
-                miss_rate=0.1,
+                "OC-SORT on a detection feed (simulated head detections by default)",
             ),
         )
     }

@@ -96,6 +96,8 @@ def run_tracker(
     progress: bool = False,
     prepare: Callable[[Tracker, Any], Any] | None = None,
     template_size: int | None = None,
+    start: Any = None,
+    births: Callable[[int, np.ndarray, np.ndarray, np.ndarray], Any] | None = None,
 ) -> TrackRun:
     """Track ``source`` with ``tracker`` (a registry name or a :class:`Tracker`) and score it.
 
@@ -123,6 +125,13 @@ def run_tracker(
         the data layer.
     template_size : int, optional
         Template (head) size in px; default: the source's.
+    start : ``((ids0, points0), {t: (ids, points)})``, optional
+        Initial targets and scheduled births instead of ``source.births()`` (e.g. heads a
+        detector found in the first frame: :func:`synth_data.births.births_from_detections`).
+    births : callable, optional
+        ``births(t, frame, ids, points) -> (ids, points) | None``: births found while
+        tracking (:class:`synth_data.births.DetectionBirths`), which then also adds the
+        scheduled births of ``start`` / the source.
     """
     trk = make_tracker(tracker, params)
     if prepare is not None:
@@ -130,8 +139,10 @@ def run_tracker(
     if frames is not None and frames < 1:
         raise ValueError(f"frames must be >= 1, got {frames}")
     n = source.length if frames is None else min(frames, source.length or frames)
-    (ids, pts), births = source.births()
-    births = {t: b for t, b in births.items() if t < n}
+    (ids, pts), scheduled = start if start is not None else source.births()
+    scheduled = {t: b for t, b in scheduled.items() if t < n}
+    if births is None:
+        births = scheduled
     t0 = time.perf_counter()
     size = int(template_size or source.template_size)
     res = trk.track(

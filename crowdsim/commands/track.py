@@ -2,7 +2,12 @@
 
 INPUT is a MOTChallenge sequence folder (targets start from its ground truth: the initial
 targets at frame 1, every later id born at its first frame) or a video file (targets come from
-``--init points.csv`` with rows ``frame,id,x,y`` in pixels; rows after frame 1 are births).
+``--init points.csv`` with rows ``frame,id,x,y`` in pixels, rows after frame 1 being births;
+without ``--init`` the head detector of :mod:`tracker.detect` finds everyone in frame 1).
+``--init detect`` starts from the detector on a folder too (ids of heads matched within 5 px
+to a ground-truth person at frame 1 take that person's id, so ``--evaluate`` scores them), and
+``--births detect`` runs the detector every ``--detect-every`` frames and starts a track for
+every head no track covers.
 Any registered tracker runs (``--tracker``, see :mod:`tracker.registry`); ``--set`` changes
 its parameters. Results are MOT text rows, one head box of the template size centred on each
 tracked point. Tracking and scoring go through :func:`tracker.runner.run_tracker`.
@@ -45,7 +50,37 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="tracker parameter, e.g. --set zeta=0.5 (repeatable)",
     )
     p.add_argument("--out", required=True, help="MOT results file to write")
-    p.add_argument("--init", help="points CSV (frame,id,x,y or id,x,y); required for a video")
+    p.add_argument(
+        "--init",
+        metavar="CSV|detect",
+        help="points CSV (frame,id,x,y or id,x,y), or 'detect': the head detector finds the "
+        "people in frame 1 (the default for a video)",
+    )
+    p.add_argument(
+        "--births",
+        choices=("source", "detect"),
+        default="source",
+        help="later arrivals: 'source' (the ground truth, or the CSV's later rows; default) or "
+        "'detect' (the head detector every --detect-every frames starts a track for every head "
+        "no track covers; scheduled births are kept)",
+    )
+    p.add_argument(
+        "--detect-every",
+        type=int,
+        default=10,
+        metavar="N",
+        help="frames between detections with --births detect (10)",
+    )
+    p.add_argument(
+        "--detector-weights", metavar="FILE", default=None, help="head detector weights (shipped)"
+    )
+    p.add_argument(
+        "--detector-threshold",
+        type=float,
+        default=None,
+        metavar="T",
+        help="head detector threshold in (0, 1) (default: the detector's)",
+    )
     p.add_argument("--video", help="write an overlay MP4 (gt green, tracks yellow)")
     p.add_argument(
         "--evaluate",
@@ -178,6 +213,73 @@ def _tuned(args: argparse.Namespace, src: object) -> tuple[object, object, str]:
     return tracker, feed, f"{name}{followed} with {what}"
 
 
+def _detector(args: argparse.Namespace) -> object:
+    """The head detector of ``--detector-weights`` / ``--detector-threshold``."""
+    from tracker.detect import DetectorParams, HeadDetector
+
+    over = {} if args.detector_threshold is None else {"threshold": args.detector_threshold}
+    try:
+        params = DetectorParams(weights=args.detector_weights, **over)
+    except ValueError as exc:
+        raise ValueError(
+            str(exc).replace("DetectorParams.threshold", "--detector-threshold")
+        ) from None
+    return HeadDetector(params, template_size=args.template_size or 12)
+
+
+def _detected_start(
+    args: argparse.Namespace, src: object, detector: object, size: int, use_detector: bool
+) -> tuple[object, object]:
+    """``(start, births)`` for :func:`tracker.runner.run_tracker`: the heads the detector finds
+    in frame 1 (``--init detect``) and the births it finds later (``--births detect``)."""
+    import numpy as np
+
+    from synth_data.births import DetectionBirths, births_from_detections
+
+    if detector is None:
+        return None, None
+    detector.template_size = float(size)
+    gt_ids, gt_pts = src.gt_points()
+    if use_detector:
+        first = next(iter(src.frames()), None)
+        if first is None:
+            raise ValueError(f"{args.input}: the video has no frames")
+        found, _ = detector.detect_points(first)
+        if not len(found):
+            raise ValueError(
+                f"{args.input}: the head detector found nobody in frame 1 (threshold "
+                f"{detector.params.threshold:g}); lower --detector-threshold or give --init"
+            )
+        if len(gt_ids):
+            from crowdsim.lab.detector import relabel_to_truth
+
+            ids0, matched = relabel_to_truth(found, gt_ids, gt_pts[0])
+            start = ((ids0, found), {})
+            print(
+                f"head detector: {len(found)} heads in frame 1, {len(matched)} of "
+                f"{int(np.isfinite(gt_pts[0]).all(1).sum())} people matched within 5 px",
+                file=sys.stderr,
+            )
+        else:
+            start = births_from_detections(found)
+            print(f"head detector: {len(found)} heads in frame 1", file=sys.stderr)
+    else:
+        start = src.births()
+    if args.births != "detect":
+        return start, None
+    (ids0, _), scheduled = start
+    known = [ids0, gt_ids] + [b[0] for b in scheduled.values()]
+    top = max((int(np.max(k)) for k in known if len(k)), default=0)
+    births = DetectionBirths(
+        detector.detect_points,
+        every=args.detect_every,
+        radius=float(size),
+        first_id=top + 1,
+        scheduled=scheduled,
+    )
+    return start, births
+
+
 def run(args: argparse.Namespace) -> int:
     from envs.episodes import verify_folder
     from synth_data.detections import attach_detections
@@ -204,10 +306,15 @@ def run(args: argparse.Namespace) -> int:
         _check_output(args.video, "--video", ".mp4")
     if not (args.params or args.policy):
         over = _overrides(args, args.tracker or "bqp")
-    src = open_sequence(args.input, init=args.init)
+    use_detector = args.init == "detect" or (args.init is None and not is_folder)
+    if args.detect_every < 1:
+        raise ValueError(f"--detect-every must be >= 1, got {args.detect_every}")
+    detector = _detector(args) if use_detector or args.births == "detect" else None
+    src = open_sequence(args.input, init=None if use_detector else args.init)
     if is_folder:
         verify_folder(src)  # a damaged, truncated or swapped image is named, not tracked
     size = int(size or src.template_size)
+    start, births = _detected_start(args, src, detector, size, use_detector)
     if args.params or args.policy:
         tracker, feed, what = _tuned(args, src)
         print(f"tracking with {what}", file=sys.stderr)
@@ -222,8 +329,12 @@ def run(args: argparse.Namespace) -> int:
         metrics="full" if args.evaluate else "none",
         progress=not args.no_progress,
         prepare=attach_detections,
+        start=start,
+        births=births,
     )
     result = run.result
+    if births is not None:
+        print(f"head detector: {births.born} people born while tracking", file=sys.stderr)
     write_mot(out, tracks_to_mot_rows(result.ids, result.positions, size))
     stages = ", ".join(f"{k} {v:.1f} ms" for k, v in run.stage_ms.items())
     print(

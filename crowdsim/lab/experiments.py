@@ -31,12 +31,20 @@ from pathlib import Path
 from typing import Any
 
 from crowdsim.atomic import write_text_atomic
+from synth_data.detections import DetectionParams
+from tracker.detect.inference import DetectorParams
 
 
 @dataclass(frozen=True)
 class Row:
     """One method of a table: a registered tracker with parameter overrides.
 
+    ``overrides`` are the tracker's own parameters. ``detections`` is the detector that feeds
+    a tracking-by-detection tracker: simulated from the ground truth (``DetectionParams``,
+    :func:`synth_data.detections.attach_detections`) or the trained head detector run on the
+    frames (``DetectorParams``, :class:`tracker.detect.HeadDetector`: what a user gets on
+    footage). Detection settings belong to the source, not to the tracker; ``None`` for
+    trackers that take no detections (a detection tracker then gets ``DetectionParams()``).
     ``paper`` names the column of the papers' tables it corresponds to (``None``: none).
     """
 
@@ -44,6 +52,7 @@ class Row:
     tracker: str
     overrides: dict[str, Any] = field(default_factory=dict)
     paper: str | None = None
+    detections: DetectionParams | DetectorParams | None = None
 
 
 COMPARE_ROWS: tuple[Row, ...] = (
@@ -52,10 +61,12 @@ COMPARE_ROWS: tuple[Row, ...] = (
     Row("PNMC", "pnmc", paper="PNMC"),
     Row("BQP (KCF)", "bqp", paper="BQP"),
     Row("BQP (NCC)", "bqp-ncc"),
-    Row("ByteTrack miss 0.1", "bytetrack", {"miss_rate": 0.1}),
-    Row("ByteTrack miss 0.3", "bytetrack", {"miss_rate": 0.3}),
-    Row("OC-SORT miss 0.1", "ocsort", {"miss_rate": 0.1}),
-    Row("OC-SORT miss 0.3", "ocsort", {"miss_rate": 0.3}),
+    Row("ByteTrack miss 0.1", "bytetrack", detections=DetectionParams(miss_rate=0.1)),
+    Row("ByteTrack miss 0.3", "bytetrack", detections=DetectionParams(miss_rate=0.3)),
+    Row("OC-SORT miss 0.1", "ocsort", detections=DetectionParams(miss_rate=0.1)),
+    Row("OC-SORT miss 0.3", "ocsort", detections=DetectionParams(miss_rate=0.3)),
+    Row("ByteTrack (head detector)", "bytetrack", detections=DetectorParams()),
+    Row("OC-SORT (head detector)", "ocsort", detections=DetectorParams()),
 )
 """Rows of ``crowdsim compare``: the papers' methods we have, and detection-based references."""
 ELEVEN: frozenset[str] = frozenset({"NCC", "MS"})
@@ -87,7 +98,14 @@ def with_cmc(rows: Sequence[Row]) -> tuple[Row, ...]:
     for row in rows:
         out.append(row)
         if "cmc" in get(row.tracker).field_names():
-            out.append(Row(f"{row.label} + CMC", row.tracker, {**row.overrides, "cmc": True}))
+            out.append(
+                Row(
+                    f"{row.label} + CMC",
+                    row.tracker,
+                    {**row.overrides, "cmc": True},
+                    detections=row.detections,
+                )
+            )
     return tuple(out)
 
 
@@ -110,18 +128,32 @@ def paper_numbers(suite: Any) -> dict[str, dict[str, dict[str, float]]]:
 
 
 def run_cell(
-    seq_dir: str, tracker: str, overrides: dict[str, Any], frames: int | None
+    seq_dir: str,
+    tracker: str,
+    overrides: dict[str, Any],
+    frames: int | None,
+    detections: DetectionParams | DetectorParams | None = None,
 ) -> dict[str, Any]:
-    """Track one sequence with one row; JSON-ready figures and the accuracy curve."""
+    """Track one sequence with one row; JSON-ready figures and the accuracy curve.
+
+    ``detections``: the detector of a tracking-by-detection row (:class:`Row`).
+    """
     from synth_data.detections import attach_detections
     from synth_data.sequence import open_sequence
     from tracker.registry import make_tracker
     from tracker.runner import run_tracker
 
+    def prepare(trk: Any, source: Any) -> None:
+        if isinstance(detections, DetectorParams):
+            if hasattr(trk, "use_detections"):
+                from tracker.detect import HeadDetector
+
+                trk.use_detections(HeadDetector(detections, template_size=source.template_size))
+        else:
+            attach_detections(trk, source, detections)
+
     source = open_sequence(seq_dir)
-    run = run_tracker(
-        make_tracker(tracker, **overrides), source, frames=frames, prepare=attach_detections
-    )
+    run = run_tracker(make_tracker(tracker, **overrides), source, frames=frames, prepare=prepare)
     out = run.summary()
     out["curve"] = [c["acc"] for c in run.report.get("curve", [])]
     return out
@@ -186,21 +218,44 @@ def read_cells(path: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:
 
 
 def run_sealed_cell(
-    key: str, seq_dir: str, tracker: str, overrides: dict[str, Any], frames: int | None
+    key: str,
+    seq_dir: str,
+    tracker: str,
+    overrides: dict[str, Any],
+    frames: int | None,
+    detections: DetectionParams | DetectorParams | None = None,
 ) -> dict[str, Any]:
     """One job of :func:`run_table`: :func:`run_cell`, sealed under ``key``."""
-    return seal_cell(key, run_cell(seq_dir, tracker, overrides, frames))
+    return seal_cell(key, run_cell(seq_dir, tracker, overrides, frames, detections))
+
+
+def takes_detections(tracker: str) -> bool:
+    """Whether the registered tracker ``tracker`` is fed detections (``use_detections``)."""
+    from tracker.registry import get
+
+    return hasattr(get(tracker).tracker_class(), "use_detections")
 
 
 def cell_key(seq: str, row: Row, frames: int | None) -> str:
-    """The manifest key of a cell: sequence, tracker, its complete parameters (a digest, so
-    that a changed default is not mistaken for a finished cell) and the frame count."""
+    """The manifest key of a cell: sequence, tracker, its complete parameters and, for a
+    tracker fed detections, its complete detector (a digest, so that a changed default is not
+    mistaken for a finished cell) and the frame count."""
     import dataclasses
     import hashlib
 
     from tracker.registry import get
 
-    params = dataclasses.asdict(get(row.tracker).make_params(**row.overrides))
+    params: dict[str, Any] = dataclasses.asdict(get(row.tracker).make_params(**row.overrides))
+    if takes_detections(row.tracker):
+        detector = row.detections if row.detections is not None else DetectionParams()
+        params = {"tracker": params, "detections": dataclasses.asdict(detector)}
+        if isinstance(detector, DetectorParams):  # new weights are a new detector
+            from tracker.detect.inference import weights_digest
+
+            params["detections"] = {
+                "trained": params["detections"],
+                "weights": weights_digest(detector),
+            }
     digest = hashlib.sha256(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
     return f"{seq}|{row.tracker}|params={digest}|frames={frames or 'all'}"
 
@@ -254,6 +309,11 @@ def run_table(
         raise ValueError(f"--address needs --backend ray, got --address {address!r}")
     for row in rows:
         get(row.tracker).make_params(**row.overrides)  # unknown names fail before any work
+        if row.detections is not None and not takes_detections(row.tracker):
+            raise ValueError(
+                f"{title}: row {row.label!r} gives a detector, but tracker {row.tracker!r} "
+                "takes no detections"
+            )
     out = Path(out)
     if isinstance(suite, (str, os.PathLike)):
         specs = suite_specs(suite, only)
@@ -299,7 +359,14 @@ def run_table(
         Job(
             keys[(s.name, r.label)],
             run_sealed_cell,
-            (keys[(s.name, r.label)], str(seq_root / s.name), r.tracker, dict(r.overrides), frames),
+            (
+                keys[(s.name, r.label)],
+                str(seq_root / s.name),
+                r.tracker,
+                dict(r.overrides),
+                frames,
+                r.detections,
+            ),
             size=s.frames,
         )
         for s in specs

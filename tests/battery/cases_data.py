@@ -230,6 +230,15 @@ def _make(name, params=None, **kw):
     return call
 
 
+def _detector(**kw):
+    def call(w: Path, env: Env):
+        from synth_data.detections import DetectionParams
+
+        return DetectionParams(**kw)
+
+    return call
+
+
 api_case("data-api-make-params-str", _make("bqp", "zeta=1"), "takes params as a BQPParams&&str")
 api_case(
     "data-api-make-object-with-params",
@@ -243,7 +252,10 @@ api_case("data-api-bqp-fw-iter-huge", _make("bqp", fw_max_iter=10**9), "fw_max_i
 api_case("data-api-pnmc-patch-huge", _make("pnmc", flow_patch=10**6), "flow_patch&&[2, 64]")
 api_case("data-api-pnmc-samples-huge", _make("pnmc", gmm_samples=10**9), "gmm_samples&&got")
 api_case("data-api-meanshift-iter-huge", _make("meanshift", max_iter=10**6), "max_iter&&[1, 1000]")
-api_case("data-api-bytetrack-box-huge", _make("bytetrack", box_px=1e9), "box_px&&[1, 4096]")
+api_case("data-api-detector-box-huge", _detector(box_px=1e9), "DetectionParams.box_px&&[1, 4096]")
+api_case(
+    "data-api-bytetrack-miss-rate", _make("bytetrack", miss_rate=0.3), "no parameter(s) miss_rate"
+)
 api_case("data-api-ocsort-delta-huge", _make("ocsort", delta_t=10**6), "delta_t&&[1, 100]")
 
 

@@ -108,6 +108,7 @@ def test_empty_inputs():
         (dict(false_alarm_rate=-1.0), "false_alarm_rate"),
         (dict(jitter_px=-0.1), "jitter_px"),
         (dict(box_px=0.5), "box_px"),
+        (dict(box_px=1e9), "box_px"),
         (dict(score_mean=2.0), "score_mean"),
         (dict(seed=1.5), "seed"),
     ],
@@ -126,14 +127,14 @@ def test_bad_arrays():
         simulate_detections([1], np.zeros((3, 1, 2)), 0, 10, PERFECT)
 
 
-def test_attach_detections_reads_the_trackers_detector_fields():
+def test_attach_detections_takes_the_detector_explicitly():
+    """The detector comes from the caller (the detection source), not from the tracker's
+    parameters: a tracker whose params carry detector-like fields does not change it."""
+
     class Fake:
         def __init__(self):
-            self.params = type(
-                "P",
-                (),
-                {"miss_rate": 0.0, "false_alarm_rate": 0.0, "jitter_px": 0.0, "score_std": 0.0},
-            )()
+            # detector-like fields on the tracker must be ignored
+            self.params = type("P", (), {"miss_rate": 1.0, "box_px": 2.0})()
             self.feed = None
 
         def use_detections(self, feed):
@@ -151,10 +152,20 @@ def test_attach_detections_reads_the_trackers_detector_fields():
         points=pts,
     )
     fake = Fake()
-    dets = attach_detections(fake, seq)
+    exact = DetectionParams(miss_rate=0.0, false_alarm_rate=0.0, jitter_px=0.0, score_std=0.0)
+    dets = attach_detections(fake, seq, exact)
     assert fake.feed is dets and [d.gt_id.tolist() for d in dets] == [[5], [5]]
-    np.testing.assert_array_equal(dets[1].xyxy, [[8, 7, 14, 13]])
-    assert attach_detections(object(), seq) is None  # trackers without detections: untouched
+    np.testing.assert_array_equal(dets[1].xyxy, [[8, 7, 14, 13]])  # template size 6, not 2
+    assert [d.confidence.tolist() for d in dets] == [[0.8], [0.8]]
+    # no detector given: DetectionParams(), whatever the tracker's params say
+    default = attach_detections(Fake(), seq)
+    expected = simulate_detections(*seq.gt_points(), 32, 24, DetectionParams(), template_size=6)
+    for d, e in zip(default, expected, strict=True):
+        np.testing.assert_array_equal(d.xyxy, e.xyxy)
+        np.testing.assert_array_equal(d.confidence, e.confidence)
+    assert attach_detections(object(), seq, exact) is None  # no use_detections: untouched
+    with pytest.raises(ValueError, match="params must be a DetectionParams, got dict"):
+        attach_detections(Fake(), seq, {"miss_rate": 0.0})
     no_gt = InMemorySequence(
         name="v",
         frame_rate=25,

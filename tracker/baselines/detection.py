@@ -15,13 +15,18 @@ How detections reach the tracker
     * a callable ``feed(frame_index, frame) -> detections`` (a live detector);
 
     where *detections* is an object with ``xyxy (m, 4)`` px and ``confidence (m,)`` in
-    ``[0, 1]`` (:class:`synth_data.detections.Detections`, ``supervision.Detections``), or a
+    ``[0, 1]`` (:class:`crowdsim.detections.Detections`, ``supervision.Detections``), or a
     tuple ``(xyxy, confidence)``. For the reference rows, the application layer calls
-    :func:`synth_data.detections.attach_detections(tracker, source)`, which draws detections
-    from the source's ground truth with the detector described by the tracker's own
-    parameters (``miss_rate``, ``false_alarm_rate``, ``jitter_px``, ... — so that
-    "ByteTrack at miss rate 0.3" is a parameter setting, as the registry and tables need).
+    :func:`synth_data.detections.attach_detections(tracker, source, params)`, which draws
+    detections from the source's ground truth with the simulated detector ``params``
+    (``synth_data.detections.DetectionParams``: miss rate, false alarms, jitter, ...).
     Tracking without a feed raises ``ValueError`` saying so.
+
+Parameters
+    Detection settings belong to the source that produces the detections (the simulated
+    detector or a trained one), not to the tracker: :class:`DetectionTrackerParams` holds only
+    association settings, so "ByteTrack at miss rate 0.3" is the same tracker fed by another
+    detector (``crowdsim.lab.experiments.Row.detections``).
 
 Targets given to ``init``/``step``
     The initial targets and births are validated but not used: a tracking-by-detection
@@ -55,21 +60,6 @@ import numpy as np
 from crowdsim.checks import require_number
 from tracker.base import Tracker, as_points
 
-DETECTOR_FIELDS: frozenset[str] = frozenset(
-    {
-        "miss_rate",
-        "false_alarm_rate",
-        "jitter_px",
-        "box_px",
-        "score_mean",
-        "score_std",
-        "false_score_mean",
-        "seed",
-    }
-)
-"""Fields describing the simulated detector (same names as
-``synth_data.detections.DetectionParams``); fixed once a sequence has started."""
-
 
 def _import_trackers() -> tuple[Any, Any]:
     from crowdsim.optional import require
@@ -80,16 +70,13 @@ def _import_trackers() -> tuple[Any, Any]:
 
 @dataclass(frozen=True, kw_only=True)
 class DetectionTrackerParams:
-    """Parameters shared by the detection trackers: the simulated detector they are fed with,
-    and the association knobs common to ByteTrack and OC-SORT.
+    """Association settings shared by ByteTrack and OC-SORT.
+
+    The detector that feeds them is configured where the detections are made
+    (``synth_data.detections.DetectionParams`` for the simulated one), not here.
 
     Attributes
     ----------
-    miss_rate, false_alarm_rate, jitter_px, box_px, score_mean, score_std, false_score_mean,
-    seed
-        The detector (see ``synth_data.detections.DetectionParams``): probability a head is
-        missed per frame, false alarms per frame per 100 people in view, centre noise (px),
-        box side (px, ``None``: the template size), score distribution, seed.
     lost_track_buffer : int
         Frames a track survives without a matched detection before it ends.
     minimum_consecutive_frames : int
@@ -100,14 +87,6 @@ class DetectionTrackerParams:
         Score separating high- from low-confidence detections.
     """
 
-    miss_rate: float = 0.1
-    false_alarm_rate: float = 1.0
-    jitter_px: float = 1.0
-    box_px: float | None = None
-    score_mean: float = 0.8
-    score_std: float = 0.1
-    false_score_mean: float = 0.5
-    seed: int = 0
     lost_track_buffer: int = 30
     minimum_consecutive_frames: int = 2
     minimum_iou_threshold: float = 0.1
@@ -115,15 +94,6 @@ class DetectionTrackerParams:
 
     def __post_init__(self) -> None:
         own = type(self).__name__
-        require_number(own, "miss_rate", self.miss_rate, lo=0, hi=1)
-        require_number(own, "false_alarm_rate", self.false_alarm_rate, lo=0, hi=1000)
-        require_number(own, "jitter_px", self.jitter_px, lo=0, hi=1000)
-        if self.box_px is not None:
-            require_number(own, "box_px", self.box_px, lo=1, hi=4096)
-        require_number(own, "score_mean", self.score_mean, lo=0, hi=1)
-        require_number(own, "score_std", self.score_std, lo=0)
-        require_number(own, "false_score_mean", self.false_score_mean, lo=0, hi=1)
-        require_number(own, "seed", self.seed, lo=0, hi=2**63, hi_open=True, integer=True)
         require_number(
             own, "lost_track_buffer", self.lost_track_buffer, lo=0, hi=100_000, integer=True
         )
@@ -224,7 +194,6 @@ class DetectionTracker(Tracker):
     library_class: ClassVar[str] = ""
     id_mapping: ClassVar[str] = "majority"
     """How the runner relates this tracker's ids to the ground truth (see module docstring)."""
-    fixed_params = DETECTOR_FIELDS
 
     def __init__(
         self, params: DetectionTrackerParams | None = None, detections: DetectionFeed | None = None

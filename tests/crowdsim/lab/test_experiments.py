@@ -11,7 +11,9 @@ import pytest
 from crowdsim.knobs import apply_knobs, knob_values
 from crowdsim.lab import calibration, experiments
 from crowdsim.lab.experiments import Row, run_table
+from synth_data.detections import DetectionParams
 from synth_data.spec import load_spec, spec_from_dict
+from tracker.detect.inference import DetectorParams
 
 
 def tiny(name: str = "tiny", frames: int = 8, **appearance):
@@ -59,6 +61,17 @@ def test_bad_rows_fail_before_any_work(tmp_path):
         run_table((Row("x", "bqp", {"zetaa": 1.0}),), [tiny()], tmp_path / "t", progress=False)
     with pytest.raises(ValueError, match="valid trackers"):
         run_table((Row("x", "kalman"),), [tiny()], tmp_path / "t", progress=False)
+    with pytest.raises(ValueError, match="row 'x' gives a detector, but tracker 'ncc' takes no"):
+        run_table(
+            (Row("x", "ncc", detections=DetectionParams()),),
+            [tiny()],
+            tmp_path / "t",
+            progress=False,
+        )
+    with pytest.raises(ValueError, match="tracker 'bytetrack' has no parameter\\(s\\) miss_rate"):
+        run_table(
+            (Row("x", "bytetrack", {"miss_rate": 0.3}),), [tiny()], tmp_path / "t", progress=False
+        )
     assert not (tmp_path / "t").exists()
 
 
@@ -201,8 +214,16 @@ def test_every_row_has_its_own_cell_key():
             assert all(k.startswith("seq5|") for k in keys)
     # another sequence or frame count never reuses a cell
     row = experiments.COMPARE_ROWS[5]  # ByteTrack miss 0.1
-    assert row.overrides == {"miss_rate": 0.1}
+    assert row.overrides == {} and row.detections == DetectionParams(miss_rate=0.1)
     assert len({experiments.cell_key(s, row, f) for s in ("seq1", "seq2") for f in (None, 9)}) == 4
+    # the detector is part of the key: another detector is another cell; no detector is the
+    # default one (the detector a detection tracker then gets)
+    other = Row(row.label, row.tracker, detections=DetectionParams(miss_rate=0.1, seed=1))
+    default = Row(row.label, row.tracker)
+    assert experiments.cell_key("s", other, None) != experiments.cell_key("s", row, None)
+    assert experiments.cell_key("s", default, None) == experiments.cell_key(
+        "s", Row("y", "bytetrack", detections=DetectionParams()), None
+    )
 
 
 def _differing_specs():
@@ -286,7 +307,7 @@ def experiments_paper_file():
 
 
 # ------------------------------------------------------------------ checked cells and flags
-def _fake_cell(seq_dir, tracker, overrides, frames):
+def _fake_cell(seq_dir, tracker, overrides, frames, detections=None):
     from pathlib import Path
 
     v = float(sum(map(ord, Path(seq_dir).name + tracker)) % 90)
@@ -342,6 +363,70 @@ def test_address_needs_ray_and_a_suite_folder_brings_its_paper_figures(tmp_path,
     (suite / "paper.json").write_text('{"acc@15": {"NCC": {"a": "high"}}}')
     with pytest.raises(ValueError, match=r"paper.json: acc@15.NCC.a must be a percentage"):
         run_table(ROWS, suite, tmp_path / "t", progress=False, log=lambda m: None)
+
+
+def test_compare_rows_feed_their_detector_to_the_cell(tmp_path, monkeypatch):
+    seen = {}
+
+    def record(seq_dir, tracker, overrides, frames, detections=None):
+        seen[(tracker, detections)] = overrides
+        return _fake_cell(seq_dir, tracker, overrides, frames)
+
+    rows = tuple(r for r in experiments.COMPARE_ROWS if r.tracker in ("bytetrack", "ocsort"))
+    assert [r.label for r in rows] == [
+        "ByteTrack miss 0.1",
+        "ByteTrack miss 0.3",
+        "OC-SORT miss 0.1",
+        "OC-SORT miss 0.3",
+        "ByteTrack (head detector)",
+        "OC-SORT (head detector)",
+    ]
+    monkeypatch.setattr(experiments, "run_cell", record)
+    run_table(rows, [tiny("a")], tmp_path / "t", progress=False, log=lambda m: None)
+    simulated = {
+        (t, DetectionParams(miss_rate=m)): {} for t in ("bytetrack", "ocsort") for m in (0.1, 0.3)
+    }
+    trained = {(t, DetectorParams()): {} for t in ("bytetrack", "ocsort")}
+    assert seen == simulated | trained
+    assert all(r.detections is None for r in experiments.COMPARE_ROWS if r not in rows)
+
+
+def test_a_detection_row_tracks_with_its_own_detector(tmp_path):
+    pytest.importorskip("trackers", reason="needs the optional 'trackers' package ([detect])")
+    clean = DetectionParams(miss_rate=0.0, false_alarm_rate=0.0, jitter_px=0.0)
+    rows = (
+        Row("clean", "bytetrack", detections=clean),
+        Row("poor", "bytetrack", detections=DetectionParams(miss_rate=0.9)),
+    )
+    out = tmp_path / "t"
+    run_table(rows, [tiny("a", frames=10)], out, progress=False, log=lambda m: None)
+    cells = experiments.read_cells(out / experiments.CELLS_FILE)
+    acc = {r.label: cells[experiments.cell_key("a", r, None)]["acc@15"] for r in rows}
+    assert acc["clean"] > 80.0 and acc["poor"] < 20.0
+
+
+def test_a_row_fed_by_the_trained_detector_finds_the_people(tmp_path):
+    pytest.importorskip("trackers", reason="needs the optional 'trackers' package ([detect])")
+    pytest.importorskip("torch", reason="needs torch ([detect])")
+    rows = (Row("detector", "bytetrack", detections=DetectorParams()),)
+    out = tmp_path / "t"
+    run_table(rows, [tiny("a", frames=10)], out, progress=False, log=lambda m: None)
+    cells = experiments.read_cells(out / experiments.CELLS_FILE)
+    assert cells[experiments.cell_key("a", rows[0], None)]["acc@15"] > 70.0
+
+
+def test_new_weights_are_a_new_cell(tmp_path):
+    import shutil
+
+    from tracker.detect.inference import DEFAULT_WEIGHTS
+
+    other = tmp_path / "other.pt"
+    shutil.copy(DEFAULT_WEIGHTS, other)
+    with open(other, "ab") as fh:
+        fh.write(b"\0")
+    a = experiments.cell_key("a", Row("x", "bytetrack", detections=DetectorParams()), None)
+    b = Row("x", "bytetrack", detections=DetectorParams(weights=str(other)))
+    assert a != experiments.cell_key("a", b, None)
 
 
 def test_with_cmc_adds_a_compensated_row_for_each_detection_free_tracker():

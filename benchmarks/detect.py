@@ -1,0 +1,82 @@
+"""Head detector speed at 1280x720: the trained network beside the classical LoG baseline.
+
+Renders crowds of ``--people`` over a 1280x720 frame (:func:`synth_data.sequence.
+synthetic_crowd`, template 12 px), then times :meth:`tracker.detect.HeadDetector.detect_points`
+(forward pass, peak decoding) and :meth:`tracker.detect.LogDetector.detect_points` on the same
+frames, best of ``--repeats`` passes over ``--frames`` frames, with torch and OpenCV on 1 and
+on all cores. Also reports F1 at 5 px on those frames (the renderer's default look). Prints a
+table and one JSON object::
+
+    python benchmarks/detect.py                 # 1 and 2 threads on this machine
+    python benchmarks/detect.py --threads 1 2 4 8 16
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--people", type=int, default=1000)
+    ap.add_argument("--frames", type=int, default=10)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--threads", type=int, nargs="+", default=None)
+    args = ap.parse_args()
+    cores = os.cpu_count() or 1
+    threads = args.threads or sorted({1, cores})
+    for n in threads:
+        if not 1 <= n <= cores:
+            ap.error(f"--threads must be in [1, {cores}], got {n}")
+
+    import cv2
+    import numpy as np
+    import torch
+
+    from synth_data.sequence import synthetic_crowd
+    from tracker.detect import HeadDetector, LogDetector, LogParams, score_frame
+
+    crowd = synthetic_crowd(args.people, args.frames, seed=3, template_px=12)
+    frames = list(crowd.frames())
+    gt = crowd.gt_points()[1]
+    net = HeadDetector(template_size=12)
+    log = LogDetector(LogParams(template_px=12, threshold=8.0, polarity="both"))
+    rows = []
+    for n in threads:
+        torch.set_num_threads(n)
+        cv2.setNumThreads(n)
+        for name, det in (("head detector", net), ("LoG baseline", log)):
+            det.detect_points(frames[0])  # warm-up
+            best = float("inf")
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                found = [det.detect_points(f)[0] for f in frames]
+                best = min(best, (time.perf_counter() - t0) / len(frames))
+            score = sum(
+                (score_frame(p, g, 5.0) for p, g in zip(found, gt, strict=True)),
+                start=score_frame(np.zeros((0, 2)), np.zeros((0, 2))),
+            )
+            rows.append(
+                {
+                    "method": name,
+                    "threads": n,
+                    "ms_per_frame": round(1000 * best, 2),
+                    "fps": round(1 / best, 1),
+                    "f1@5px": round(score.f1, 4),
+                }
+            )
+    print(f"{'method':<14} {'threads':>7} {'ms/frame':>9} {'frames/s':>9} {'F1@5px':>7}")
+    for r in rows:
+        print(
+            f"{r['method']:<14} {r['threads']:>7} {r['ms_per_frame']:>9.1f} {r['fps']:>9.1f} "
+            f"{r['f1@5px']:>7.3f}"
+        )
+    print(json.dumps({"size": "1280x720", "people": args.people, "rows": rows}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

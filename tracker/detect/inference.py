@@ -1,0 +1,202 @@
+"""Run the head-point network on frames: :class:`HeadDetector` and its weights files.
+
+A weights file is one ``torch.save`` of a plain dictionary (loaded with
+``torch.load(weights_only=True)``, so a file can never run code):
+
+* ``format``: ``"crowdsim-head-points"``, ``version``: 1;
+* ``architecture``: :class:`tracker.detect.model.Architecture` as a dictionary;
+* ``state_dict``: the network's tensors;
+* ``meta``: how the weights were made (the command, the data, the seed; ``crowdsim detector
+  train`` writes it, and a JSON copy beside the file for people).
+
+The default weights ship inside the package (:data:`DEFAULT_WEIGHTS`); nothing is downloaded.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from crowdsim.checks import require_number
+from tracker.detect.model import STRIDE, Architecture, build_net, decode, padded_size, standardise
+
+FORMAT = "crowdsim-head-points"
+VERSION = 1
+DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "head_points.pt"
+"""The shipped weights (``crowdsim detector train``; the command and data are in the JSON
+beside them)."""
+MIN_SIDE = 2 * STRIDE
+"""The smallest frame side the network takes, px (two output cells)."""
+
+
+class WeightsError(ValueError):
+    """A weights file that is missing, damaged or not a head-detector's."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class DetectorParams:
+    """Settings of the trained head detector (they belong to the detector, not the tracker).
+
+    Attributes
+    ----------
+    weights : str or None
+        Weights file; ``None``: the shipped :data:`DEFAULT_WEIGHTS`.
+    threshold : float
+        Least heat-map peak (the detection's confidence) kept, in ``(0, 1)``.
+    box_px : float or None
+        Side of the square boxes around each point (for tracking by detection); ``None``: the
+        template size given to :meth:`HeadDetector.detect`.
+    """
+
+    weights: str | None = None
+    threshold: float = 0.4
+    box_px: float | None = None
+
+    def __post_init__(self) -> None:
+        own = "DetectorParams"
+        require_number(own, "threshold", self.threshold, lo=0, hi=1, lo_open=True, hi_open=True)
+        if self.box_px is not None:
+            require_number(own, "box_px", self.box_px, lo=1, hi=4096)
+        if self.weights is not None and not isinstance(self.weights, (str, os.PathLike)):
+            raise ValueError(f"{own}.weights must be a file path, got {self.weights!r}")
+
+
+def save_weights(path: str | os.PathLike[str], net: Any, arch: Architecture, meta: dict) -> Path:
+    """Write a weights file atomically (temporary file, then rename)."""
+    from crowdsim.atomic import atomic_path
+    from crowdsim.optional import require
+
+    torch = require("torch", "detect", "the head detector")
+    blob = {
+        "format": FORMAT,
+        "version": VERSION,
+        "architecture": arch.to_dict(),
+        "state_dict": {k: v.detach().clone() for k, v in net.state_dict().items()},
+        "meta": meta,
+    }
+    with atomic_path(path) as tmp:
+        torch.save(blob, tmp)
+    return Path(path)
+
+
+def load_weights(path: str | os.PathLike[str] | None = None) -> tuple[Any, dict]:
+    """``(net in eval mode, meta)`` from a weights file; :class:`WeightsError` names the file
+    when it is missing, damaged or foreign."""
+    from crowdsim.optional import require
+
+    torch = require("torch", "detect", "the head detector")
+    path = Path(path) if path is not None else DEFAULT_WEIGHTS
+    if not path.is_file():
+        raise WeightsError(f"{path}: no such weights file")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many kinds for a damaged file
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise WeightsError(f"{path}: not a readable weights file ({reason[:200]})") from None
+    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
+        raise WeightsError(f"{path}: not a crowdsim head-detector weights file")
+    if blob.get("version") != VERSION:
+        raise WeightsError(
+            f"{path}: weights format version {blob.get('version')!r}, need {VERSION}"
+        )
+    try:
+        arch = Architecture.from_dict(blob["architecture"])
+        net = build_net(arch)
+        net.load_state_dict(blob["state_dict"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise WeightsError(f"{path}: weights do not fit the network ({reason[:200]})") from None
+    net.eval()
+    return net.to(memory_format=torch.channels_last), dict(blob.get("meta", {}))
+
+
+def weights_digest(params: DetectorParams | None = None) -> str:
+    """The SHA-256 (first 16 hex digits) of the weights file ``params`` names."""
+    import hashlib
+
+    path = Path(params.weights) if params and params.weights is not None else DEFAULT_WEIGHTS
+    if not path.is_file():
+        raise WeightsError(f"{path}: no such weights file")
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+@lru_cache(maxsize=4)
+def _cached(path: str, mtime_ns: int, size: int) -> tuple[Any, dict]:
+    return load_weights(path)
+
+
+class HeadDetector:
+    """Head points of a frame from the trained network.
+
+    >>> det = HeadDetector()  # doctest: +SKIP
+    >>> points, scores = det.detect_points(frame)  # doctest: +SKIP
+
+    It is also a detection feed for the tracking-by-detection trackers: ``det(t, frame)``
+    returns the frame's :class:`crowdsim.detections.Detections`.
+    """
+
+    def __init__(self, params: DetectorParams | None = None, *, template_size: float = 12) -> None:
+        self.params = params if params is not None else DetectorParams()
+        require_number("HeadDetector", "template_size", template_size, lo=1)
+        self.template_size = float(template_size)
+        path = Path(self.params.weights) if self.params.weights is not None else DEFAULT_WEIGHTS
+        st = path.stat() if path.is_file() else None
+        if st is None:
+            raise WeightsError(f"{path}: no such weights file")
+        self.path = path
+        self.net, self.meta = _cached(str(path.resolve()), st.st_mtime_ns, st.st_size)
+
+    def __repr__(self) -> str:
+        return f"HeadDetector({self.path.name}, threshold={self.params.threshold:g})"
+
+    def heatmap(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(heat (h, w) probabilities, offsets (2, h, w))`` of one ``(H, W, 3)`` uint8 frame."""
+        import torch
+
+        frame = np.asarray(frame)
+        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+            raise ValueError(
+                f"a frame must be (H, W, 3) uint8, got {frame.shape} {frame.dtype} array"
+            )
+        h, w = frame.shape[:2]
+        if min(h, w) < MIN_SIDE:
+            raise ValueError(
+                f"frame {w}x{h} is smaller than the detector's smallest input "
+                f"({MIN_SIDE} px a side)"
+            )
+        x = standardise(frame[None])
+        ph, pw = padded_size(h, w)
+        if (ph, pw) != (h, w):  # zeros are the mean colour after standardisation
+            x = np.pad(x, ((0, 0), (0, 0), (0, ph - h), (0, pw - w)))
+        with torch.inference_mode():
+            t = torch.from_numpy(x).contiguous(memory_format=torch.channels_last)
+            out = self.net(t)[0].float().numpy()
+        heat = 1.0 / (1.0 + np.exp(-out[0]))
+        return heat, out[1:3]
+
+    def detect_points(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Head centres ``(m, 2)`` px and confidences ``(m,)`` in one frame, best first."""
+        heat, offsets = self.heatmap(frame)
+        pts, scores = decode(heat, offsets, self.params.threshold)
+        h, w = np.asarray(frame).shape[:2]
+        inside = (pts[:, 0] <= w - 1) & (pts[:, 1] <= h - 1) & (pts >= 0).all(1)
+        return pts[inside], scores[inside]
+
+    def detect(self, frame: np.ndarray, template_size: float | None = None) -> Any:
+        """One frame's :class:`crowdsim.detections.Detections` (square boxes of ``box_px``, or
+        of the template size, around each point)."""
+        from crowdsim.detections import Detections
+
+        pts, scores = self.detect_points(frame)
+        side = self.params.box_px or template_size or self.template_size
+        h, w = np.asarray(frame).shape[:2]
+        return Detections.from_points(pts, scores, float(side), width=w, height=h)
+
+    def __call__(self, t: int, frame: np.ndarray) -> Any:
+        """A detection feed: the detections of frame ``t``."""
+        return self.detect(frame)
