@@ -188,3 +188,17 @@ def test_track_a_folder_from_detections_and_evaluate(tmp_path, rendered, capsys)
     gt_ids = np.unique(np.loadtxt(folder / "gt" / "gt.txt", delimiter=",")[:, 1]).astype(int)
     assert len(np.intersect1d(ids, gt_ids)) == int(matched)  # matched heads carry gt ids
     assert "acc@15" in cap.out
+
+
+def test_bytetrack_on_a_video_is_fed_by_the_head_detector(tmp_path, rendered, capsys):
+    pytest.importorskip("trackers", reason="needs the optional 'trackers' package ([detect])")
+    video, seq, _ = rendered
+    out = tmp_path / "bt.txt"
+    assert (
+        main(["track", str(video), "--tracker", "bytetrack", "--out", str(out), "--no-progress"])
+        == 0
+    )
+    rows = np.loadtxt(out, delimiter=",")
+    people = int(np.isfinite(seq.gt_points()[1][-1]).all(1).sum())
+    last = rows[rows[:, 0] == rows[:, 0].max()]
+    assert len(last) >= 0.8 * people  # confirmed tracks on (nearly) every head in view

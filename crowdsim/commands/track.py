@@ -72,6 +72,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="frames between detections with --births detect (10)",
     )
     p.add_argument(
+        "--detections",
+        choices=("simulated", "detector"),
+        default=None,
+        help="what feeds a tracking-by-detection tracker (bytetrack, ocsort): detections "
+        "simulated from the ground truth (default for a folder) or the head detector run on "
+        "the frames (default for a video)",
+    )
+    p.add_argument(
         "--detector-weights", metavar="FILE", default=None, help="head detector weights (shipped)"
     )
     p.add_argument(
@@ -227,6 +235,17 @@ def _detector(args: argparse.Namespace) -> object:
     return HeadDetector(params, template_size=args.template_size or 12)
 
 
+def _feed(tracker: object, source: object, detector: object = None) -> None:
+    """Give a tracking-by-detection tracker its detections: the head detector's, or ones
+    simulated from the source's ground truth."""
+    from synth_data.detections import attach_detections
+
+    if detector is None:
+        attach_detections(tracker, source)
+    elif hasattr(tracker, "use_detections"):
+        tracker.use_detections(detector)
+
+
 def _detected_start(
     args: argparse.Namespace, src: object, detector: object, size: int, use_detector: bool
 ) -> tuple[object, object]:
@@ -239,6 +258,8 @@ def _detected_start(
     if detector is None:
         return None, None
     detector.template_size = float(size)
+    if not (use_detector or args.births == "detect"):
+        return None, None
     gt_ids, gt_pts = src.gt_points()
     if use_detector:
         first = next(iter(src.frames()), None)
@@ -281,8 +302,9 @@ def _detected_start(
 
 
 def run(args: argparse.Namespace) -> int:
+    from functools import partial
+
     from envs.episodes import verify_folder
-    from synth_data.detections import attach_detections
     from synth_data.mot import write_mot
     from synth_data.sequence import open_sequence
     from tracker.metrics import format_table
@@ -309,7 +331,8 @@ def run(args: argparse.Namespace) -> int:
     use_detector = args.init == "detect" or (args.init is None and not is_folder)
     if args.detect_every < 1:
         raise ValueError(f"--detect-every must be >= 1, got {args.detect_every}")
-    detector = _detector(args) if use_detector or args.births == "detect" else None
+    feed_detector = args.detections == "detector" or (args.detections is None and not is_folder)
+    detector = _detector(args) if use_detector or args.births == "detect" or feed_detector else None
     src = open_sequence(args.input, init=None if use_detector else args.init)
     if is_folder:
         verify_folder(src)  # a damaged, truncated or swapped image is named, not tracked
@@ -328,7 +351,7 @@ def run(args: argparse.Namespace) -> int:
         template_size=size,
         metrics="full" if args.evaluate else "none",
         progress=not args.no_progress,
-        prepare=attach_detections,
+        prepare=partial(_feed, detector=detector if feed_detector else None),
         start=start,
         births=births,
     )
