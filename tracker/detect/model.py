@@ -109,8 +109,8 @@ def targets(
     ``(row, col)`` of the heads inside the map, and ``offsets (m, 2)`` float32 ``(dx, dy)``.
 
     >>> h, cells, off = targets(np.array([[9.0, 4.4]]), 4, 4, 8)
-    >>> cells.tolist(), np.round(off, 2).tolist(), float(h[1, 2]), float(h[1, 1]) < 1
-    ([[1, 2]], [[0.25, 0.1]], 1.0, True)
+    >>> cells.tolist(), [round(float(v), 2) for v in off[0]], float(h[1, 2]), float(h[1, 1]) < 1
+    ([[1, 2]], [0.25, 0.1], 1.0, True)
     """
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     pts = pts[np.isfinite(pts).all(1)]
