@@ -16,22 +16,26 @@ from tracker.detect.matching import score_frame
 pytest.importorskip("torch", reason="the head detector needs torch ([detect])")
 
 
-@pytest.fixture(scope="module")
-def rendered(tmp_path_factory):
-    """A marathon start (people keep entering) at the renderer's default look, as an MP4."""
-    spec = spec_from_dict(
+def clip_spec(name: str = "clip", frames: int = 24):
+    """A commuter scene (people keep entering) at the renderer's default look."""
+    return spec_from_dict(
         {
-            "name": "clip",
+            "name": name,
             "seed": 11,
-            "frames": 24,
+            "frames": frames,
             "warmup_steps": 10,
             "scenario": {"name": "commuters", "n_agents": 60, "density": 0.8},
             "camera": {"max_width": 320, "max_height": 240},
             "appearance": {"template_px": 12},
         },
-        source="clip.toml",
+        source=f"{name}.toml",
     )
-    seq = InMemorySequence.from_spec(spec, camera_output=True).materialize()
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """``(video, sequence)``: :func:`clip_spec` rendered in memory and written as an MP4."""
+    seq = InMemorySequence.from_spec(clip_spec(), camera_output=True).materialize()
     frames = list(seq.frames())
     path = tmp_path_factory.mktemp("video") / "clip.mp4"
     h, w = frames[0].shape[:2]
@@ -39,16 +43,7 @@ def rendered(tmp_path_factory):
     for f in frames:
         vw.write(f)
     vw.release()
-    first = next(iter(InMemorySequenceFromVideo(path)))
-    return path, seq, first
-
-
-def InMemorySequenceFromVideo(path):  # noqa: N802 - a tiny frame reader for the fixture
-    cap = cv2.VideoCapture(str(path))
-    ok, img = cap.read()
-    cap.release()
-    assert ok
-    yield img
+    return path, seq
 
 
 def _error_line(capsys, command):
@@ -58,7 +53,7 @@ def _error_line(capsys, command):
 
 
 def test_detect_writes_the_people_of_frame_one_as_an_init_file(tmp_path, rendered, capsys):
-    video, seq, _ = rendered
+    video, seq = rendered
     out = tmp_path / "points.csv"
     assert main(["detect", str(video), "--out", str(out), "--no-progress"]) == 0
     frames, ids, pts = read_points_csv(out)  # the file --init reads
@@ -70,7 +65,7 @@ def test_detect_writes_the_people_of_frame_one_as_an_init_file(tmp_path, rendere
 
 
 def test_detect_all_frames_with_scores(tmp_path, rendered):
-    video, seq, _ = rendered
+    video, seq = rendered
     out = tmp_path / "all.csv"
     assert (
         main(["detect", str(video), "--out", str(out), "--all", "--scores", "--no-progress"]) == 0
@@ -81,7 +76,7 @@ def test_detect_all_frames_with_scores(tmp_path, rendered):
 
 
 def test_track_a_video_with_no_points_starts_from_the_detector(tmp_path, rendered, capsys):
-    video, _, _ = rendered
+    video, _ = rendered
     out = tmp_path / "res.txt"
     args = ["track", str(video), "--out", str(out), "--no-progress", "--tracker", "ncc"]
     assert main([*args, "--births", "detect", "--detect-every", "4"]) == 0
@@ -102,7 +97,7 @@ def test_track_a_video_with_no_points_starts_from_the_detector(tmp_path, rendere
     ],
 )
 def test_track_refuses_bad_detector_flags(tmp_path, rendered, capsys, extra, needle):
-    video, _, _ = rendered
+    video, _ = rendered
     assert main(["track", str(video), "--out", str(tmp_path / "r.txt"), *extra]) == 2
     assert needle in _error_line(capsys, "track")
 
@@ -110,7 +105,7 @@ def test_track_refuses_bad_detector_flags(tmp_path, rendered, capsys, extra, nee
 def test_damaged_or_foreign_weights_are_named(tmp_path, rendered, capsys):
     import torch
 
-    video, _, _ = rendered
+    video, _ = rendered
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"PK\x03\x04 truncated")
     foreign = tmp_path / "foreign.pt"
@@ -127,7 +122,7 @@ def test_damaged_or_foreign_weights_are_named(tmp_path, rendered, capsys):
 
 
 def test_detect_bad_inputs(tmp_path, rendered, capsys):
-    video, _, _ = rendered
+    video, _ = rendered
     out = str(tmp_path / "p.csv")
     assert main(["detect", str(video), "--out", out, "--threshold", "1"]) == 2
     assert "--threshold" in _error_line(capsys, "detect")
@@ -156,25 +151,10 @@ def test_detector_train_refuses_bad_flags(tmp_path, capsys):
     assert not (tmp_path / "d").exists()
 
 
-def test_track_a_folder_from_detections_and_evaluate(tmp_path, rendered, capsys):
-    from dataclasses import replace
-
+def test_track_a_folder_from_detections_and_evaluate(tmp_path, capsys):
     from synth_data.generate import build_sequence
 
-    _, seq, _ = rendered
-    spec = spec_from_dict(
-        {
-            "name": "clipdir",
-            "seed": 11,
-            "frames": 12,
-            "warmup_steps": 10,
-            "scenario": {"name": "commuters", "n_agents": 60, "density": 0.8},
-            "camera": {"max_width": 320, "max_height": 240},
-            "appearance": {"template_px": 12},
-        },
-        source="clipdir.toml",
-    )
-    build_sequence(replace(spec), tmp_path)
+    build_sequence(clip_spec("clipdir", frames=12), tmp_path)
     folder = tmp_path / "clipdir"
     out = tmp_path / "res.txt"
     args = ["track", str(folder), "--out", str(out), "--init", "detect", "--evaluate"]
@@ -192,7 +172,7 @@ def test_track_a_folder_from_detections_and_evaluate(tmp_path, rendered, capsys)
 
 def test_bytetrack_on_a_video_is_fed_by_the_head_detector(tmp_path, rendered, capsys):
     pytest.importorskip("trackers", reason="needs the optional 'trackers' package ([detect])")
-    video, seq, _ = rendered
+    video, seq = rendered
     out = tmp_path / "bt.txt"
     assert (
         main(["track", str(video), "--tracker", "bytetrack", "--out", str(out), "--no-progress"])

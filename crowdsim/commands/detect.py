@@ -38,6 +38,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def detector_params(weights: str | None, threshold: float | None, flag: str) -> object:
+    """:meth:`tracker.detect.DetectorParams.given`, a bad threshold named by its flag."""
+    from tracker.detect import DetectorParams
+
+    try:
+        return DetectorParams.given(weights, threshold)
+    except ValueError as exc:
+        raise ValueError(str(exc).replace("DetectorParams.threshold", flag)) from None
+
+
 def run(args: argparse.Namespace) -> int:
     import io
     import itertools
@@ -47,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from crowdsim.atomic import write_text_atomic
     from crowdsim.progress import progress_bar
     from synth_data.sequence import open_sequence
-    from tracker.detect import DetectorParams, HeadDetector
+    from tracker.detect import HeadDetector
 
     if not args.all and args.frames < 1:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
@@ -56,12 +66,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--out must end in .csv, got {args.out!r}")
     if out.is_dir():
         raise ValueError(f"--out {out} is a folder, not a file")
-    over = {} if args.threshold is None else {"threshold": args.threshold}
-    try:
-        params = DetectorParams(weights=args.weights, **over)
-    except ValueError as exc:
-        raise ValueError(str(exc).replace("DetectorParams.threshold", "--threshold")) from None
-    detector = HeadDetector(params)
+    detector = HeadDetector(detector_params(args.weights, args.threshold, "--threshold"))
     src = open_sequence(args.input)
     n = src.length if args.all else min(args.frames, src.length)
     buf = io.StringIO()

@@ -223,15 +223,10 @@ def _tuned(args: argparse.Namespace, src: object) -> tuple[object, object, str]:
 
 def _detector(args: argparse.Namespace) -> object:
     """The head detector of ``--detector-weights`` / ``--detector-threshold``."""
-    from tracker.detect import DetectorParams, HeadDetector
+    from crowdsim.commands.detect import detector_params
+    from tracker.detect import HeadDetector
 
-    over = {} if args.detector_threshold is None else {"threshold": args.detector_threshold}
-    try:
-        params = DetectorParams(weights=args.detector_weights, **over)
-    except ValueError as exc:
-        raise ValueError(
-            str(exc).replace("DetectorParams.threshold", "--detector-threshold")
-        ) from None
+    params = detector_params(args.detector_weights, args.detector_threshold, "--detector-threshold")
     return HeadDetector(params, template_size=args.template_size or 12)
 
 

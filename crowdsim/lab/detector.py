@@ -567,9 +567,7 @@ def evaluate(
     require_number("", "--frames", frames, lo=1, hi=20, integer=True)
     require_number("", "--radius", radius, lo=0, hi=1000, lo_open=True)
     require_number("", "--baseline-sequences", baseline_sequences, lo=1, hi=10_000, integer=True)
-    params = DetectorParams(weights=weights)
-    if threshold is not None:
-        params = replace(params, threshold=threshold)
+    params = DetectorParams.given(weights, threshold)
     det = HeadDetector(params)
     config = TrainConfig(**det.meta["config"]) if "config" in det.meta else TrainConfig()
     thresholds = _baseline_thresholds(config, baseline_sequences, workers, progress, radius)
@@ -784,9 +782,7 @@ def track_from_detections(
     from tracker.metrics import accuracy_curve
     from tracker.runner import run_tracker
 
-    params = DetectorParams(weights=weights)
-    if threshold is not None:
-        params = replace(params, threshold=threshold)
+    params = DetectorParams.given(weights, threshold)
     seq = InMemorySequence.from_spec(spec, frames=frames, camera_output=True).materialize()
     det = HeadDetector(params, template_size=seq.template_size)
     gt_ids, gt_pts = seq.gt_points()

@@ -356,6 +356,14 @@ def _degrees(k, offsets, loc, s_val, g_val, a_ptr, b_order, b_ptr, deg_s, deg_g,
                 n_up[base + j] += 1
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _entry_value(w_sp, w_g, s, g, norm_s, norm_g, r, c):
+    """The entry of candidates ``r`` (first target) and ``c`` (second target) of one pair:
+    both triangles of :func:`_csc_fill` call this, so their operands and order are the same
+    and the matrix is exactly symmetric."""
+    return w_sp * s * norm_s[r] * norm_s[c] - w_g * g * norm_g[r] * norm_g[c]
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _csc_fill(
     k,
@@ -401,9 +409,7 @@ def _csc_fill(
                 r = abase + i
                 c = base + j
                 indices[pos[j]] = r
-                data[pos[j]] = (
-                    w_sp * s_val[e] * norm_s[r] * norm_s[c] - w_g * g_val[e] * norm_g[r] * norm_g[c]
-                )
+                data[pos[j]] = _entry_value(w_sp, w_g, s_val[e], g_val[e], norm_s, norm_g, r, c)
                 pos[j] += 1
         for j in range(k):
             if diag[base + j] != 0.0:
@@ -418,9 +424,7 @@ def _csc_fill(
                 r = base + i
                 c = bbase + j
                 indices[pos[i]] = c
-                data[pos[i]] = (
-                    w_sp * s_val[e] * norm_s[r] * norm_s[c] - w_g * g_val[e] * norm_g[r] * norm_g[c]
-                )
+                data[pos[i]] = _entry_value(w_sp, w_g, s_val[e], g_val[e], norm_s, norm_g, r, c)
                 pos[i] += 1
 
 

@@ -65,6 +65,16 @@ class DetectorParams:
         if self.weights is not None and not isinstance(self.weights, (str, os.PathLike)):
             raise ValueError(f"{own}.weights must be a file path, got {self.weights!r}")
 
+    @classmethod
+    def given(cls, weights: str | None = None, threshold: float | None = None) -> DetectorParams:
+        """The defaults, with the weights file and threshold that are given (not ``None``)."""
+        return cls(weights=weights, **({} if threshold is None else {"threshold": threshold}))
+
+    @property
+    def weights_path(self) -> Path:
+        """The weights file: :attr:`weights`, or the shipped :data:`DEFAULT_WEIGHTS`."""
+        return Path(self.weights) if self.weights is not None else DEFAULT_WEIGHTS
+
 
 def save_weights(path: str | os.PathLike[str], net: Any, arch: Architecture, meta: dict) -> Path:
     """Write a weights file atomically (temporary file, then rename)."""
@@ -119,7 +129,7 @@ def weights_digest(params: DetectorParams | None = None) -> str:
     """The SHA-256 (first 16 hex digits) of the weights file ``params`` names."""
     import hashlib
 
-    path = Path(params.weights) if params and params.weights is not None else DEFAULT_WEIGHTS
+    path = (params or DetectorParams()).weights_path
     if not path.is_file():
         raise WeightsError(f"{path}: no such weights file")
     return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
@@ -144,10 +154,10 @@ class HeadDetector:
         self.params = params if params is not None else DetectorParams()
         require_number("HeadDetector", "template_size", template_size, lo=1)
         self.template_size = float(template_size)
-        path = Path(self.params.weights) if self.params.weights is not None else DEFAULT_WEIGHTS
-        st = path.stat() if path.is_file() else None
-        if st is None:
+        path = self.params.weights_path
+        if not path.is_file():
             raise WeightsError(f"{path}: no such weights file")
+        st = path.stat()
         self.path = path
         self.net, self.meta = _cached(str(path.resolve()), st.st_mtime_ns, st.st_size)
 
