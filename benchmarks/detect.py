@@ -4,7 +4,8 @@ Renders crowds of ``--people`` over a 1280x720 frame (:func:`synth_data.sequence
 synthetic_crowd`, template 12 px), then times :meth:`tracker.detect.HeadDetector.detect_points`
 (forward pass, peak decoding) and :meth:`tracker.detect.LogDetector.detect_points` on the same
 frames, best of ``--repeats`` passes over ``--frames`` frames, with torch and OpenCV on 1 and
-on all cores. Also reports F1 at 5 px on those frames (the renderer's default look). Prints a
+on all cores. Also reports F1 at 5 px on those frames (the renderer's default look; the LoG
+threshold is fitted on another crowd of the same kind). Prints a
 table and one JSON object::
 
     python benchmarks/detect.py                 # 1 and 2 threads on this machine
@@ -37,13 +38,15 @@ def main() -> int:
     import torch
 
     from synth_data.sequence import synthetic_crowd
-    from tracker.detect import HeadDetector, LogDetector, LogParams, score_frame
+    from tracker.detect import HeadDetector, LogDetector, LogParams, fit_threshold, score_frame
 
     crowd = synthetic_crowd(args.people, args.frames, seed=3, template_px=12)
     frames = list(crowd.frames())
     gt = crowd.gt_points()[1]
     net = HeadDetector(template_size=12)
-    log = LogDetector(LogParams(template_px=12, threshold=8.0, polarity="both"))
+    fit = synthetic_crowd(args.people, 3, seed=4, template_px=12)  # another crowd
+    threshold = fit_threshold(list(fit.frames()), list(fit.gt_points()[1]), 12, polarity="both")
+    log = LogDetector(LogParams(template_px=12, threshold=threshold, polarity="both"))
     rows = []
     for n in threads:
         torch.set_num_threads(n)
