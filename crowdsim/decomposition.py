@@ -58,6 +58,7 @@ from dataclasses import dataclass
 from multiprocessing import connection, shared_memory
 from typing import Any
 
+import numba
 import numpy as np
 import pymunk
 import pymunk.batch as pb
@@ -143,13 +144,68 @@ class StripLayout:
             hi = np.inf if k == self.n - 1 else hi
         return lo, hi
 
+    def centre(self, k: int) -> float:
+        """Centre of strip ``k`` along ``axis`` (m)."""
+        return self.lo + (k + 0.5) * self.width
+
     def local(self, k: int, coord: np.ndarray) -> np.ndarray:
         """Coordinates ``(m,)`` in worker ``k``'s unwrapped frame: in a periodic world the
         image nearest to the strip's centre (the worker's space has no seam)."""
         if self.period <= 0:
             return coord
-        c = self.lo + (k + 0.5) * self.width
+        c = self.centre(k)
         return c + np.mod(coord - c + 0.5 * self.period, self.period) - 0.5 * self.period
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_rows(
+    pos: np.ndarray, vel: np.ndarray, wp: np.ndarray, alive: np.ndarray, ids: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Rows ``ids`` of the shared state's ``pos, vel (cap, 2)``, ``wp, alive (cap,)``."""
+    m = len(ids)
+    out_pos = np.empty((m, 2))
+    out_vel = np.empty((m, 2))
+    out_wp = np.empty(m, np.int64)
+    present = np.empty(m, np.bool_)
+    for r in range(m):
+        i = ids[r]
+        out_pos[r, 0] = pos[i, 0]
+        out_pos[r, 1] = pos[i, 1]
+        out_vel[r, 0] = vel[i, 0]
+        out_vel[r, 1] = vel[i, 1]
+        out_wp[r] = wp[i]
+        present[r] = alive[i] != 0
+    return out_pos, out_vel, out_wp, present
+
+
+@numba.njit(cache=True, nogil=True)
+def _window_scan(
+    alive: np.ndarray,
+    pos: np.ndarray,
+    axis: int,
+    lo: float,
+    hi: float,
+    period: float,
+    centre: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Ids ``(m,)`` (ascending) of the present agents whose coordinate along ``axis``, in
+    the frame of the strip centred at ``centre`` (:meth:`StripLayout.local`), lies in
+    ``[lo, hi)``, and those coordinates ``(m,)``."""
+    n = len(alive)
+    ids = np.empty(n, np.int64)
+    local = np.empty(n, np.float64)
+    m = 0
+    for i in range(n):
+        if alive[i] == 0:
+            continue
+        c = pos[i, axis]
+        if period > 0:
+            c = centre + ((c - centre + 0.5 * period) % period) - 0.5 * period
+        if c >= lo and c < hi:
+            ids[m] = i
+            local[m] = c
+            m += 1
+    return ids[:m], local[:m]
 
 
 def strip_layout(world: World, n: int, cutoff: float) -> StripLayout:
@@ -351,6 +407,15 @@ class StripEngine:
             old.close(unlink=True)
         self._old_shared = []
 
+    def gather(
+        self, steps: int, ids: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Positions, velocities, gates and the present flag ``(m,)`` bool of the agents
+        ``ids`` ``(m,)`` after ``steps`` steps, in one pass over the shared state (the
+        parent's serial part of a step: numpy's four gathers took 44 ms at 1M agents)."""
+        sh, cur = self.shared, self.current(steps)
+        return _gather_rows(sh.pos[cur], sh.vel[cur], sh.wp[cur], sh.alive[cur], ids)
+
     def _gather(self, steps: int, expect: tuple[str, ...], timeout: float | None) -> None:
         """Wait for one reply from every worker; a death or an error raises WorkerFailed."""
         waiting = dict(enumerate(self.conns))
@@ -503,12 +568,15 @@ class _Strip:
         sh, lay, p, k = self.shared, self.layout, self.params, self.k
         rb, wb = steps & 1, (steps + 1) & 1
         n = len(self.body_id)
-        cand = np.flatnonzero(sh.alive[rb, :n])
-        gpos = sh.pos[rb, cand]
-        local = lay.local(k, gpos[:, lay.axis])
         lo, hi = lay.window(k)
-        near = (local >= lo) & (local < hi)
-        ids, gpos, local = cand[near], gpos[near], local[near]
+        # One pass over the shared state (no temporaries of the whole crowd): every worker
+        # scans all agents each step, so this is the part of a step that does not shrink
+        # with more workers (2.5 ms of a 12 ms strip step at 100k agents / 16 strips with
+        # numpy masks and gathers; about 0.2 ms here).
+        ids, local = _window_scan(
+            sh.alive[rb, :n], sh.pos[rb, :n], lay.axis, lo, hi, lay.period, lay.centre(k)
+        )
+        gpos = sh.pos[rb, ids]
         # Routes on the global state: owner and halo copies get the same directions, and an
         # agent past its last gate is gone for every worker at once.
         e, wp, done = self.routes.desired(gpos, self.static["route"][ids], sh.wp[rb, ids])

@@ -40,7 +40,9 @@ from crowdsim.world import (
     relax_overlaps,
 )
 
-MAX_AGENTS = 100_000
+MAX_AGENTS = 1_000_000
+"""Largest crowd a scenario, ``crowdsim simulate`` or an environment accepts (issue 16's
+scale runs: one million agents split across worker processes)."""
 EXIT_DISTANCE = 3.0
 """Metres beyond a station door, or the far kerb of a crossing's queue, at which walkers
 leave: sinks sit outside the area a camera frames."""

@@ -463,6 +463,11 @@ class Simulation:
         return self.trajectories if self._recorder is not None else None
 
     @property
+    def worker_pids(self) -> list[int]:
+        """Process ids of the worker processes, by strip (empty with ``workers=1``)."""
+        return [] if self._engine is None else self._engine.pids
+
+    @property
     def n_total(self) -> int:
         """Agents that ever existed (ids run from 0 to ``n_total - 1``)."""
         return self._n_total
@@ -778,7 +783,8 @@ class Simulation:
         if not self._engine.procs:
             raise ValueError("this simulation's workers were stopped (close() or a failure)")
         st = self.state
-        self._desired_cache = (np.zeros((st.n, 2)), np.zeros(st.n))  # _spawn extends it
+        if self.sources:  # _spawn extends it
+            self._desired_cache = (np.zeros((st.n, 2)), np.zeros(st.n))
         self._spawn()
         eng, st = self._engine, self.state
         if self._n_total > self._n_pushed:  # entered since the last step: rows at the end
@@ -792,13 +798,11 @@ class Simulation:
         eng.step(self.steps, self.time)
         self.time = (self.steps + 1) * self.params.dt
         self.steps += 1
-        sh, cur = eng.shared, eng.current(self.steps)
-        present = sh.alive[cur, st.ids].astype(bool)
+        pos, vel, wp, present = eng.gather(self.steps, st.ids)
         if not present.all():
             st.keep(present)
-        st.pos = sh.pos[cur, st.ids]
-        st.vel = sh.vel[cur, st.ids]
-        st.waypoint = sh.wp[cur, st.ids]
+            pos, vel, wp = pos[present], vel[present], wp[present]
+        st.pos, st.vel, st.waypoint = pos, vel, wp
         self._record()
 
     def close(self) -> None:

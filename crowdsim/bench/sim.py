@@ -32,6 +32,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -94,6 +95,23 @@ def _timed(step: Callable[[], Any]) -> float:
     return time.perf_counter() - t0
 
 
+def _peak_rss_mb(pids: list[int]) -> float | None:
+    """Sum of the peak resident sets (``VmHWM``) of the processes ``pids``, in MB; None where
+    ``/proc`` cannot be read. Pages of the shared position block count once per process, so
+    the sum bounds the simultaneous peak from above."""
+    total = 0.0
+    for pid in pids:
+        try:
+            status = Path(f"/proc/{pid}/status").read_text()
+        except OSError:
+            return None
+        kb = next((ln.split()[1] for ln in status.splitlines() if ln.startswith("VmHWM:")), None)
+        if kb is None:
+            return None
+        total += int(kb) / 1024
+    return total
+
+
 def _result(
     name: str, n: int, dt: float, wall: float, pos: np.ndarray, radii: np.ndarray, **extra: Any
 ) -> dict[str, Any]:
@@ -150,11 +168,14 @@ def _ours_scenario(layout: Layout):
 def run_ours(layout: Layout, workers: int = 1) -> dict[str, Any]:
     from crowdsim.simulation import Simulation
 
+    extra: dict[str, Any] = {}
     with Simulation(_ours_scenario(layout), seed=0, record=False, workers=workers) as sim:
         wall = _timed(sim.step)
+        if workers > 1:
+            extra["workers"] = workers
+            extra["workers_peak_rss_mb"] = _peak_rss_mb(sim.worker_pids)
     if sim.state.n != len(layout.radii):
         raise RuntimeError("agents left the benchmark corridor; make it longer")
-    extra = {"workers": workers} if workers > 1 else {}
     return _result(
         "crowdsim", len(layout.radii), sim.params.dt, wall, sim.state.pos, sim.state.radius, **extra
     )
@@ -260,12 +281,15 @@ def run_pysocialforce(layout: Layout, dt: float = 0.4) -> dict[str, Any]:
 
 
 def run_scale(n: int, workers: int = 1) -> dict[str, Any]:
-    """Ours alone with ``n`` agents, in a fresh process (for a clean peak-RSS figure; with
-    ``workers > 1`` the RSS is the parent's only)."""
+    """Ours alone with ``n`` agents, in a fresh process, for a clean peak-RSS figure:
+    ``peak_rss_mb`` is the parent's; with ``workers > 1``, ``total_peak_rss_mb`` adds each
+    worker's peak (an upper bound of the whole run's memory)."""
     code = (
         "import json,resource,sys;from crowdsim.bench.sim import corridor_layout,run_ours;"
         f"r=run_ours(corridor_layout({n}),{int(workers)});"
         "r['peak_rss_mb']=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss/1024;"
+        "w=r.get('workers_peak_rss_mb');"
+        "r['total_peak_rss_mb']=None if w is None else r['peak_rss_mb']+w;"
         "print(json.dumps(r))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
@@ -296,6 +320,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=0,
         metavar="N",
         help="also run ours alone with N agents and report peak RSS (e.g. 100000)",
+    )
+    parser.add_argument(
+        "--scale-workers",
+        type=int,
+        default=1,
+        metavar="W",
+        help="worker processes of the --scale run (default 1; with W > 1 the peak RSS "
+        "adds the workers', e.g. --scale 1000000 --scale-workers 16)",
     )
     parser.add_argument(
         "--peers",
@@ -337,7 +369,7 @@ def _parse_sizes(text: str) -> list[int]:
     return sizes
 
 
-def _parse_workers(values: list[int] | None) -> list[int]:
+def _parse_workers(values: list[int] | None, flag: str = "--workers") -> list[int]:
     import os
 
     if values is None:
@@ -345,7 +377,7 @@ def _parse_workers(values: list[int] | None) -> list[int]:
     cpus = os.cpu_count() or 1
     bad = [w for w in values if not 1 <= w <= cpus]
     if bad:
-        raise ValueError(f"--workers must be in [1, {cpus}] (os.cpu_count()), got {bad[0]}")
+        raise ValueError(f"{flag} must be in [1, {cpus}] (os.cpu_count()), got {bad[0]}")
     return sorted(set(values) | {1})
 
 
@@ -368,6 +400,7 @@ def run_split(sizes: list[int], workers: list[int]) -> list[dict[str, Any]]:
 def run(args: argparse.Namespace) -> int:
     sizes = _parse_sizes(args.sizes)
     workers = _parse_workers(args.workers)
+    _parse_workers([args.scale_workers], flag="--scale-workers")
     split_sizes = _parse_sizes(args.split_sizes) if workers else []
     if args.validate and not workers:
         raise ValueError("--validate needs --workers (e.g. --workers 1 2 4)")
@@ -401,7 +434,7 @@ def run(args: argparse.Namespace) -> int:
                 results.append(run_pysocialforce(layout))
         except DependencyNotInstalled as exc:
             skipped[name] = str(exc)
-    scale = run_scale(args.scale) if args.scale else None
+    scale = run_scale(args.scale, args.scale_workers) if args.scale else None
     split = run_split(split_sizes, workers) if workers else None
     validation = None
     if args.validate:
@@ -438,8 +471,6 @@ def run(args: argparse.Namespace) -> int:
     text = json.dumps(report, indent=None)
     print(text)
     if args.json_out:
-        from pathlib import Path
-
         Path(args.json_out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json_out).write_text(text + "\n")
     return 0
@@ -463,9 +494,11 @@ def _print_table(report: dict[str, Any]) -> None:
             print(f"  {q['agents']:>7} agents vs {q['peer']:<28} {q['ratio']:>8.1f}x")
     if report["scale"]:
         s = report["scale"]
+        total = s.get("total_peak_rss_mb")
         print(
-            f"\nscale: {s['agents']} agents, {s['steps_per_s']:.1f} steps/s, "
-            f"peak RSS {s['peak_rss_mb']:.0f} MB"
+            f"\nscale: {s['agents']} agents, {s.get('workers', 1)} worker(s), "
+            f"{s['steps_per_s']:.2f} steps/s, peak RSS {s['peak_rss_mb']:.0f} MB"
+            + (f" (with the workers: {total:.0f} MB)" if total is not None else "")
         )
     if report.get("split"):
         print("\nsplit across processes (ours alone, fresh process per run)")

@@ -113,7 +113,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-MAX_AGENTS = 100_000
 MAX_DT = 0.2
 BYTES_PER_AGENT_STEP = 64
 """Working set per (step, agent): the recorder's rows (24 B), the dense (S+1, N, 2) float64
@@ -125,6 +124,7 @@ def check_args(args: argparse.Namespace) -> None:
     import os
 
     from crowdsim.checks import require_memory, require_output_file
+    from crowdsim.scenarios import MAX_AGENTS
 
     cpus = os.cpu_count() or 1
     if not 1 <= args.workers <= cpus:

@@ -111,7 +111,7 @@ tune_case(
 tune_case(
     "scen-agents-huge",
     "",
-    "d.json&&agents must be an integer in [1, 100000], got 5000000",
+    "d.json&&agents must be an integer in [1, 1000000], got 5000000",
     files=(("d.json", _dist(agents=[10, 5_000_000])),),
 )
 tune_case(
@@ -641,7 +641,7 @@ def _dist_api(**kw):
 api_case(
     "envs-api-dist-agents-huge",
     _dist_api(agents=(1, 10**7)),
-    "ScenarioDistribution.agents must be an integer in [1, 100000], got 10000000",
+    "ScenarioDistribution.agents must be an integer in [1, 1000000], got 10000000",
 )
 api_case("envs-api-dist-scenarios-int", _dist_api(scenarios=5), "a scenario name or a list")
 api_case("envs-api-dist-template", _dist_api(template_px="big"), "template_px&&'big'")
@@ -705,7 +705,7 @@ api_case("envs-api-crowd-param-unknown", _crowd_env(n_agent=5), "unknown paramet
 api_case("envs-api-crowd-vmax-0", _crowd_env(vmax=0.0), "CrowdEnvParams.vmax&&got 0.0")
 api_case("envs-api-crowd-render-size", _crowd_env(render_size=(0, 5)), "render_size&&got 0")
 api_case("envs-api-crowd-ids-text", _crowd_env(controlled_ids="abc"), "controlled_ids&&'abc'")
-api_case("envs-api-crowd-agents-huge", _crowd_env(n_agents=10**6), "n_agents&&got 1000000")
+api_case("envs-api-crowd-agents-huge", _crowd_env(n_agents=10**7), "n_agents&&got 10000000")
 
 
 def _policy_controlled(w: Path, env: Env) -> object:

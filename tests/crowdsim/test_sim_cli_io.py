@@ -67,8 +67,8 @@ def test_simulate_writes_npz_contract(tmp_path, capsys):
     "argv, needle",
     [
         (["simulate", "parade"], "unknown scenario 'parade'"),
-        (["simulate", "marathon", "--agents", "-4"], "--agents must be in [1, 100000], got -4"),
-        (["simulate", "marathon", "--agents", "0"], "--agents must be in [1, 100000], got 0"),
+        (["simulate", "marathon", "--agents", "-4"], "--agents must be in [1, 1000000], got -4"),
+        (["simulate", "marathon", "--agents", "0"], "--agents must be in [1, 1000000], got 0"),
         (["simulate", "marathon", "--density", "7"], "--density must be in (0, 6]"),
         (["simulate", "marathon", "--dt", "0"], "--dt must be in (0, 0.2] seconds, got 0.0"),
         (["simulate", "marathon", "--dt", "nan"], "--dt must be in (0, 0.2] seconds, got nan"),
