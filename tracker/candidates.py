@@ -205,14 +205,25 @@ def _speedup_cells(cost, big, m, ns, offs, draws, cell):
     n_off = offs.shape[0]
     for t in prange(n):
         key = np.empty(cells)
+        # the 3x3 minimum as a row pass then a column pass (min is exact: same cells as a
+        # 9-cell scan, a third of the comparisons)
+        row = np.empty((side, side))
         for y in range(side):
             for x in range(side):
+                low = cost[t, y, x]
+                if x > 0 and cost[t, y, x - 1] < low:
+                    low = cost[t, y, x - 1]
+                if x < side - 1 and cost[t, y, x + 1] < low:
+                    low = cost[t, y, x + 1]
+                row[y, x] = low
+        for y in range(side):
+            for x in range(side):
+                low = row[y, x]
+                if y > 0 and row[y - 1, x] < low:
+                    low = row[y - 1, x]
+                if y < side - 1 and row[y + 1, x] < low:
+                    low = row[y + 1, x]
                 v = cost[t, y, x]
-                low = v
-                for yy in range(max(y - 1, 0), min(y + 2, side)):
-                    for xx in range(max(x - 1, 0), min(x + 2, side)):
-                        if cost[t, yy, xx] < low:
-                            low = cost[t, yy, xx]
                 key[y * side + x] = v if v == low else v + big
         # the m lowest keys, ascending (ties: lower index), by repeated selection
         taken = np.zeros(cells, np.bool_)

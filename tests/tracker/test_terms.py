@@ -5,8 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.sparse.csgraph import connected_components
 
 from tracker.bqp.params import BQPParams
+from tracker.bqp.terms import _target_components as target_components
 from tracker.bqp.terms import (
     coherent_groups,
     group_trees,
@@ -299,6 +303,25 @@ def test_quadratic_matrix_is_the_same_for_any_number_of_threads():
     np.testing.assert_array_equal(q1.indices, q2.indices)
     np.testing.assert_array_equal(q1.data, q2.data)  # bit for bit
     np.testing.assert_array_equal(lab1, lab2)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.integers(1, 40).flatmap(
+        lambda n: st.tuples(
+            st.just(n), st.lists(st.tuples(st.integers(0, n - 1), st.integers(0, n - 1)))
+        )
+    )
+)
+def test_target_components_match_scipy_labels(graph):
+    # the union-find numbers components as scipy does (by lowest target), so the solver's
+    # split is the same partition in the same order
+    n, edges = graph
+    pa = np.array([a for a, _ in edges], np.int64)
+    pb = np.array([b for _, b in edges], np.int64)
+    g = sp.coo_matrix((np.ones(len(pa), np.int8), (pa, pb)), shape=(n, n))
+    expected = connected_components(g, directed=False)[1]
+    np.testing.assert_array_equal(target_components(n, pa, pb), expected)
 
 
 def test_quadratic_matrix_components_are_independent():

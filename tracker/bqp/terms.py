@@ -590,10 +590,41 @@ def quadratic_matrix(
     return out
 
 
+@njit(cache=True, nogil=True)
 def _target_components(n: int, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
-    """(n,) int64 connected-component label of every target over the linked pairs."""
-    g = sp.coo_matrix((np.ones(len(pa), np.int8), (pa, pb)), shape=(n, n))
-    return connected_components(g, directed=False)[1].astype(np.int64)
+    """(n,) int64 connected-component label of every target over the linked pairs ``(pa,
+    pb)``, numbered in order of each component's lowest target (as
+    ``scipy.sparse.csgraph.connected_components`` numbers them). Union-find with path
+    halving: at 100 targets scipy's graph building and checks took 0.5 ms a frame.
+
+    >>> _target_components(5, np.array([3, 0]), np.array([4, 2]))
+    array([0, 1, 0, 2, 2])
+    """
+    parent = np.arange(n)
+    for e in range(len(pa)):
+        a, b = pa[e], pb[e]
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        while parent[b] != b:
+            parent[b] = parent[parent[b]]
+            b = parent[b]
+        if a < b:
+            parent[b] = a
+        elif b < a:
+            parent[a] = b
+    labels = np.empty(n, np.int64)
+    count = 0
+    for t in range(n):  # a root is its component's lowest target: it comes first
+        r = t
+        while parent[r] != r:
+            r = parent[r]
+        if r == t:
+            labels[t] = count
+            count += 1
+        else:
+            labels[t] = labels[r]
+    return labels
 
 
 def _degree_norm(deg: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
