@@ -11,7 +11,9 @@ reported so that speed is never bought with interpenetration.
 
 Peers come from the ``bench`` extra (``pip install -e '.[bench]'``); a missing peer is
 reported as skipped. ``--scale N`` also runs ours alone with N agents in a fresh process and
-reports its steps/s and peak memory (RSS).
+reports its steps/s and peak memory (RSS); ``--scale-workers W`` splits that run across W
+processes and adds the workers' peak RSS (``--scale 1000000 --scale-workers 16``: issue 16's
+1M-agent run).
 
 ``--workers 1 2 4`` adds the simulator split across processes (:mod:`crowdsim.decomposition`):
 ours alone on the same corridor at each ``--split-sizes`` count (default 10k and 100k

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -145,6 +146,30 @@ def test_bench_sim_prints_table_and_json(capsys):
     (ours,) = report["results"]
     assert ours["simulator"] == "crowdsim" and ours["agents"] == 300
     assert ours["steps_per_s"] > 0 and ours["max_overlap"] <= 0.2
+
+
+def test_bench_sim_scale_run_split_across_workers_sums_their_memory(capsys):
+    argv = ["bench", "sim", "--sizes", "200", "--peers", "none", "--scale", "4000"]
+    assert main([*argv, "--scale-workers", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "4000 agents, 2 worker(s)" in out and "with the workers:" in out
+    scale = _last_json(out)["scale"]
+    assert scale["agents"] == 4000 and scale["workers"] == 2 and scale["steps_per_s"] > 0
+    # two spawned interpreters with numpy, numba and pymunk each hold tens of MB
+    assert scale["total_peak_rss_mb"] > scale["peak_rss_mb"] + 2 * 20
+
+
+def test_bench_sim_scale_workers_out_of_range_exit_2():
+    cpus = os.cpu_count() or 1
+    proc = subprocess.run(
+        [sys.executable, "-m", "crowdsim.cli", "bench", "sim", "--scale-workers", str(cpus + 1)],
+        capture_output=True,
+        text=True,
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert f"--scale-workers must be in [1, {cpus}] (os.cpu_count()), got {cpus + 1}" in (
+        proc.stderr
+    )
 
 
 def test_bench_fd_writes_plots(tmp_path, capsys):
