@@ -75,6 +75,7 @@ from collections import deque
 from types import MappingProxyType
 
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from tracker.appearance import NCCAppearance
@@ -85,6 +86,50 @@ from tracker.pnmc.params import PNMCParams
 from tracker.pnmc.queens import select_queens
 
 _PS_FLOOR = 1e-3
+
+
+@njit(cache=True, nogil=True)
+def _map_cell(
+    lik: np.ndarray, gx: np.ndarray, gy: np.ndarray, mus: np.ndarray, ws: np.ndarray, sig2: float
+) -> int:
+    """The MAP cell of one target (Eq. 4 / 8): ``argmax lik * prior`` over its ``(k, k)`` grid
+    (cell ``y k + x``; the first of equal cells), where the prior ``sum_j w_j N(mu_j, sigma^2
+    I)`` is separable in x and y (``sig2 = 2 sigma^2``). Where the prior underflows
+    everywhere, the appearance alone decides (``argmax lik``).
+
+    One target at a time, in the order of Algorithm 1: each target's prior depends on the
+    neighbours updated before it, so the per-target step is a compiled call (numpy's small
+    arrays took 13 us a target, about a third of a 1,000-target frame).
+    """
+    k = lik.shape[0]
+    m = mus.shape[0]
+    ex = np.empty((m, k))
+    ey = np.empty((m, k))
+    for j in range(m):
+        for c in range(k):
+            d = gx[c] - mus[j, 0]
+            ex[j, c] = np.exp(-(d * d) / sig2)
+            d = gy[c] - mus[j, 1]
+            ey[j, c] = np.exp(-(d * d) / sig2) * ws[j]
+    best = 0
+    best_v = -np.inf
+    for y in range(k):
+        for x in range(k):
+            prior = 0.0
+            for j in range(m):
+                prior += ey[j, y] * ex[j, x]
+            v = lik[y, x] * prior
+            if v > best_v:
+                best_v = v
+                best = y * k + x
+    if best_v <= 0.0:  # prior underflow: appearance alone
+        best = 0
+        for q in range(1, k * k):
+            if lik.flat[q] > lik.flat[best]:
+                best = q
+    return best
+
+
 """Smallest weight of ``p_S`` (a previous confidence of 0 would switch the self prior off)."""
 
 _QUEEN_FIELDS = frozenset(
@@ -314,14 +359,10 @@ class PNMCTracker(Tracker):
         sig2 = 2.0 * (p.prior_sigma * s) ** 2
         ws_self = np.maximum(self.obs, _PS_FLOOR)
 
+        gxf, gyf = gx.astype(np.float64), gy.astype(np.float64)
+
         def map_estimate(i: int, mus: np.ndarray, ws: np.ndarray) -> tuple[int, float]:
-            # prior = sum_j w_j N(mu_j, sigma^2 I) on the grid, separable in x and y
-            ex = np.exp(-((gx[i][None, :] - mus[:, 0:1]) ** 2) / sig2)
-            ey = np.exp(-((gy[i][None, :] - mus[:, 1:2]) ** 2) / sig2)
-            post = lik[i] * ((ey * ws[:, None]).T @ ex)  # Eq. 4 / 8
-            b = int(post.argmax())
-            if post.flat[b] <= 0.0:  # prior underflow: appearance alone
-                b = int(lik[i].argmax())
+            b = _map_cell(lik[i], gxf[i], gyf[i], mus, ws, sig2)
             return b, float(lik[i].flat[b])
 
         new = prev.copy()
