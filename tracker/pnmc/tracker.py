@@ -130,6 +130,119 @@ def _map_cell(
     return best
 
 
+@njit(cache=True, nogil=True)
+def _propagate(
+    lik,
+    gx,
+    gy,
+    pred,
+    prev,
+    ws_self,
+    indptr,
+    nbr,
+    wts,
+    queens,
+    seeds,
+    sig2,
+    use_flow,
+    flow_done,
+    flow_cell,
+    flow_conf,
+    new,
+    conf,
+    tau,
+    updated,
+    queued,
+    visits,
+    used_flow,
+    order,
+    queue,
+    cursor,
+):
+    """Algorithm 1 with the delayed updates of Algorithm 2 (Appendix A), in place.
+
+    Targets leave the queue (queens first, then the unvisited target of highest appearance
+    peak) in turn; each takes its MAP cell under the prior of its own prediction and of the
+    neighbours already updated (Eq. 2, 4, 8), or under the flow prior where that is more
+    confident and the first falls short of ``tau`` (Eq. 9), and is updated once its
+    confidence reaches its ``tau`` or it has waited ``len(neighbours) + 2`` visits; else its
+    ``tau`` drops to its confidence and it queues again. Updated targets queue their
+    unqueued neighbours.
+
+    Returns -1 when every target is updated, or a target whose flow prior is needed and not
+    known yet (``flow_done`` false), without changing any state: the caller fills
+    ``flow_cell`` / ``flow_conf`` for it (-1 where no flow is near), sets ``flow_done`` and
+    calls again. ``cursor`` is ``(queue head, queue size, next seed, targets updated)``;
+    ``queue`` is a ring of ``n`` slots (a target is in it at most once at a time).
+    """
+    n = lik.shape[0]
+    k = lik.shape[1]
+    cap = queue.shape[0]
+    while cursor[3] < n:
+        if cursor[1] == 0:
+            while queued[seeds[cursor[2]]]:
+                cursor[2] += 1
+            t = seeds[cursor[2]]
+            queue[(cursor[0] + cursor[1]) % cap] = t
+            cursor[1] += 1
+            queued[t] = True
+        i = queue[cursor[0]]
+        visit = visits[i] + 1
+        a, z = indptr[i], indptr[i + 1]
+        m = 1
+        if not (queens[i] and visit == 1):
+            for q in range(a, z):
+                if updated[nbr[q]]:
+                    m += 1
+        mus = np.empty((m, 2))
+        ws = np.empty(m)
+        mus[0, 0] = pred[i, 0]
+        mus[0, 1] = pred[i, 1]
+        ws[0] = ws_self[i]
+        if m > 1:
+            r = 1
+            for q in range(a, z):
+                j = nbr[q]
+                if updated[j]:
+                    mus[r, 0] = prev[i, 0] + (new[j, 0] - prev[j, 0])
+                    mus[r, 1] = prev[i, 1] + (new[j, 1] - prev[j, 1])
+                    ws[r] = wts[q]
+                    r += 1
+        b = _map_cell(lik[i], gx[i], gy[i], mus, ws, sig2)
+        c = lik[i, b // k, b % k]
+        via_flow = False
+        if c < tau[i] and use_flow:
+            if not flow_done[i]:
+                return i
+            if flow_conf[i] > c:
+                b = flow_cell[i]
+                c = flow_conf[i]
+                via_flow = True
+        # commit this visit: leave the queue
+        visits[i] = visit
+        cursor[0] = (cursor[0] + 1) % cap
+        cursor[1] -= 1
+        if c >= tau[i] or visit >= z - a + 2:
+            new[i, 0] = gx[i, b % k]
+            new[i, 1] = gy[i, b // k]
+            conf[i] = c
+            used_flow[i] = via_flow
+            updated[i] = True
+            order[cursor[3]] = i
+            cursor[3] += 1
+            for q in range(a, z):
+                j = nbr[q]
+                if not queued[j]:
+                    queue[(cursor[0] + cursor[1]) % cap] = j
+                    cursor[1] += 1
+                    queued[j] = True
+        else:  # delayed update with a lowered threshold (Algorithm 2, Appendix A)
+            tau[i] = c
+            queue[(cursor[0] + cursor[1]) % cap] = i
+            cursor[1] += 1
+    return -1
+
+
 """Smallest weight of ``p_S`` (a previous confidence of 0 would switch the self prior off)."""
 
 _QUEEN_FIELDS = frozenset(
@@ -330,7 +443,6 @@ class PNMCTracker(Tracker):
         h, w = self.frame_shape[:2]
         s = self.template_size
         r = self.radius
-        k = 2 * r + 1
         n = len(self.points)
         self._maybe_select_queens()
         t0 = time.perf_counter()
@@ -360,69 +472,42 @@ class PNMCTracker(Tracker):
         ws_self = np.maximum(self.obs, _PS_FLOOR)
 
         gxf, gyf = gx.astype(np.float64), gy.astype(np.float64)
-
-        def map_estimate(i: int, mus: np.ndarray, ws: np.ndarray) -> tuple[int, float]:
-            b = _map_cell(lik[i], gxf[i], gyf[i], mus, ws, sig2)
-            return b, float(lik[i].flat[b])
-
+        # Algorithm 1 / 2 run compiled (:func:`_propagate`); it hands back a target whose
+        # appearance and neighbour prior fall short of tau before that target's flow prior
+        # is known, the flow (lazy, per patch) is looked up here, and the run resumes
         new = prev.copy()
         conf = np.zeros(n)
         tau = np.full(n, float(p.tau))
-        updated = np.zeros(n, bool)
-        queued = np.zeros(n, bool)
+        updated = np.zeros(n, np.bool_)
+        queued = np.zeros(n, np.bool_)
         visits = np.zeros(n, np.int64)
-        used_flow = np.zeros(n, bool)
-        order: list[int] = []
-        flow_map: dict[int, tuple[int, float]] = {}  # target -> MAP cell, confidence
-        queue: deque[int] = deque(int(i) for i in np.flatnonzero(self.queens))
-        queued[self.queens] = True
+        used_flow = np.zeros(n, np.bool_)
+        order = np.zeros(n, np.int64)
+        queue = np.zeros(max(n, 1), np.int64)
+        queens = np.flatnonzero(self.queens)
+        queue[: len(queens)] = queens
+        queued[queens] = True
+        cursor = np.array([0, len(queens), 0, 0], np.int64)  # head, size, seed, updated
         seeds = np.argsort(-peak, kind="stable")
-        seed_at = 0
-        while len(order) < n:
-            if not queue:
-                while queued[seeds[seed_at]]:
-                    seed_at += 1
-                queue.append(int(seeds[seed_at]))
-                queued[seeds[seed_at]] = True
-            i = queue.popleft()
-            visits[i] += 1
-            row = nbr[indptr[i] : indptr[i + 1]]
-            mus = pred[i : i + 1]
-            ws = ws_self[i : i + 1]
-            if not (self.queens[i] and visits[i] == 1):
-                done = updated[row]
-                if done.any():  # Eq. 2: lambda_j = 1 for the neighbours already updated
-                    mus = np.concatenate([mus, prev[i] + (new[row[done]] - prev[row[done]])])
-                    ws = np.concatenate([ws, wts[indptr[i] : indptr[i + 1]][done]])
-            b, c = map_estimate(i, mus, ws)
-            via_flow = False
-            if c < tau[i] and p.use_flow:
-                if i not in flow_map:  # the flow prior does not change within a frame
-                    flow_map[i] = (-1, -1.0)
-                    fpos, fvel = self.flow.near(flow_at[i], flow_r)
-                    if len(fpos):
-                        dist = np.sqrt(((fpos - flow_at[i]) ** 2).sum(1))
-                        e = np.exp(-(dist - dist.min()) / p.weight_scale)
-                        flow_map[i] = map_estimate(
-                            i,
-                            np.concatenate([pred[i : i + 1], prev[i] + (fvel - camera_v)]),
-                            np.concatenate([ws_self[i : i + 1], e / e.sum()]),
-                        )
-                fb, fc = flow_map[i]
-                if fc > c:
-                    b, c, via_flow = fb, fc, True
-            if c >= tau[i] or visits[i] >= len(row) + 2:
-                new[i] = (gx[i, b % k], gy[i, b // k])
-                conf[i] = c
-                used_flow[i] = via_flow
-                updated[i] = True
-                order.append(i)
-                fresh = row[~queued[row]]
-                queue.extend(int(j) for j in fresh)
-                queued[fresh] = True
-            else:  # delayed update with a lowered threshold (Algorithm 2, Appendix A)
-                tau[i] = c
-                queue.append(i)
+        flow_done = np.zeros(n, np.bool_)
+        flow_cell = np.full(n, -1, np.int64)
+        flow_conf = np.full(n, -1.0)
+        args = (lik, gxf, gyf, pred, prev, ws_self, indptr, nbr, wts, self.queens, seeds, sig2)
+        state = (new, conf, tau, updated, queued, visits, used_flow, order, queue, cursor)
+        while True:
+            i = _propagate(*args, bool(p.use_flow), flow_done, flow_cell, flow_conf, *state)
+            if i < 0:
+                break
+            flow_done[i] = True  # the flow prior does not change within a frame
+            fpos, fvel = self.flow.near(flow_at[i], flow_r)
+            if len(fpos):
+                dist = np.sqrt(((fpos - flow_at[i]) ** 2).sum(1))
+                e = np.exp(-(dist - dist.min()) / p.weight_scale)
+                mus = np.concatenate([pred[i : i + 1], prev[i] + (fvel - camera_v)])
+                ws = np.concatenate([ws_self[i : i + 1], e / e.sum()])
+                flow_cell[i] = _map_cell(lik[i], gxf[i], gyf[i], mus, ws, sig2)
+                flow_conf[i] = lik[i].flat[flow_cell[i]]
+        order = order[: cursor[3]]
         self._tick("update", t0)
 
         self.velocity = new - prev
