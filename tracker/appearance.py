@@ -25,7 +25,7 @@ import scipy.fft
 from numba import njit, prange
 from numpy.lib.stride_tricks import sliding_window_view
 
-from tracker.threads import current_threads
+from tracker.threads import current_threads, in_chunks
 
 KCF_KERNELS: tuple[str, ...] = ("gaussian", "linear")
 
@@ -374,10 +374,14 @@ class NCCAppearance(AppearanceModel):
             return out
         s, r = self.template_size, self.radius
         windows = extract_patches(frame, centers - r - s // 2, self.window).transpose(0, 2, 3, 1)
-        for i in range(self.n):
-            out[i] = cv2.matchTemplate(
-                np.ascontiguousarray(windows[i]), self.templates[i], cv2.TM_CCOEFF_NORMED
-            )
+
+        def match(lo: int, hi: int) -> None:  # OpenCV releases the GIL: chunks on threads
+            for i in range(lo, hi):
+                out[i] = cv2.matchTemplate(
+                    np.ascontiguousarray(windows[i]), self.templates[i], cv2.TM_CCOEFF_NORMED
+                )
+
+        in_chunks(self.n, match)
         # flat windows/templates give NaN or inf in OpenCV: no information, score 0
         np.nan_to_num(out, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
         np.clip(out, -1.0, 1.0, out=out)

@@ -6,6 +6,10 @@ A tracker runs its numba kernels (``parallel=True``) and SciPy FFTs on the threa
 process, one in :mod:`crowdsim.jobs` pool workers). Frames with fewer than
 ``Tracker.parallel_min_targets`` targets run on one thread.
 
+OpenCV calls made once per target (NCC template matching) release the GIL; they run in
+contiguous chunks of targets on a shared thread pool (:func:`in_chunks`), each target's
+result written to its own row, so they too are the same for any number of threads.
+
 Every parallel kernel gives each loop iteration (a target pair, a target, a connected
 component of the problem) to one thread and sums in a fixed order, so tracks are the same
 bit for bit for any number of threads: only the speed changes.
@@ -14,7 +18,9 @@ bit for bit for any number of threads: only the speed changes.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+import threading
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
 import numba
@@ -53,3 +59,31 @@ def using_threads(threads: int | None) -> Iterator[None]:
 def current_threads() -> int:
     """The threads a parallel kernel started now would use (numba's per-thread setting)."""
     return int(numba.get_num_threads())
+
+
+_POOL: tuple[int, ThreadPoolExecutor] | None = None  # (pid that made it, pool)
+_POOL_LOCK = threading.Lock()
+
+
+def _pool() -> ThreadPoolExecutor:
+    """The process's pool (a forked child makes its own: its parent's threads are gone)."""
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None or _POOL[0] != os.getpid():
+            _POOL = (os.getpid(), ThreadPoolExecutor(max_threads(), thread_name_prefix="tracker"))
+        return _POOL[1]
+
+
+def in_chunks(n: int, work: Callable[[int, int], None], min_per_thread: int = 32) -> None:
+    """Call ``work(lo, hi)`` over ``[0, n)`` cut into one contiguous chunk per thread
+    (:func:`current_threads`, fewer where a chunk would hold under ``min_per_thread``
+    items), on a shared thread pool; in the calling thread when that leaves one chunk.
+    ``work`` must release the GIL to gain (OpenCV does) and write only its own items."""
+    chunks = max(1, min(current_threads(), n // max(1, min_per_thread)))
+    if chunks == 1:
+        work(0, n)
+        return
+    bounds = [n * c // chunks for c in range(chunks + 1)]
+    futures = [_pool().submit(work, lo, hi) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
+    for f in futures:
+        f.result()  # re-raises a chunk's exception here

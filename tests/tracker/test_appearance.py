@@ -7,6 +7,7 @@ import pytest
 
 from tracker.appearance import KCFAppearance, NCCAppearance, extract_patches, make_appearance
 from tracker.testing import make_scene
+from tracker.threads import in_chunks, max_threads, using_threads
 
 MODELS = [
     KCFAppearance,
@@ -123,3 +124,41 @@ def test_bad_arguments():
     m.add(np.zeros((10, 10, 3), np.uint8), np.array([[5, 5]]))
     with pytest.raises(ValueError, match="centres"):
         m.scores(np.zeros((10, 10, 3), np.uint8), np.zeros((2, 2)))
+
+
+@pytest.mark.parametrize("n", [0, 1, 31, 64, 65, 1000])
+def test_in_chunks_covers_every_item_once(n):
+    seen = np.zeros(n, np.int64)
+
+    def work(lo, hi):
+        seen[lo:hi] += 1
+
+    with using_threads(max_threads()):
+        in_chunks(n, work, min_per_thread=16)
+    np.testing.assert_array_equal(seen, 1)
+
+
+def test_in_chunks_reraises_a_chunk_error():
+    def work(lo, hi):
+        if lo > 0:
+            raise ValueError(f"chunk {lo}")
+
+    with using_threads(max_threads()), pytest.raises(ValueError, match="chunk"):
+        in_chunks(400, work, min_per_thread=1)
+        if max_threads() == 1:  # one chunk starts at 0: nothing to re-raise on one core
+            raise ValueError("chunk (one core)")
+
+
+def test_ncc_scores_same_for_any_thread_count():
+    rng = np.random.default_rng(3)
+    frame = rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)
+    centers = rng.integers(10, 230, (150, 2))
+    m = NCCAppearance(10, 5)
+    m.add(frame, centers)
+    moved = np.clip(centers + rng.integers(-2, 3, centers.shape), 0, 239)
+    out = []
+    for threads in sorted({1, max_threads()}):
+        with using_threads(threads):
+            out.append(m.scores(frame, moved))
+    for o in out[1:]:
+        np.testing.assert_array_equal(o, out[0])
