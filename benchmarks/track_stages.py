@@ -1,10 +1,10 @@
-"""BQP per-stage milliseconds on fixed frames, for comparing two versions of the code.
+"""Tracker per-stage milliseconds on fixed frames, for comparing two versions of the code.
 
-Runs the BQP tracker (speed-up sampling) on the ``crowdsim bench track`` crowds of
-``--targets`` people (spread over 1280x720 and packed at 2.5 people/m^2, 30 frames) and, with
-``--sequence DIR``, on the first ``--frames`` frames of a MOT sequence (e.g. the stress
-suite's 10k sequence); best of ``--repeats`` runs. It only uses interfaces that older
-versions have too, so the same frames can be timed before and after a change::
+Runs the BQP tracker (speed-up sampling; ``--tracker pnmc``: PNMC) on the ``crowdsim bench
+track`` crowds of ``--targets`` people (spread over 1280x720 and packed at 2.5 people/m^2, 30
+frames) and, with ``--sequence DIR``, on the first ``--frames`` frames of a MOT sequence
+(e.g. the stress suite's 10k sequence); best of ``--repeats`` runs. It only uses interfaces
+that older versions have too, so the same frames can be timed before and after a change::
 
     git archive 4860528 | tar -x -C /tmp/before
     (cd /tmp && PYTHONPATH=/tmp/before python /path/to/benchmarks/track_stages.py --threads 1)
@@ -13,6 +13,8 @@ versions have too, so the same frames can be timed before and after a change::
 
 ``--threads`` sets numba's threads (the code before threads existed used one). Prints a
 table and one JSON object; ``tracks_sha1`` identifies the tracks (equal across thread counts).
+PNMC before and after its compiled propagation: ``--tracker pnmc`` with commit a0f25ad as
+"before" (``--repeats 2 --sequence stress-10k``; figures in the project README).
 """
 
 from __future__ import annotations
@@ -23,6 +25,9 @@ import json
 
 import numba
 
+STAGES = {"bqp": ("appearance", "terms", "solve"), "pnmc": ("queens", "appearance", "update")}
+"""The stages each tracker times (``Tracker._tick``), in the order of a frame."""
+
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -31,7 +36,14 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--sequence", default=None, metavar="DIR")
     ap.add_argument("--frames", type=int, default=9)
+    ap.add_argument(
+        "--tracker",
+        choices=sorted(STAGES),
+        default="bqp",
+        help="bqp (appearance / terms / solve) or pnmc (queens / appearance / update)",
+    )
     args = ap.parse_args()
+    stages = STAGES[args.tracker]
     if not 1 <= args.threads <= numba.config.NUMBA_NUM_THREADS:
         ap.error(f"--threads must be in [1, {numba.config.NUMBA_NUM_THREADS}], got {args.threads}")
     numba.set_num_threads(args.threads)
@@ -43,7 +55,7 @@ def main() -> int:
     from tracker.runner import run_tracker
 
     warm = synthetic_crowd(4, 3, 0, 12, size=(160, 120))
-    run_tracker(make_tracker("bqp"), warm, metrics="none")
+    run_tracker(make_tracker(args.tracker), warm, metrics="none")
     cases = {}
     for packed in (False, True):
         size = packed_size(args.targets, default_px_per_m(12)) if packed else (1280, 720)
@@ -67,24 +79,21 @@ def main() -> int:
     for name, (src, frames, metrics) in cases.items():
         best = None
         for _ in range(args.repeats):
-            r = run_tracker(make_tracker("bqp"), src, frames=frames, metrics=metrics)
-            row = {
-                "fps": r.fps,
-                **{k: r.stage_ms.get(k, 0.0) for k in ("appearance", "terms", "solve")},
-            }
+            r = run_tracker(make_tracker(args.tracker), src, frames=frames, metrics=metrics)
+            row = {"fps": r.fps, **{k: r.stage_ms.get(k, 0.0) for k in stages}}
             if metrics == "accuracy":
                 row["acc@15"] = r.report["acc@15"]
             row["tracks_sha1"] = hashlib.sha1(r.result.positions.tobytes()).hexdigest()[:12]
             if best is None or row["fps"] > best["fps"]:
                 best = row
         rows[name] = best
-    print(f"{'case':<44}{'fps':>7}{'app ms':>8}{'terms':>8}{'solve':>8}  tracks")
+    heads = "".join(f"{k[:10]:>11}" for k in stages)
+    print(f"{'case':<44}{'fps':>7}{heads}  tracks (stages in ms a frame)")
     for name, r in rows.items():
-        print(
-            f"{name[-44:]:<44}{r['fps']:>7.2f}{r['appearance']:>8.1f}{r['terms']:>8.1f}"
-            f"{r['solve']:>8.1f}  {r['tracks_sha1']}"
-        )
-    print(json.dumps({"benchmark": "track_stages", "threads": args.threads, "cases": rows}))
+        cells = "".join(f"{r[k]:>11.1f}" for k in stages)
+        print(f"{name[-44:]:<44}{r['fps']:>7.2f}{cells}  {r['tracks_sha1']}")
+    report = {"benchmark": "track_stages", "tracker": args.tracker, "threads": args.threads}
+    print(json.dumps({**report, "cases": rows}))
     return 0
 
 
