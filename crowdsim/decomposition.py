@@ -572,7 +572,7 @@ class _Strip:
         # One pass over the shared state (no temporaries of the whole crowd): every worker
         # scans all agents each step, so this is the part of a step that does not shrink
         # with more workers (2.5 ms of a 12 ms strip step at 100k agents / 16 strips with
-        # numpy masks and gathers; about 0.2 ms here).
+        # numpy masks and gathers: 1.7 ms of them against 0.46 ms here, measured apart).
         ids, local = _window_scan(
             sh.alive[rb, :n], sh.pos[rb, :n], lay.axis, lo, hi, lay.period, lay.centre(k)
         )
