@@ -17,14 +17,20 @@ from typing import Any
 import numpy as np
 
 
+def _bound(x: float) -> str:
+    """A bound as people write it: whole numbers in full (1000000, not 1e+06), else ``:g``."""
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
+
+
 def _rule(integer: bool, lo: float | None, hi: float | None, lo_open: bool, hi_open: bool) -> str:
     kind = "an integer" if integer else "a finite number"
     if lo is not None and hi is not None:
-        return f"{kind} in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+        lo_s, hi_s = _bound(lo), _bound(hi)
+        return f"{kind} in {'(' if lo_open else '['}{lo_s}, {hi_s}{')' if hi_open else ']'}"
     if lo is not None:
-        return f"{kind} {'>' if lo_open else '>='} {lo:g}"
+        return f"{kind} {'>' if lo_open else '>='} {_bound(lo)}"
     if hi is not None:
-        return f"{kind} {'<' if hi_open else '<='} {hi:g}"
+        return f"{kind} {'<' if hi_open else '<='} {_bound(hi)}"
     return kind
 
 

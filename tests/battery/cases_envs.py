@@ -99,7 +99,7 @@ case(
 tune_case(
     "scen-frames-1e9",
     "",
-    "d.json: ScenarioDistribution.frames must be an integer in [2, 1e+06], got 1000000000.0",
+    "d.json: ScenarioDistribution.frames must be an integer in [2, 1000000], got 1000000000.0",
     files=(("d.json", _dist(frames=1e9)),),
 )
 tune_case(
@@ -316,7 +316,7 @@ case(
 case(
     "envs-heldout-scen-frames-huge",
     HELD,
-    "d.json&&frames must be an integer in [2, 1e+06], got 5000000",
+    "d.json&&frames must be an integer in [2, 1000000], got 5000000",
     files=(("d.json", _dist(frames=5_000_000)),),
 )
 
@@ -477,7 +477,7 @@ api_case(
 api_case(
     "envs-api-make-frames-huge",
     _make(scenarios={**TINY, "frames": 10**9}),
-    "ScenarioDistribution.frames must be an integer in [2, 1e+06]",
+    "ScenarioDistribution.frames must be an integer in [2, 1000000]",
 )
 api_case(
     "envs-api-make-unknown-field",

@@ -67,7 +67,7 @@ def test_max_overlap_exact():
     [
         ({"n_agents": 0}, "n_agents"),
         ({"n_agents": -5}, "n_agents"),
-        ({"n_agents": 100_001}, "n_agents"),
+        ({"n_agents": 1_000_001}, "n_agents"),
         ({"n_agents": 2.5}, "n_agents"),
         ({"n_agents": 5.0}, "n_agents"),
         ({"density": 6.5}, "density"),
