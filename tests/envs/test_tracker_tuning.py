@@ -515,7 +515,7 @@ def test_distribution_files_are_bounded_and_a_single_name_is_one_family(tmp_path
         j.write_text(json.dumps({field: value}))
         with pytest.raises(ValueError, match=rf"{j}: ScenarioDistribution.{field} must be") as e:
             ScenarioDistribution.from_arg(str(j))
-        assert f"{limit:g}" in str(e.value)
+        assert f", {limit}]" in str(e.value)
         edge = {field: limit if field != "agents" else [1, limit]}
         ScenarioDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in edge.items()})
     (tmp_path / "b.json").write_bytes(b"\xff\xfe\x00binary")
