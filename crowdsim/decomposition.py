@@ -153,8 +153,22 @@ class StripLayout:
         image nearest to the strip's centre (the worker's space has no seam)."""
         if self.period <= 0:
             return coord
-        c = self.centre(k)
-        return c + np.mod(coord - c + 0.5 * self.period, self.period) - 0.5 * self.period
+        return _unwrap_all(np.asarray(coord, np.float64), self.centre(k), self.period)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _unwrap(c: float, centre: float, period: float) -> float:
+    """The image of ``c`` nearest to ``centre`` on a periodic axis (``period > 0``)."""
+    return centre + ((c - centre + 0.5 * period) % period) - 0.5 * period
+
+
+@numba.njit(cache=True, nogil=True)
+def _unwrap_all(coord: np.ndarray, centre: float, period: float) -> np.ndarray:
+    """:func:`_unwrap` of every entry of ``coord`` ``(m,)``."""
+    out = np.empty_like(coord)
+    for i in range(len(coord)):
+        out[i] = _unwrap(coord[i], centre, period)
+    return out
 
 
 @numba.njit(cache=True, nogil=True)
@@ -200,7 +214,7 @@ def _window_scan(
             continue
         c = pos[i, axis]
         if period > 0:
-            c = centre + ((c - centre + 0.5 * period) % period) - 0.5 * period
+            c = _unwrap(c, centre, period)
         if c >= lo and c < hi:
             ids[m] = i
             local[m] = c
