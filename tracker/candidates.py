@@ -234,20 +234,30 @@ def _speedup_cells(cost, big, m, ns, offs, draws, cell):
                     best = q
             taken[best] = True
             cell[t, e] = best
-        used = np.zeros(n_off, np.bool_)
+        # the ns smallest draws in ascending order (ties: lower offset), kept sorted by
+        # insertion in one pass over the offsets
+        low = np.empty(ns)
+        pick = np.empty(ns, np.int64)
         for e in range(m):
             ey = cell[t, e] // side
             ex = cell[t, e] % side
-            for q in range(n_off):
-                used[q] = False
+            filled = 0
+            for q in range(n_off if ns > 0 else 0):
+                v = draws[t, e, q]
+                if filled == ns and not v < low[ns - 1]:
+                    continue
+                i = filled if filled < ns else ns - 1
+                while i > 0 and v < low[i - 1]:
+                    low[i] = low[i - 1]
+                    pick[i] = pick[i - 1]
+                    i -= 1
+                low[i] = v
+                pick[i] = q
+                if filled < ns:
+                    filled += 1
             for s in range(ns):
-                best = -1
-                for q in range(n_off):
-                    if not used[q] and (best < 0 or draws[t, e, q] < draws[t, e, best]):
-                        best = q
-                used[best] = True
-                sx = min(max(ex + offs[best, 0], 0), side - 1)
-                sy = min(max(ey + offs[best, 1], 0), side - 1)
+                sx = min(max(ex + offs[pick[s], 0], 0), side - 1)
+                sy = min(max(ey + offs[pick[s], 1], 0), side - 1)
                 cell[t, m + e * ns + s] = sy * side + sx
 
 

@@ -481,3 +481,36 @@ def test_components_labels_are_checked():
         solve(qp, components=labels[:-1])
     with pytest.raises(ValueError, match="components must be"):
         solve(qp, components=labels.astype(float))
+
+
+def test_grouped_components_are_solved_in_place_as_when_permuted():
+    """Blocks already grouped by component (non-decreasing labels, as the tracker builds its
+    QP) give the same solution as the interleaved problem solved through the permuted copy."""
+    qp, labels = interleaved_components(4, 3, 8, 5)
+    mixed = solve(qp, components=labels)
+    order = np.argsort(labels, kind="stable")
+    var = np.concatenate([np.arange(qp.block_ptr[b], qp.block_ptr[b + 1]) for b in order])
+    bp = np.concatenate([[0], np.cumsum(qp.block_sizes[order])])
+    Q = qp.Q[var][:, var].tocsc()
+    Q.sort_indices()
+    grouped = solve(BlockQP(qp.c[var], Q, bp), components=labels[order])
+    np.testing.assert_array_equal(grouped.x, mixed.x[var])
+    np.testing.assert_array_equal(grouped.choice, mixed.choice[order])
+    assert grouped.iterations == mixed.iterations and grouped.steps == mixed.steps
+
+
+def test_from_terms_keeps_the_cheap_checks():
+    """BlockQP.from_terms (a Q from quadratic_matrix) is the same problem as the checked
+    constructor, and still refuses a non-finite c or a broken block layout."""
+    qp = random_qp(3, 6, 4)
+    fast = BlockQP.from_terms(qp.c, qp.Q, qp.block_ptr)
+    np.testing.assert_array_equal(fast.block_of, qp.block_of)
+    assert solve(fast).objective == solve(qp).objective
+    bad_c = qp.c.copy()
+    bad_c[2] = np.nan
+    with pytest.raises(ValueError, match="BlockQP.c"):
+        BlockQP.from_terms(bad_c, qp.Q, qp.block_ptr)
+    with pytest.raises(ValueError, match="BlockQP.block_ptr"):
+        BlockQP.from_terms(qp.c, qp.Q, qp.block_ptr[:-1])
+    with pytest.raises(ValueError, match="BlockQP.Q"):
+        BlockQP.from_terms(qp.c, qp.Q.tocsr(), qp.block_ptr)

@@ -167,6 +167,29 @@ def test_quadratic_terms_edge_cases():
     assert quadratic_matrix(far, 1, 3, 2, 1, np.zeros((0, 2), int), np.zeros(0), 3, 2).nnz == 0
 
 
+def test_speedup_samples_are_the_smallest_draws_in_order():
+    """Around each extremum the samples are the offsets of the ``n_samples`` smallest draws,
+    ascending (a random permutation's first ``n_samples``), ties to the lower offset."""
+    from tracker.candidates import _speedup_cells
+
+    rng = np.random.default_rng(5)
+    side, m, ns = 9, 2, 7
+    cost = rng.normal(size=(4, side, side))
+    offs = np.stack(np.meshgrid(np.arange(-2, 3), np.arange(-2, 3)), -1).reshape(-1, 2)
+    offs = offs[(offs != 0).any(1)].astype(np.int64)  # 24 offsets, the centre left out
+    draws = rng.random((4, m, len(offs)))
+    draws[0, 0, 3] = draws[0, 0, 9] = -1.0  # a tie: offset 3 comes before offset 9
+    cell = np.empty((4, m * (1 + ns)), np.int64)
+    _speedup_cells(cost, 1e9, m, ns, offs, draws, cell)
+    for t in range(4):
+        for e in range(m):
+            ey, ex = divmod(cell[t, e], side)
+            best = np.argsort(draws[t, e], kind="stable")[:ns]
+            sx = np.clip(ex + offs[best, 0], 0, side - 1)
+            sy = np.clip(ey + offs[best, 1], 0, side - 1)
+            np.testing.assert_array_equal(cell[t, m + e * ns : m + (e + 1) * ns], sy * side + sx)
+
+
 def test_dense_and_speedup_candidates():
     r = 3
     centers = np.array([[10, 10], [30, 12]])
@@ -296,9 +319,9 @@ def test_quadratic_matrix_is_the_same_for_any_number_of_threads():
     if max_threads() < 2:
         pytest.skip("needs 2 cores")
     with using_threads(1):
-        q1, lab1 = _crowd_terms()
+        q1, lab1, _ = _crowd_terms()
     with using_threads(2):
-        q2, lab2 = _crowd_terms()
+        q2, lab2, _ = _crowd_terms()
     np.testing.assert_array_equal(q1.indptr, q2.indptr)
     np.testing.assert_array_equal(q1.indices, q2.indices)
     np.testing.assert_array_equal(q1.data, q2.data)  # bit for bit
@@ -324,8 +347,66 @@ def test_target_components_match_scipy_labels(graph):
     np.testing.assert_array_equal(target_components(n, pa, pb), expected)
 
 
+def test_quadratic_matrix_grouped_by_component_is_q_permuted_exactly():
+    """With split_share the targets are grouped by component: the matrix is the targets'-order
+    matrix permuted, bit for bit, and the labels are non-decreasing slices."""
+    q, labels, _ = _crowd_terms()
+    rng = np.random.default_rng(11)
+    centres = np.array([[50.0, 50.0], [400.0, 60.0], [220.0, 400.0]])
+    pos = np.concatenate([c + rng.uniform(-40, 40, (100, 2)) for c in centres])
+    cand = pos[:, None, :] + rng.uniform(-5, 5, (300, 9, 2))
+    perm = rng.permutation(300)  # mix the clusters, so that grouping must reorder
+    edges = np.array([[i, i + 1] for i in range(0, 299) if i % 100 != 99])
+    lengths = np.linalg.norm(pos[edges[:, 0]] - pos[edges[:, 1]], axis=1)
+    rank = np.argsort(perm)
+    args = (cand[perm], 0.5, 4.0, 3.0, 1.0, rank[edges], lengths, 2.0, 2.0, 1.0)
+    plain, lab_plain, none = quadratic_matrix(*args, components=True)
+    grouped, lab, order = quadratic_matrix(*args, components=True, split_share=0.9)
+    assert none is None and order is not None
+    assert (np.diff(lab) >= 0).all()
+    np.testing.assert_array_equal(lab, lab_plain[order])
+    for comp in np.unique(lab):  # each component keeps its targets' order
+        assert (np.diff(order[lab == comp]) > 0).all()
+    var = (order[:, None] * 9 + np.arange(9)).ravel()
+    expect = plain[var][:, var].tocsc()
+    expect.sort_indices()
+    np.testing.assert_array_equal(grouped.indptr, expect.indptr)
+    np.testing.assert_array_equal(grouped.indices, expect.indices)
+    np.testing.assert_array_equal(grouped.data, expect.data)
+    # a dominant component is not reordered
+    assert quadratic_matrix(*args, components=True, split_share=0.01)[2] is None
+
+
+@pytest.mark.parametrize(("zeta", "eta"), [(0.3, 0.2), (0.0, 0.7), (1.2, 0.0), (0.0, 0.0)])
+def test_linear_cost_equals_the_separate_terms_bit_for_bit(zeta, eta):
+    """The fused grid cost is -app + zeta c_m + eta c_nm + border * outside from the reference
+    functions of Eq. 6 and 7, exactly, including padded neighbour slots and a slot no target
+    uses, and cells outside the frame."""
+    from tracker.bqp.terms import linear_cost
+
+    rng = np.random.default_rng(2)
+    n, r = 6, 3
+    centers = np.array([[1, 1], [30, 12], [45, 20], [10, 18], [20, 5], [2, 22]])
+    pred = centers + rng.normal(0, 1.5, (n, 2))
+    pos, vel = pred - rng.normal(0, 1, (n, 2)), rng.normal(0, 2, (n, 2))
+    nbr = np.array([[1, 2, -1], [0, -1, -1], [0, 1, -1], [-1, -1, -1], [5, -1, -1], [4, 3, -1]])
+    wts = np.where(nbr >= 0, rng.random(nbr.shape), 0.0)
+    app = rng.normal(size=(n, 2 * r + 1, 2 * r + 1)).astype(np.float32)
+    grid = grid_positions(centers, r)
+    expect = -app.astype(np.float64)
+    if zeta > 0:
+        expect += zeta * motion_cost(grid, pred, 1.7)
+    if eta > 0:
+        expect += eta * neighbourhood_cost(grid, pos, vel, nbr, wts, 1.7)
+    outside = (grid[..., 0] < 0) | (grid[..., 0] > 47) | (grid[..., 1] < 0) | (grid[..., 1] > 23)
+    expect += 10.0 * outside
+    got = linear_cost(app, centers, r, pred, 1.7, zeta, eta, pos, vel, nbr, wts, 10.0, (48, 24))
+    np.testing.assert_array_equal(got, expect)
+
+
 def test_quadratic_matrix_components_are_independent():
-    q, labels = _crowd_terms()
+    q, labels, order = _crowd_terms()
+    assert order is None  # no split_share: block i is target i
     assert labels.shape == (300,)
     # the three clusters are 150+ px apart: at least three components, none spanning two
     assert len(np.unique(labels)) >= 3

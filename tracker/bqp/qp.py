@@ -180,6 +180,30 @@ class BlockQP:
         self.block_ptr = bp
         self.block_of = np.repeat(np.arange(bp.shape[0] - 1, dtype=np.int64), sizes)
 
+    @classmethod
+    def from_terms(cls, c: np.ndarray, Q: sp.csc_matrix, block_ptr: np.ndarray) -> BlockQP:
+        """The per-frame problem from :func:`tracker.bqp.terms.quadratic_matrix`'s ``Q``.
+
+        That ``Q`` is canonical float64 CSC, finite and exactly symmetric by construction
+        (both triangles are written from the same operands), so the O(nnz) checks of the
+        constructor are left out: at 1,000 packed targets they took 3 ms of a frame. ``c``
+        must still be finite and ``block_ptr`` a valid block layout (both O(l), checked).
+        """
+        c = np.ascontiguousarray(c, dtype=np.float64)
+        bp = np.ascontiguousarray(block_ptr, dtype=np.int64)
+        l = c.shape[0]
+        sizes = np.diff(bp)
+        if c.ndim != 1 or not np.isfinite(c).all():
+            raise ValueError("BlockQP.c must be a finite 1-D array")
+        if bp[0] != 0 or bp[-1] != l or (sizes <= 0).any():
+            raise ValueError(f"BlockQP.block_ptr is not a block layout of {l} variables")
+        if not (sp.isspmatrix_csc(Q) and Q.dtype == np.float64 and Q.shape == (l, l)):
+            raise ValueError(f"BlockQP.Q must be ({l}, {l}) float64 CSC from quadratic_matrix")
+        qp = object.__new__(cls)
+        qp.c, qp.Q, qp.block_ptr = c, Q, bp
+        qp.block_of = np.repeat(np.arange(len(sizes), dtype=np.int64), sizes)
+        return qp
+
     # ------------------------------------------------------------------ shape
     @property
     def n_blocks(self) -> int:

@@ -103,6 +103,116 @@ def neighbourhood_cost(
     return out
 
 
+@njit(cache=True, nogil=True, parallel=True)
+def _cost_exponents(centers, radius, pred, positions, velocities, nbr, slots, scale, out):
+    """The arguments of the ``exp`` of Eq. 6 (``out[:, 0]``) and of Eq. 7's neighbour slots
+    ``slots`` (``out[:, 1 + s]``) on every grid cell, one target per loop iteration, with
+    the operations of :func:`motion_cost` and :func:`neighbourhood_cost` in their order."""
+    side = 2 * radius + 1
+    for t in prange(centers.shape[0]):
+        for y in range(side):
+            gy = float(centers[t, 1]) + float(y - radius)
+            for x in range(side):
+                gx = float(centers[t, 0]) + float(x - radius)
+                dx = gx - pred[t, 0]
+                dy = gy - pred[t, 1]
+                out[t, 0, y, x] = (dx * dx + dy * dy) * scale
+                for s in range(slots.shape[0]):
+                    j = nbr[t, slots[s]]
+                    if j < 0:
+                        j = 0  # padding: any finite value, its weight is 0
+                    dx = gx - (positions[t, 0] + velocities[j, 0])
+                    dy = gy - (positions[t, 1] + velocities[j, 1])
+                    out[t, 1 + s, y, x] = (dx * dx + dy * dy) * scale
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _cost_combine(app, centers, radius, gauss, zeta, eta, w, border, width, height, out):
+    """``-c_a + zeta c_m + eta c_nm + border * outside`` per cell from the Gaussians
+    ``gauss`` of :func:`_cost_exponents`, summed in the order of the separate terms."""
+    side = 2 * radius + 1
+    for t in prange(app.shape[0]):
+        for y in range(side):
+            gy = float(centers[t, 1]) + float(y - radius)
+            for x in range(side):
+                gx = float(centers[t, 0]) + float(x - radius)
+                c = -np.float64(app[t, y, x])
+                if zeta > 0:
+                    c += zeta * -gauss[t, 0, y, x]
+                if eta > 0:
+                    nb = 0.0
+                    for s in range(w.shape[1]):
+                        nb -= w[t, s] * gauss[t, 1 + s, y, x]
+                    c += eta * nb
+                outside = gx < 0 or gx > width - 1 or gy < 0 or gy > height - 1
+                c += border * (1.0 if outside else 0.0)
+                out[t, y, x] = c
+
+
+def linear_cost(
+    app: np.ndarray,
+    centers: np.ndarray,
+    radius: int,
+    prediction: np.ndarray,
+    sigma: float,
+    zeta: float,
+    eta: float,
+    positions: np.ndarray,
+    velocities: np.ndarray,
+    neighbours: np.ndarray,
+    weights: np.ndarray,
+    border: float,
+    frame_size: tuple[int, int],
+) -> np.ndarray:
+    """The linear cost of Eq. 1 on every cell of the ``(n, 2r+1, 2r+1)`` search grids.
+
+    ``-app + zeta c_m + eta c_nm + border * outside``: the appearance score ``app``, Eq. 6
+    around ``prediction`` (:func:`motion_cost`), Eq. 7 with ``neighbours`` and ``weights``
+    (:func:`neighbourhood_cost`), and ``border`` on cells outside the ``(width, height)``
+    frame. The same values, bit for bit, as those functions on :func:`grid_positions`'s grid
+    (the ``exp`` is numpy's, over one array), without the ``(n, K, K, 2)`` grid and the
+    per-term temporaries.
+    """
+    n, side = app.shape[0], 2 * radius + 1
+    out = np.empty((n, side, side))
+    if n == 0:
+        return out
+    centers = np.ascontiguousarray(centers, np.int64)
+    pred = np.ascontiguousarray(prediction, np.float64)
+    has = neighbours >= 0
+    w = np.where(has, weights, 0.0) if eta > 0 else np.zeros((n, 0))
+    slots = np.flatnonzero(w.any(axis=0)).astype(np.int64)  # slots nobody uses add 0
+    w = np.ascontiguousarray(w[:, slots])
+    expo = np.empty((n, 1 + len(slots), side, side))
+    _cost_exponents(
+        centers,
+        radius,
+        pred,
+        np.ascontiguousarray(positions, np.float64),
+        np.ascontiguousarray(velocities, np.float64),
+        np.ascontiguousarray(neighbours, np.int64),
+        slots,
+        -0.5 / (sigma * sigma),
+        expo,
+    )
+    gauss = np.exp(expo, out=expo)
+    width, height = frame_size
+    _cost_combine(
+        np.ascontiguousarray(app, np.float32),
+        centers,
+        radius,
+        gauss,
+        float(zeta),
+        float(eta),
+        w,
+        float(border),
+        width,
+        height,
+        out,
+    )
+    return out
+
+
 def coherent_groups(
     history: np.ndarray, radius: float, threshold: float, min_speed: float = 0.0
 ) -> np.ndarray:
@@ -428,14 +538,52 @@ def _csc_fill(
                 pos[i] += 1
 
 
+@njit(cache=True, nogil=True)
+def _extent(cand):
+    """Per target the mean of its candidates ``(n, 2)`` and their box ``(n, 4)`` (x0 y0 x1
+    y1), and the largest squared distance of a candidate from its target's mean."""
+    n, k = cand.shape[:2]
+    centre = np.empty((n, 2))
+    box = np.empty((n, 4))
+    spread2 = 0.0
+    for t in range(n):
+        sx = 0.0
+        sy = 0.0
+        x0 = x1 = cand[t, 0, 0]
+        y0 = y1 = cand[t, 0, 1]
+        for i in range(k):
+            x = cand[t, i, 0]
+            y = cand[t, i, 1]
+            sx += x
+            sy += y
+            x0 = min(x0, x)
+            x1 = max(x1, x)
+            y0 = min(y0, y)
+            y1 = max(y1, y)
+        centre[t, 0] = sx / k
+        centre[t, 1] = sy / k
+        box[t, 0] = x0
+        box[t, 1] = y0
+        box[t, 2] = x1
+        box[t, 3] = y1
+        for i in range(k):
+            dx = cand[t, i, 0] - centre[t, 0]
+            dy = cand[t, i, 1] - centre[t, 1]
+            spread2 = max(spread2, dx * dx + dy * dy)
+    return centre, box, spread2
+
+
 def proximity_pairs(cand: np.ndarray, reach: float) -> np.ndarray:
     """``(P, 2)`` target pairs ``a < b`` whose candidates may lie within ``reach`` px."""
-    if cand.shape[0] < 2:
+    return _near_pairs(*_extent(np.ascontiguousarray(cand, np.float64))[::2], reach)
+
+
+def _near_pairs(centre: np.ndarray, spread2: float, reach: float) -> np.ndarray:
+    """The pairs of :func:`proximity_pairs` from the targets' candidate means and spread."""
+    if centre.shape[0] < 2:
         return np.zeros((0, 2), np.int64)
-    centre = cand.mean(axis=1)
-    off = cand - centre[:, None]
-    spread = float(np.sqrt((off[..., 0] ** 2 + off[..., 1] ** 2).max()))
-    return cKDTree(centre).query_pairs(reach + 2 * spread, output_type="ndarray").astype(np.int64)
+    bound = reach + 2 * float(np.sqrt(spread2))
+    return cKDTree(centre).query_pairs(bound, output_type="ndarray").astype(np.int64)
 
 
 def _merged_pairs(n: int, pairs: np.ndarray, edges: np.ndarray, ref: np.ndarray):
@@ -485,6 +633,7 @@ def quadratic_matrix(
     g_cutoff: float,
     tau: float = 0.0,
     components: bool = False,
+    split_share: float | None = None,
 ):
     """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over candidates ``cand (n, k, 2)``, ``(l, l)`` CSC.
 
@@ -501,15 +650,24 @@ def quadratic_matrix(
     iteration with sums in a fixed order, so the matrix is the same bit for bit for any
     number of threads.
 
-    With ``components=True`` returns ``(Q, labels)``: ``labels (n,)`` int64 names the
-    connected component of every target in the graph of linked target pairs (targets of
-    two components share no entry of ``Q``: their sub-problems are independent).
+    With ``components=True`` returns ``(Q, labels, order)``: ``labels (n,)`` int64 names the
+    connected component of every block in the graph of linked target pairs (targets of two
+    components share no entry of ``Q``: their sub-problems are independent). ``order`` is
+    ``None``: block ``i`` is target ``i``. With ``split_share``, when the largest component
+    holds less than that share of the targets (the components will be solved apart,
+    :data:`tracker.bqp.frank_wolfe.SPLIT_MAX_SHARE`), ``Q`` is built with the targets grouped
+    by component instead, each component's targets in their order: block ``i`` is target
+    ``order[i]`` and ``labels`` are non-decreasing, so the solver's sub-problems are slices
+    and need no permuted copy of ``Q``. Ranks keep their order inside a component, so every
+    entry and degree is summed as in the targets' own order: the matrix is exactly ``Q``
+    permuted.
     """
     n, k = cand.shape[:2]
     size = n * k
     cand = np.ascontiguousarray(cand, dtype=np.float64)
     reach_s = sp_cutoff * sp_sigma
-    pairs = proximity_pairs(cand, reach_s) if w_sp > 0 else np.zeros((0, 2), np.int64)
+    centre, box, spread2 = _extent(cand)
+    pairs = _near_pairs(centre, spread2, reach_s) if w_sp > 0 else np.zeros((0, 2), np.int64)
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     lengths = np.asarray(lengths, dtype=np.float64)[: len(edges)]
     if w_g <= 0:
@@ -517,17 +675,12 @@ def quadratic_matrix(
         lengths = np.zeros(0)
     if len(pairs) == 0 and len(edges) == 0:
         empty = sp.csc_matrix((size, size))
-        return (empty, np.arange(n, dtype=np.int64)) if components else empty
+        if not components:
+            return empty
+        alone = np.arange(n, dtype=np.int64)  # every target its own component, in order
+        return empty, alone, (alone if _splits(np.ones(n), split_share) else None)
     pa, pb, flags, ref, mode_g = _merged_pairs(n, pairs, edges, lengths)
-    box = np.concatenate([cand.min(axis=1), cand.max(axis=1)], axis=1)  # (n, 4) x0 y0 x1 y1
-    args = (
-        cand,
-        box,
-        pa,
-        pb,
-        flags,
-        ref,
-        mode_g,
+    gauss = (
         1.0 / (2.0 * sp_sigma * sp_sigma),
         reach_s**2,
         1.0 / (2.0 * g_sigma * g_sigma),
@@ -536,14 +689,29 @@ def quadratic_matrix(
     offsets = np.zeros(len(pa) + 1, np.int64)
     none_i = np.zeros(0, np.int32)
     none_f = np.zeros(0)
-    _pair_entries(*args, offsets, none_i, none_f, none_f, False)  # counts at offsets[1:]
-    linked = offsets[1:] > 0
+    # counts at offsets[1:]
+    _pair_entries(
+        cand, box, pa, pb, flags, ref, mode_g, *gauss, offsets, none_i, none_f, none_f, False
+    )
+    order = labels = None
+    if components:
+        linked = offsets[1:] > 0
+        labels = _target_components(n, pa[linked], pb[linked])
+        if _splits(np.bincount(labels), split_share):
+            order = np.argsort(labels, kind="stable")
+            rank = np.empty(n, np.int64)
+            rank[order] = np.arange(n)
+            pa, pb = rank[pa], rank[pb]  # still a < b: ranks keep a component's order
+            by = np.argsort(pa * n + pb)  # the pairs sorted again, by (a, b)
+            pa, pb, flags, ref = pa[by], pb[by], flags[by], ref[by]
+            offsets[1:] = offsets[1:][by]
+            cand, box, labels = cand[order], box[order], labels[order]
     np.cumsum(offsets, out=offsets)
     m = int(offsets[-1])
     loc = np.empty(m, np.int32)  # i k + j < k^2
     s_val = np.empty(m)
     g_val = np.empty(m)
-    _pair_entries(*args, offsets, loc, s_val, g_val, True)
+    _pair_entries(cand, box, pa, pb, flags, ref, mode_g, *gauss, offsets, loc, s_val, g_val, True)
     # pairs are sorted by (a, b): as first target a target's pairs are one run; as second
     # target a stable sort by b keeps them in order of a
     targets = np.arange(n + 1)
@@ -555,11 +723,9 @@ def quadratic_matrix(
     n_up = np.zeros(size, np.int64)
     n_low = np.zeros(size, np.int64)
     _degrees(k, offsets, loc, s_val, g_val, a_ptr, b_order, b_ptr, deg_s, deg_g, n_up, n_low)
-    norm_s, diag_s = _degree_norm(deg_s, tau)
-    norm_g, diag_g = _degree_norm(deg_g, tau)
-    diag = w_sp * diag_s + w_g * diag_g
-    indptr = np.zeros(size + 1, np.int64)
-    np.cumsum(n_up + n_low + (diag != 0.0), out=indptr[1:])
+    norm_s, norm_g, diag, indptr = _normalise(
+        deg_s, deg_g, tau, float(w_sp), float(w_g), n_up, n_low
+    )
     indices = np.empty(indptr[-1], np.int64)
     data = np.empty(indptr[-1], np.float64)
     _csc_fill(
@@ -586,8 +752,14 @@ def quadratic_matrix(
     out = sp.csc_matrix((data, indices, indptr), shape=(size, size))
     out.has_sorted_indices = True
     if components:
-        return out, _target_components(n, pa[linked], pb[linked])
+        return out, labels, order
     return out
+
+
+def _splits(sizes: np.ndarray, share: float | None) -> bool:
+    """Whether components of these ``sizes`` are solved apart: the largest holds less than
+    ``share`` of the targets (``None``: never)."""
+    return share is not None and len(sizes) > 0 and sizes.max() < share * sizes.sum()
 
 
 @njit(cache=True, nogil=True)
@@ -627,14 +799,28 @@ def _target_components(n: int, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
     return labels
 
 
-def _degree_norm(deg: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(D + tau)^-1/2`` and ``D / (D + tau)`` where ``D > 0`` (0 elsewhere)."""
-    pos = deg > 0
-    norm = np.zeros_like(deg)
-    diag = np.zeros_like(deg)
-    norm[pos] = 1.0 / np.sqrt(deg[pos] + tau)
-    diag[pos] = deg[pos] / (deg[pos] + tau)
-    return norm, diag
+@njit(cache=True, nogil=True)
+def _normalise(deg_s, deg_g, tau, w_sp, w_g, n_up, n_low):
+    """``(D + tau)^-1/2`` of both degrees (0 where ``D = 0``), the diagonal ``w_sp D_s / (D_s +
+    tau) + w_g D_g / (D_g + tau)`` and the CSC column pointers (each column's entries above
+    and below the diagonal, plus the diagonal where it is not 0)."""
+    size = deg_s.shape[0]
+    norm_s = np.zeros(size)
+    norm_g = np.zeros(size)
+    diag = np.empty(size)
+    indptr = np.zeros(size + 1, np.int64)
+    for i in range(size):
+        ds = 0.0
+        dg = 0.0
+        if deg_s[i] > 0:
+            norm_s[i] = 1.0 / np.sqrt(deg_s[i] + tau)
+            ds = deg_s[i] / (deg_s[i] + tau)
+        if deg_g[i] > 0:
+            norm_g[i] = 1.0 / np.sqrt(deg_g[i] + tau)
+            dg = deg_g[i] / (deg_g[i] + tau)
+        diag[i] = w_sp * ds + w_g * dg
+        indptr[i + 1] = indptr[i] + n_up[i] + n_low[i] + (1 if diag[i] != 0.0 else 0)
+    return norm_s, norm_g, diag, indptr
 
 
 def proximity_matrix(

@@ -46,15 +46,13 @@ from tracker.bqp.params import BQPParams
 from tracker.bqp.terms import (
     coherent_groups,
     group_trees,
-    motion_cost,
-    neighbourhood_cost,
+    linear_cost,
     neighbours_in_groups,
     quadratic_matrix,
 )
 from tracker.candidates import (
     Candidates,
     dense_candidates,
-    grid_positions,
     search_radius,
     speedup_candidates,
 )
@@ -228,11 +226,6 @@ class BQPTracker(Tracker):
         app = self.appearance.scores(frame, centers)
         t0 = self._tick("appearance", t0)
 
-        grid = grid_positions(centers, self.radius)
-        sigma_m = self._px(p.motion_sigma)
-        cost = -app.astype(np.float64)
-        if p.zeta > 0:
-            cost += p.zeta * motion_cost(grid, pred, sigma_m)
         if p.eta > 0:
             nbr, wts = neighbours_in_groups(
                 self.points,
@@ -241,16 +234,23 @@ class BQPTracker(Tracker):
                 self._px(p.group_radius),
                 self._px(p.neighbour_scale),
             )
-            cost += p.eta * neighbourhood_cost(
-                grid, self.points, self.velocities, nbr, wts, sigma_m
-            )
-        outside = (
-            (grid[..., 0] < 0)
-            | (grid[..., 0] > w - 1)
-            | (grid[..., 1] < 0)
-            | (grid[..., 1] > h - 1)
+        else:
+            nbr, wts = np.zeros((len(pred), 0), np.int64), np.zeros((len(pred), 0))
+        cost = linear_cost(
+            app,
+            centers,
+            self.radius,
+            pred,
+            self._px(p.motion_sigma),
+            p.zeta,
+            p.eta,
+            self.points,
+            self.velocities,
+            nbr,
+            wts,
+            p.border_penalty,
+            (w, h),
         )
-        cost += p.border_penalty * outside
         if p.speedup:
             cands = speedup_candidates(
                 centers, self.radius, cost, app, self.rng, p.n_extrema, p.n_samples, p.sample_window
@@ -260,9 +260,14 @@ class BQPTracker(Tracker):
         self._tick("terms", t0)
         return cands, centers
 
-    def quadratic(self, cands: Candidates) -> tuple[sp.csc_matrix, np.ndarray]:
-        """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over the candidates, ``(l, l)`` CSC, and the
-        connected component of every target (no entry of ``Q`` joins two components)."""
+    def quadratic(self, cands: Candidates) -> tuple[sp.csc_matrix, np.ndarray, np.ndarray | None]:
+        """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over the candidates, ``(l, l)`` CSC, the
+        connected component of every block (no entry of ``Q`` joins two components) and the
+        target of every block: ``None`` when block ``i`` is target ``i``, else the targets
+        grouped by component, as the solver will solve them apart
+        (:func:`tracker.bqp.terms.quadratic_matrix` with ``split_share``)."""
+        from tracker.bqp.frank_wolfe import SPLIT_MAX_SHARE
+
         p = self.params
         ref = self.tree_offsets if p.group_offsets else self.tree_lengths
         return quadratic_matrix(
@@ -277,6 +282,7 @@ class BQPTracker(Tracker):
             p.group_cutoff,
             p.laplacian_tau,
             components=True,
+            split_share=SPLIT_MAX_SHARE,
         )
 
     def _step(self, frame: np.ndarray) -> np.ndarray:
@@ -287,21 +293,26 @@ class BQPTracker(Tracker):
         n = len(self.points)
         cands, _ = self.candidates(frame)
         t0 = time.perf_counter()
-        q, components = self.quadratic(cands)
+        q, components, order = self.quadratic(cands)
         t0 = self._tick("terms", t0)
-        qp = BlockQP(cands.cost.ravel(), q, cands.block_ptr)
+        cost = cands.cost if order is None else cands.cost[order]
+        qp = BlockQP.from_terms(cost.ravel(), q, cands.block_ptr)
         if self.record_qps:
             self.recorded_qps.append(qp)
         res = solve(
             qp,
             params=FWParams(variant=p.fw_variant, eps=p.fw_eps, max_iter=p.fw_max_iter * n),
-            components=components,
+            components=None if order is None else components,
         )
+        choice = res.choice
+        if order is not None:  # block i is target order[i]
+            choice = np.empty_like(res.choice)
+            choice[order] = res.choice
         self.solver_iterations += res.iterations
         self.n_candidates += cands.n * cands.k
         rows = np.arange(n)
-        new = cands.positions[rows, res.choice]
-        conf = cands.appearance[rows, res.choice]
+        new = cands.positions[rows, choice]
+        conf = cands.appearance[rows, choice]
         self.confidence = conf.astype(np.float64)
         t0 = self._tick("solve", t0)
 
