@@ -340,24 +340,24 @@ def group_trees(
 
 
 @njit(cache=True)
-def _pair_value(
-    cand, a, i, b, j, flag, rx, ry, mode_g, inv_s, reach2_s, inv_g, reach2_g, values=True
-):
-    """``(S, Gamma)`` between candidate ``i`` of target ``a`` and ``j`` of target ``b``.
+def _pair_exponents(cand, a, i, b, j, flag, rx, ry, mode_g, inv_s, reach2_s, inv_g, reach2_g):
+    """The exponents of ``(S, Gamma)`` between candidate ``i`` of target ``a`` and ``j`` of
+    target ``b`` (``S = exp`` of the first, ``Gamma = exp`` of the second).
 
-    0 where the pair is not linked (``flag`` bit 0: proximity, bit 1: tree edge) or beyond
-    the cutoff. Grouping compares ``p_a,i - p_b,j`` with ``ref = (rx, ry)``: its length
-    (``mode_g`` 1, Eq. 10) or the vector itself (``mode_g`` 2). ``values=False`` returns 1
-    instead of the Gaussians (counting needs no ``exp``).
+    ``-inf`` (an entry of 0) where the pair is not linked (``flag`` bit 0: proximity, bit 1:
+    tree edge) or beyond the cutoff. Grouping compares ``p_a,i - p_b,j`` with ``ref = (rx,
+    ry)``: its length (``mode_g`` 1, Eq. 10) or the vector itself (``mode_g`` 2). The ``exp``
+    is left to numpy over all entries at once (vectorised; a scalar ``exp`` per entry was
+    most of the fill pass).
     """
     dx = cand[a, i, 0] - cand[b, j, 0]
     dy = cand[a, i, 1] - cand[b, j, 1]
-    s = 0.0
-    g = 0.0
+    s = -np.inf
+    g = -np.inf
     if flag & 1:
         d2 = dx * dx + dy * dy
         if d2 <= reach2_s:
-            s = np.exp(-d2 * inv_s) if values else 1.0
+            s = -d2 * inv_s
     if flag & 2:
         if mode_g == 1:
             dev = np.sqrt(dx * dx + dy * dy) - rx
@@ -367,7 +367,7 @@ def _pair_value(
             ey = dy - ry
             dev2 = ex * ex + ey * ey
         if dev2 <= reach2_g:
-            g = np.exp(-dev2 * inv_g) if values else 1.0
+            g = -dev2 * inv_g
     return s, g
 
 
@@ -385,15 +385,16 @@ def _pair_entries(
     inv_g,
     reach2_g,
     offsets,
-    loc,
+    cand_a,
+    cand_b,
     s_out,
     g_out,
     fill,
 ):
     """Count (``fill`` False: ``offsets[p + 1]`` = the number of linked candidate pairs of
-    target pair ``p``, no ``exp``) or write them at ``offsets[p]:offsets[p + 1]``: ``loc =
-    i k + j`` (candidate ``i`` of ``a``, ``j`` of ``b``) in ``(i, j)`` order, and ``(S, Gamma)``
-    (Eq. 9, 10).
+    target pair ``p``) or write them at ``offsets[p]:offsets[p + 1]``: ``cand_a = i`` and
+    ``cand_b = j`` (candidate ``i`` of ``a``, ``j`` of ``b``) in ``(i, j)`` order, and the
+    exponents of ``(S, Gamma)`` (Eq. 9, 10; :func:`_pair_exponents`).
 
     One target pair per loop iteration, each written by one thread: the counts, and so the
     entries' layout, do not depend on the number of threads.
@@ -415,7 +416,7 @@ def _pair_entries(
         m = offsets[p] if fill else 0
         for i in range(k):
             for j in range(k):
-                s, g = _pair_value(
+                s, g = _pair_exponents(
                     cand,
                     a,
                     i,
@@ -429,11 +430,11 @@ def _pair_entries(
                     reach2_s,
                     inv_g,
                     reach2_g,
-                    fill,
                 )
-                if s > 0.0 or g > 0.0:
+                if s > -np.inf or g > -np.inf:
                     if fill:
-                        loc[m] = i * k + j
+                        cand_a[m] = i
+                        cand_b[m] = j
                         s_out[m] = s
                         g_out[m] = g
                     m += 1
@@ -442,7 +443,9 @@ def _pair_entries(
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _degrees(k, offsets, loc, s_val, g_val, a_ptr, b_order, b_ptr, deg_s, deg_g, n_up, n_low):
+def _degrees(
+    k, offsets, cand_a, cand_b, s_val, g_val, a_ptr, b_order, b_ptr, deg_s, deg_g, n_up, n_low
+):
     """Per candidate: the degrees ``D_s, D_g`` and how many entries it has as the second
     (``n_up``) and the first (``n_low``) target of a pair.
 
@@ -453,14 +456,14 @@ def _degrees(k, offsets, loc, s_val, g_val, a_ptr, b_order, b_ptr, deg_s, deg_g,
         base = t * k
         for p in range(a_ptr[t], a_ptr[t + 1]):  # t is the first target: rows of t
             for e in range(offsets[p], offsets[p + 1]):
-                i = loc[e] // k
+                i = cand_a[e]
                 deg_s[base + i] += s_val[e]
                 deg_g[base + i] += g_val[e]
                 n_low[base + i] += 1
         for q in range(b_ptr[t], b_ptr[t + 1]):  # t is the second target: columns of t
             p = b_order[q]
             for e in range(offsets[p], offsets[p + 1]):
-                j = loc[e] % k
+                j = cand_b[e]
                 deg_s[base + j] += s_val[e]
                 deg_g[base + j] += g_val[e]
                 n_up[base + j] += 1
@@ -480,7 +483,8 @@ def _csc_fill(
     pa,
     pb,
     offsets,
-    loc,
+    cand_a,
+    cand_b,
     s_val,
     g_val,
     a_ptr,
@@ -514,8 +518,8 @@ def _csc_fill(
             p = b_order[q]
             abase = pa[p] * k
             for e in range(offsets[p], offsets[p + 1]):
-                i = loc[e] // k
-                j = loc[e] % k
+                i = cand_a[e]
+                j = cand_b[e]
                 r = abase + i
                 c = base + j
                 indices[pos[j]] = r
@@ -529,8 +533,8 @@ def _csc_fill(
         for p in range(a_ptr[t], a_ptr[t + 1]):  # rows below the diagonal
             bbase = pb[p] * k
             for e in range(offsets[p], offsets[p + 1]):
-                i = loc[e] // k
-                j = loc[e] % k
+                i = cand_a[e]
+                j = cand_b[e]
                 r = base + i
                 c = bbase + j
                 indices[pos[i]] = c
@@ -691,7 +695,20 @@ def quadratic_matrix(
     none_f = np.zeros(0)
     # counts at offsets[1:]
     _pair_entries(
-        cand, box, pa, pb, flags, ref, mode_g, *gauss, offsets, none_i, none_f, none_f, False
+        cand,
+        box,
+        pa,
+        pb,
+        flags,
+        ref,
+        mode_g,
+        *gauss,
+        offsets,
+        none_i,
+        none_i,
+        none_f,
+        none_f,
+        False,
     )
     order = labels = None
     if components:
@@ -708,10 +725,15 @@ def quadratic_matrix(
             cand, box, labels = cand[order], box[order], labels[order]
     np.cumsum(offsets, out=offsets)
     m = int(offsets[-1])
-    loc = np.empty(m, np.int32)  # i k + j < k^2
+    cand_a = np.empty(m, np.int32)  # the pair's candidate of its first target
+    cand_b = np.empty(m, np.int32)  # and of its second
     s_val = np.empty(m)
     g_val = np.empty(m)
-    _pair_entries(cand, box, pa, pb, flags, ref, mode_g, *gauss, offsets, loc, s_val, g_val, True)
+    _pair_entries(
+        cand, box, pa, pb, flags, ref, mode_g, *gauss, offsets, cand_a, cand_b, s_val, g_val, True
+    )
+    np.exp(s_val, out=s_val)  # -inf (not linked) gives 0
+    np.exp(g_val, out=g_val)
     # pairs are sorted by (a, b): as first target a target's pairs are one run; as second
     # target a stable sort by b keeps them in order of a
     targets = np.arange(n + 1)
@@ -722,7 +744,9 @@ def quadratic_matrix(
     deg_g = np.zeros(size)
     n_up = np.zeros(size, np.int64)
     n_low = np.zeros(size, np.int64)
-    _degrees(k, offsets, loc, s_val, g_val, a_ptr, b_order, b_ptr, deg_s, deg_g, n_up, n_low)
+    _degrees(
+        k, offsets, cand_a, cand_b, s_val, g_val, a_ptr, b_order, b_ptr, deg_s, deg_g, n_up, n_low
+    )
     norm_s, norm_g, diag, indptr = _normalise(
         deg_s, deg_g, tau, float(w_sp), float(w_g), n_up, n_low
     )
@@ -733,7 +757,8 @@ def quadratic_matrix(
         pa,
         pb,
         offsets,
-        loc,
+        cand_a,
+        cand_b,
         s_val,
         g_val,
         a_ptr,
