@@ -225,15 +225,22 @@ def _speedup_cells(cost, big, m, ns, offs, draws, cell):
                     low = row[y + 1, x]
                 v = cost[t, y, x]
                 key[y * side + x] = v if v == low else v + big
-        # the m lowest keys, ascending (ties: lower index), by repeated selection
-        taken = np.zeros(cells, np.bool_)
-        for e in range(m):
-            best = -1
-            for q in range(cells):
-                if not taken[q] and (best < 0 or key[q] < key[best]):
-                    best = q
-            taken[best] = True
-            cell[t, e] = best
+        # the m lowest keys, ascending (ties: lower index), kept sorted by insertion
+        top = np.empty(m)
+        filled = 0
+        for q in range(cells):
+            v = key[q]
+            if filled == m and not v < top[m - 1]:
+                continue
+            i = filled if filled < m else m - 1
+            while i > 0 and v < top[i - 1]:
+                top[i] = top[i - 1]
+                cell[t, i] = cell[t, i - 1]
+                i -= 1
+            top[i] = v
+            cell[t, i] = q
+            if filled < m:
+                filled += 1
         # the ns smallest draws in ascending order (ties: lower offset), kept sorted by
         # insertion in one pass over the offsets
         low = np.empty(ns)

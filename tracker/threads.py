@@ -28,9 +28,14 @@ import numba
 from crowdsim.checks import require_number
 
 
+_CORES = os.cpu_count() or 1
+"""The machine's cores, read once (``os.cpu_count`` took 30 us, and trackers check their
+threads every frame)."""
+
+
 def max_threads() -> int:
     """The most threads a tracker may use: the cores, and at most numba's thread pool."""
-    return max(1, min(os.cpu_count() or 1, int(numba.config.NUMBA_NUM_THREADS)))
+    return max(1, min(_CORES, int(numba.config.NUMBA_NUM_THREADS)))
 
 
 def check_threads(value, name: str = "threads") -> int:

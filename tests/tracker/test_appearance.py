@@ -105,6 +105,20 @@ def test_empty_frame_zero_targets_and_border(cls):
     assert m.n == 1
 
 
+@pytest.mark.parametrize("size", [3, 8])
+def test_kcf_patches_are_extract_patches_as_float32(size):
+    """The compiled float32 gather of the KCF features is extract_patches exactly: border
+    replicated, corners far outside the frame clipped as there."""
+    from tracker.appearance import _patches_f32
+
+    rng = np.random.default_rng(4)
+    frame = rng.integers(0, 256, (11, 13, 3), dtype=np.uint8)
+    corners = np.array([[-1, -1], [3, 2], [10, 9], [-40, 5], [30, -25], [12, 10], [0, 0]])
+    out = np.empty((len(corners), 3, size, size), np.float32)
+    _patches_f32(frame, corners, size, out)
+    np.testing.assert_array_equal(out, extract_patches(frame, corners, size).astype(np.float32))
+
+
 def test_extract_patches_replicates_border():
     f = np.arange(12, dtype=np.uint8).reshape(3, 4, 1)
     p = extract_patches(f, np.array([[-1, -1], [3, 2]]), 3)

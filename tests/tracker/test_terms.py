@@ -181,7 +181,13 @@ def test_speedup_samples_are_the_smallest_draws_in_order():
     draws[0, 0, 3] = draws[0, 0, 9] = -1.0  # a tie: offset 3 comes before offset 9
     cell = np.empty((4, m * (1 + ns)), np.int64)
     _speedup_cells(cost, 1e9, m, ns, offs, draws, cell)
+    from scipy.ndimage import minimum_filter
+
     for t in range(4):
+        # extrema: the m lowest local minima (3x3, border as "nearest"), ascending
+        local = cost[t] == minimum_filter(cost[t], size=3, mode="nearest")
+        key = np.where(local, cost[t], cost[t] + 1e9).ravel()
+        np.testing.assert_array_equal(cell[t, :m], np.argsort(key, kind="stable")[:m])
         for e in range(m):
             ey, ex = divmod(cell[t, e], side)
             best = np.argsort(draws[t, e], kind="stable")[:ns]
