@@ -27,7 +27,6 @@ import numba
 
 from crowdsim.checks import require_number
 
-
 _CORES = os.cpu_count() or 1
 """The machine's cores, read once (``os.cpu_count`` took 30 us, and trackers check their
 threads every frame)."""
