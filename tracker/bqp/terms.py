@@ -750,7 +750,10 @@ def quadratic_matrix(
     norm_s, norm_g, diag, indptr = _normalise(
         deg_s, deg_g, tau, float(w_sp), float(w_g), n_up, n_low
     )
-    indices = np.empty(indptr[-1], np.int64)
+    # scipy keeps int32 indices where they fit (and would copy int64 ones down to int32)
+    index = np.int32 if max(size, int(indptr[-1])) < np.iinfo(np.int32).max else np.int64
+    indptr = indptr.astype(index)
+    indices = np.empty(indptr[-1], index)
     data = np.empty(indptr[-1], np.float64)
     _csc_fill(
         k,
