@@ -514,3 +514,22 @@ def test_from_terms_keeps_the_cheap_checks():
         BlockQP.from_terms(qp.c, qp.Q, qp.block_ptr[:-1])
     with pytest.raises(ValueError, match="BlockQP.Q"):
         BlockQP.from_terms(qp.c, qp.Q.tocsr(), qp.block_ptr)
+
+
+def test_lone_blocks_without_entries_give_the_loops_figures():
+    """Components with no entry of Q (lone targets) skip the loop's set-up: x, gap, objective
+    and iterations are those of the loop on the whole problem, and a lone block whose start
+    is not optimal still takes its steps."""
+    rng = np.random.default_rng(6)
+    n, k = 6, 4
+    c = rng.normal(size=n * k)
+    qp = BlockQP(c, sp.csc_matrix((n * k, n * k)), np.arange(0, n * k + 1, k))
+    x0 = default_start(qp)
+    x0[k : 2 * k] = 1.0 / k  # block 1 starts inside its simplex
+    split = solve(qp, x0=x0, components=np.arange(n))
+    whole = solve(qp, x0=x0)
+    np.testing.assert_array_equal(split.x, whole.x)
+    np.testing.assert_array_equal(split.choice, c.reshape(n, k).argmin(1))
+    assert split.iterations == whole.iterations == 1 and split.converged
+    assert split.gap == whole.gap == 0.0
+    assert split.objective == pytest.approx(whole.objective, abs=1e-12)

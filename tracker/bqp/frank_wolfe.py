@@ -562,6 +562,26 @@ def _permute_csc(indptr, indices, data, var_order, var_rank, new_indptr, new_ind
             q += 1
 
 
+@njit(cache=True, nogil=True)
+def _linear_gap(c, block_ptr, x, b0, b1):
+    """Duality gap and ``f`` of blocks ``b0:b1`` where ``Q`` has no entry (``g = c``), summed
+    as :func:`_rebuild` and :func:`_fw_loop` sum them (so a component that needs no step
+    gets the same figures as from the loop)."""
+    total = 0.0
+    for b in range(b0, b1):
+        gmin = np.inf
+        gxs = 0.0
+        for j in range(block_ptr[b], block_ptr[b + 1]):
+            gmin = min(gmin, c[j])
+            if x[j] > 0.0:
+                gxs += c[j] * x[j]
+        total += max(gxs - gmin, 0.0)
+    f = 0.0
+    for j in range(block_ptr[b0], block_ptr[b1]):
+        f += 0.5 * (c[j] + c[j]) * x[j]
+    return total, f
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _fw_components(
     indptr,
@@ -596,6 +616,18 @@ def _fw_components(
         v1 = block_ptr[b1]
         e0 = indptr[v0]
         e1 = indptr[v1]
+        if e1 == e0:
+            # no quadratic entry (a lone target): a linear problem, usually solved at the
+            # start already; then _fw_loop's answer without its set-up
+            gap, f = _linear_gap(c, block_ptr, x, b0, b1)
+            if gap <= eps * (b1 - b0) / n:
+                out_it[ci] = 0
+                out_conv[ci] = True
+                out_gap[ci] = gap
+                out_f[ci] = f
+                for s in range(4):
+                    out_counts[ci, s] = 0
+                continue
         sub_indptr = indptr[v0 : v1 + 1] - e0
         sub_indices = indices[e0:e1] - v0
         sub_bp = block_ptr[b0 : b1 + 1] - v0
