@@ -19,9 +19,9 @@ Stages of a frame (their seconds are accumulated in ``timings``):
     their spanning trees.
 ``solve``
     Building the :class:`tracker.bqp.qp.BlockQP` and running Frank-Wolfe. Where the targets
-    fall into independent groups (no proximity or grouping entry between them), each group
-    is solved apart, in parallel (:func:`tracker.bqp.frank_wolfe.solve` with
-    ``components``).
+    fall into independent groups (no proximity or grouping entry between them), the terms
+    build the QP grouped by component and each group is solved apart, in parallel
+    (:func:`tracker.bqp.frank_wolfe.solve` with ``components``).
 
 The stages run on the tracker's ``threads`` (:mod:`tracker.threads`); tracks are the same for
 any number of threads.
@@ -67,7 +67,8 @@ class BQPTracker(Tracker):
         All weights and thresholds (default: the paper's values).
     record_qps : bool
         Keep every frame's :class:`tracker.bqp.qp.BlockQP` in ``recorded_qps`` (for the solver
-        benchmark: "relaxed QPs taken from real tracking frames").
+        benchmark: "relaxed QPs taken from real tracking frames"). Where a frame was solved
+        by components its blocks are grouped by component (:meth:`quadratic`).
 
     Attributes
     ----------
