@@ -90,28 +90,6 @@ class StepStats:
         return self._iterations() - self._it0
 
 
-class _ReadAhead:
-    """The frames of ``frames``, each fetched on ``pool``'s thread while the caller tracks the
-    one before: reading a cached episode is JPEG decoding, and OpenCV decodes without the
-    GIL (0.27 ms of a 6 ms frame at 100 people, hidden on a second core). One fetch is in
-    flight at a time, so the iterator is only ever advanced by one thread at once."""
-
-    def __init__(self, frames: Iterator[np.ndarray], pool: Any) -> None:
-        self._frames = frames
-        self._pool = pool
-        self._next = pool.submit(next, frames, None)
-
-    def __iter__(self) -> _ReadAhead:
-        return self
-
-    def __next__(self) -> np.ndarray:
-        frame = self._next.result()
-        if frame is None:
-            raise StopIteration
-        self._next = self._pool.submit(next, self._frames, None)
-        return frame
-
-
 @dataclass
 class _Episode:
     """State of the sequence being tracked."""
@@ -384,7 +362,6 @@ class TrackerTuningEnv(gym.Env):
         self._seen: StepStats | None = None
         self._action = self.start_action.copy()
         self._clipped_total = 0
-        self._reader: Any = None  # the thread that reads the next frame ahead (_ReadAhead)
 
     # ------------------------------------------------------------------ episode
     def _pick(self, options: dict | None) -> Any:
@@ -399,11 +376,6 @@ class TrackerTuningEnv(gym.Env):
         (ids0, pts0), births = seq.births()
         frames = iter(seq.frames())
         first = next(frames)
-        if self._reader is None:
-            from concurrent.futures import ThreadPoolExecutor
-
-            self._reader = ThreadPoolExecutor(1, thread_name_prefix="episode-frames")
-        frames = _ReadAhead(frames, self._reader)
         gt_ids = np.asarray(gt_ids, np.int64)
         order = np.argsort(gt_ids)
         self._gt_sorted = gt_ids[order]
@@ -537,9 +509,6 @@ class TrackerTuningEnv(gym.Env):
         self._ep = None
         self._trk = None
         self._seen = None
-        if self._reader is not None:
-            self._reader.shutdown(wait=True, cancel_futures=True)
-            self._reader = None
 
 
 class TrackerTuningBanditEnv(TrackerTuningEnv):

@@ -521,25 +521,3 @@ def test_distribution_files_are_bounded_and_a_single_name_is_one_family(tmp_path
     (tmp_path / "b.json").write_bytes(b"\xff\xfe\x00binary")
     with pytest.raises(ValueError, match="b.json: not a JSON distribution file"):
         ScenarioDistribution.from_arg(str(tmp_path / "b.json"))
-
-
-def test_frames_read_ahead_in_order_and_errors_surface():
-    """The env reads each next frame on a worker thread: every frame comes, in order, the
-    end is the end, and a frame that fails to load raises in the caller, not in the thread."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from envs.tracker_tuning import _ReadAhead
-
-    frames = [np.full((2, 2, 3), i, np.uint8) for i in range(5)]
-    with ThreadPoolExecutor(1) as pool:
-        got = list(_ReadAhead(iter(frames), pool))
-        assert [int(f[0, 0, 0]) for f in got] == [0, 1, 2, 3, 4]
-
-        def broken():
-            yield frames[0]
-            raise OSError("frame 1 is damaged")
-
-        reader = _ReadAhead(broken(), pool)
-        assert next(reader) is frames[0]
-        with pytest.raises(OSError, match="frame 1 is damaged"):
-            next(reader)
