@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from crowdsim.checks import require_choice, require_number
 
@@ -131,6 +132,48 @@ def check_fields(owner: str, params: Any) -> None:
     """
     require_choice(owner, "cmc", params.cmc, (True, False))
     require_choice(owner, "cmc_method", params.cmc_method, METHODS)
+
+
+_SPANS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _disc_spans(r: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per row ``dy = -r .. r`` of ``cv2.circle``'s filled disc of radius ``r``, the first
+    and last ``dx`` it covers (``lo > hi``: none). Drawn once by OpenCV itself, so stamping
+    these spans marks exactly the pixels ``cv2.circle`` would at any integer centre."""
+    if r not in _SPANS:
+        import cv2
+
+        stamp = np.zeros((2 * r + 1, 2 * r + 1), np.uint8)
+        cv2.circle(stamp, (r, r), r, 1, -1)
+        lo = np.full(2 * r + 1, 1, np.int64)
+        hi = np.zeros(2 * r + 1, np.int64)
+        for row in range(2 * r + 1):
+            on = np.flatnonzero(stamp[row])
+            if len(on):
+                assert on[-1] - on[0] + 1 == len(on), "a filled circle's rows are spans"
+                lo[row], hi[row] = on[0] - r, on[-1] - r
+        _SPANS[r] = (lo, hi)
+    return _SPANS[r]
+
+
+@njit(cache=True, nogil=True)
+def _stamp_discs(mask, centres, lo, hi):
+    """Zero the disc spans ``lo, hi`` (:func:`_disc_spans`) around every centre, clipped to
+    ``mask``: the corner mask of all tracked people in one compiled pass."""
+    h, w = mask.shape
+    r = (lo.shape[0] - 1) // 2
+    for i in range(centres.shape[0]):
+        cx = centres[i, 0]
+        cy = centres[i, 1]
+        for row in range(lo.shape[0]):
+            y = cy + row - r
+            if y < 0 or y >= h or lo[row] > hi[row]:
+                continue
+            x0 = max(cx + lo[row], 0)
+            x1 = min(cx + hi[row], w - 1)
+            for x in range(x0, x1 + 1):
+                mask[y, x] = 0
 
 
 def warp_points(a: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -238,16 +281,18 @@ class MotionCompensator:
     ) -> np.ndarray | None:
         """``(h, w)`` uint8 mask of the downscaled previous frame, 0 within ``exclude_px`` of
         the ``exclude`` points; ``None`` when nothing is excluded or nothing would be left."""
-        import cv2
 
         p = self.params
         if exclude is None or len(exclude) == 0 or exclude_px <= 0:
             return None
         mask = np.full(shape, 255, np.uint8)
         r = max(1, int(round(exclude_px / p.downscale)))
-        for x, y in np.asarray(exclude, dtype=np.float64).reshape(-1, 2) / p.downscale:
-            if np.isfinite(x) and np.isfinite(y):
-                cv2.circle(mask, (int(round(x)), int(round(y))), r, 0, -1)
+        pts = np.asarray(exclude, dtype=np.float64).reshape(-1, 2) / p.downscale
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        # far outside the frame a disc leaves no mark (and int64 must hold the centre)
+        h, w = shape[:2]
+        near = (np.abs(pts[:, 0]) < w + r + 1) & (np.abs(pts[:, 1]) < h + r + 1)
+        _stamp_discs(mask, np.rint(pts[near]).astype(np.int64), *_disc_spans(r))
         return mask if mask.any() else None
 
     def _sparse(

@@ -310,3 +310,25 @@ def test_the_state_moves_with_the_camera_by_kind():
     np.testing.assert_allclose(tr.v, [[0.0, 2.0], [-2.0, 0.0]])
     np.testing.assert_allclose(tr.d, [6.0, 10.0])
     assert tr.timings["cmc"] >= 0
+
+
+@pytest.mark.parametrize("radius", [1, 3, 12])
+def test_the_people_mask_is_cv2_circles_drawn_one_by_one(radius):
+    """The corner mask stamps OpenCV's own disc at every tracked person in one compiled pass:
+    the same pixels as one cv2.circle per person, at the borders and outside the frame too,
+    with non-finite points skipped."""
+    rng = np.random.default_rng(radius)
+    shape = (37, 53)
+    pts = np.concatenate(
+        [
+            rng.uniform(-20, 70, (60, 2)),
+            [[0.5, 1.5], [2.5, -0.5], [52.0, 36.0], [-1e12, 5.0], [np.nan, 3.0], [4.0, np.inf]],
+        ]
+    )
+    cmc = MotionCompensator(CMCParams(downscale=1))
+    got = cmc._mask(shape, pts, float(radius))
+    expect = np.full(shape, 255, np.uint8)
+    for x, y in pts:
+        if np.isfinite(x) and np.isfinite(y) and abs(x) < 1e6:
+            cv2.circle(expect, (int(round(x)), int(round(y))), radius, 0, -1)
+    np.testing.assert_array_equal(got, expect)
