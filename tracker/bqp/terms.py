@@ -547,10 +547,10 @@ def _extent(cand):
     """Per target the mean of its candidates ``(n, 2)`` and their box ``(n, 4)`` (x0 y0 x1
     y1), and the largest squared distance of a candidate from its target's mean."""
     n, k = cand.shape[:2]
-    centre = np.empty((n, 2))
-    box = np.empty((n, 4))
+    centre = np.zeros((n, 2))
+    box = np.zeros((n, 4))
     spread2 = 0.0
-    for t in range(n):
+    for t in range(n if k > 0 else 0):  # no candidates: nothing to measure
         sx = 0.0
         sy = 0.0
         x0 = x1 = cand[t, 0, 0]
