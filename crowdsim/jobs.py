@@ -319,6 +319,14 @@ def interruptible() -> Iterator[None]:
 
     :func:`run_jobs` uses it; a command wraps its whole run in it too, so that a signal
     during its own preparation ends the same way. Previous handlers are restored on exit.
+
+    A signal that lands while Python code runs inside a C callback -- numba compiling calls
+    back into Python through ctypes (llvmlite's object cache) -- raises there, and ctypes
+    swallows the exception ("Exception ignored on calling ctypes callback function"): the
+    signal would be lost and the command run on. The :data:`sys.unraisablehook` installed
+    here sees the swallowed :class:`Interrupted` and has the signal sent again a few
+    milliseconds later, from another thread (sent from the hook, it would raise inside the
+    hook and be swallowed once more), so it is raised once the callback has returned.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -327,10 +335,22 @@ def interruptible() -> Iterator[None]:
     def handler(signum: int, frame: Any) -> None:
         raise Interrupted(signal.Signals(signum).name)
 
+    def unraisable(info: Any) -> None:
+        if isinstance(info.exc_value, Interrupted):
+            again = signal.Signals[info.exc_value.signal_name]
+            timer = threading.Timer(0.005, os.kill, (os.getpid(), again))
+            timer.daemon = True
+            timer.start()
+            return
+        old_hook(info)
+
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    old_hook = sys.unraisablehook
+    sys.unraisablehook = unraisable
     try:
         yield
     finally:
+        sys.unraisablehook = old_hook
         for s, h in old.items():
             signal.signal(s, h)
 

@@ -197,3 +197,34 @@ def test_workers_die_with_a_killed_parent(tmp_path, helpers):
 def test_interrupted_is_a_keyboard_interrupt():
     exc = Interrupted("SIGTERM")
     assert isinstance(exc, KeyboardInterrupt) and exc.signal_name == "SIGTERM"
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGTERM") or os.name != "posix", reason="POSIX signals")
+def test_a_signal_swallowed_by_a_c_callback_is_raised_after_it():
+    """A signal that lands while Python runs inside a ctypes callback (numba's compiler calls
+    back into Python that way) raises there and ctypes swallows it; interruptible() sends it
+    again, so the command still stops, once the callback has returned."""
+    import ctypes
+    import ctypes.util
+
+    libc = ctypes.CDLL(ctypes.util.find_library("c"))
+    compare_t = ctypes.CFUNCTYPE(
+        ctypes.c_int, ctypes.POINTER(ctypes.c_int), ctypes.POINTER(ctypes.c_int)
+    )
+    fired = []
+
+    def compare(a, b):
+        if not fired:
+            fired.append(True)
+            signal.raise_signal(signal.SIGTERM)  # its handler raises here, inside the callback
+        return a[0] - b[0]
+
+    values = (ctypes.c_int * 4)(3, 1, 2, 0)
+    with pytest.raises(Interrupted) as caught:
+        with jobs_mod.interruptible():
+            libc.qsort(values, 4, ctypes.sizeof(ctypes.c_int), compare_t(compare))
+            assert fired  # the callback ran and swallowed the first Interrupted
+            deadline = time.monotonic() + 5
+            while time.monotonic() < deadline:  # the signal comes again
+                time.sleep(0.001)
+    assert caught.value.signal_name == "SIGTERM" and fired
