@@ -72,6 +72,15 @@ SPLIT_MAX_SHARE: float = 0.9
 """:func:`solve` with ``components`` solves the components apart only when the largest holds
 less than this share of the blocks; otherwise one problem (the permutation would cost more
 than the threads gain)."""
+
+
+def solved_apart(sizes: np.ndarray, share: float = SPLIT_MAX_SHARE) -> bool:
+    """Whether components of these ``sizes`` (blocks each) are solved apart: the largest
+    holds less than ``share`` of the blocks (the one rule of :func:`solve` and of
+    :func:`tracker.bqp.terms.quadratic_matrix`'s grouping)."""
+    return len(sizes) > 0 and sizes.max() < share * sizes.sum()
+
+
 STEP_KINDS: tuple[str, ...] = ("fw", "away", "swap", "drop")
 """Kinds counted in :attr:`FWResult.steps` (``drop``: away/SWAP steps that emptied ``alpha_y``)."""
 
@@ -807,24 +816,24 @@ def _solve_split(
             f"components must be ({n},) integer labels, one per block, got "
             f"shape {labels.shape} dtype {labels.dtype}"
         )
-    if (labels[1:] >= labels[:-1]).all():
-        # already grouped (quadratic_matrix with split_share): the components are slices
-        starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
-        comp_ptr = np.append(starts, n).astype(np.int64)
-        if np.diff(comp_ptr).max() >= SPLIT_MAX_SHARE * n:
-            return None
-        Q = qp.Q
+    # already grouped (quadratic_matrix with split_share): the components are slices
+    grouped = bool((labels[1:] >= labels[:-1]).all())
+    if grouped:
+        sizes = np.diff(np.flatnonzero(np.r_[True, labels[1:] != labels[:-1], True]))
+    else:
+        _, labels, sizes = np.unique(labels, return_inverse=True, return_counts=True)
+    if not solved_apart(sizes):
+        return None
+    comp_ptr = np.zeros(len(sizes) + 1, np.int64)
+    np.cumsum(sizes, out=comp_ptr[1:])
+    Q = qp.Q
+    if grouped:
         it, conv, gap, f, counts = _run_components(
             Q.indptr, Q.indices, Q.data, qp.c, qp.block_ptr, x, params, comp_ptr
         )
         return _result(qp, x, f, gap, it, conv, counts)
-    _, labels, sizes = np.unique(labels, return_inverse=True, return_counts=True)
-    if sizes.max() >= SPLIT_MAX_SHARE * n:
-        return None
     # blocks grouped by component, each component's blocks (and variables) in their order
     block_order = np.argsort(labels, kind="stable")
-    comp_ptr = np.zeros(len(sizes) + 1, np.int64)
-    np.cumsum(sizes, out=comp_ptr[1:])
     bsizes = qp.block_sizes[block_order]
     new_bp = np.zeros(n + 1, np.int64)
     np.cumsum(bsizes, out=new_bp[1:])
@@ -832,7 +841,6 @@ def _solve_split(
     var_order = np.repeat(starts - new_bp[:-1], bsizes) + np.arange(qp.n_vars)
     var_rank = np.empty_like(var_order)
     var_rank[var_order] = np.arange(qp.n_vars)
-    Q = qp.Q
     col_nnz = np.diff(Q.indptr)[var_order]
     new_indptr = np.zeros(qp.n_vars + 1, np.int64)
     np.cumsum(col_nnz, out=new_indptr[1:])

@@ -35,6 +35,8 @@ from numba import njit, prange
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
+from tracker.bqp.frank_wolfe import solved_apart
+
 
 def motion_cost(grid: np.ndarray, prediction: np.ndarray, sigma: float) -> np.ndarray:
     """Eq. 6: ``c_m = -exp(-|p - A s_{t-1}|^2 / 2 sigma^2)`` on every grid cell.
@@ -693,23 +695,9 @@ def quadratic_matrix(
     offsets = np.zeros(len(pa) + 1, np.int64)
     none_i = np.zeros(0, np.int32)
     none_f = np.zeros(0)
+    pairs_geometry = (cand, box, pa, pb, flags, ref, mode_g, *gauss)
     # counts at offsets[1:]
-    _pair_entries(
-        cand,
-        box,
-        pa,
-        pb,
-        flags,
-        ref,
-        mode_g,
-        *gauss,
-        offsets,
-        none_i,
-        none_i,
-        none_f,
-        none_f,
-        False,
-    )
+    _pair_entries(*pairs_geometry, offsets, none_i, none_i, none_f, none_f, False)
     order = labels = None
     if components:
         linked = offsets[1:] > 0
@@ -723,15 +711,14 @@ def quadratic_matrix(
             pa, pb, flags, ref = pa[by], pb[by], flags[by], ref[by]
             offsets[1:] = offsets[1:][by]
             cand, box, labels = cand[order], box[order], labels[order]
+            pairs_geometry = (cand, box, pa, pb, flags, ref, mode_g, *gauss)
     np.cumsum(offsets, out=offsets)
     m = int(offsets[-1])
     cand_a = np.empty(m, np.int32)  # the pair's candidate of its first target
     cand_b = np.empty(m, np.int32)  # and of its second
     s_val = np.empty(m)
     g_val = np.empty(m)
-    _pair_entries(
-        cand, box, pa, pb, flags, ref, mode_g, *gauss, offsets, cand_a, cand_b, s_val, g_val, True
-    )
+    _pair_entries(*pairs_geometry, offsets, cand_a, cand_b, s_val, g_val, True)
     np.exp(s_val, out=s_val)  # -inf (not linked) gives 0
     np.exp(g_val, out=g_val)
     # pairs are sorted by (a, b): as first target a target's pairs are one run; as second
@@ -785,9 +772,9 @@ def quadratic_matrix(
 
 
 def _splits(sizes: np.ndarray, share: float | None) -> bool:
-    """Whether components of these ``sizes`` are solved apart: the largest holds less than
-    ``share`` of the targets (``None``: never)."""
-    return share is not None and len(sizes) > 0 and sizes.max() < share * sizes.sum()
+    """Whether components of these ``sizes`` are solved apart
+    (:func:`tracker.bqp.frank_wolfe.solved_apart` with ``share``; ``None``: never)."""
+    return share is not None and solved_apart(sizes, share)
 
 
 @njit(cache=True, nogil=True)
