@@ -190,6 +190,24 @@ def speedup_candidates(
     return Candidates(pos, cost, app, cell)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _keep_smallest(v, q, low, pick, filled):
+    """Offer value ``v`` (item ``q``) to the ``filled`` smallest so far, kept ascending in
+    ``low`` with their items in ``pick`` (at most ``len(low)``; ties: the earlier item
+    first); returns the new count. One pass of offers selects the smallest in order."""
+    cap = low.shape[0]
+    if cap == 0 or (filled == cap and not v < low[cap - 1]):
+        return filled
+    i = filled if filled < cap else cap - 1
+    while i > 0 and v < low[i - 1]:
+        low[i] = low[i - 1]
+        pick[i] = pick[i - 1]
+        i -= 1
+    low[i] = v
+    pick[i] = q
+    return filled + 1 if filled < cap else filled
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _speedup_cells(cost, big, m, ns, offs, draws, cell):
     """The cells of :func:`speedup_candidates`, one target per loop iteration (the same for
@@ -225,43 +243,20 @@ def _speedup_cells(cost, big, m, ns, offs, draws, cell):
                     low = row[y + 1, x]
                 v = cost[t, y, x]
                 key[y * side + x] = v if v == low else v + big
-        # the m lowest keys, ascending (ties: lower index), kept sorted by insertion
+        # the m lowest keys, ascending (ties: lower index)
         top = np.empty(m)
         filled = 0
         for q in range(cells):
-            v = key[q]
-            if filled == m and not v < top[m - 1]:
-                continue
-            i = filled if filled < m else m - 1
-            while i > 0 and v < top[i - 1]:
-                top[i] = top[i - 1]
-                cell[t, i] = cell[t, i - 1]
-                i -= 1
-            top[i] = v
-            cell[t, i] = q
-            if filled < m:
-                filled += 1
-        # the ns smallest draws in ascending order (ties: lower offset), kept sorted by
-        # insertion in one pass over the offsets
+            filled = _keep_smallest(key[q], q, top, cell[t, :m], filled)
+        # the ns smallest draws in ascending order (ties: lower offset)
         low = np.empty(ns)
         pick = np.empty(ns, np.int64)
         for e in range(m):
             ey = cell[t, e] // side
             ex = cell[t, e] % side
             filled = 0
-            for q in range(n_off if ns > 0 else 0):
-                v = draws[t, e, q]
-                if filled == ns and not v < low[ns - 1]:
-                    continue
-                i = filled if filled < ns else ns - 1
-                while i > 0 and v < low[i - 1]:
-                    low[i] = low[i - 1]
-                    pick[i] = pick[i - 1]
-                    i -= 1
-                low[i] = v
-                pick[i] = q
-                if filled < ns:
-                    filled += 1
+            for q in range(n_off):
+                filled = _keep_smallest(draws[t, e, q], q, low, pick, filled)
             for s in range(ns):
                 sx = min(max(ex + offs[pick[s], 0], 0), side - 1)
                 sy = min(max(ey + offs[pick[s], 1], 0), side - 1)
