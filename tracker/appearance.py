@@ -80,11 +80,16 @@ def _patches_f32(frame, top_left, size, out):
     for i in prange(top_left.shape[0]):
         x0 = min(max(top_left[i, 0], -size), w)
         y0 = min(max(top_left[i, 1], -size), h)
+        inside = x0 >= 0 and x0 + size <= w  # the columns need no clamping
         for c in range(nc):
             for v in range(size):
                 y = min(max(y0 + v, 0), h - 1)
-                for u in range(size):
-                    out[i, c, v, u] = np.float32(frame[y, min(max(x0 + u, 0), w - 1), c])
+                if inside:
+                    for u in range(size):
+                        out[i, c, v, u] = np.float32(frame[y, x0 + u, c])
+                else:
+                    for u in range(size):
+                        out[i, c, v, u] = np.float32(frame[y, min(max(x0 + u, 0), w - 1), c])
 
 
 def hann2d(size: int) -> np.ndarray:
@@ -105,11 +110,13 @@ def _cross_spectrum(xf, zf, out):
     """``out[i] = sum_c conj(xf[i, c]) zf[i, c]`` over ``(n, C, F)`` spectra, one target per
     loop iteration (the same result for any number of threads)."""
     for i in prange(xf.shape[0]):
+        # channel by channel over contiguous rows (vectorised), each frequency still summed
+        # in channel order
         for f in range(xf.shape[2]):
-            acc = np.conj(xf[i, 0, f]) * zf[i, 0, f]
-            for c in range(1, xf.shape[1]):
-                acc += np.conj(xf[i, c, f]) * zf[i, c, f]
-            out[i, f] = acc
+            out[i, f] = np.conj(xf[i, 0, f]) * zf[i, 0, f]
+        for c in range(1, xf.shape[1]):
+            for f in range(xf.shape[2]):
+                out[i, f] += np.conj(xf[i, c, f]) * zf[i, c, f]
 
 
 @njit(cache=True, nogil=True, parallel=True)

@@ -114,6 +114,8 @@ def test_kcf_patches_are_extract_patches_as_float32(size):
     rng = np.random.default_rng(4)
     frame = rng.integers(0, 256, (11, 13, 3), dtype=np.uint8)
     corners = np.array([[-1, -1], [3, 2], [10, 9], [-40, 5], [30, -25], [12, 10], [0, 0]])
+    # flush with the right edge, and one column past it (inside / clamped column paths)
+    corners = np.concatenate([corners, [[13 - size, 1], [14 - size, 1]]])
     out = np.empty((len(corners), 3, size, size), np.float32)
     _patches_f32(frame, corners, size, out)
     np.testing.assert_array_equal(out, extract_patches(frame, corners, size).astype(np.float32))

@@ -306,6 +306,29 @@ def test_quadratic_matrix_is_canonical_csc():
     np.testing.assert_allclose(q.toarray(), q.toarray().T, atol=1e-14)
 
 
+@settings(max_examples=60, deadline=None)
+@given(
+    n=st.integers(2, 6),
+    k=st.integers(1, 8),
+    seed=st.integers(0, 2**32 - 1),
+    span=st.sampled_from([6, 12, 30]),
+)
+def test_proximity_links_exactly_the_pairs_within_reach(n, k, seed, span):
+    """Every candidate pair of two targets within the cutoff (``d^2 <= reach^2`` as computed,
+    boundary included: integer points at distance 5 of a reach of 5) gets an entry, and no
+    other: the pair pre-selection (target pairs by candidate means and spread, then by
+    candidate boxes) must not lose one."""
+    cand = np.random.default_rng(seed).integers(0, span, (n, k, 2)).astype(np.float64)
+    q = proximity_matrix(cand, sigma=2.5, cutoff=2.0)  # reach 5 px
+    p = cand.reshape(-1, 2)
+    dx = p[:, None, 0] - p[None, :, 0]
+    dy = p[:, None, 1] - p[None, :, 1]
+    tgt = np.repeat(np.arange(n), k)
+    linked = (dx * dx + dy * dy <= 25.0) & (tgt[:, None] != tgt[None])
+    off = q.toarray() * (1 - np.eye(n * k))
+    np.testing.assert_array_equal(off != 0, linked)
+
+
 def _crowd_terms(components: bool = True):
     """A crowd of 300 targets in three separate clusters, with tree edges inside them."""
     rng = np.random.default_rng(11)
