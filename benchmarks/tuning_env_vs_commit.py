@@ -28,6 +28,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 
+# The protocol of crowdsim.bench.envs._run_episodes, spelled out: the old commit's copy has
+# no such helper, and both sides must run the same code to be compared.
 CHILD = r"""
 import json, sys, time
 import numba
@@ -65,6 +67,10 @@ print(json.dumps(episodes()))
 """
 
 
+class _ChildFailed(Exception):
+    """A timing process that exited with an error (the message is its last stderr line)."""
+
+
 def _rate(pythonpath: Path, cache: str) -> dict:
     env = {**os.environ, "PYTHONPATH": str(pythonpath)}
     out = subprocess.run(
@@ -73,9 +79,34 @@ def _rate(pythonpath: Path, cache: str) -> dict:
         env=env,
         capture_output=True,
         text=True,
-        check=True,
+        check=False,
     )
+    if out.returncode != 0:
+        last = (out.stderr.strip().splitlines() or ["no message"])[-1]
+        raise _ChildFailed(f"the env of {pythonpath} failed (exit {out.returncode}): {last}")
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _rounds(old: Path, cache: str, rounds: int) -> list[dict]:
+    """``rounds`` rounds of the old env then today's cached one, after one untimed run of
+    each (filling the episode cache, compiling both copies into numba's cache)."""
+    _rate(ROOT, cache)
+    _rate(old, "")
+    rows = []
+    for r in range(rounds):
+        before = _rate(old, "")
+        now = _rate(ROOT, cache)
+        rows.append(
+            {
+                "round": r,
+                "commit_steps_per_s": before["steps_per_s"],
+                "commit_targets": before["targets"],
+                "cached_steps_per_s": now["steps_per_s"],
+                "cached_targets": now["targets"],
+                "ratio": now["steps_per_s"] / before["steps_per_s"],
+            }
+        )
+    return rows
 
 
 def main() -> int:
@@ -96,24 +127,11 @@ def main() -> int:
             return 2
         with tarfile.open(fileobj=io.BytesIO(archive.stdout)) as tar:
             tar.extractall(old, filter="data")
-        cache = str(Path(tmp) / "episodes")
-        # not timed: fills the episode cache, and compiles both copies into numba's cache
-        _rate(ROOT, cache)
-        _rate(old, "")
-        rows = []
-        for r in range(args.rounds):
-            before = _rate(old, "")
-            now = _rate(ROOT, cache)
-            rows.append(
-                {
-                    "round": r,
-                    "commit_steps_per_s": before["steps_per_s"],
-                    "commit_targets": before["targets"],
-                    "cached_steps_per_s": now["steps_per_s"],
-                    "cached_targets": now["targets"],
-                    "ratio": now["steps_per_s"] / before["steps_per_s"],
-                }
-            )
+        try:
+            rows = _rounds(old, str(Path(tmp) / "episodes"), args.rounds)
+        except _ChildFailed as e:
+            print(f"--commit {args.commit!r}: {e}", file=sys.stderr)
+            return 2
     print(f"{'round':>5} {args.commit + ' steps/s':>20} {'cached steps/s':>15} {'ratio':>6}")
     for row in rows:
         print(
