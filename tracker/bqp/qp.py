@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import zipfile
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -67,6 +68,44 @@ def _check_csc(indptr, indices, data, rtol):
     return True, True
 
 
+def _checked_layout(c: Any, block_ptr: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``c`` as finite float64 ``(l,)`` and ``block_ptr`` as an int64 block layout of its
+    ``l`` variables, with the block sizes; a ``ValueError`` naming the field and the value
+    otherwise. The O(l) checks of :class:`BlockQP` and :meth:`BlockQP.from_terms`."""
+    c = np.asarray(c)
+    if c.ndim != 1:
+        raise ValueError(f"BlockQP.c must be 1-D (l,), got shape {c.shape}")
+    if not np.issubdtype(c.dtype, np.number) or np.iscomplexobj(c):
+        raise ValueError(f"BlockQP.c must be real numbers, got dtype {c.dtype}")
+    c = np.ascontiguousarray(c, dtype=np.float64)
+    if not np.all(np.isfinite(c)):
+        bad = int(np.flatnonzero(~np.isfinite(c))[0])
+        raise ValueError(f"BlockQP.c must be finite; c[{bad}] = {c[bad]}")
+    l = c.shape[0]
+
+    bp = np.asarray(block_ptr)
+    if bp.ndim != 1 or bp.shape[0] < 1:
+        raise ValueError(f"BlockQP.block_ptr must be 1-D (n+1,), got shape {bp.shape}")
+    if not np.issubdtype(bp.dtype, np.integer):
+        if np.issubdtype(bp.dtype, np.floating) and np.all(bp == np.round(bp)):
+            bp = bp.astype(np.int64)
+        else:
+            raise ValueError(f"BlockQP.block_ptr must be integers, got dtype {bp.dtype}")
+    bp = np.ascontiguousarray(bp, dtype=np.int64)
+    if bp[0] != 0:
+        raise ValueError(f"BlockQP.block_ptr[0] must be 0, got {bp[0]}")
+    if bp[-1] != l:
+        raise ValueError(f"BlockQP.block_ptr[-1] must equal len(c) = {l}, got {bp[-1]}")
+    sizes = np.diff(bp)
+    if np.any(sizes <= 0):
+        b = int(np.flatnonzero(sizes <= 0)[0])
+        raise ValueError(
+            f"BlockQP.block_ptr must be strictly increasing (every block non-empty); "
+            f"block {b} has size {sizes[b]}"
+        )
+    return c, bp, sizes
+
+
 @dataclass
 class BlockQP:
     """``min_x c.x + x^T Q x`` over the product of simplices, one simplex per target (block).
@@ -110,37 +149,8 @@ class BlockQP:
     """(l,) int64: the block owning each variable (derived)."""
 
     def __post_init__(self) -> None:
-        c = np.asarray(self.c)
-        if c.ndim != 1:
-            raise ValueError(f"BlockQP.c must be 1-D (l,), got shape {c.shape}")
-        if not np.issubdtype(c.dtype, np.number) or np.iscomplexobj(c):
-            raise ValueError(f"BlockQP.c must be real numbers, got dtype {c.dtype}")
-        c = np.ascontiguousarray(c, dtype=np.float64)
-        if not np.all(np.isfinite(c)):
-            bad = int(np.flatnonzero(~np.isfinite(c))[0])
-            raise ValueError(f"BlockQP.c must be finite; c[{bad}] = {c[bad]}")
+        c, bp, sizes = _checked_layout(self.c, self.block_ptr)
         l = c.shape[0]
-
-        bp = np.asarray(self.block_ptr)
-        if bp.ndim != 1 or bp.shape[0] < 1:
-            raise ValueError(f"BlockQP.block_ptr must be 1-D (n+1,), got shape {bp.shape}")
-        if not np.issubdtype(bp.dtype, np.integer):
-            if np.issubdtype(bp.dtype, np.floating) and np.all(bp == np.round(bp)):
-                bp = bp.astype(np.int64)
-            else:
-                raise ValueError(f"BlockQP.block_ptr must be integers, got dtype {bp.dtype}")
-        bp = np.ascontiguousarray(bp, dtype=np.int64)
-        if bp[0] != 0:
-            raise ValueError(f"BlockQP.block_ptr[0] must be 0, got {bp[0]}")
-        if bp[-1] != l:
-            raise ValueError(f"BlockQP.block_ptr[-1] must equal len(c) = {l}, got {bp[-1]}")
-        sizes = np.diff(bp)
-        if np.any(sizes <= 0):
-            b = int(np.flatnonzero(sizes <= 0)[0])
-            raise ValueError(
-                f"BlockQP.block_ptr must be strictly increasing (every block non-empty); "
-                f"block {b} has size {sizes[b]}"
-            )
 
         if not sp.issparse(self.Q):
             raise ValueError(
@@ -189,14 +199,8 @@ class BlockQP:
         constructor are left out: at 1,000 packed targets they took 3 ms of a frame. ``c``
         must still be finite and ``block_ptr`` a valid block layout (both O(l), checked).
         """
-        c = np.ascontiguousarray(c, dtype=np.float64)
-        bp = np.ascontiguousarray(block_ptr, dtype=np.int64)
+        c, bp, sizes = _checked_layout(c, block_ptr)
         l = c.shape[0]
-        sizes = np.diff(bp)
-        if c.ndim != 1 or not np.isfinite(c).all():
-            raise ValueError("BlockQP.c must be a finite 1-D array")
-        if bp[0] != 0 or bp[-1] != l or (sizes <= 0).any():
-            raise ValueError(f"BlockQP.block_ptr is not a block layout of {l} variables")
         if not (sp.isspmatrix_csc(Q) and Q.dtype == np.float64 and Q.shape == (l, l)):
             raise ValueError(f"BlockQP.Q must be ({l}, {l}) float64 CSC from quadratic_matrix")
         qp = object.__new__(cls)
