@@ -35,6 +35,7 @@ converging) falls back to the identity, never to an exception mid-sequence, and 
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -134,27 +135,23 @@ def check_fields(owner: str, params: Any) -> None:
     require_choice(owner, "cmc_method", params.cmc_method, METHODS)
 
 
-_SPANS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-
-
+@functools.cache
 def _disc_spans(r: int) -> tuple[np.ndarray, np.ndarray]:
     """Per row ``dy = -r .. r`` of ``cv2.circle``'s filled disc of radius ``r``, the first
-    and last ``dx`` it covers (``lo > hi``: none). Drawn once by OpenCV itself, so stamping
-    these spans marks exactly the pixels ``cv2.circle`` would at any integer centre."""
-    if r not in _SPANS:
-        import cv2
+    and last ``dx`` it covers (``lo > hi``: none). Drawn once per radius by OpenCV itself, so
+    stamping these spans marks exactly the pixels ``cv2.circle`` would at any integer centre."""
+    import cv2
 
-        stamp = np.zeros((2 * r + 1, 2 * r + 1), np.uint8)
-        cv2.circle(stamp, (r, r), r, 1, -1)
-        lo = np.full(2 * r + 1, 1, np.int64)
-        hi = np.zeros(2 * r + 1, np.int64)
-        for row in range(2 * r + 1):
-            on = np.flatnonzero(stamp[row])
-            if len(on):
-                assert on[-1] - on[0] + 1 == len(on), "a filled circle's rows are spans"
-                lo[row], hi[row] = on[0] - r, on[-1] - r
-        _SPANS[r] = (lo, hi)
-    return _SPANS[r]
+    stamp = np.zeros((2 * r + 1, 2 * r + 1), np.uint8)
+    cv2.circle(stamp, (r, r), r, 1, -1)
+    lo = np.full(2 * r + 1, 1, np.int64)
+    hi = np.zeros(2 * r + 1, np.int64)
+    for row in range(2 * r + 1):
+        on = np.flatnonzero(stamp[row])
+        if len(on):
+            assert on[-1] - on[0] + 1 == len(on), "a filled circle's rows are spans"
+            lo[row], hi[row] = on[0] - r, on[-1] - r
+    return lo, hi
 
 
 @njit(cache=True, nogil=True)
@@ -281,7 +278,6 @@ class MotionCompensator:
     ) -> np.ndarray | None:
         """``(h, w)`` uint8 mask of the downscaled previous frame, 0 within ``exclude_px`` of
         the ``exclude`` points; ``None`` when nothing is excluded or nothing would be left."""
-
         p = self.params
         if exclude is None or len(exclude) == 0 or exclude_px <= 0:
             return None
