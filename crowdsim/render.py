@@ -7,14 +7,15 @@ The renderer consumes state; it never simulates (STYLE habit 6). Two steps:
    centres in pixels ``(T, N, 2)``, headings ``(T, N)`` (with sway), poses ``(T, N)`` (gait
    phase and head turn), one appearance per agent.
 2. :class:`SceneRenderer` draws frame ``t`` in compiled passes (no per-pixel Python): the
-   pre-built textured ground (static clutter baked in, cropped to follow the camera jitter)
-   with illumination drift, flicker and sensor noise straight to ``uint8``; then every person
+   pre-built textured ground (static clutter baked in, cropped to follow the camera jitter,
+   bilinear between whole pixels so it moves by the same offset as the people) with
+   illumination drift, flicker and sensor noise straight to ``uint8``; then every person
    stamped from a :class:`~crowdsim.appearance_model.SpriteBank` (per-pose, per-orientation,
    per-sub-pixel-phase coverages with the shadow baked in, mixed with the person's colours),
    lit and noised the same way; then moving shadows, defocus and motion blur. People are
-   composited in depth order in horizontal bands processed in parallel; a pixel belongs to
-   one band, so the result does not depend on the thread count. Video-codec and JPEG
-   compression happen when the frame is written (:mod:`synth_data.writer`).
+   composited in depth order in horizontal bands processed in parallel; a pixel belongs to one
+   band, so the result does not depend on the thread count. Video-codec and JPEG compression
+   happen when the frame is written (:mod:`synth_data.writer`).
 
 Depth order: the camera tilts about the image ``u`` axis with its far side at the top, so on
 the ground plane depth falls as ``v`` grows; people are drawn top to bottom and a nearer
@@ -261,6 +262,38 @@ def _ground_pass(
                 + np.float32(nrow[nx3 + q]) * noise_scale
                 + np.float32(0.5)
             )
+            orow[q] = np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _ground_pass_subpixel(
+    ground, oy, ox3, fy, fx, noise, ny, nx3, noise_scale, g0, gain_x, gy, out
+):  # pragma: no cover - numba
+    # _ground_pass with the ground sampled at (oy + y + fy, ox + x + fx): bilinear weights of
+    # the four ground pixels around it (the camera's shake is not a whole number of pixels,
+    # and the people it moves are drawn at their exact positions).
+    h, w3 = out.shape
+    inv_h = np.float32(1.0 / h)
+    one = np.float32(1.0)
+    w00 = (one - fy) * (one - fx)
+    w01 = (one - fy) * fx
+    w10 = fy * (one - fx)
+    w11 = fy * fx
+    for y in prange(h):
+        gyy = g0 + gy * (y * inv_h - np.float32(0.5))
+        g0row = ground[oy + y]
+        g1row = ground[oy + y + 1]
+        nrow = noise[ny + y]
+        orow = out[y]
+        for q in range(w3):
+            c = ox3 + q
+            g = (
+                w00 * np.float32(g0row[c])
+                + w01 * np.float32(g0row[c + 3])
+                + w10 * np.float32(g1row[c])
+                + w11 * np.float32(g1row[c + 3])
+            )
+            v = g * (gyy + gain_x[q]) + np.float32(nrow[nx3 + q]) * noise_scale + np.float32(0.5)
             orow[q] = np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
 
 
@@ -697,9 +730,14 @@ class SceneRenderer:
         h, w = cam.height, cam.width
         m = self.margin
         oy = ox = m
+        fy = fx = 0.0
         if m:
-            j = np.clip(np.rint(self._frame_jitter(t)), -m, m).astype(int)
-            oy, ox = m - int(j[1]), m - int(j[0])
+            # The scene moves by the shake j: frame pixel p shows ground pixel p + m - j, which
+            # lies between whole pixels (kept one pixel inside the margin for the bilinear
+            # neighbour; the shake is clipped to the margin, 4 standard deviations and more).
+            sy, sx = np.clip(m - self._frame_jitter(t)[::-1], 0.0, 2 * m - 1.0)
+            oy, ox = int(sy), int(sx)
+            fy, fx = sy - oy, sx - ox
         if out is None:
             out = np.empty((h, w, 3), np.uint8)
         g0, gx, gy = (np.float32(v) for v in self.illumination(t))
@@ -711,19 +749,11 @@ class SceneRenderer:
         nscale = np.float32(sigma / NOISE_POOL_SCALE)
         gain_x = gx * (np.arange(w, dtype=np.float32) / np.float32(w) - np.float32(0.5))
         out2 = out.reshape(h, w * 3)
-        _ground_pass(
-            self._ground2,
-            oy,
-            3 * ox,
-            self._noise2,
-            ny,
-            3 * nx,
-            nscale,
-            g0,
-            np.repeat(gain_x, 3),
-            gy,
-            out2,
-        )
+        lit = (self._noise2, ny, 3 * nx, nscale, g0, np.repeat(gain_x, 3), gy, out2)
+        if fy or fx:
+            _ground_pass_subpixel(self._ground2, oy, 3 * ox, np.float32(fy), np.float32(fx), *lit)
+        else:
+            _ground_pass(self._ground2, oy, 3 * ox, *lit)
         pixels = np.asarray(pixels, np.float64)
         n_all = len(pixels)
         if visibility is not None:

@@ -142,21 +142,19 @@ def test_estimate_recovers_the_planted_camera_motion(method, downscale, tol):
 
 
 def test_estimate_recovers_the_renderers_shake(shaky_crowd):
-    """On a rendered shaken crowd the estimate follows the ground, which the renderer shifts
-    by the rounded shake (``rint(jitter)``, crowdsim/render.py), within half a pixel on every
-    frame (measured: 0.34 px; the rotation and zoom stay within 0.002 of none)."""
+    """On a rendered shaken crowd the estimate follows the planted shake, which moves the
+    ground and the people alike (crowdsim/render.py), within 0.4 px on every frame
+    (measured: 0.31 px; the rotation and zoom stay within 0.002 of none)."""
     sc, seq = shaky_crowd
     ids, gt = seq.gt_points()
-    jitter = sc.camera.jitter(sc.length)
-    m = sc.renderer.margin
-    ground = np.diff(np.clip(np.rint(jitter), -m, m), axis=0)
+    ground = np.diff(sc.camera.jitter(sc.length), axis=0)
     assert np.abs(ground).max() >= 10  # strong shake: steps beyond any search window
     cmc = MotionCompensator()
     for t, frame in enumerate(seq.frames()):
         prev = gt[t - 1][np.isfinite(gt[t - 1]).all(1)] if t else None
         a = cmc.estimate(frame, exclude=prev, exclude_px=2 * sc.template_size)
         if t:
-            assert np.abs(a[:, 2] - ground[t - 1]).max() < 0.5, (t, a[:, 2], ground[t - 1])
+            assert np.abs(a[:, 2] - ground[t - 1]).max() < 0.4, (t, a[:, 2], ground[t - 1])
             assert np.abs(a[:, :2] - np.eye(2)).max() < 0.005, (t, a)
     assert cmc.failures == 0
 
