@@ -1,0 +1,108 @@
+"""Camera-motion estimate against the planted shake: error (px a frame) and cost (ms a frame).
+
+For each sequence of a suite (default ``ucf9-shake``), renders the first ``--frames`` frames
+through the camera output (codec and JPEG, what a tracker reads), runs
+:class:`tracker.cmc.MotionCompensator` on them with the people of the previous frame excluded
+(their ground-truth heads, as a tracker passes its points) and compares each estimated
+translation with the shake the camera planted (``Camera.jitter``, the offset the people and,
+since the renderer moves the ground by the same sub-pixel offset, the ground carry). The
+``still`` column is the error of assuming a still camera (the mean planted motion). Each
+``--config`` is ``NAME=JSON`` of :class:`tracker.cmc.CMCParams` fields::
+
+    python benchmarks/cmc_error.py --frames 80
+    python benchmarks/cmc_error.py --only seq4 seq5 --config default={} \\
+        'full-res={"downscale": 1}' 'ecc={"method": "ecc"}'
+
+Prints a table (mean absolute error per axis, px a frame; ms a frame; frames that fell back
+to the identity) and one JSON object. Choose estimate settings by this error, never by a
+tracker's score.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+DEFAULT_CONFIGS = ("default={}", 'full-res={"downscale": 1}', 'ecc={"method": "ecc"}')
+
+
+def _config(text: str) -> tuple[str, dict]:
+    name, sep, body = text.partition("=")
+    try:
+        fields = json.loads(body) if sep else None
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"--config {text!r}: not NAME=JSON ({exc.msg})") from None
+    if not name or not isinstance(fields, dict):
+        raise argparse.ArgumentTypeError(f"--config {text!r}: not NAME=JSON of CMCParams fields")
+    return name, fields
+
+
+def measure(spec, frames: int, configs: dict[str, dict]) -> dict:
+    """Error and cost of each config on the first ``frames`` frames of ``spec``."""
+    from synth_data.scene import Scene
+    from synth_data.sequence import InMemorySequence
+    from tracker.cmc import CMCParams, MotionCompensator
+
+    seq = InMemorySequence.from_spec(spec, frames=frames, camera_output=True)
+    truth = np.diff(Scene.from_spec(spec).camera.jitter(seq.length), axis=0)
+    _, gt = seq.gt_points()
+    images = list(seq.frames())
+    row = {"size": [seq.width, seq.height], "still": float(np.abs(truth).mean())}
+    for name, fields in configs.items():
+        cmc = MotionCompensator(CMCParams(**fields))
+        found = []
+        for t, image in enumerate(images):
+            prev = gt[t - 1][np.isfinite(gt[t - 1]).all(1)] if t else None
+            a = cmc.estimate(image, exclude=prev, exclude_px=cmc.params.exclude * seq.template_size)
+            if t:
+                found.append(a[:, 2])
+        stats = cmc.stats()
+        row[name] = {
+            "error_px": float(np.abs(np.array(found) - truth).mean()),
+            "ms": stats["cmc_ms"],
+            "failures": int(stats["cmc_failures"]),
+        }
+    return row
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--suite", default="ucf9-shake")
+    ap.add_argument("--only", nargs="+", default=None, metavar="SEQ")
+    ap.add_argument("--frames", type=int, default=80)
+    ap.add_argument(
+        "--config", nargs="+", type=_config, default=[_config(c) for c in DEFAULT_CONFIGS]
+    )
+    args = ap.parse_args()
+    if args.frames < 2:
+        ap.error(f"--frames must be >= 2, got {args.frames}")
+    configs = dict(args.config)
+    from synth_data.suites import suite_specs
+    from tracker.cmc import CMCParams
+
+    for name, fields in configs.items():
+        try:
+            CMCParams(**fields)
+        except (TypeError, ValueError) as exc:
+            ap.error(f"--config {name}: {exc}")
+    try:
+        specs = suite_specs(args.suite, args.only)
+    except (FileNotFoundError, ValueError) as exc:
+        ap.error(str(exc))
+    rows = {}
+    head = "".join(f"{name[:22]:>24}" for name in configs)
+    print(f"{'sequence':<10}{'size':>11}{'still':>7}{head}   (error px, ms a frame, failures)")
+    for spec in specs:
+        r = rows[spec.name] = measure(spec, args.frames, configs)
+        cells = "".join(
+            f"{r[n]['error_px']:>11.3f}{r[n]['ms']:>8.2f} ms{r[n]['failures']:>2}" for n in configs
+        )
+        print(f"{spec.name:<10}{'x'.join(map(str, r['size'])):>11}{r['still']:>7.3f}{cells}")
+    print(json.dumps({"suite": args.suite, "frames": args.frames, "sequences": rows}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
