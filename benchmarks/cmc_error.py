@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from functools import partial
 
 import numpy as np
 
@@ -43,10 +44,16 @@ def measure(spec, frames: int, configs: dict[str, dict]) -> dict:
     """Error and cost of each config on the first ``frames`` frames of ``spec``."""
     from synth_data.scene import Scene
     from synth_data.sequence import InMemorySequence
+    from synth_data.video import camera_output
     from tracker.cmc import CMCParams, MotionCompensator
 
-    seq = InMemorySequence.from_spec(spec, frames=frames, camera_output=True)
-    truth = np.diff(Scene.from_spec(spec).camera.jitter(seq.length), axis=0)
+    # one simulation gives both the frames (InMemorySequence.from_spec's steps, camera output
+    # included) and the camera whose shake they carry
+    spec = spec.truncated(frames)
+    scene = Scene.from_spec(spec)
+    output = partial(camera_output, fps=spec.fps, encoding=spec.appearance.encoding)
+    seq = InMemorySequence.from_scene(scene, output=output)
+    truth = np.diff(scene.camera.jitter(seq.length), axis=0)
     _, gt = seq.gt_points()
     images = list(seq.frames())
     row = {"size": [seq.width, seq.height], "still": float(np.abs(truth).mean())}
