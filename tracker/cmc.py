@@ -70,10 +70,18 @@ class CMCParams:
     downscale : int
         The estimate runs on frames shrunk by this factor (BoT-SORT: 2); 1 on small frames.
     max_corners : int
-        Shi-Tomasi corners of the previous frame to track. BoT-SORT takes 1000; on the
-        shaken ucf9 specs (first 30 frames each) 400 gave the same error (rmse within 0.01 px
-        on every sequence) in up to half the time: Lucas-Kanade, whose cost grows with the
-        corners, is most of the estimate's.
+        Shi-Tomasi corners of the previous frame to track. BoT-SORT takes 1000. On the
+        shaken ucf9 specs (first 80 frames each, ``benchmarks/cmc_error.py``) 100 gave the
+        error of 400 (mean 0.228 against 0.231 px a frame; per sequence within 0.04 px either
+        way) in up to half the time: Lucas-Kanade, whose cost grows with the corners, is
+        most of the estimate's.
+    lk_window : int
+        Side of Lucas-Kanade's search window, pixels at the downscaled size (OpenCV's
+        default: 21). On the same specs a 15 px window on 2 levels lost 2 to 5 frames each
+        (identity fallbacks) on the noisiest three, seq5, seq6 and seq9.
+    lk_levels : int
+        Pyramid levels above the frame for Lucas-Kanade (OpenCV's default: 3). The motion
+        it can follow grows as ``lk_window / 2 * 2**lk_levels``.
     min_inliers : int
         Fewer RANSAC inliers than this, and the frame falls back to the identity.
     ransac_px : float
@@ -99,7 +107,9 @@ class CMCParams:
     method: str = "sparse"
     model: str = "similarity"
     downscale: int = 2
-    max_corners: int = 400
+    max_corners: int = 100
+    lk_window: int = 21
+    lk_levels: int = 3
     min_inliers: int = 12
     ransac_px: float = 1.5
     max_shift_px: float = 64.0
@@ -112,6 +122,8 @@ class CMCParams:
         require_choice(own, "model", self.model, MODELS)
         require_number(own, "downscale", self.downscale, lo=1, hi=8, integer=True)
         require_number(own, "max_corners", self.max_corners, lo=8, hi=20_000, integer=True)
+        require_number(own, "lk_window", self.lk_window, lo=5, hi=101, integer=True)
+        require_number(own, "lk_levels", self.lk_levels, lo=0, hi=6, integer=True)
         require_number(own, "min_inliers", self.min_inliers, lo=3, hi=10_000, integer=True)
         require_number(own, "ransac_px", self.ransac_px, lo=0.1, hi=20)
         require_number(own, "max_shift_px", self.max_shift_px, lo=1, hi=10_000)
@@ -302,7 +314,10 @@ class MotionCompensator:
         )
         if corners is None or len(corners) < p.min_inliers:
             return None
-        moved, status, _ = cv2.calcOpticalFlowPyrLK(prev, grey, corners, None)
+        win = (p.lk_window, p.lk_window)
+        moved, status, _ = cv2.calcOpticalFlowPyrLK(
+            prev, grey, corners, None, winSize=win, maxLevel=p.lk_levels
+        )
         ok = status.ravel() == 1
         src, dst = corners[ok].reshape(-1, 2), moved[ok].reshape(-1, 2)
         if len(src) < p.min_inliers:

@@ -124,10 +124,10 @@ def shaky_crowd():
 
 
 # ---------------------------------------------------------------------------- the estimate
-@pytest.mark.parametrize(("method", "downscale", "tol"), [("sparse", 2, 0.25), ("ecc", 1, 0.25)])
+@pytest.mark.parametrize(("method", "downscale", "tol"), [("sparse", 2, 0.3), ("ecc", 1, 0.1)])
 def test_estimate_recovers_the_planted_camera_motion(method, downscale, tol):
     """Every frame's estimate maps the frame's four corners within ``tol`` px of where the
-    planted transform maps them (measured: 0.18 px sparse, 0.16 px ECC), blobs excluded."""
+    planted transform maps them (measured: 0.24 px sparse, 0.03 px ECC), blobs excluded."""
     sc = shaken_scene(shape=(240, 320), seed=1)
     h, w = sc.frames[0].shape[:2]
     corners = np.array([[0.0, 0.0], [w - 1, 0.0], [0.0, h - 1], [w - 1, h - 1]])
@@ -144,7 +144,7 @@ def test_estimate_recovers_the_planted_camera_motion(method, downscale, tol):
 def test_estimate_recovers_the_renderers_shake(shaky_crowd):
     """On a rendered shaken crowd the estimate follows the planted shake, which moves the
     ground and the people alike (crowdsim/render.py), within 0.4 px on every frame
-    (measured: 0.31 px; the rotation and zoom stay within 0.002 of none)."""
+    (measured: 0.35 px; the rotation and zoom stay within 0.002 of none)."""
     sc, seq = shaky_crowd
     ids, gt = seq.gt_points()
     ground = np.diff(sc.camera.jitter(sc.length), axis=0)
@@ -270,6 +270,9 @@ def test_cmc_is_timed_deterministic_and_validated(scene, shaky_crowd):
         with pytest.raises(ValueError, match=r"cmc_method must be one of \('sparse', 'ecc'\)"):
             registry.make_tracker(name, cmc_method="flow")
         assert registry.make_tracker(name, cmc=True).params.cmc is True
+    for field, bad in (("lk_window", 3), ("lk_levels", 7), ("max_corners", 4)):
+        with pytest.raises(ValueError, match=rf"cmc\.{field} must be an integer in .*got {bad}"):
+            CMCParams(**{field: bad})
 
 
 class _Stub:
