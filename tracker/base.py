@@ -46,7 +46,7 @@ from __future__ import annotations
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
 from typing import Any, ClassVar
 
@@ -181,6 +181,9 @@ class Tracker(ABC):
         self.timings: dict[str, float] = {}
         self._seen: set[int] = set()
         self.compensator: MotionCompensator | None = None
+        # the estimate's settings besides its method (``params.cmc_method`` wins); None: the
+        # defaults. Set before tracking (benchmarks/cmc_fps.py compares corner counts).
+        self.cmc_settings: CMCParams | None = None
         self._last_frame: np.ndarray | None = None
         self._threads: int | None = None
 
@@ -401,7 +404,8 @@ class Tracker(ABC):
         self.compensator = None
         if not getattr(self.params, "cmc", False):
             return
-        self.compensator = MotionCompensator(CMCParams(method=self.params.cmc_method))
+        base = self.cmc_settings if self.cmc_settings is not None else CMCParams()
+        self.compensator = MotionCompensator(replace(base, method=self.params.cmc_method))
         if self._last_frame is not None:
             self.compensator.estimate(self._last_frame)
 

@@ -232,6 +232,28 @@ def test_switching_cmc_on_after_init_acts_as_if_given_at_start(name, scene):
 
 
 @pytest.mark.parametrize("name", COMPENSATED)
+def test_estimate_settings_set_before_tracking_are_used_with_the_params_method(name, scene):
+    """``cmc_settings`` (benchmarks/cmc_fps.py) reaches the compensator, its method
+    overridden by ``params.cmc_method``; ``None`` and the default settings track alike."""
+    ok = np.isfinite(scene.points[0]).all(1)
+
+    def run(settings, **params):
+        tr = registry.make_tracker(name, cmc=True, **params)
+        tr.cmc_settings = settings
+        tr.init(scene.frames[0], scene.ids[ok], scene.points[0, ok], scene.template_size)
+        return tr, [tr.step(f)[1].tobytes() for f in scene.frames[1:]]
+
+    few = CMCParams(max_corners=8, method="ecc")
+    tr, _ = run(few)
+    assert tr.compensator.params == replace(few, method="sparse")
+    tr, _ = run(few, cmc_method="ecc")
+    assert tr.compensator.params == few
+    tr, default = run(None)
+    assert tr.compensator.params == CMCParams()
+    assert run(CMCParams())[1] == default
+
+
+@pytest.mark.parametrize("name", COMPENSATED)
 def test_cmc_off_runs_no_compensation(name, scene, monkeypatch):
     """``cmc=False`` (the default) never estimates anything: the trackers' frames, timings and
     stats are those of before the compensation existed."""
