@@ -143,6 +143,13 @@ class Tracker(ABC):
         :meth:`step` (:mod:`tracker.threads`); ``None`` (default) keeps numba's setting.
         Tracks do not depend on it. An execution setting, not a parameter: it is never
         tuned, recorded in params files or changed by :meth:`set_params`.
+    compensator : MotionCompensator or None
+        The camera-motion estimate while ``params.cmc`` is on (:mod:`tracker.cmc`).
+    cmc_settings : CMCParams or None
+        Its settings besides the method (``params.cmc_method`` wins); ``None`` (default): the
+        defaults. Set before :meth:`init` (``benchmarks/cmc_fps.py`` compares corner counts).
+        Not a parameter: never tuned or recorded in params files, though it changes the
+        estimate (and so the tracks).
     """
 
     name: str = "tracker"
@@ -181,8 +188,6 @@ class Tracker(ABC):
         self.timings: dict[str, float] = {}
         self._seen: set[int] = set()
         self.compensator: MotionCompensator | None = None
-        # the estimate's settings besides its method (``params.cmc_method`` wins); None: the
-        # defaults. Set before tracking (benchmarks/cmc_fps.py compares corner counts).
         self.cmc_settings: CMCParams | None = None
         self._last_frame: np.ndarray | None = None
         self._threads: int | None = None

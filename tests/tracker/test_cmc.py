@@ -194,8 +194,8 @@ def test_compensation_recovers_the_accuracy_that_shake_costs(name, scene, shaky_
     """On the same frames, ``cmc=True`` tracks far better than ``cmc=False``: on the planted
     scene (seeds 0-3) every tracker kept 93-100 % at 15 px where it fell to 21-64 % without
     (gains of 31-78 points; seed 1 here: 21-35 % -> 95-100 %); on the rendered crowd (seeds
-    1-3) NCC, PNMC and BQP went from 20-77 % to 100 %, and mean-shift from 16-24 % to 44-57 %
-    (seed 1 here: 29-44 % -> 100 %, mean-shift 16 -> 48 %)."""
+    1-3, 400 corners) NCC, PNMC and BQP went from 20-77 % to 100 %, and mean-shift from 16-24 %
+    to 44-57 % (seed 1 here, 100 corners: 28-43 % -> 100 %, mean-shift 13 -> 44 %)."""
     off = scene.acc15(registry.make_tracker(name))
     on = scene.acc15(registry.make_tracker(name, cmc=True))
     assert on >= 90 and off <= on - 30, (name, off, on)
