@@ -245,6 +245,14 @@ def prepare_agents(
 # premultiplied colour is mixed on the fly from the sprite's part coverages (clothing, hair,
 # face) and the person's three colours. Images are passed as (rows, columns * 3) views so the
 # inner loops run over contiguous memory and LLVM can vectorise them.
+@njit(cache=True, nogil=True, inline="always")
+def _lit(g, gain, noise, noise_scale):  # pragma: no cover - numba
+    # one ground value lit and noised, rounded into uint8: both ground passes call this, so
+    # a shaken frame and a still one are lit alike
+    v = g * gain + noise * noise_scale + np.float32(0.5)
+    return np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _ground_pass(
     ground, oy, ox3, noise, ny, nx3, noise_scale, g0, gain_x, gy, out
@@ -257,12 +265,8 @@ def _ground_pass(
         nrow = noise[ny + y]
         orow = out[y]
         for q in range(w3):
-            v = (
-                np.float32(grow[ox3 + q]) * (gyy + gain_x[q])
-                + np.float32(nrow[nx3 + q]) * noise_scale
-                + np.float32(0.5)
-            )
-            orow[q] = np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
+            g = np.float32(grow[ox3 + q])
+            orow[q] = _lit(g, gyy + gain_x[q], np.float32(nrow[nx3 + q]), noise_scale)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -293,8 +297,7 @@ def _ground_pass_subpixel(
                 + w10 * np.float32(g1row[c])
                 + w11 * np.float32(g1row[c + 3])
             )
-            v = g * (gyy + gain_x[q]) + np.float32(nrow[nx3 + q]) * noise_scale + np.float32(0.5)
-            orow[q] = np.uint8(min(max(v, np.float32(0.0)), np.float32(255.0)))
+            orow[q] = _lit(g, gyy + gain_x[q], np.float32(nrow[nx3 + q]), noise_scale)
 
 
 @njit(cache=True, nogil=True, parallel=True)
