@@ -56,6 +56,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from multiprocessing import connection, shared_memory
+from time import perf_counter
 from typing import Any
 
 import numba
@@ -75,6 +76,11 @@ owned agents have all their contacts and all their social forces."""
 
 START_TIMEOUT_S = 120.0
 """Seconds a worker may take to start (import numba and pymunk, build its space)."""
+
+STRIP_STAGES: tuple[str, ...] = ("window", "social_force", "contacts", "write_back")
+"""The parts of a worker's step that :meth:`StripEngine.timing` reports: finding its
+agents, routes and bodies (``window``), the social force, pymunk's contact sub-steps, and
+writing its agents back to the shared state."""
 
 HASH_CELL = 2.0
 """Cell size (m) of the spatial hash that is each worker's pymunk broad phase."""
@@ -364,6 +370,42 @@ class StripEngine:
             self.procs.append(proc)
             self.conns.append(parent_end)
         self._gather(-1, ("ready",), START_TIMEOUT_S)
+        self.serial = False
+        self.reset_timing()
+
+    def reset_timing(self) -> None:
+        """Start :meth:`timing`'s sums afresh (e.g. after warm-up steps)."""
+        self._busy = np.zeros(self.n_workers)
+        self._stages = np.zeros(len(STRIP_STAGES))
+        self._critical = 0.0
+        self._wall = 0.0
+        self._timed_steps = 0
+
+    def timing(self) -> dict[str, Any]:
+        """Where the time of the steps since :meth:`reset_timing` went, in ms a step.
+
+        ``busy_ms`` (per worker) is the time each worker spent on its strip (from receiving
+        "step" to replying), ``critical_ms`` the slowest worker's time (summed step by step),
+        ``step_ms`` the parent's wall time in :meth:`step` (sending, waiting, collecting);
+        ``step_ms - critical_ms`` is then what the barrier itself costs (messages and
+        wake-ups). ``stage_ms`` splits the mean worker's strip into :data:`STRIP_STAGES`.
+        With :attr:`serial` set, the workers step one after another, so ``busy_ms`` is each
+        strip's time alone on the machine (a diagnostic: the same results, about ``n`` times
+        slower).
+        """
+        k = max(self._timed_steps, 1)
+        busy = self._busy / k * 1e3
+        return {
+            "steps": self._timed_steps,
+            "serial": self.serial,
+            "busy_ms": busy.tolist(),
+            "busy_mean_ms": float(busy.mean()),
+            "stage_ms": {
+                name: float(v) / k * 1e3 for name, v in zip(STRIP_STAGES, self._stages, strict=True)
+            },
+            "critical_ms": self._critical / k * 1e3,
+            "step_ms": self._wall / k * 1e3,
+        }
 
     @property
     def pids(self) -> list[int]:
@@ -410,12 +452,24 @@ class StripEngine:
         shm = (self.shared.name, self.shared.cap) if self._old_shared else None
         self.shared.alive[self.current(steps + 1)] = 0  # workers write who is still there
         msg = ("step", steps, time, self.n_known, static, shm)
-        for k, conn in enumerate(self.conns):
-            try:
-                conn.send(msg)
-            except OSError:
-                self._fail(k, steps, self._death_note(k, steps))
-        self._gather(steps, ("done",), None)
+        t0 = perf_counter()
+        busy = np.zeros(self.n_workers)
+        stages = np.zeros(len(STRIP_STAGES))
+        everyone = list(range(self.n_workers))
+        for group in [[k] for k in everyone] if self.serial else [everyone]:
+            for k in group:
+                try:
+                    self.conns[k].send(msg)
+                except OSError:
+                    self._fail(k, steps, self._death_note(k, steps))
+            for k, reply in self._gather(steps, ("done",), None, only=group).items():
+                busy[k] = reply[1]
+                stages += reply[2]
+        self._wall += perf_counter() - t0
+        self._busy += busy
+        self._stages += stages / self.n_workers
+        self._critical += busy.max()
+        self._timed_steps += 1
         for old in self._old_shared:
             self._state["shared"].remove(old)
             old.close(unlink=True)
@@ -430,9 +484,17 @@ class StripEngine:
         sh, cur = self.shared, self.current(steps)
         return _gather_rows(sh.pos[cur], sh.vel[cur], sh.wp[cur], sh.alive[cur], ids)
 
-    def _gather(self, steps: int, expect: tuple[str, ...], timeout: float | None) -> None:
-        """Wait for one reply from every worker; a death or an error raises WorkerFailed."""
-        waiting = dict(enumerate(self.conns))
+    def _gather(
+        self,
+        steps: int,
+        expect: tuple[str, ...],
+        timeout: float | None,
+        only: list[int] | None = None,
+    ) -> dict[int, tuple]:
+        """Wait for one reply from every worker (or the workers ``only``) and return the
+        replies by worker; a death or an error raises WorkerFailed."""
+        waiting = {k: self.conns[k] for k in (range(self.n_workers) if only is None else only)}
+        replies: dict[int, tuple] = {}
         sentinels = {p.sentinel: k for k, p in enumerate(self.procs)}
         while waiting:
             ready = connection.wait([*waiting.values(), *sentinels], timeout=timeout)
@@ -452,7 +514,9 @@ class StripEngine:
                     self._fail(k, steps, self._death_note(k, steps))
                 if reply[0] == "error":
                     self._fail(k, steps, f"worker {k} failed at step {steps}: {reply[1]}")
+                replies[k] = reply
                 del waiting[k]
+        return replies
 
     def _death_note(self, k: int, steps: int) -> str:
         proc = self.procs[k]
@@ -540,6 +604,7 @@ class _Strip:
         self.body_id = np.zeros(len(self.static["radius"]), np.int64)  # by agent id
         self.shapes: dict[int, tuple[pymunk.Body, pymunk.Circle]] = {}
         self.rows = np.zeros(0, np.int64)  # pymunk row of each body in self.agents
+        self.stage_s = np.zeros(len(STRIP_STAGES))  # seconds of the last step, per stage
 
     def _make_space(self) -> pymunk.Space:
         walls = self.world.walls
@@ -587,6 +652,7 @@ class _Strip:
         # scans all agents each step, so this is the part of a step that does not shrink
         # with more workers (2.5 ms of a 12 ms strip step at 100k agents / 16 strips with
         # numpy masks and gathers: 1.7 ms of them against 0.46 ms here, measured apart).
+        t0 = perf_counter()
         ids, local = _window_scan(
             sh.alive[rb, :n], sh.pos[rb, :n], lay.axis, lo, hi, lay.period, lay.centre(k)
         )
@@ -610,6 +676,7 @@ class _Strip:
         buf = pb.Buffer()
         buf.set_float_buf(rows.ravel())
         pb.set_space_bodies(self.space, _BODY.POSITION | _BODY.VELOCITY, buf)
+        t1 = perf_counter()
         st = self.static
         standing = (time >= st["stop_start"][ids]) & (time < st["stop_end"][ids])
         v0 = np.where(standing, 0.0, st["desired_speed"][ids])
@@ -629,10 +696,12 @@ class _Strip:
         forces[self.rows] = acc * p.mass
         fbuf = pb.Buffer()
         fbuf.set_float_buf(forces.ravel())
+        t2 = perf_counter()
         sub_dt = p.dt / p.contact_substeps
         for _ in range(int(p.contact_substeps)):
             pb.set_space_bodies(self.space, _BODY.FORCE, fbuf)  # pymunk clears forces
             self.space.step(sub_dt)
+        t3 = perf_counter()
         out = pb.Buffer()
         pb.get_space_bodies(self.space, _BODY.POSITION | _BODY.VELOCITY, out)
         mine = np.frombuffer(out.float_buf(), dtype=np.float64).reshape(-1, 4)[self.rows[own]]
@@ -654,6 +723,7 @@ class _Strip:
         sh.vel[wb, mine_ids] = mine[stay, 2:]
         sh.wp[wb, mine_ids] = wp[own][stay]
         sh.alive[wb, mine_ids] = 1
+        self.stage_s[:] = (t1 - t0, t2 - t1, t3 - t2, perf_counter() - t3)
 
     def _sync_bodies(
         self, ids: np.ndarray, gpos: np.ndarray, local: np.ndarray, vel: np.ndarray
@@ -712,13 +782,15 @@ def _worker_main(conn: Any, init: dict[str, Any]) -> None:
             if msg[0] != "step":
                 break
             _, steps, time, n_known, static, shm = msg
+            t0 = perf_counter()
+            strip.stage_s[:] = 0.0
             try:
                 strip.learn(n_known, static, shm)
                 strip.step(steps, time)
             except Exception as exc:  # reported to the parent as one line
                 conn.send(("error", f"{type(exc).__name__}: {exc}"))
                 continue
-            conn.send(("done",))
+            conn.send(("done", perf_counter() - t0, strip.stage_s))
     except (EOFError, OSError, KeyboardInterrupt):
         pass
     except Exception as exc:  # failed to start

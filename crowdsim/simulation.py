@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pymunk
@@ -53,6 +53,9 @@ from crowdsim.params import SocialForceParams
 from crowdsim.scenarios import Scenario
 from crowdsim.trajectories import Trajectories, TrajectoryRecorder
 from crowdsim.world import WALKERS, AgentBatch, RouteTable
+
+if TYPE_CHECKING:
+    from crowdsim.decomposition import StripEngine
 
 _BODY = pb.BodyFields
 
@@ -461,6 +464,12 @@ class Simulation:
         for _ in it:
             self.step()
         return self.trajectories if self._recorder is not None else None
+
+    @property
+    def engine(self) -> StripEngine | None:
+        """The worker processes' :class:`~crowdsim.decomposition.StripEngine` with
+        ``workers > 1`` (its ``timing()`` says where a step's time goes), else ``None``."""
+        return self._engine
 
     @property
     def worker_pids(self) -> list[int]:

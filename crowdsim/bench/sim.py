@@ -18,7 +18,8 @@ processes and adds the workers' peak RSS (``--scale 1000000 --scale-workers 16``
 ``--workers 1 2 4`` adds the simulator split across processes (:mod:`crowdsim.decomposition`):
 ours alone on the same corridor at each ``--split-sizes`` count (default 10k and 100k
 agents), each worker count in a fresh process, with steps/s and the speed-up over one
-worker (SPEC §9: 100k agents >= 1.7x with 2 workers). ``--validate`` also checks that the
+worker (SPEC §9: 100k agents >= 1.7x with 2 workers), and where a split step's time goes
+(:meth:`crowdsim.decomposition.StripEngine.timing`). ``--validate`` also checks that the
 split changes no physics, at every worker count next to the 1-worker run
 (:func:`crowdsim.validation.split_validation`: fundamental-diagram band, overlaps, lane
 order). Without ``--workers`` the benchmark is the one-process comparison above.
@@ -87,10 +88,13 @@ def overlap_stats(pos: np.ndarray, radii: np.ndarray) -> tuple[float, float]:
     return (float(rel.mean()), float(rel.max())) if len(rel) else (0.0, 0.0)
 
 
-def _timed(step: Callable[[], Any]) -> float:
-    """Wall seconds of ``STEPS`` calls of ``step`` after ``WARMUP`` untimed ones."""
+def _timed(step: Callable[[], Any], warm: Callable[[], Any] | None = None) -> float:
+    """Wall seconds of ``STEPS`` calls of ``step`` after ``WARMUP`` untimed ones (then
+    ``warm()``, if given)."""
     for _ in range(WARMUP):
         step()
+    if warm is not None:
+        warm()
     t0 = time.perf_counter()
     for _ in range(STEPS):
         step()
@@ -172,10 +176,14 @@ def run_ours(layout: Layout, workers: int = 1) -> dict[str, Any]:
 
     extra: dict[str, Any] = {}
     with Simulation(_ours_scenario(layout), seed=0, record=False, workers=workers) as sim:
-        wall = _timed(sim.step)
-        if workers > 1:
+        engine = sim.engine
+        wall = _timed(sim.step, None if engine is None else engine.reset_timing)
+        if engine is not None:
             extra["workers"] = workers
             extra["workers_peak_rss_mb"] = _peak_rss_mb(sim.worker_pids)
+            extra["timing"] = timing = engine.timing()
+            # the parent's own part of a step: everything but the engine's send-and-wait
+            timing["parent_ms"] = wall / STEPS * 1e3 - timing["step_ms"]
     if sim.state.n != len(layout.radii):
         raise RuntimeError("agents left the benchmark corridor; make it longer")
     return _result(
@@ -503,12 +511,24 @@ def _print_table(report: dict[str, Any]) -> None:
             + (f" (with the workers: {total:.0f} MB)" if total is not None else "")
         )
     if report.get("split"):
-        print("\nsplit across processes (ours alone, fresh process per run)")
-        print(f"  {'agents':>7} {'workers':>7} {'steps/s':>9} {'speed-up':>9} {'mean ov':>8}")
+        print("\nsplit across processes (ours alone, fresh process per run; ms a step:")
+        print("  the parent's own part, the barrier's messages and wake-ups, the slowest")
+        print("  worker's strip, the mean worker's strip)")
+        print(
+            f"  {'agents':>7} {'workers':>7} {'steps/s':>9} {'speed-up':>9} {'mean ov':>8}"
+            f" {'parent':>7} {'barrier':>7} {'slowest':>7} {'strip':>7}"
+        )
         for r in report["split"]:
+            t = r.get("timing")
+            ms = (
+                f" {t['parent_ms']:>7.2f} {t['step_ms'] - t['critical_ms']:>7.2f}"
+                f" {t['critical_ms']:>7.2f} {t['busy_mean_ms']:>7.2f}"
+                if t
+                else ""
+            )
             print(
                 f"  {r['agents']:>7} {r['workers']:>7} {r['steps_per_s']:>9.2f} "
-                f"{r['speedup']:>8.2f}x {r['mean_overlap']:>8.3f}"
+                f"{r['speedup']:>8.2f}x {r['mean_overlap']:>8.3f}{ms}"
             )
     if report.get("split_validation"):
         from crowdsim.validation import format_split_validation

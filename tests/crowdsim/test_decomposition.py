@@ -193,3 +193,25 @@ def test_split_changes_no_physics():
     spread = max(2 * abs(pts[0]["speed"] - pts[1]["speed"]), 0.05)
     assert abs(p2["speed"] - pts[0]["speed"]) <= spread
     assert p2["max_overlap"] <= pts[0]["max_overlap"] + 0.05
+
+
+@needs_two
+def test_serial_steps_change_nothing_and_the_timing_adds_up():
+    runs, timings = [], []
+    for serial in (False, True):
+        with Simulation(_lanes_corridor(), seed=4, workers=2) as sim:
+            sim.engine.serial = serial
+            sim.run(3)
+            sim.engine.reset_timing()
+            runs.append(sim.run(12))
+            timings.append(sim.engine.timing())
+    np.testing.assert_array_equal(runs[0].positions, runs[1].positions)
+    for t in timings:
+        assert t["steps"] == 12 and len(t["busy_ms"]) == 2
+        assert min(t["busy_ms"]) > 0
+        assert t["critical_ms"] >= max(t["busy_ms"]) - 1e-9  # the mean of each step's slowest
+        assert sum(t["stage_ms"].values()) <= t["busy_mean_ms"] + 1e-9
+        assert set(t["stage_ms"]) == set(dec.STRIP_STAGES)
+    side, alone = timings
+    assert side["step_ms"] >= side["critical_ms"]
+    assert alone["serial"] and alone["step_ms"] >= sum(alone["busy_ms"])

@@ -1,0 +1,149 @@
+"""Why the split simulator gains less than N with N workers: where a step's time goes.
+
+For each ``--workers`` count the 100k-agent ``crowdsim bench sim`` corridor runs in this
+process with that many strips, first side by side (the normal barrier) and then with the
+workers stepped one after another (:attr:`crowdsim.decomposition.StripEngine.serial`, the
+same physics), ``--steps`` steps each after ``--warmup``. Per run it reports, in ms a step:
+the parent's own part, the barrier (messages and wake-ups), the slowest worker's strip and
+the mean worker's strip, side by side and alone (also split into the strip's stages:
+finding its agents, the social force, pymunk's contacts, writing back), and so:
+
+* **contention** = mean strip side by side / mean strip alone (> 1: the workers slow each
+  other down through what they share: memory bandwidth, caches, the clock);
+* **straggling** = slowest strip / mean strip, side by side (> 1: the barrier waits).
+
+Then two probes of the machine itself, each run in ``N`` processes at once against one
+alone: a compute-only numba loop (slows down only if the clock drops with more busy cores)
+and a streaming pass over 64 MB (slows down when the cores share memory bandwidth)::
+
+    python benchmarks/split_profile.py --workers 2 4 8 16
+
+Prints a table and one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import time
+
+import numpy as np
+
+
+def _spin(n: int) -> float:
+    from numba import njit
+
+    @njit(cache=False)
+    def spin(n):
+        x = 0.0
+        for i in range(n):
+            x = x * 0.999999 + (i & 7)
+        return x
+
+    spin(10)
+    t0 = time.perf_counter()
+    spin(n)
+    return time.perf_counter() - t0
+
+
+def _stream(reps: int) -> float:
+    a = np.ones(8 << 20)  # 64 MB, far past any cache
+    a.sum()
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        a.sum()
+    return time.perf_counter() - t0
+
+
+def _probe(kind: str, n_proc: int) -> float:
+    """Mean seconds of one probe when ``n_proc`` processes run it at once."""
+    fn, arg = (_spin, 200_000_000) if kind == "compute" else (_stream, 40)
+    with mp.get_context("spawn").Pool(n_proc) as pool:
+        return float(np.mean(pool.map(fn, [arg] * n_proc)))
+
+
+def _profile(n_agents: int, workers: int, warmup: int, steps: int) -> dict:
+    from crowdsim.bench.sim import _ours_scenario, corridor_layout
+    from crowdsim.simulation import Simulation
+
+    row: dict = {"agents": n_agents, "workers": workers}
+    scenario = _ours_scenario(corridor_layout(n_agents))
+    with Simulation(scenario, seed=0, record=False, workers=workers) as sim:
+        sim.run(warmup)
+        eng = sim.engine
+        for mode in ("side_by_side", "alone") if eng is not None else ("one_process",):
+            if eng is not None:
+                eng.serial = mode == "alone"
+                eng.reset_timing()
+            t0 = time.perf_counter()
+            sim.run(steps)
+            wall = (time.perf_counter() - t0) / steps * 1e3
+            t = eng.timing() if eng is not None else {}
+            if t:
+                t["parent_ms"] = wall - t["step_ms"]
+                t["barrier_ms"] = t["step_ms"] - t["critical_ms"]
+            row[mode] = {"step_ms": wall, **t}
+    if "alone" in row:
+        side, alone = row["side_by_side"], row["alone"]
+        row["contention"] = side["busy_mean_ms"] / alone["busy_mean_ms"]
+        row["straggling"] = side["critical_ms"] / side["busy_mean_ms"]
+    return row
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--workers", type=int, nargs="+", default=[2, 4])
+    ap.add_argument("--agents", type=int, default=100_000)
+    ap.add_argument("--warmup", type=int, default=10)
+    ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--no-probes", action="store_true", help="skip the machine probes")
+    args = ap.parse_args()
+    cpus = os.cpu_count() or 1
+    bad = [w for w in args.workers if not 1 <= w <= cpus]
+    if bad:
+        ap.error(f"--workers must be in [1, {cpus}] (os.cpu_count()), got {bad[0]}")
+    rows = [_profile(args.agents, 1, args.warmup, args.steps)]
+    rows += [_profile(args.agents, w, args.warmup, args.steps) for w in args.workers if w > 1]
+    probes = {}
+    if not args.no_probes:
+        for kind in ("compute", "stream"):
+            alone = _probe(kind, 1)
+            probes[kind] = {w: _probe(kind, w) / alone for w in args.workers}
+
+    one = rows[0]["one_process"]["step_ms"]
+    print(f"{args.agents} agents; ms a step (1 worker, one process: {one:.1f} ms)")
+    print(
+        f"{'workers':>7} {'step':>7} {'parent':>7} {'barrier':>7} {'slowest':>7} "
+        f"{'strip':>7} {'alone':>7} {'contention':>10} {'straggling':>10} {'ideal':>7}"
+    )
+    for r in rows[1:]:
+        s, a = r["side_by_side"], r["alone"]
+        print(
+            f"{r['workers']:>7} {s['step_ms']:>7.2f} {s['parent_ms']:>7.2f} "
+            f"{s['barrier_ms']:>7.2f} {s['critical_ms']:>7.2f} {s['busy_mean_ms']:>7.2f} "
+            f"{a['busy_mean_ms']:>7.2f} {r['contention']:>9.2f}x {r['straggling']:>9.2f}x "
+            f"{one / r['workers']:>7.2f}"
+        )
+    from crowdsim.decomposition import STRIP_STAGES
+
+    print("mean strip's stages, ms a step side by side / alone (contention per stage)")
+    print(f"{'workers':>7} " + " ".join(f"{name:>22}" for name in STRIP_STAGES))
+    for r in rows[1:]:
+        s, a = r["side_by_side"]["stage_ms"], r["alone"]["stage_ms"]
+        cells = (
+            f"{s[n]:>6.2f} / {a[n]:>5.2f} ({s[n] / max(a[n], 1e-9):.2f}x)" for n in STRIP_STAGES
+        )
+        print(f"{r['workers']:>7} " + " ".join(f"{c:>22}" for c in cells))
+    for kind, by in probes.items():
+        print(
+            f"probe {kind}: time with N processes at once / alone: "
+            + ", ".join(f"N={w} {v:.2f}x" for w, v in by.items())
+        )
+    print(json.dumps({"benchmark": "split_profile", "rows": rows, "probes": probes}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
