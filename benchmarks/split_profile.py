@@ -12,9 +12,11 @@ finding its agents, the social force, pymunk's contacts, writing back), and so:
   other down through what they share: memory bandwidth, caches, the clock);
 * **straggling** = slowest strip / mean strip, side by side (> 1: the barrier waits).
 
-Then two probes of the machine itself, each run in ``N`` processes at once against one
-alone: a compute-only numba loop (slows down only if the clock drops with more busy cores)
-and a streaming pass over 64 MB (slows down when the cores share memory bandwidth)::
+The one-process run (1 worker) is split the same way, by timing its social force (on all
+of numba's threads) and pymunk's contact steps (one thread). Then two probes of the machine
+itself, each run in ``N`` processes at once against one alone: a compute-only numba loop
+(slows down only if the clock drops with more busy cores) and a streaming pass over 64 MB
+(slows down when the cores share memory bandwidth)::
 
     python benchmarks/split_profile.py --workers 2 4 8 16
 
@@ -29,6 +31,7 @@ import multiprocessing as mp
 import os
 import time
 
+import numba
 import numpy as np
 
 
@@ -64,6 +67,38 @@ def _probe(kind: str, n_proc: int) -> float:
         return float(np.mean(pool.map(fn, [arg] * n_proc)))
 
 
+class _Clock:
+    """Seconds spent in the one-process simulator's social force and pymunk steps, taken by
+    wrapping the two calls (the split's workers time the same stages themselves)."""
+
+    def __init__(self) -> None:
+        import crowdsim.simulation as simulation
+
+        self.sf = self.contacts = 0.0
+        self._sf, self._space_step = simulation.social_force, simulation.pymunk.Space.step
+
+        def sf(*a, **kw):
+            t0 = time.perf_counter()
+            try:
+                return self._sf(*a, **kw)
+            finally:
+                self.sf += time.perf_counter() - t0
+
+        def space_step(space, dt):
+            t0 = time.perf_counter()
+            try:
+                return self._space_step(space, dt)
+            finally:
+                self.contacts += time.perf_counter() - t0
+
+        simulation.social_force, simulation.pymunk.Space.step = sf, space_step
+
+    def close(self) -> None:
+        import crowdsim.simulation as simulation
+
+        simulation.social_force, simulation.pymunk.Space.step = self._sf, self._space_step
+
+
 def _profile(n_agents: int, workers: int, warmup: int, steps: int) -> dict:
     from crowdsim.bench.sim import _ours_scenario, corridor_layout
     from crowdsim.simulation import Simulation
@@ -77,11 +112,18 @@ def _profile(n_agents: int, workers: int, warmup: int, steps: int) -> dict:
             if eng is not None:
                 eng.serial = mode == "alone"
                 eng.reset_timing()
+            clock = _Clock() if eng is None else None
             t0 = time.perf_counter()
             sim.run(steps)
             wall = (time.perf_counter() - t0) / steps * 1e3
             t = eng.timing() if eng is not None else {}
-            if t:
+            if clock is not None:
+                clock.close()
+                t["stage_ms"] = {
+                    "social_force": clock.sf / steps * 1e3,
+                    "contacts": clock.contacts / steps * 1e3,
+                }
+            if eng is not None:
                 t["parent_ms"] = wall - t["step_ms"]
                 t["barrier_ms"] = t["step_ms"] - t["critical_ms"]
             row[mode] = {"step_ms": wall, **t}
@@ -113,7 +155,12 @@ def main() -> int:
             probes[kind] = {w: _probe(kind, w) / alone for w in args.workers}
 
     one = rows[0]["one_process"]["step_ms"]
-    print(f"{args.agents} agents; ms a step (1 worker, one process: {one:.1f} ms)")
+    sf1 = rows[0]["one_process"]["stage_ms"]
+    print(
+        f"{args.agents} agents; ms a step (1 worker, one process with {numba.get_num_threads()} "
+        f"numba threads: {one:.1f} ms, of which social force {sf1['social_force']:.1f} and "
+        f"pymunk's contact steps {sf1['contacts']:.1f})"
+    )
     print(
         f"{'workers':>7} {'step':>7} {'parent':>7} {'barrier':>7} {'slowest':>7} "
         f"{'strip':>7} {'alone':>7} {'contention':>10} {'straggling':>10} {'ideal':>7}"
