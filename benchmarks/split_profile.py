@@ -146,8 +146,13 @@ def main() -> int:
     bad = [w for w in args.workers if not 1 <= w <= cpus]
     if bad:
         ap.error(f"--workers must be in [1, {cpus}] (os.cpu_count()), got {bad[0]}")
-    rows = [_profile(args.agents, 1, args.warmup, args.steps)]
-    rows += [_profile(args.agents, w, args.warmup, args.steps) for w in args.workers if w > 1]
+    if min(args.agents, args.warmup, args.steps) < 1:
+        ap.error("--agents, --warmup and --steps must be >= 1")
+    try:
+        rows = [_profile(args.agents, 1, args.warmup, args.steps)]
+        rows += [_profile(args.agents, w, args.warmup, args.steps) for w in args.workers if w > 1]
+    except ValueError as exc:  # e.g. strips narrower than the halo for this crowd
+        ap.error(str(exc))
     probes = {}
     if not args.no_probes:
         for kind in ("compute", "stream"):
