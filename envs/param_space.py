@@ -37,7 +37,9 @@ name                   low     default   high   meaning (``BQPParams`` field)
 PNMC (``pnmc``): ``tau`` (0.5 / 0.9 / 0.99, the update-confidence threshold of Algorithm 2),
 ``prior_sigma`` (0.1 / 0.5 / 2, the NMC prior's sigma, template sizes), ``neighbour_radius``
 (0.5 / 2.5 / 6, the neighbour graph's radius), ``update_threshold`` (0 / 0.8 / 1, template
-refresh); extended: ``search_factor`` (1.5 / 2 / 3), ``flow_radius`` (0.25 / 0.75 / 2).
+refresh); extended: ``search_factor`` (1.5 / 2 / 3), ``flow_radius`` (0.25 / 0.75 / 2),
+``weight_scale`` (0.5 / 1 / 30 px, the neighbour weights' length unit), ``flow_min_ncc``
+(0.2 / 0.5 / 0.9), ``update_every`` (1 / 10 / 30 frames, rounded).
 
 NCC (``ncc``): ``update_threshold`` (0 / 0.6 / 1), ``search_factor`` (1.5 / 2 / 3); extended:
 ``update_every`` (1 / 10 / 30, frames between template refreshes, rounded).
@@ -225,6 +227,28 @@ PNMC_EXTRA: tuple[Tunable, ...] = (
         default=0.75,
         high=2.0,
         doc="flow patches within this of a target are its neighbours, template sizes",
+    ),
+    Tunable(
+        name="weight_scale",
+        low=0.5,
+        default=1.0,
+        high=30.0,
+        doc="length unit of the neighbour weights exp(-d / scale), px (Eq. 3; paper: 1)",
+    ),
+    Tunable(
+        name="flow_min_ncc",
+        low=0.2,
+        default=0.5,
+        high=0.9,
+        doc="a flow patch below this NCC in any step is dropped",
+    ),
+    Tunable(
+        name="update_every",
+        low=1,
+        default=10,
+        high=30,
+        doc="frames between template refreshes (Sec. 4: 10)",
+        integer=True,
     ),
 )
 
