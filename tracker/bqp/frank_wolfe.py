@@ -177,13 +177,18 @@ def _block_argext(v, block_ptr, want_max):
 
 @njit(cache=True)
 def _tree_update(tree, size, i, v):
+    """Set leaf ``i`` of the max-tree to ``v`` and repair its ancestors, stopping at the
+    first one whose maximum did not change (the ones above it cannot change either)."""
     node = size + i
     tree[node] = v
     node //= 2
     while node >= 1:
         a = tree[2 * node]
         b = tree[2 * node + 1]
-        tree[node] = a if a >= b else b
+        m = a if a >= b else b
+        if tree[node] == m:
+            break
+        tree[node] = m
         node //= 2
 
 
