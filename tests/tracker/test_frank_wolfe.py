@@ -533,3 +533,32 @@ def test_lone_blocks_without_entries_give_the_loops_figures():
     assert split.iterations == whole.iterations == 1 and split.converged
     assert split.gap == whole.gap == 0.0
     assert split.objective == pytest.approx(whole.objective, abs=1e-12)
+
+
+@FAST
+@given(
+    leaves=st.lists(st.floats(0.0, 10.0), min_size=1, max_size=40),
+    updates=st.lists(st.tuples(st.integers(0, 39), st.floats(0.0, 10.0)), max_size=60),
+)
+def test_gap_tree_stays_a_max_tree_under_updates(leaves, updates):
+    # The solver's max-gap tree repairs ancestors only until one's maximum is unchanged;
+    # after any sequence of updates every node must still be the max of its children and
+    # the argmax the first largest leaf (np.argmax), as with a full repair.
+    from tracker.bqp.frank_wolfe import _tree_argmax, _tree_update
+
+    n = len(leaves)
+    size = 1
+    while size < n:
+        size *= 2
+    tree = np.full(2 * size, -1.0)
+    values = np.full(size, -1.0)
+    for i, v in enumerate(leaves):
+        _tree_update(tree, size, i, v)
+        values[i] = v
+    for i, v in updates:
+        i %= n
+        _tree_update(tree, size, i, v)
+        values[i] = v
+        assert _tree_argmax(tree, size) == int(np.argmax(values))
+    for node in range(1, size):
+        assert tree[node] == max(tree[2 * node], tree[2 * node + 1])
