@@ -148,14 +148,19 @@ def main() -> int:
         ap.error(f"--workers must be in [1, {cpus}] (os.cpu_count()), got {bad[0]}")
     if min(args.agents, args.warmup, args.steps) < 1:
         ap.error("--agents, --warmup and --steps must be >= 1")
+    from crowdsim.progress import progress_bar
+
+    counts = [1] + [w for w in args.workers if w > 1]
     try:
-        rows = [_profile(args.agents, 1, args.warmup, args.steps)]
-        rows += [_profile(args.agents, w, args.warmup, args.steps) for w in args.workers if w > 1]
+        rows = [
+            _profile(args.agents, w, args.warmup, args.steps)
+            for w in progress_bar(counts, desc="split_profile", unit="run", leave=True)
+        ]
     except ValueError as exc:  # e.g. strips narrower than the halo for this crowd
         ap.error(str(exc))
     probes = {}
     if not args.no_probes:
-        for kind in ("compute", "stream"):
+        for kind in progress_bar(("compute", "stream"), desc="probes", unit="probe"):
             alone = _probe(kind, 1)
             probes[kind] = {w: _probe(kind, w) / alone for w in args.workers}
 
