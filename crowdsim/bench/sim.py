@@ -351,7 +351,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="N",
         help="also run ours split across N worker processes, for each N given "
-        "(1..os.cpu_count(), e.g. --workers 1 2 4), and report the speed-up over 1",
+        "(1..os.cpu_count(), e.g. --workers 1 2 4), and report the speed-up over 1 and "
+        "where a step's time goes (the parent, the barrier, the slowest and the mean strip)",
     )
     parser.add_argument(
         "--split-sizes",
