@@ -312,6 +312,13 @@ class StripEngine:
         Which of them are present.
     capacity : int
         Agent ids the shared memory holds before it must grow (it grows by doubling).
+
+    Attributes
+    ----------
+    serial : bool
+        Step the workers one after another instead of side by side (default False): the
+        same trajectories, about ``n`` times slower; :meth:`timing` then gives each strip's
+        time alone (``benchmarks/split_profile.py``).
     """
 
     def __init__(
