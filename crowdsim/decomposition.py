@@ -511,7 +511,7 @@ class StripEngine:
             for obj in ready:
                 if obj in sentinels:
                     k = sentinels[obj]
-                    if k in waiting and not waiting[k].poll():
+                    if k not in waiting or not waiting[k].poll():  # it is gone
                         self._fail(k, steps, self._death_note(k, steps))
                     continue
                 k = next(i for i, c in waiting.items() if c is obj)

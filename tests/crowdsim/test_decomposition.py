@@ -149,8 +149,10 @@ def test_unsupported_features_say_so():
 
 
 @needs_two
-def test_killed_worker_stops_the_run_and_leaves_nothing(tmp_path):
+@pytest.mark.parametrize("serial", [False, True])
+def test_killed_worker_stops_the_run_and_leaves_nothing(tmp_path, serial):
     sim = Simulation(_lanes_corridor(), seed=0, workers=2)
+    sim.engine.serial = serial  # then worker 1 dies while the parent waits for worker 0
     sim.run(3)
     pids = sim._engine.pids
     os.kill(pids[1], 9)
