@@ -20,7 +20,7 @@ itself, each run in ``N`` processes at once against one alone: a compute-only nu
 
     python benchmarks/split_profile.py --workers 2 4 8 16
 
-Prints a table and one JSON object.
+Prints a table and one JSON object, and draws the steps as stacked bars (``--png``).
 """
 
 from __future__ import annotations
@@ -134,6 +134,45 @@ def _profile(n_agents: int, workers: int, warmup: int, steps: int) -> dict:
     return row
 
 
+def plot(rows: list[dict], path: str) -> None:
+    """Stacked bars of where a step's ms go at each worker count (the one-process run at 1),
+    beside the ideal ``one process / N``; written atomically to ``path``."""
+    from crowdsim.decomposition import STRIP_STAGES
+    from crowdsim.plotting import new_figure, save_figure
+
+    one = rows[0]["one_process"]
+    parts = [*STRIP_STAGES, "straggling", "barrier", "parent"]
+    fig, ax = new_figure(figsize=(7.0, 4.0))
+    labels, bottoms = [], []
+    for x, r in enumerate(rows):
+        if "one_process" in r:
+            sf, contacts = one["stage_ms"]["social_force"], one["stage_ms"]["contacts"]
+            heights = {"social_force": sf, "contacts": contacts}
+            heights["other"] = one["step_ms"] - sf - contacts
+        else:
+            s = r["side_by_side"]
+            heights = dict(s["stage_ms"])
+            heights["straggling"] = s["critical_ms"] - s["busy_mean_ms"]
+            heights["barrier"] = s["barrier_ms"]
+            heights["parent"] = s["parent_ms"]
+        base = 0.0
+        for i, name in enumerate([*parts, "other"]):
+            h = heights.get(name, 0.0)
+            if h > 0:
+                ax.bar(x, h, bottom=base, color=f"C{i}", label=name if name not in labels else None)
+                labels.append(name)
+                base += h
+        bottoms.append(base)
+    ideal = [one["step_ms"] / r["workers"] for r in rows]
+    ax.plot(range(len(rows)), ideal, "k--", marker="o", label="one process / N")
+    ax.set_xticks(range(len(rows)), [str(r["workers"]) for r in rows])
+    ax.set_xlabel("workers")
+    ax.set_ylabel("ms a step")
+    ax.set_title(f"split simulator, {rows[0]['agents']:,} agents: where a step goes")
+    ax.legend(fontsize=7, ncol=2)
+    save_figure(fig, path)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--workers", type=int, nargs="+", default=[2, 4])
@@ -141,6 +180,12 @@ def main() -> int:
     ap.add_argument("--warmup", type=int, default=10)
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--no-probes", action="store_true", help="skip the machine probes")
+    ap.add_argument(
+        "--png",
+        default="benchmarks/out/split_profile.png",
+        metavar="FILE",
+        help="stacked bars of each worker count's step (default benchmarks/out/split_profile.png)",
+    )
     args = ap.parse_args()
     cpus = os.cpu_count() or 1
     bad = [w for w in args.workers if not 1 <= w <= cpus]
@@ -198,6 +243,11 @@ def main() -> int:
             f"probe {kind}: time with N processes at once / alone: "
             + ", ".join(f"N={w} {v:.2f}x" for w, v in by.items())
         )
+    try:
+        plot(rows, args.png)
+        print(f"-> {args.png}")
+    except OSError as exc:  # an unwritable folder costs the picture, not the figures above
+        print(f"could not write {args.png}: {exc.strerror or exc}")
     print(json.dumps({"benchmark": "split_profile", "rows": rows, "probes": probes}))
     return 0
 
