@@ -394,14 +394,15 @@ class StripEngine:
         ``busy_ms`` (per worker) is the time each worker spent on its strip (from receiving
         "step" to replying), ``critical_ms`` the slowest worker's time (summed step by step),
         ``step_ms`` the parent's wall time in :meth:`step` (sending, waiting, collecting);
-        ``step_ms - critical_ms`` is then what the barrier itself costs (messages and
-        wake-ups). ``stage_ms`` splits the mean worker's strip into :data:`STRIP_STAGES`.
-        With :attr:`serial` set, the workers step one after another, so ``busy_ms`` is each
-        strip's time alone on the machine (a diagnostic: the same results, about ``n`` times
-        slower).
+        ``barrier_ms = step_ms - critical_ms`` is then what the barrier itself costs
+        (messages and wake-ups). ``stage_ms`` splits the mean worker's strip into
+        :data:`STRIP_STAGES`. With :attr:`serial` set, the workers step one after another, so
+        ``busy_ms`` is each strip's time alone on the machine (a diagnostic: the same results,
+        about ``n`` times slower).
         """
         k = max(self._timed_steps, 1)
         busy = self._busy / k * 1e3
+        step_ms, critical_ms = self._wall / k * 1e3, self._critical / k * 1e3
         return {
             "steps": self._timed_steps,
             "serial": self.serial,
@@ -410,8 +411,9 @@ class StripEngine:
             "stage_ms": {
                 name: float(v) / k * 1e3 for name, v in zip(STRIP_STAGES, self._stages, strict=True)
             },
-            "critical_ms": self._critical / k * 1e3,
-            "step_ms": self._wall / k * 1e3,
+            "critical_ms": critical_ms,
+            "step_ms": step_ms,
+            "barrier_ms": step_ms - critical_ms,
         }
 
     @property

@@ -522,7 +522,7 @@ def _print_table(report: dict[str, Any]) -> None:
         for r in report["split"]:
             t = r.get("timing")
             ms = (
-                f" {t['parent_ms']:>7.2f} {t['step_ms'] - t['critical_ms']:>7.2f}"
+                f" {t['parent_ms']:>7.2f} {t['barrier_ms']:>7.2f}"
                 f" {t['critical_ms']:>7.2f} {t['busy_mean_ms']:>7.2f}"
                 if t
                 else ""

@@ -216,4 +216,5 @@ def test_serial_steps_change_nothing_and_the_timing_adds_up():
         assert set(t["stage_ms"]) == set(dec.STRIP_STAGES)
     side, alone = timings
     assert side["step_ms"] >= side["critical_ms"]
+    assert side["barrier_ms"] == side["step_ms"] - side["critical_ms"]
     assert alone["serial"] and alone["step_ms"] >= sum(alone["busy_ms"])
