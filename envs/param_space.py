@@ -185,6 +185,17 @@ EXTRA_TUNABLES: tuple[Tunable, ...] = (
 """BQP's tunables added by ``ParamSpace(extended=True)``."""
 
 
+UPDATE_EVERY = Tunable(
+    name="update_every",
+    low=1,
+    default=10,
+    high=30,
+    doc="frames between template refreshes",
+    integer=True,
+)
+"""The template trackers' refresh period (PNMC and NCC both refresh every 10 frames by
+default; paper 2, Sec. 4)."""
+
 PNMC_TUNABLES: tuple[Tunable, ...] = (
     Tunable(
         name="tau",
@@ -242,14 +253,7 @@ PNMC_EXTRA: tuple[Tunable, ...] = (
         high=0.9,
         doc="a flow patch below this NCC in any step is dropped",
     ),
-    Tunable(
-        name="update_every",
-        low=1,
-        default=10,
-        high=30,
-        doc="frames between template refreshes (Sec. 4: 10)",
-        integer=True,
-    ),
+    UPDATE_EVERY,
 )
 
 NCC_TUNABLES: tuple[Tunable, ...] = (
@@ -266,16 +270,7 @@ NCC_TUNABLES: tuple[Tunable, ...] = (
 )
 """The NCC baseline's tuned parameters."""
 
-NCC_EXTRA: tuple[Tunable, ...] = (
-    Tunable(
-        name="update_every",
-        low=1,
-        default=10,
-        high=30,
-        doc="frames between template refreshes",
-        integer=True,
-    ),
-)
+NCC_EXTRA: tuple[Tunable, ...] = (UPDATE_EVERY,)
 
 
 @dataclass(frozen=True)
