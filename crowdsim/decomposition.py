@@ -5,10 +5,16 @@ steps), so :class:`crowdsim.simulation.Simulation` with ``workers=N > 1`` cuts t
 ``N`` strips and steps each in its own process with its own pymunk space.
 
 Strips
-    The world is cut into ``N`` equal strips along its longer axis (along x for a periodic
-    world), chosen from the world geometry and ``N`` only (:func:`strip_layout`). An agent
-    belongs to the strip that holds its centre; the first and last strips extend to
-    infinity (a periodic world wraps instead).
+    The world is cut into ``N`` strips along its longer axis (along x for a periodic world),
+    at first ``N`` equal ones chosen from the world geometry and ``N`` only
+    (:func:`strip_layout`). An agent belongs to the strip that holds its centre; the first
+    and last strips extend to infinity (a periodic world wraps instead). Every
+    :data:`BALANCE_EVERY` steps the parent counts each strip's agents and, when the fullest
+    holds more than :data:`BALANCE_TOLERANCE` above the mean, moves the inner borders to the
+    agents' quantiles (every strip at least twice the halo wide), so that each worker has
+    about as much work and the barrier does not wait for one crowded strip. The workers
+    learn the new borders with the next step; the bodies that a border move brings into a
+    window are added like any agent that walks in.
 
 Halo
     Worker ``k`` keeps one pymunk body for every agent within ``halo = cutoff + 0.5 m`` of its
@@ -85,6 +91,12 @@ writing its agents back to the shared state."""
 HASH_CELL = 2.0
 """Cell size (m) of the spatial hash that is each worker's pymunk broad phase."""
 
+BALANCE_EVERY = 25
+"""Steps between two checks of the strips' balance (see :class:`StripEngine`)."""
+
+BALANCE_TOLERANCE = 0.05
+"""The strips are re-cut when the fullest holds more than this share above the mean."""
+
 STOP_GRACE_S = 2.0
 """Seconds a worker gets to exit after "stop" before it is terminated, then killed."""
 
@@ -112,39 +124,49 @@ class WorkerFailed(RuntimeError):
 
 @dataclass(frozen=True)
 class StripLayout:
-    """How the world is cut: ``n`` strips of ``width`` m along ``axis`` from ``lo``.
+    """How the world is cut: ``n`` strips along ``axis`` between the ``edges``.
 
     Attributes
     ----------
     axis : int
         0 = strips side by side along x, 1 = along y.
-    lo, width : float
-        Start of the first strip and width of every strip, m.
-    n : int
-        Number of strips (= workers).
+    edges : tuple of float
+        ``n + 1`` ascending coordinates (m): strip ``k`` holds ``[edges[k], edges[k + 1])``.
+        The first and last are the world's extent along ``axis`` (``0`` and ``period`` in a
+        periodic world); in a non-periodic world the end strips reach to infinity.
     period : float
-        Periodic length of the x axis (0 = none); then ``axis = 0``, ``lo = 0``.
+        Periodic length of the x axis (0 = none); then ``axis = 0``.
     halo : float
         Halo width, m.
     """
 
     axis: int
-    lo: float
-    width: float
-    n: int
+    edges: tuple[float, ...]
     period: float
     halo: float
 
+    @classmethod
+    def equal(
+        cls, axis: int, lo: float, width: float, n: int, period: float, halo: float
+    ) -> StripLayout:
+        """``n`` strips of ``width`` m from ``lo``."""
+        return cls(axis, tuple(float(lo + k * width) for k in range(n + 1)), period, halo)
+
+    @property
+    def n(self) -> int:
+        """Number of strips (= workers)."""
+        return len(self.edges) - 1
+
     def owner(self, coord: np.ndarray) -> np.ndarray:
         """Strip ``(m,)`` int64 of the coordinates ``coord`` ``(m,)`` along ``axis`` (m)."""
-        k = np.floor((coord - self.lo) / self.width)
-        return np.clip(k, 0, self.n - 1).astype(np.int64)
+        inner = np.asarray(self.edges[1:-1])
+        return np.searchsorted(inner, coord, side="right").astype(np.int64)
 
     def window(self, k: int) -> tuple[float, float]:
         """``(lo, hi)`` of the bodies worker ``k`` keeps: its strip plus the halo (an end
         strip of a non-periodic world reaches to infinity)."""
-        lo = self.lo + k * self.width - self.halo
-        hi = self.lo + (k + 1) * self.width + self.halo
+        lo = self.edges[k] - self.halo
+        hi = self.edges[k + 1] + self.halo
         if self.period <= 0:
             lo = -np.inf if k == 0 else lo
             hi = np.inf if k == self.n - 1 else hi
@@ -152,7 +174,7 @@ class StripLayout:
 
     def centre(self, k: int) -> float:
         """Centre of strip ``k`` along ``axis`` (m)."""
-        return self.lo + (k + 0.5) * self.width
+        return 0.5 * (self.edges[k] + self.edges[k + 1])
 
     def local(self, k: int, coord: np.ndarray) -> np.ndarray:
         """Coordinates ``(m,)`` in worker ``k``'s unwrapped frame: in a periodic world the
@@ -160,6 +182,23 @@ class StripLayout:
         if self.period <= 0:
             return coord
         return _unwrap_all(np.asarray(coord, np.float64), self.centre(k), self.period)
+
+    def balanced(self, coord: np.ndarray) -> StripLayout:
+        """The layout whose inner edges split the agents at ``coord`` ``(m,)`` (along
+        ``axis``) into ``n`` equal counts, each strip kept at least ``2 * halo`` wide (the
+        halo must come from the immediate neighbours only); the outer edges stay. A pure
+        function of ``coord``'s values, so a run stays deterministic."""
+        n, e = self.n, np.array(self.edges)
+        if n < 2 or len(coord) == 0:
+            return self
+        inner = np.quantile(coord, np.arange(1, n) / n)
+        e[1:-1] = np.clip(inner, e[0], e[-1])
+        wmin = 2 * self.halo
+        for k in range(1, n):  # forward, then backward: feasible as the span >= n * wmin
+            e[k] = max(e[k], e[k - 1] + wmin)
+        for k in range(n - 1, 0, -1):
+            e[k] = min(e[k], e[k + 1] - wmin)
+        return StripLayout(self.axis, tuple(float(v) for v in e), self.period, self.halo)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -247,7 +286,7 @@ def strip_layout(world: World, n: int, cutoff: float) -> StripLayout:
             f"workers={n}: strips of {width:.2f} m along the world's {'xy'[axis]} axis are "
             f"narrower than twice the halo ({2 * halo:g} m); use fewer workers or workers=1"
         )
-    return StripLayout(axis, lo, width, n, float(world.period), halo)
+    return StripLayout.equal(axis, lo, width, n, float(world.period), halo)
 
 
 # ------------------------------------------------------------------------------ shared state
@@ -312,6 +351,14 @@ class StripEngine:
         Which of them are present.
     capacity : int
         Agent ids the shared memory holds before it must grow (it grows by doubling).
+    balance_every : int, optional
+        Every this many steps (default :data:`BALANCE_EVERY`) the parent counts the agents
+        of each strip; when the fullest holds more than :data:`BALANCE_TOLERANCE` above the
+        mean, the inner borders move to the agents' quantiles (:meth:`StripLayout.balanced`),
+        so that the barrier does not wait for one crowded strip. 0 keeps the equal strips
+        of :func:`strip_layout`. The decision and the new borders depend only on the
+        agents' state at that step, so a run stays deterministic for a given ``n_workers``
+        and seed.
 
     Attributes
     ----------
@@ -333,11 +380,15 @@ class StripEngine:
         wp: np.ndarray,
         alive: np.ndarray,
         capacity: int,
+        balance_every: int | None = None,
     ) -> None:
         import multiprocessing as mp
 
         self.layout = strip_layout(world, n_workers, params.cutoff)
         self.n_workers = n_workers
+        self.balance_every = BALANCE_EVERY if balance_every is None else int(balance_every)
+        self.rebalances = 0
+        """How many times the strips were re-cut."""
         n = len(pos)
         self.n_known = n
         self.shared = SharedState(max(capacity, n, 1))
@@ -459,9 +510,10 @@ class StripEngine:
             }
             self._pending_static = []
         shm = (self.shared.name, self.shared.cap) if self._old_shared else None
-        self.shared.alive[self.current(steps + 1)] = 0  # workers write who is still there
-        msg = ("step", steps, time, self.n_known, static, shm)
         t0 = perf_counter()
+        layout = self._rebalance(steps)
+        self.shared.alive[self.current(steps + 1)] = 0  # workers write who is still there
+        msg = ("step", steps, time, self.n_known, static, shm, layout)
         busy = np.zeros(self.n_workers)
         stages = np.zeros(len(STRIP_STAGES))
         everyone = list(range(self.n_workers))
@@ -483,6 +535,25 @@ class StripEngine:
             self._state["shared"].remove(old)
             old.close(unlink=True)
         self._old_shared = []
+
+    def _rebalance(self, steps: int) -> StripLayout | None:
+        """The new layout when the strips are due a check (every :attr:`balance_every`
+        steps) and out of balance; ``None`` otherwise (the workers keep theirs)."""
+        if self.balance_every <= 0 or steps == 0 or steps % self.balance_every:
+            return None
+        sh, cur, n = self.shared, self.current(steps), self.n_known
+        coord = sh.pos[cur, :n, self.layout.axis][sh.alive[cur, :n] != 0]
+        if len(coord) < self.n_workers:
+            return None
+        counts = np.bincount(self.layout.owner(coord), minlength=self.n_workers)
+        if counts.max() <= (1.0 + BALANCE_TOLERANCE) * counts.mean():
+            return None
+        layout = self.layout.balanced(coord)
+        if layout == self.layout:
+            return None
+        self.layout = layout
+        self.rebalances += 1
+        return layout
 
     def gather(
         self, steps: int, ids: np.ndarray
@@ -790,7 +861,9 @@ def _worker_main(conn: Any, init: dict[str, Any]) -> None:
             msg = conn.recv()
             if msg[0] != "step":
                 break
-            _, steps, time, n_known, static, shm = msg
+            _, steps, time, n_known, static, shm, layout = msg
+            if layout is not None:  # the strips were re-cut (StripEngine._rebalance)
+                strip.layout = layout
             t0 = perf_counter()
             strip.stage_s[:] = 0.0
             try:

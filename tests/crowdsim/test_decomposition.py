@@ -65,7 +65,7 @@ def test_cli_workers_out_of_range_exit_2(bad, capsys):
 def test_strips_follow_the_geometry_only():
     world = World(polyline([(0, 0), (100, 0)]), (-1.0, -1.0, 101.0, 21.0))
     lay = strip_layout(world, 2, cutoff=1.5)
-    assert (lay.axis, lay.lo, lay.width, lay.halo) == (0, -1.0, 51.0, 2.0)
+    assert (lay.axis, lay.edges, lay.n, lay.halo) == (0, (-1.0, 50.0, 101.0), 2, 2.0)
     np.testing.assert_array_equal(lay.owner(np.array([-5.0, 49.9, 50.0, 500.0])), [0, 0, 1, 1])
     assert lay.window(0) == (-np.inf, 52.0) and lay.window(1) == (48.0, np.inf)
     tall = World(np.zeros((0, 5)), (0.0, 0.0, 10.0, 40.0))
@@ -75,11 +75,27 @@ def test_strips_follow_the_geometry_only():
 
 
 def test_periodic_windows_unwrap_around_the_strip():
-    lay = StripLayout(axis=0, lo=0.0, width=10.0, n=2, period=20.0, halo=2.0)
+    lay = StripLayout.equal(axis=0, lo=0.0, width=10.0, n=2, period=20.0, halo=2.0)
     assert lay.window(0) == (-2.0, 12.0)
     # x = 19 is 1 m left of worker 0's strip across the seam; x = 1 is 1 m right of worker 1's.
     np.testing.assert_allclose(lay.local(0, np.array([19.0, 1.0, 11.0])), [-1.0, 1.0, 11.0])
     np.testing.assert_allclose(lay.local(1, np.array([1.0, 19.0, 9.0])), [21.0, 19.0, 9.0])
+
+
+def test_balanced_strips_split_the_agents_evenly_and_stay_twice_the_halo_wide():
+    lay = StripLayout.equal(axis=0, lo=0.0, width=25.0, n=4, period=0.0, halo=2.0)
+    # 40 agents in [0, 10) and 40 in [90, 100): equal strips would give 40, 0, 0, 40
+    coord = np.r_[np.arange(40) * 0.25, 90.0 + np.arange(40) * 0.25]
+    bal = lay.balanced(coord)
+    assert bal.edges[0] == 0.0 and bal.edges[-1] == 100.0  # the outer edges stay
+    np.testing.assert_array_equal(np.bincount(bal.owner(coord), minlength=4), [20, 20, 20, 20])
+    # np.quantile (linear) at 1/4, 1/2, 3/4: 4.75 + 0.75 * 0.25, 9.75 + (90 - 9.75) / 2, ...
+    assert bal.edges[1:4] == (4.9375, 49.875, 94.8125)
+    # all agents in 2 m: the inner borders crowd together, each strip 2 * halo = 4 m wide
+    packed = lay.balanced(np.linspace(50.0, 52.0, 100))
+    assert np.allclose(np.diff(packed.edges)[1:3], 4.0) and min(np.diff(packed.edges)) >= 4.0
+    assert lay.balanced(np.zeros(0)) is lay
+    assert StripLayout.equal(0, 0.0, 50.0, 1, 0.0, 2.0).balanced(coord).n == 1
 
 
 def _lanes_corridor(**kw):
@@ -218,3 +234,44 @@ def test_serial_steps_change_nothing_and_the_timing_adds_up():
     assert side["step_ms"] >= side["critical_ms"]
     assert side["barrier_ms"] == side["step_ms"] - side["critical_ms"]
     assert alone["serial"] and alone["step_ms"] >= sum(alone["busy_ms"])
+
+
+@needs_two
+def test_crowded_strip_is_recut_deterministically_and_keeps_every_agent_once():
+    # The bench corridor's crowd fills its first 23 of 35 m and walks on: equal strips hold
+    # about 3/4 and 1/4 of the agents, so the parent moves the border to the median.
+    from crowdsim.bench.sim import _ours_scenario, corridor_layout
+
+    runs, owned = [], []
+    for _ in range(2):
+        with Simulation(_ours_scenario(corridor_layout(400)), seed=1, workers=2) as sim:
+            eng = sim.engine
+            equal = eng.layout
+            runs.append(sim.run(2 * dec.BALANCE_EVERY + 1))
+            assert eng.rebalances >= 1 and eng.layout != equal
+            owned.append(np.bincount(eng.layout.owner(sim.state.pos[:, 0]), minlength=2))
+            assert len(np.unique(sim.state.ids)) == sim.state.n == 400  # nobody lost or doubled
+    np.testing.assert_array_equal(runs[0].positions, runs[1].positions)
+    before = np.bincount(equal.owner(runs[0].positions[0][:, 0]), minlength=2)
+    assert before.max() > 1.3 * before.mean()
+    assert owned[0].max() <= 1.1 * owned[0].mean()  # re-cut at the last check, 1 step ago
+    mean_ov, max_ov = overlap_stats(sim.state.pos, sim.state.radius)
+    assert max_ov < 0.3
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--workers", "1"], "--workers must be in [2, "),
+        (["--scenarios", "nowhere"], "--scenarios: unknown 'nowhere'"),
+        (["--steps", "0"], "--agents, --warmup and --steps must be >= 1"),
+    ],
+)
+def test_split_balance_benchmark_names_bad_flags(args, message):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "split_balance.py"
+    out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
+    assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr
