@@ -2,9 +2,9 @@
 spread evenly along the strips' axis.
 
 The split simulator (:mod:`crowdsim.decomposition`) starts with ``N`` equal strips. In a
-station or a circulation square most people stand in the middle of the world, so with 8
-strips the two end ones hold a third of the mean and the middle ones 1.3x it, and the barrier
-waits for the fullest strip every step. Every :data:`crowdsim.decomposition.BALANCE_EVERY`
+station or a circulation square most people are in the middle of the world: 250 steps into a
+5,000-agent station, 8 equal strips hold 0.40 to 1.37x the mean agents, and the barrier waits
+for the fullest strip every step. Every :data:`crowdsim.decomposition.BALANCE_EVERY`
 steps the parent counts each strip's agents and, past :data:`BALANCE_TOLERANCE`, moves the
 borders to the agents' quantiles. This script runs each ``--scenarios`` scene with
 ``--agents`` people at each ``--workers`` count twice, with the strips fixed
