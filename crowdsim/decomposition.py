@@ -389,6 +389,8 @@ class StripEngine:
         self.balance_every = BALANCE_EVERY if balance_every is None else int(balance_every)
         self.rebalances = 0
         """How many times the strips were re-cut."""
+        self.owned = np.zeros(n_workers, np.int64)
+        """Agents each worker owned at the start of the last step (as the workers count)."""
         n = len(pos)
         self.n_known = n
         self.shared = SharedState(max(capacity, n, 1))
@@ -449,7 +451,8 @@ class StripEngine:
         (messages and wake-ups). ``stage_ms`` splits the mean worker's strip into
         :data:`STRIP_STAGES`. With :attr:`serial` set, the workers step one after another, so
         ``busy_ms`` is each strip's time alone on the machine (a diagnostic: the same results,
-        about ``n`` times slower).
+        about ``n`` times slower). ``owned`` is :attr:`owned`, the agents of each strip at
+        the last step.
         """
         k = max(self._timed_steps, 1)
         busy = self._busy / k * 1e3
@@ -465,6 +468,7 @@ class StripEngine:
             "critical_ms": critical_ms,
             "step_ms": step_ms,
             "barrier_ms": step_ms - critical_ms,
+            "owned": self.owned.tolist(),
         }
 
     @property
@@ -526,6 +530,7 @@ class StripEngine:
             for k, reply in self._gather(steps, ("done",), None, only=group).items():
                 busy[k] = reply[1]
                 stages += reply[2]
+                self.owned[k] = reply[3]
         self._wall += perf_counter() - t0
         self._busy += busy
         self._stages += stages / self.n_workers
@@ -685,6 +690,7 @@ class _Strip:
         self.shapes: dict[int, tuple[pymunk.Body, pymunk.Circle]] = {}
         self.rows = np.zeros(0, np.int64)  # pymunk row of each body in self.agents
         self.stage_s = np.zeros(len(STRIP_STAGES))  # seconds of the last step, per stage
+        self.owned = 0  # agents this strip owned at the start of the last step
 
     def _make_space(self) -> pymunk.Space:
         walls = self.world.walls
@@ -746,6 +752,7 @@ class _Strip:
         vel = sh.vel[rb, ids]
         self._sync_bodies(ids, gpos, local, vel)
         own = lay.owner(gpos[:, lay.axis]) == k
+        self.owned = int(own.sum())
         if len(ids) == 0:
             return
         lpos = gpos.copy()
@@ -872,7 +879,7 @@ def _worker_main(conn: Any, init: dict[str, Any]) -> None:
             except Exception as exc:  # reported to the parent as one line
                 conn.send(("error", f"{type(exc).__name__}: {exc}"))
                 continue
-            conn.send(("done", perf_counter() - t0, strip.stage_s))
+            conn.send(("done", perf_counter() - t0, strip.stage_s, strip.owned))
     except (EOFError, OSError, KeyboardInterrupt):
         pass
     except Exception as exc:  # failed to start
