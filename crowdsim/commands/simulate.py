@@ -107,7 +107,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=1,
         metavar="N",
         help="processes that step the world, 1..os.cpu_count() (default 1); N > 1 splits it "
-        "into N strips, re-cut to equal agent counts as the crowd moves (deterministic for a "
+        "into N strips, re-cut when their agent counts drift over 5 %% apart (deterministic for a "
         "given N and seed, not equal to N = 1)",
     )
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
