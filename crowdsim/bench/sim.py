@@ -181,6 +181,7 @@ def run_ours(layout: Layout, workers: int = 1) -> dict[str, Any]:
         if engine is not None:
             extra["workers"] = workers
             extra["workers_peak_rss_mb"] = _peak_rss_mb(sim.worker_pids)
+            extra["rebalances"] = engine.rebalances  # strips re-cut (decomposition)
             extra["timing"] = timing = engine.timing()
             # the parent's own part of a step: everything but the engine's send-and-wait
             timing["parent_ms"] = wall / STEPS * 1e3 - timing["step_ms"]
@@ -514,16 +515,16 @@ def _print_table(report: dict[str, Any]) -> None:
     if report.get("split"):
         print("\nsplit across processes (ours alone, fresh process per run; ms a step:")
         print("  the parent's own part, the barrier's messages and wake-ups, the slowest")
-        print("  worker's strip, the mean worker's strip)")
+        print("  worker's strip, the mean worker's strip; how often the strips were re-cut)")
         print(
             f"  {'agents':>7} {'workers':>7} {'steps/s':>9} {'speed-up':>9} {'mean ov':>8}"
-            f" {'parent':>7} {'barrier':>7} {'slowest':>7} {'strip':>7}"
+            f" {'parent':>7} {'barrier':>7} {'slowest':>7} {'strip':>7} {'re-cuts':>7}"
         )
         for r in report["split"]:
             t = r.get("timing")
             ms = (
                 f" {t['parent_ms']:>7.2f} {t['barrier_ms']:>7.2f}"
-                f" {t['critical_ms']:>7.2f} {t['busy_mean_ms']:>7.2f}"
+                f" {t['critical_ms']:>7.2f} {t['busy_mean_ms']:>7.2f} {r['rebalances']:>7}"
                 if t
                 else ""
             )
