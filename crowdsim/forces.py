@@ -122,7 +122,11 @@ def _pedestrian_wall_impl(
         int(wall_grid[3]),
         int(wall_grid[4]),
     )
-    for i in nb.prange(n):
+    # Agents in cell order, so that a thread's agents and their neighbours lie together in
+    # memory (100k agents on 2 threads: 29 against 36 ms; the same on one thread). Each
+    # agent's sum is unchanged: the order only decides which thread computes it.
+    for ii in nb.prange(n):
+        i = order[ii]
         xi = pos[i, 0]
         yi = pos[i, 1]
         # Driving term (v0 e - v) / tau  [HM95 Eq. 2].
@@ -526,8 +530,29 @@ def k_nearest(
     return idx, dist, rel
 
 
-_kernel_serial = nb.njit(cache=True)(_pedestrian_wall_impl)
-_kernel_parallel = nb.njit(cache=True, parallel=True)(_pedestrian_wall_impl)
+def _jit_variant(func, suffix: str, **options):
+    """``nb.njit(cache=True, **options)`` of a copy of ``func`` named ``{name}_{suffix}``.
+
+    numba's on-disk cache files a compiled function under its module, qualified name and first
+    line, and keys the entries by signature, not by the jit options (numba issue #6845). Two
+    wrappings of one function, one with ``parallel=True``, would share one cache entry, and
+    whichever compiled first would be loaded for both: after a small crowd had compiled the
+    serial kernel, every later process ran the "parallel" kernel on one thread (100k agents on
+    the 2-core machine: 58 ms a call with 2 threads, its wall time equal to its CPU time,
+    against 35-37 ms with its own entry). A copy under its own name gets its own cache file.
+    """
+    import types
+
+    clone = types.FunctionType(
+        func.__code__, func.__globals__, f"{func.__name__}_{suffix}", func.__defaults__
+    )
+    clone.__qualname__ = f"{func.__qualname__}_{suffix}"
+    clone.__doc__ = func.__doc__
+    return nb.njit(cache=True, **options)(clone)
+
+
+_kernel_serial = _jit_variant(_pedestrian_wall_impl, "serial")
+_kernel_parallel = _jit_variant(_pedestrian_wall_impl, "parallel", parallel=True)
 
 PARALLEL_MIN_AGENTS = 5000
 """From this many agents the force kernel runs on all of numba's threads

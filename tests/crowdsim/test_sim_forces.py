@@ -115,3 +115,45 @@ def test_no_agents_no_walls():
         p,
     )
     assert out.shape == (0, 2)
+
+
+CACHE_PROBE = """
+import json
+import numpy as np
+from crowdsim import forces
+from crowdsim.params import SocialForceParams
+
+def crowd(n):
+    side = int(np.ceil(np.sqrt(n)))
+    xy = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)[:n] * 0.8
+    e = np.tile([1.0, 0.0], (n, 1))
+    return xy.astype(float), np.zeros((n, 2)), np.full(n, 0.22), np.full(n, 1.3), e, np.full(n, -1)
+
+walls = np.zeros((0, 5))
+forces.social_force(*crowd(50), walls, SocialForceParams())  # the serial kernel
+forces.social_force(*crowd(forces.PARALLEL_MIN_AGENTS), walls, SocialForceParams())
+print(json.dumps({
+    name: sum(getattr(kernel.stats, "cache_" + what).values())
+    for kernel, tag in ((forces._kernel_serial, "serial"), (forces._kernel_parallel, "parallel"))
+    for what in ("hits", "misses")
+    for name in [tag + "_" + what]
+}))
+"""
+
+
+def test_serial_and_parallel_kernels_keep_their_own_cache_entries(tmp_path):
+    """numba keys its disk cache by function name and signature, not by ``parallel``: were
+    the two kernels one function's two wrappings, the parallel one would load the serial
+    one's machine code (cached first here) and run on one thread in every later process."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    run = [sys.executable, "-c", CACHE_PROBE]
+    first = json.loads(subprocess.run(run, env=env, capture_output=True, check=True).stdout)
+    # a fresh cache: the parallel kernel finds no entry of the serial one's, compiles its own
+    assert first == {"serial_hits": 0, "serial_misses": 1, "parallel_hits": 0, "parallel_misses": 1}
+    again = json.loads(subprocess.run(run, env=env, capture_output=True, check=True).stdout)
+    assert again == {"serial_hits": 1, "serial_misses": 0, "parallel_hits": 1, "parallel_misses": 0}
