@@ -157,3 +157,34 @@ def test_serial_and_parallel_kernels_keep_their_own_cache_entries(tmp_path):
     assert first == {"serial_hits": 0, "serial_misses": 1, "parallel_hits": 0, "parallel_misses": 1}
     again = json.loads(subprocess.run(run, env=env, capture_output=True, check=True).stdout)
     assert again == {"serial_hits": 1, "serial_misses": 0, "parallel_hits": 1, "parallel_misses": 0}
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--threads", "0"], "--threads must be in [1, "),
+        (["--agents", "0"], "--agents and --repeats must be >= 1"),
+    ],
+)
+def test_force_threads_benchmark_names_bad_flags(args, message):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "force_threads.py"
+    out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
+    assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr
+
+
+def test_force_threads_benchmark_times_each_count():
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "force_threads.py"
+    args = ["--threads", "1", "--agents", "6000", "--repeats", "1"]
+    out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout.strip().splitlines()[-1])
+    assert report["agents"] == 6000 and list(report["ms"]) == ["1"] and report["ms"]["1"] > 0
