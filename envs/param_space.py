@@ -370,9 +370,21 @@ class ParamSpace:
     def values(self, action: Any) -> dict[str, Any]:
         """``{name: value}`` for an action (clipped into ``[-1, 1]``; integer fields as int)."""
         a, _ = self.clip(action)
+        return self.typed({t.name: t.value(a[i]) for i, t in enumerate(self.tunables)})
+
+    def typed(self, values: Mapping[str, Any]) -> dict[str, Any]:
+        """``{name: value}`` of the tuned fields of ``values`` (a mapping with at least those
+        names, e.g. an Optuna trial's ``params``), integer fields as ``int`` (rounded), the
+        others as ``float``.
+
+        >>> space = ParamSpace(extended=True, tracker="pnmc")
+        >>> v = space.typed({**dict.fromkeys(space.names, 1.0), "update_every": 11.0})
+        >>> v["update_every"], v["tau"]
+        (11, 1.0)
+        """
         return {
-            t.name: (int if t.integer else float)(t.value(a[i]))
-            for i, t in enumerate(self.tunables)
+            t.name: int(round(float(values[t.name]))) if t.integer else float(values[t.name])
+            for t in self.tunables
         }
 
     def to_params(self, action: Any) -> Any:
@@ -527,6 +539,12 @@ def load_params(path: str | os.PathLike[str]) -> tuple[str, Any]:
     values = {k: v for k, v in values.items() if k not in ("tracker", "format")}
     try:
         entry = get(name)
+        row = TUNABLES.get(_row_key(entry.params_class()))
+        for t in () if row is None else row.base + row.extra:
+            v = values.get(t.name)
+            # files of releases that wrote tuned integer fields as floats (11.0)
+            if t.integer and isinstance(v, float) and v.is_integer():
+                values[t.name] = int(v)
         return name, entry.make_params(**values)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{p}: {exc}") from None

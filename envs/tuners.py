@@ -708,7 +708,7 @@ def check_tune_out(out: Path, heldout: bool) -> None:
 class TuneResult:
     """What :func:`tune` found and wrote."""
 
-    best_params: dict[str, float]
+    best_params: dict[str, float | int]
     best_value: float
     default_value: float | None
     trials: int
@@ -887,7 +887,7 @@ def _tune_locked(
             st = open_study(url, study_name, objective, sampler, seed, trials)
         ts = complete_trials(st)
         best = max(ts, key=lambda t: t.value)
-        best_values = {k: float(best.params[k]) for k in space.names}
+        best_values = space.typed(best.params)
         defaults = [t for t in ts if t.user_attrs.get("defaults")]
         default_value = float(defaults[0].value) if defaults else None
         files = {"study": url}

@@ -406,3 +406,24 @@ def test_broken_journal_and_files_are_named(tmp_path):
     with pytest.raises(ValueError, match="history.png exists and was not written by crowdsim"):
         tune(objective(), trials=1, out=mine, heldout=0, progress=False)
     assert sorted(p.name for p in mine.iterdir()) == ["history.png"]
+
+
+def test_tuned_integer_fields_are_written_and_read_as_integers(tmp_path):
+    """``update_every`` (an integer tunable of the extended NCC and PNMC rows) reaches
+    best_params.json as 11, not 11.0, and files of earlier releases that wrote 11.0 load as 11."""
+    from crowdsim.cli import main
+
+    spec = tmp_path / "d.json"
+    spec.write_text(json.dumps(dict(TINY)))
+    out = tmp_path / "t"
+    args = ["--scenarios", str(spec), "--tracker", "ncc", "--extended", "--frames", "8"]
+    assert main(["tune", *args, "--no-progress", "--trials", "2", "--train-episodes", "1",
+                 "--heldout", "0", "--out", str(out)]) == 0  # fmt: skip
+    doc = json.loads((out / "best_params.json").read_text())
+    assert type(doc["params"]["update_every"]) is int
+    assert all(type(v) is float for k, v in doc["params"].items() if k != "update_every")
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({"tracker": "pnmc", "params": {"update_every": 11.0, "tau": 0.5}}))
+    name, params = load_params(old)
+    assert name == "pnmc" and type(params.update_every) is int and params.update_every == 11
+    assert params.tau == 0.5
