@@ -831,10 +831,12 @@ class _Strip:
         self.owned = int(own.sum())
         if len(ids) == 0:
             return
-        # numpy allocates the buffers pymunk reads: when they were arrays returned by numba
-        # kernels, 2-worker runs of one seed differed from the first step in about one run in
-        # four (a few hung in pymunk's spatial hash), though their values were equal; the
-        # cause was not found, and 27 runs with numpy's arrays were all identical
+        # numpy allocates the buffers pymunk reads. When they were arrays returned by numba
+        # kernels, 2-worker runs of one seed sometimes differed from the first step (a few
+        # hung in pymunk's spatial hash) though the values were equal; so did runs of the
+        # earlier code with an extra numba array allocated and kept here. Something in a
+        # worker's first step depends on its memory layout; it was not found. As written,
+        # 35 runs (warm and cold numba cache, within and across processes) were identical.
         bodies_in = np.empty((len(ids), 4))
         _pack_bodies(gpos, vel, local, lay.axis, self.rows, bodies_in)
         buf = pb.Buffer()
