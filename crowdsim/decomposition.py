@@ -760,6 +760,7 @@ class _Strip:
         self.shared = SharedState(init["cap"], name=init["shm"])
         self.die_at = int(init["die_at"])
         self.wall_grid = WallGrid(self.world.walls, self.params.cutoff)
+        self.bounds = np.asarray(self.world.bounds, dtype=np.float64)  # xmin, ymin, xmax, ymax
         self.space = self._make_space()
         self.agents = np.zeros(0, np.int64)  # ids of the bodies in the space, ascending
         self.body_id = np.zeros(len(self.static["radius"]), np.int64)  # by agent id
@@ -871,14 +872,13 @@ class _Strip:
         out = pb.Buffer()
         pb.get_space_bodies(self.space, _BODY.POSITION | _BODY.VELOCITY, out)
         bodies = np.frombuffer(out.float_buf(), dtype=np.float64).reshape(-1, 4)
-        bounds = np.asarray(self.world.bounds, dtype=np.float64)
         if not _write_back(
             bodies,
             self.rows[own],
             ids[own],
             wp[own],
             float(lay.period),
-            bounds,
+            self.bounds,
             sh.pos[wb],
             sh.vel[wb],
             sh.wp[wb],
