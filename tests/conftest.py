@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -39,3 +41,15 @@ def slow_jpeg_env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     site = tmp_path_factory.mktemp("slow-jpeg-site")  # outside the test's tmp_path
     (site / "sitecustomize.py").write_text(_SLOW_JPEG.format(delay=0.03))
     return dict(os.environ, PYTHONPATH=os.pathsep.join([str(site), str(ROOT)]))
+
+
+@pytest.fixture()
+def run_benchmark():
+    """``run(name, *args)``: ``benchmarks/<name>`` run with ``args`` in a fresh interpreter,
+    the ``subprocess.CompletedProcess`` with text output."""
+
+    def run(name: str, *args: str) -> subprocess.CompletedProcess[str]:
+        script = ROOT / "benchmarks" / name
+        return subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
+
+    return run

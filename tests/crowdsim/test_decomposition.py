@@ -274,11 +274,6 @@ def test_crowded_strip_is_recut_deterministically_and_keeps_every_agent_once():
         (["--steps", "0"], "--agents, --warmup and --steps must be >= 1"),
     ],
 )
-def test_split_balance_benchmark_names_bad_flags(args, message):
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    script = Path(__file__).resolve().parents[2] / "benchmarks" / "split_balance.py"
-    out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
+def test_split_balance_benchmark_names_bad_flags(run_benchmark, args, message):
+    out = run_benchmark("split_balance.py", *args)
     assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr

@@ -166,25 +166,15 @@ def test_serial_and_parallel_kernels_keep_their_own_cache_entries(tmp_path):
         (["--agents", "0"], "--agents and --repeats must be >= 1"),
     ],
 )
-def test_force_threads_benchmark_names_bad_flags(args, message):
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    script = Path(__file__).resolve().parents[2] / "benchmarks" / "force_threads.py"
-    out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
+def test_force_threads_benchmark_names_bad_flags(run_benchmark, args, message):
+    out = run_benchmark("force_threads.py", *args)
     assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr
 
 
-def test_force_threads_benchmark_times_each_count():
+def test_force_threads_benchmark_times_each_count(run_benchmark):
     import json
-    import subprocess
-    import sys
-    from pathlib import Path
 
-    script = Path(__file__).resolve().parents[2] / "benchmarks" / "force_threads.py"
-    args = ["--threads", "1", "--agents", "6000", "--repeats", "1"]
-    out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
+    out = run_benchmark("force_threads.py", "--threads", "1", "--agents", "6000", "--repeats", "1")
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout.strip().splitlines()[-1])
     assert report["agents"] == 6000 and list(report["ms"]) == ["1"] and report["ms"]["1"] > 0
