@@ -322,37 +322,74 @@ def interruptible() -> Iterator[None]:
 
     A signal that lands while Python code runs inside a C callback -- numba compiling calls
     back into Python through ctypes (llvmlite's object cache) -- raises there, and ctypes
-    swallows the exception ("Exception ignored on calling ctypes callback function"): the
-    signal would be lost and the command run on. The :data:`sys.unraisablehook` installed
-    here sees the swallowed :class:`Interrupted` and has the signal sent again a few
-    milliseconds later, from another thread (sent from the hook, it would raise inside the
-    hook and be swallowed once more), so it is raised once the callback has returned.
+    swallows it ("Exception ignored on calling ctypes callback function"): the signal would
+    be lost and the command run on. The :data:`sys.unraisablehook` installed here sees the
+    swallowed :class:`Interrupted` and asks a watcher thread, started on entry, to send the
+    signal again a few milliseconds later, so it is raised once the callback has returned.
+    A signal that lands inside that hook (the re-sent one, on a loaded machine) is not raised
+    there, where it would be swallowed once more, but handed to the watcher the same way.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
+    resend: list[str] = []  # signal names the watcher must send again
+    wake = threading.Event()
+    active = threading.Lock()  # held while sending, so none is sent once the block is left
+    done = False
+
+    def in_hook(frame: Any) -> bool:
+        while frame is not None:
+            if frame.f_code is unraisable.__code__:
+                return True
+            frame = frame.f_back
+        return False
+
     def handler(signum: int, frame: Any) -> None:
-        raise Interrupted(signal.Signals(signum).name)
+        name = signal.Signals(signum).name
+        if in_hook(frame):
+            resend.append(name)
+            wake.set()
+            return
+        raise Interrupted(name)
 
     def unraisable(info: Any) -> None:
         if isinstance(info.exc_value, Interrupted):
-            again = signal.Signals[info.exc_value.signal_name]
-            timer = threading.Timer(0.005, os.kill, (os.getpid(), again))
-            timer.daemon = True
-            timer.start()
+            resend.append(info.exc_value.signal_name)
+            wake.set()
             return
         old_hook(info)
+
+    def watcher() -> None:
+        while True:
+            wake.wait()
+            wake.clear()
+            if done:
+                return
+            time.sleep(0.005)  # let the callback that swallowed it return first
+            with active:
+                if done:
+                    return
+                if resend:  # once, however often it was swallowed
+                    name = resend[-1]
+                    resend.clear()
+                    os.kill(os.getpid(), signal.Signals[name])
 
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     old_hook = sys.unraisablehook
     sys.unraisablehook = unraisable
+    threading.Thread(target=watcher, name="crowdsim-signal-resend", daemon=True).start()
     try:
         yield
     finally:
-        sys.unraisablehook = old_hook
-        for s, h in old.items():
-            signal.signal(s, h)
+        try:
+            with active:
+                done = True
+            wake.set()
+        finally:  # restored even if a second signal lands here
+            sys.unraisablehook = old_hook
+            for s, h in old.items():
+                signal.signal(s, h)
 
 
 def run_jobs(

@@ -228,3 +228,32 @@ def test_a_signal_swallowed_by_a_c_callback_is_raised_after_it():
             while time.monotonic() < deadline:  # the signal comes again
                 time.sleep(0.001)
     assert caught.value.signal_name == "SIGTERM" and fired
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGTERM") or os.name != "posix", reason="POSIX signals")
+def test_a_signal_that_lands_inside_the_unraisable_hook_is_not_lost(monkeypatch):
+    """The re-sent signal can land while the hook itself still runs (a loaded machine: CI lost
+    a SIGINT that way, "Exception ignored in sys.unraisablehook", and the command ran on). Here
+    the signal lands in the hook deterministically: an unrelated exception swallowed in a
+    __del__ goes on to the previous hook, which sends SIGINT; it must still be raised."""
+    sent = []
+
+    def previous_hook(info):
+        if not sent:
+            sent.append(True)
+            os.kill(os.getpid(), signal.SIGINT)  # handled right here, inside the hook
+
+    monkeypatch.setattr(sys, "unraisablehook", previous_hook)
+
+    class Dropped:
+        def __del__(self):
+            raise ValueError("swallowed by the interpreter")
+
+    with pytest.raises(Interrupted) as caught:
+        with jobs_mod.interruptible():
+            Dropped()  # its __del__ raises: the interpreter calls the hook
+            assert sent
+            deadline = time.monotonic() + 5
+            while time.monotonic() < deadline:  # the signal comes again, from the watcher
+                time.sleep(0.001)
+    assert caught.value.signal_name == "SIGINT"
