@@ -70,7 +70,7 @@ import numpy as np
 import pymunk
 import pymunk.batch as pb
 
-from crowdsim.forces import WallGrid, contact_space, social_force
+from crowdsim.forces import BodyRows, WallGrid, contact_space, social_force
 from crowdsim.params import SocialForceParams
 from crowdsim.world import RouteTable, World
 
@@ -762,6 +762,7 @@ class _Strip:
         self.wall_grid = WallGrid(self.world.walls, self.params.cutoff)
         self.bounds = np.asarray(self.world.bounds, dtype=np.float64)  # xmin, ymin, xmax, ymax
         self.space = self._make_space()
+        self.body_rows = BodyRows(self.space)
         self.agents = np.zeros(0, np.int64)  # ids of the bodies in the space, ascending
         self.body_id = np.zeros(len(self.static["radius"]), np.int64)  # by agent id
         self.shapes: dict[int, tuple[pymunk.Body, pymunk.Circle]] = {}
@@ -840,9 +841,7 @@ class _Strip:
         # 35 runs (warm and cold numba cache, within and across processes) were identical.
         bodies_in = np.empty((len(ids), 4))
         _pack_bodies(gpos, vel, local, lay.axis, self.rows, bodies_in)
-        buf = pb.Buffer()
-        buf.set_float_buf(bodies_in.ravel())
-        pb.set_space_bodies(self.space, _BODY.POSITION | _BODY.VELOCITY, buf)
+        self.body_rows.write(_BODY.POSITION | _BODY.VELOCITY, bodies_in)
         t1 = perf_counter()
         st = self.static
         standing = (time >= st["stop_start"][ids]) & (time < st["stop_end"][ids])
@@ -861,17 +860,13 @@ class _Strip:
         )
         forces = np.empty((len(ids), 2))
         _scatter_scaled(acc, p.mass, self.rows, forces)
-        fbuf = pb.Buffer()
-        fbuf.set_float_buf(forces.ravel())
         t2 = perf_counter()
         sub_dt = p.dt / p.contact_substeps
         for _ in range(int(p.contact_substeps)):
-            pb.set_space_bodies(self.space, _BODY.FORCE, fbuf)  # pymunk clears forces
+            self.body_rows.write(_BODY.FORCE, forces)  # pymunk clears forces
             self.space.step(sub_dt)
         t3 = perf_counter()
-        out = pb.Buffer()
-        pb.get_space_bodies(self.space, _BODY.POSITION | _BODY.VELOCITY, out)
-        bodies = np.frombuffer(out.float_buf(), dtype=np.float64).reshape(-1, 4)
+        bodies = self.body_rows.read(_BODY.POSITION | _BODY.VELOCITY)
         if not _write_back(
             bodies,
             self.rows[own],
@@ -918,9 +913,7 @@ class _Strip:
                 self.body_id[a] = body.id
         if len(gone) or len(new):
             self.agents = ids
-            buf = pb.Buffer()
-            pb.get_space_bodies(self.space, _BODY.BODY_ID, buf)
-            space_ids = np.frombuffer(buf.int_buf(), dtype=np.uintp).astype(np.int64)
+            space_ids = self.body_rows.read_ids()
             sorter = np.argsort(space_ids)
             self.rows = sorter[np.searchsorted(space_ids, self.body_id[ids], sorter=sorter)]
 

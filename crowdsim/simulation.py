@@ -48,7 +48,7 @@ import pymunk
 import pymunk.batch as pb
 
 from crowdsim.checks import require_number
-from crowdsim.forces import WallGrid, contact_space, social_force
+from crowdsim.forces import BodyRows, WallGrid, contact_space, social_force
 from crowdsim.params import SocialForceParams
 from crowdsim.scenarios import Scenario
 from crowdsim.trajectories import Trajectories, TrajectoryRecorder
@@ -202,6 +202,7 @@ class Simulation:
         self._ghost_ids = np.zeros(0, np.int64)
         self._row_of_ghost = np.zeros(0, np.int64)
         self._space = self._make_space()
+        self._rows = BodyRows(self._space)
         self._order_dirty = True
         self._row_of_agent = np.zeros(0, np.int64)
         self._n_rows = 0
@@ -266,14 +267,12 @@ class Simulation:
             )
             forces = np.zeros((self._n_rows, 2))
             forces[self._row_of_agent] = acc * p.mass
-            buf = pb.Buffer()
-            buf.set_float_buf(forces.ravel())
         # Social forces stay fixed over the step; contacts are resolved in sub-steps so that
         # fast head-on encounters do not sink into each other within one 0.04 s move.
         sub_dt = p.dt / p.contact_substeps
         for _ in range(int(p.contact_substeps)):
             if st.n:
-                pb.set_space_bodies(self._space, _BODY.FORCE, buf)  # pymunk clears forces
+                self._rows.write(_BODY.FORCE, forces)  # pymunk clears forces
             self._space.step(sub_dt)
         self.time = (self.steps + 1) * p.dt
         self.steps += 1
@@ -442,14 +441,10 @@ class Simulation:
             return
         if self._order_dirty:
             self._sync_order()
-        buf = pb.Buffer()
-        pb.get_space_bodies(self._space, _BODY.POSITION | _BODY.VELOCITY, buf)
-        rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 4).copy()
+        rows = self._rows.read(_BODY.POSITION | _BODY.VELOCITY).copy()
         rows[self._row_of_agent, :2] = self.state.pos
         rows[self._row_of_agent, 2:] = self.state.vel
-        out = pb.Buffer()
-        out.set_float_buf(rows.ravel())
-        pb.set_space_bodies(self._space, _BODY.POSITION | _BODY.VELOCITY, out)
+        self._rows.write(_BODY.POSITION | _BODY.VELOCITY, rows)
         self._refresh_desired()
 
     def run(self, n_steps: int, progress: bool = False) -> Trajectories | None:
@@ -635,9 +630,7 @@ class Simulation:
 
     def _sync_order(self) -> None:
         """Map pymunk's body iteration order to ours (it changes when bodies are removed)."""
-        buf = pb.Buffer()
-        pb.get_space_bodies(self._space, _BODY.BODY_ID, buf)
-        space_ids = np.frombuffer(buf.int_buf(), dtype=np.uintp).astype(np.int64)
+        space_ids = self._rows.read_ids()
         self._n_rows = len(space_ids)
         sorter = np.argsort(space_ids)
         self._row_of_agent = sorter[np.searchsorted(space_ids, self._body_ids, sorter=sorter)]
@@ -646,9 +639,7 @@ class Simulation:
         self._order_dirty = False
 
     def _read_back(self) -> None:
-        buf = pb.Buffer()
-        pb.get_space_bodies(self._space, _BODY.POSITION | _BODY.VELOCITY, buf)
-        rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 4)
+        rows = self._rows.read(_BODY.POSITION | _BODY.VELOCITY)
         mine = rows[self._row_of_agent]
         self.state.pos = mine[:, :2].copy()
         self.state.vel = mine[:, 2:].copy()
@@ -679,17 +670,13 @@ class Simulation:
 
     def _place_ghosts(self) -> None:
         """Put each ghost one period away from its agent, on the side nearer the seam."""
-        buf = pb.Buffer()
-        pb.get_space_bodies(self._space, _BODY.POSITION | _BODY.VELOCITY, buf)
-        rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 4).copy()
+        rows = self._rows.read(_BODY.POSITION | _BODY.VELOCITY).copy()
         st, period = self.state, self.world.period
         shift = np.where(st.pos[:, 0] < period / 2, period, -period)
         rows[self._row_of_ghost, 0] = st.pos[:, 0] + shift
         rows[self._row_of_ghost, 1] = st.pos[:, 1]
         rows[self._row_of_ghost, 2:] = st.vel
-        out = pb.Buffer()
-        out.set_float_buf(rows.ravel())
-        pb.set_space_bodies(self._space, _BODY.POSITION | _BODY.VELOCITY, out)
+        self._rows.write(_BODY.POSITION | _BODY.VELOCITY, rows)
 
     def _refresh_desired(self) -> None:
         """Desired directions and speeds; agents past their final gate leave here."""
