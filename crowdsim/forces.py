@@ -745,8 +745,9 @@ class BodyRows:
 def _row_width(fields: pb.BodyFields) -> int:
     """Floats per body that ``fields`` read (pymunk.batch's order and widths)."""
     f = pb.BodyFields
-    widths = {f.POSITION: 2, f.ANGLE: 1, f.VELOCITY: 2, f.ANGULAR_VELOCITY: 1}
-    return sum(w for field, w in widths.items() if fields & field) or 1
+    widths = (f.POSITION, 2), (f.ANGLE, 1), (f.VELOCITY, 2), (f.ANGULAR_VELOCITY, 1)
+    widths += (f.FORCE, 2), (f.TORQUE, 1)
+    return sum(w for field, w in widths if fields & field) or 1
 
 
 def _free_buffer(floats: object, ints: object) -> None:
