@@ -18,7 +18,6 @@ All arrays are over the *present* agents, in the simulator's order:
 from __future__ import annotations
 
 import math
-import weakref
 
 import numba as nb
 import numpy as np
@@ -701,10 +700,12 @@ class BodyRows:
     reused for the space's whole life.
 
     :class:`pymunk.batch.Buffer` grows C arrays that nothing frees (pymunk 7.3 gives it no
-    destructor), so a fresh buffer per read leaked the rows every step: +180 MB over 300
+    destructor), so a fresh buffer per read leaked the rows every step: +112 MB over 300
     steps of 10k agents in the one-process simulator (60 bytes an agent a step), gigabytes
-    in a long run of 100k. Here one reading buffer is cleared and refilled, its C arrays freed
-    when this object goes; the writing buffer only ever points at the caller's numpy array.
+    in a long run of 100k. Here one reading buffer is cleared and refilled for the space's
+    whole life; the writing buffer only ever points at the caller's numpy array. (The reading
+    buffer's arrays, one space's rows at their largest, are left to pymunk when this object
+    goes: freeing them here would free them twice once a pymunk release frees its own.)
 
     >>> space = pymunk.Space()
     >>> body = pymunk.Body(1.0, float("inf")); body.position = (1.0, 2.0)
@@ -719,7 +720,6 @@ class BodyRows:
         self.space = space
         self._read = pb.Buffer()
         self._write = pb.Buffer()
-        weakref.finalize(self, _free_buffer, self._read._float_arr, self._read._int_arr)
 
     def read(self, fields: pb.BodyFields) -> np.ndarray:
         """``(bodies, k)`` float rows of ``fields`` (float fields only) in pymunk's body order:
@@ -748,8 +748,3 @@ def _row_width(fields: pb.BodyFields) -> int:
     widths = (f.POSITION, 2), (f.ANGLE, 1), (f.VELOCITY, 2), (f.ANGULAR_VELOCITY, 1)
     widths += (f.FORCE, 2), (f.TORQUE, 1)
     return sum(w for field, w in widths if fields & field) or 1
-
-
-def _free_buffer(floats: object, ints: object) -> None:
-    pb.lib.pmFloatArrayFree(floats)
-    pb.lib.pmIntArrayFree(ints)
