@@ -222,6 +222,7 @@ class MotionCompensator:
     def reset(self) -> None:
         """Forget the previous frame (the next estimate is the identity)."""
         self._prev: np.ndarray | None = None
+        self._prev_contrast = 0.0
         self.frames = 0
         self.failures = 0
         self.seconds = 0.0
@@ -260,6 +261,10 @@ class MotionCompensator:
             size = (max(1, w // p.downscale), max(1, h // p.downscale))
             grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
         prev, self._prev = self._prev, grey
+        # each frame's contrast once, kept for the next estimate (numpy's std of both frames
+        # took 0.07 ms of seq8's 1.0-1.4 ms estimate; OpenCV's of one, 0.006)
+        contrast = float(cv2.meanStdDev(grey)[1][0, 0])
+        prev_contrast, self._prev_contrast = self._prev_contrast, contrast
         self.frames += 1
         a = IDENTITY.copy()
         if prev is not None:
@@ -269,7 +274,7 @@ class MotionCompensator:
                 )
             found = None
             # a blank or constant frame (either of the two) holds no motion to measure
-            if min(float(prev.std()), float(grey.std())) >= p.min_contrast:
+            if min(prev_contrast, contrast) >= p.min_contrast:
                 mask = self._mask(prev.shape, exclude, exclude_px)
                 fit = self._sparse if p.method == "sparse" else self._ecc
                 found = fit(prev, grey, mask)
