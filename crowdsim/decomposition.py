@@ -767,6 +767,7 @@ class _Strip:
         self.body_id = np.zeros(len(self.static["radius"]), np.int64)  # by agent id
         self.shapes: dict[int, tuple[pymunk.Body, pymunk.Circle]] = {}
         self.rows = np.zeros(0, np.int64)  # pymunk row of each body in self.agents
+        self.n_rows = 0  # pymunk's rows: the agents' bodies and the static body of the walls
         self.stage_s = np.zeros(len(STRIP_STAGES))  # seconds of the last step, per stage
         self.owned = 0  # agents this strip owned at the start of the last step
 
@@ -833,13 +834,12 @@ class _Strip:
         self.owned = int(own.sum())
         if len(ids) == 0:
             return
-        # numpy allocates the buffers pymunk reads. When they were arrays returned by numba
-        # kernels, 2-worker runs of one seed sometimes differed from the first step (a few
-        # hung in pymunk's spatial hash) though the values were equal; so did runs of the
-        # earlier code with an extra numba array allocated and kept here. Something in a
-        # worker's first step depends on its memory layout; it was not found. As written,
-        # 35 runs (warm and cold numba cache, within and across processes) were identical.
-        bodies_in = np.empty((len(ids), 4))
+        # Every row pymunk has, the walls' static body's included: zeros there, its place and
+        # velocity. (With one row per agent, pymunk read the static body's row from past the
+        # buffer's end: whatever the heap held there set the walls' velocity, so 2-worker runs
+        # of one seed differed from the first step depending on the worker's memory, and a few
+        # hung in pymunk's spatial hash.)
+        bodies_in = np.zeros((self.n_rows, 4))
         _pack_bodies(gpos, vel, local, lay.axis, self.rows, bodies_in)
         self.body_rows.write(_BODY.POSITION | _BODY.VELOCITY, bodies_in)
         t1 = perf_counter()
@@ -858,7 +858,7 @@ class _Strip:
             lay.period,
             self.wall_grid,
         )
-        forces = np.empty((len(ids), 2))
+        forces = np.zeros((self.n_rows, 2))
         _scatter_scaled(acc, p.mass, self.rows, forces)
         t2 = perf_counter()
         sub_dt = p.dt / p.contact_substeps
@@ -916,6 +916,7 @@ class _Strip:
             space_ids = self.body_rows.read_ids()
             sorter = np.argsort(space_ids)
             self.rows = sorter[np.searchsorted(space_ids, self.body_id[ids], sorter=sorter)]
+            self.n_rows = len(space_ids)
 
     def close(self) -> None:
         self.shared.close()

@@ -720,23 +720,39 @@ class BodyRows:
         self.space = space
         self._read = pb.Buffer()
         self._write = pb.Buffer()
+        self._seen: int | None = None  # bodies the last read found
 
     def read(self, fields: pb.BodyFields) -> np.ndarray:
         """``(bodies, k)`` float rows of ``fields`` (float fields only) in pymunk's body order:
         a view of the reading buffer, valid until the next :meth:`read` or :meth:`read_ids`."""
         self._read.clear()
         pb.get_space_bodies(self.space, fields, self._read)
-        flat = np.frombuffer(self._read.float_buf(), dtype=np.float64)
-        return flat.reshape(-1, _row_width(fields))
+        rows = np.frombuffer(self._read.float_buf(), dtype=np.float64).reshape(
+            -1, _row_width(fields)
+        )
+        self._seen = len(rows)
+        return rows
 
     def read_ids(self) -> np.ndarray:
         """``(bodies,)`` int64 ``Body.id`` of each body, in pymunk's body order (a copy)."""
         self._read.clear()
         pb.get_space_bodies(self.space, pb.BodyFields.BODY_ID, self._read)
-        return np.frombuffer(self._read.int_buf(), dtype=np.uintp).astype(np.int64)
+        ids = np.frombuffer(self._read.int_buf(), dtype=np.uintp).astype(np.int64)
+        self._seen = len(ids)
+        return ids
 
     def write(self, fields: pb.BodyFields, rows: np.ndarray) -> None:
-        """Set ``fields`` of every body from ``rows (bodies, k)`` float64, in pymunk's order."""
+        """Set ``fields`` of every body from ``rows (bodies, k)`` float64, in pymunk's order.
+
+        pymunk reads one row per body it iterates, with no bound: fewer rows, and it reads
+        past the array's end. Its bodies include the space's static body once a static
+        shape (a wall) hangs on it, so a space of ``n`` agents between walls has ``n + 1``
+        rows; ``rows`` must have as many as the last :meth:`read` or :meth:`read_ids` saw.
+        """
+        if self._seen is not None and len(rows) != self._seen:
+            raise ValueError(
+                f"BodyRows.write: {len(rows)} rows for the {self._seen} bodies pymunk iterates"
+            )
         flat = np.ascontiguousarray(rows, dtype=np.float64).reshape(-1)
         self._write.set_float_buf(flat)
         pb.set_space_bodies(self.space, fields, self._write)

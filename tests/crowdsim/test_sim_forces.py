@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from crowdsim.forces import WallGrid, social_force
+from crowdsim.forces import BodyRows, WallGrid, contact_space, social_force
 from crowdsim.params import SocialForceParams
 from crowdsim.world import polyline, rectangle
 
@@ -178,3 +178,32 @@ def test_force_threads_benchmark_times_each_count(run_benchmark):
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout.strip().splitlines()[-1])
     assert report["agents"] == 6000 and list(report["ms"]) == ["1"] and report["ms"]["1"] > 0
+
+
+def test_body_rows_count_the_walls_static_body_and_refuse_a_short_write():
+    """Once a wall hangs on the space's static body, pymunk's batch API iterates that body
+    too: n agents between walls are n + 1 rows. The split workers wrote n, and pymunk read the
+    static body's row from past the array's end, so whatever the heap held there became the
+    walls' velocity (2-worker runs of one seed differed from the first step, depending on the
+    worker's memory). A short write is now refused, naming the counts."""
+    import pymunk
+    import pymunk.batch as pb
+
+    walls = np.array([[0.0, 0.0, 10.0, 0.0, 0.05]])
+    space = contact_space(SocialForceParams(), walls)
+    for x in (1.0, 2.0, 3.0):
+        body = pymunk.Body(80.0, float("inf"))
+        body.position = (x, 1.0)
+        space.add(body, pymunk.Circle(body, 0.25))
+    io = BodyRows(space)
+    fields = pb.BodyFields.POSITION | pb.BodyFields.VELOCITY
+    rows = io.read(fields).copy()
+    assert rows.shape == (4, 4)  # three agents and the static body, at rest at the origin
+    static = io.read_ids() == space.static_body.id
+    assert static.sum() == 1 and (rows[static] == 0).all()
+    with pytest.raises(ValueError, match=r"BodyRows.write: 3 rows for the 4 bodies"):
+        io.write(fields, rows[~static])
+    rows[~static, 2] = 1.0
+    io.write(fields, rows)
+    assert space.static_body.velocity == (0.0, 0.0)
+    assert [b.velocity.x for b in space.bodies] == [1.0, 1.0, 1.0]
