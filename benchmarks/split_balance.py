@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 
@@ -87,6 +86,7 @@ def plot(rows: list[dict], path: str) -> None:
 
 
 def main() -> int:
+    from crowdsim.checks import require_cpus
     from crowdsim.decomposition import BALANCE_EVERY
     from crowdsim.scenarios import SCENARIOS
 
@@ -103,10 +103,10 @@ def main() -> int:
         help="bars of steps/s, fixed against re-cut (default benchmarks/out/split_balance.png)",
     )
     args = ap.parse_args()
-    cpus = os.cpu_count() or 1
-    bad = [w for w in args.workers if not 2 <= w <= cpus]
-    if bad:
-        ap.error(f"--workers must be in [2, {cpus}] (os.cpu_count()), got {bad[0]}")
+    try:
+        require_cpus("--workers", args.workers, lo=2)
+    except ValueError as exc:
+        ap.error(str(exc))
     unknown = [s for s in args.scenarios if s not in SCENARIOS]
     if unknown:
         ap.error(f"--scenarios: unknown {unknown[0]!r}; choose from {', '.join(SCENARIOS)}")

@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
-import os
 import time
 
 import numba
@@ -173,6 +172,8 @@ def plot(rows: list[dict], path: str) -> None:
 
 
 def main() -> int:
+    from crowdsim.checks import require_cpus
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--workers", type=int, nargs="+", default=[2, 4])
     ap.add_argument("--agents", type=int, default=100_000)
@@ -186,10 +187,10 @@ def main() -> int:
         help="stacked bars of each worker count's step (default benchmarks/out/split_profile.png)",
     )
     args = ap.parse_args()
-    cpus = os.cpu_count() or 1
-    bad = [w for w in args.workers if not 1 <= w <= cpus]
-    if bad:
-        ap.error(f"--workers must be in [1, {cpus}] (os.cpu_count()), got {bad[0]}")
+    try:
+        require_cpus("--workers", args.workers)
+    except ValueError as exc:
+        ap.error(str(exc))
     if min(args.agents, args.warmup, args.steps) < 1:
         ap.error("--agents, --warmup and --steps must be >= 1")
     from crowdsim.progress import progress_bar

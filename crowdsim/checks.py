@@ -64,6 +64,21 @@ def require_number(
         )
 
 
+def require_cpus(flag: str, values: Any, lo: int = 1) -> None:
+    """Raise ``ValueError("<flag> must be in [lo, cpus] (os.cpu_count()), got <first bad>")``
+    unless every count of ``values`` (an int or a sequence of them) is within the cores.
+
+    >>> require_cpus("--workers", [1, 10**6])
+    Traceback (most recent call last):
+    ...
+    ValueError: --workers must be in [1, ...] (os.cpu_count()), got 1000000
+    """
+    cpus = os.cpu_count() or 1
+    bad = [v for v in np.atleast_1d(values).tolist() if not lo <= v <= cpus]
+    if bad:
+        raise ValueError(f"{flag} must be in [{lo}, {cpus}] (os.cpu_count()), got {bad[0]}")
+
+
 def require_choice(owner: str, name: str, value: Any, choices: tuple[Any, ...]) -> None:
     """Raise ``ValueError`` unless ``value`` is one of ``choices``."""
     if value not in choices:

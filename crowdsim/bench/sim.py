@@ -382,14 +382,11 @@ def _parse_sizes(text: str) -> list[int]:
 
 
 def _parse_workers(values: list[int] | None, flag: str = "--workers") -> list[int]:
-    import os
+    from crowdsim.checks import require_cpus
 
     if values is None:
         return []
-    cpus = os.cpu_count() or 1
-    bad = [w for w in values if not 1 <= w <= cpus]
-    if bad:
-        raise ValueError(f"{flag} must be in [1, {cpus}] (os.cpu_count()), got {bad[0]}")
+    require_cpus(flag, values)
     return sorted(set(values) | {1})
 
 

@@ -122,14 +122,11 @@ trajectories (16 B) and the summary's velocities and speeds (24 B)."""
 
 def check_args(args: argparse.Namespace) -> None:
     """Validate the flags before anything is simulated; errors name the flag and the value."""
-    import os
 
-    from crowdsim.checks import require_memory, require_output_file
+    from crowdsim.checks import require_cpus, require_memory, require_output_file
     from crowdsim.scenarios import MAX_AGENTS
 
-    cpus = os.cpu_count() or 1
-    if not 1 <= args.workers <= cpus:
-        raise ValueError(f"--workers must be in [1, {cpus}] (os.cpu_count()), got {args.workers}")
+    require_cpus("--workers", args.workers)
     if not 1 <= args.agents <= MAX_AGENTS:
         raise ValueError(f"--agents must be in [1, {MAX_AGENTS}], got {args.agents}")
     if args.steps < 0:
