@@ -329,6 +329,77 @@ def test_proximity_links_exactly_the_pairs_within_reach(n, k, seed, span):
     np.testing.assert_array_equal(off != 0, linked)
 
 
+@settings(max_examples=60, deadline=None)
+@given(
+    n=st.integers(2, 6),
+    k=st.integers(1, 8),
+    seed=st.integers(0, 2**32 - 1),
+    span=st.sampled_from([6, 12, 30]),
+    offsets=st.booleans(),
+)
+def test_grouping_links_exactly_the_pairs_within_reach(n, k, seed, span, offsets):
+    """Along the tree edges, every candidate pair whose deviation from the edge's length
+    (``| |p_i - p_j| - e |``, Eq. 10) or offset (``|p_i - p_j - e|``) is within the cutoff,
+    boundary included (integer points and lengths), gets an entry, and no other: skipping
+    the candidates whose partner's box is out of reach must not lose one."""
+    rng = np.random.default_rng(seed)
+    cand = rng.integers(0, span, (n, k, 2)).astype(np.float64)
+    edges = np.array([[i, i + 1] for i in range(n - 1)] + ([[n - 1, 0]] if n > 2 else []))
+    if offsets:
+        ref = rng.integers(-span, span + 1, (len(edges), 2)).astype(np.float64)
+    else:
+        ref = rng.integers(0, span + 1, len(edges)).astype(np.float64)
+    q = grouping_matrix(cand, edges, ref, sigma=2.5, cutoff=2.0)  # reach 5 px
+    p = cand.reshape(-1, 2)
+    linked = np.zeros((n * k, n * k), bool)
+    for (a, b), e in zip(edges, ref, strict=True):
+        lo, hi = (a, b) if a < b else (b, a)
+        e = (e if a < b else -e) if offsets else e
+        for i in range(k):
+            for j in range(k):
+                dx = p[lo * k + i, 0] - p[hi * k + j, 0]
+                dy = p[lo * k + i, 1] - p[hi * k + j, 1]
+                if offsets:
+                    dev2 = (dx - e[0]) ** 2 + (dy - e[1]) ** 2
+                else:
+                    dev2 = (np.sqrt(dx * dx + dy * dy) - e) ** 2
+                if dev2 <= 25.0:
+                    linked[lo * k + i, hi * k + j] = linked[hi * k + j, lo * k + i] = True
+    off = q.toarray() * (1 - np.eye(n * k))
+    np.testing.assert_array_equal(off != 0, linked)
+
+
+@pytest.mark.parametrize(
+    ("b_points", "ref"),
+    [
+        ([[3.0, 4.0]], [0.0]),  # lengths: a deviation of 5, on the cutoff (the box a point)
+        ([[6.0, 8.0]], [15.0]),  # |10 - 15| = 5, from below
+        ([[3.0, 4.0], [9.0, 0.0]], [0.0]),  # deviations 5 and 9
+        ([[6.0, 8.0], [0.0, 1.0]], [5.0]),  # |10 - 5| = 5 (on it) and |1 - 5| = 4
+        ([[0.0, 0.5], [0.0, 12.0]], [5.5]),  # |0.5 - 5.5| = 5 from below, and 6.5
+        ([[0.0, 0.0], [6.0, 8.0], [9.0, 9.0]], [-3.0, -4.0]),  # offsets: 5, 5 and 13
+    ],
+)
+def test_grouping_pairs_on_the_cutoff_are_linked(b_points, ref):
+    """Candidate pairs exactly on the cutoff (a reach of 5 px) are linked and those beyond
+    it are not, whatever the partner's candidate box: the box test that skips candidates
+    must not round a pair on the boundary away."""
+    b = np.array(b_points)
+    k = len(b)
+    cand = np.stack([np.zeros((k, 2)), b])  # target 0: k copies of the origin
+    e = np.array(ref)
+    q = grouping_matrix(cand, np.array([[0, 1]]), e[None] if len(e) == 2 else e, 2.5, 2.0)
+    dense = q.toarray()
+    on_cutoff = 0
+    for j in range(k):
+        d = -b[j]  # p_a - p_b
+        dev2 = ((d - e) ** 2).sum() if len(e) == 2 else (np.sqrt((d * d).sum()) - e[0]) ** 2
+        on_cutoff += dev2 == 25.0
+        for i in range(k):  # every copy of the origin alike
+            assert (dense[i, k + j] != 0) == (dev2 <= 25.0), (i, j, dev2)
+    assert on_cutoff >= 1
+
+
 def _crowd_terms(components: bool = True):
     """A crowd of 300 targets in three separate clusters, with tree edges inside them."""
     rng = np.random.default_rng(11)

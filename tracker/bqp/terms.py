@@ -373,6 +373,35 @@ def _pair_exponents(cand, a, i, b, j, flag, rx, ry, mode_g, inv_s, reach2_s, inv
     return s, g
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _may_link(dlo, dhi, elo, ehi, flag, rx, ry, mode_g, reach2_s, reach2_g):
+    """Whether some ``(dx, dy)`` with ``dx`` in ``[dlo, dhi]`` and ``dy`` in ``[elo, ehi]``
+    can give an entry (:func:`_pair_exponents`: a finite ``S`` or ``Gamma`` exponent).
+
+    The intervals bound the differences ``p_a,i - p_b,j`` of one candidate against all of the
+    other target's (its candidate box), computed with the same subtractions as the entries:
+    rounding is monotone, so every bound below holds for the rounded values too and
+    ``False`` is exact (no entry is lost), not an approximation.
+    """
+    gx = max(0.0, max(dlo, -dhi))  # the smallest |dx|
+    gy = max(0.0, max(elo, -ehi))
+    if (flag & 1) != 0:
+        if gx * gx + gy * gy <= reach2_s:
+            return True
+    if (flag & 2) != 0:
+        if mode_g == 1:
+            # |p_i - p_j| - e lies between the box's nearest and farthest distances less e
+            mx = max(abs(dlo), abs(dhi))
+            my = max(abs(elo), abs(ehi))
+            lo = np.sqrt(gx * gx + gy * gy) - rx
+            hi = np.sqrt(mx * mx + my * my) - rx
+            return not ((lo > 0.0 and lo * lo > reach2_g) or (hi < 0.0 and hi * hi > reach2_g))
+        ex = max(0.0, max(dlo - rx, -(dhi - rx)))
+        ey = max(0.0, max(elo - ry, -(ehi - ry)))
+        return ex * ex + ey * ey <= reach2_g
+    return False
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _pair_entries(
     cand,
@@ -416,7 +445,29 @@ def _pair_entries(
                 offsets[p + 1] = 0
                 continue
         m = offsets[p] if fill else 0
+        rx = ref[p, 0]
+        ry = ref[p, 1]
+        # only the candidates of a with b's candidate box in reach are paired (skipping the
+        # others' rows halved the counting pass on packed frames)
+        rows = np.empty(k, np.bool_)
         for i in range(k):
+            xi = cand[a, i, 0]
+            yi = cand[a, i, 1]
+            rows[i] = _may_link(
+                xi - box[b, 2],
+                xi - box[b, 0],
+                yi - box[b, 3],
+                yi - box[b, 1],
+                flags[p],
+                rx,
+                ry,
+                mode_g,
+                reach2_s,
+                reach2_g,
+            )
+        for i in range(k):
+            if not rows[i]:
+                continue
             for j in range(k):
                 s, g = _pair_exponents(
                     cand,
@@ -425,8 +476,8 @@ def _pair_entries(
                     b,
                     j,
                     flags[p],
-                    ref[p, 0],
-                    ref[p, 1],
+                    rx,
+                    ry,
                     mode_g,
                     inv_s,
                     reach2_s,
