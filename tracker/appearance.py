@@ -92,6 +92,19 @@ def _patches_f32(frame, top_left, size, out):
                         out[i, c, v, u] = np.float32(frame[y, min(max(x0 + u, 0), w - 1), c])
 
 
+@njit(cache=True, nogil=True, parallel=True)
+def _centre_and_window(x, mean, window):
+    """``x[i, c] = (x[i, c] - mean[i, c]) * window`` in float32, in place, one patch per loop
+    iteration: numpy's ``x -= mean; x *= window`` in one pass over the patches, with the same
+    two roundings per value (so the same values, bit for bit)."""
+    for i in prange(x.shape[0]):
+        for c in range(x.shape[1]):
+            m = mean[i, c]
+            for v in range(x.shape[2]):
+                for u in range(x.shape[3]):
+                    x[i, c, v, u] = (x[i, c, v, u] - m) * window[v, u]
+
+
 def hann2d(size: int) -> np.ndarray:
     """``(size, size)`` float32 cosine (Hann) window, as KCF multiplies its patches by."""
     win = np.hanning(size + 2)[1:-1]
@@ -128,6 +141,32 @@ def _blend_rows(dst, rows, src, rate):
         r = rows[q]
         for e in range(dst.shape[1]):
             dst[r, e] = keep * dst[r, e] + rate * src[q, e]
+
+
+@njit(cache=True, nogil=True)
+def _compact_rows(a, index):
+    """``a[q] = a[index[q]]`` for a strictly ascending ``index``, in place: a row only ever
+    moves towards the front, over rows already moved or dropped (:meth:`KCFAppearance.keep`
+    without a copy of the models)."""
+    for q in range(index.shape[0]):
+        r = index[q]
+        if r != q:
+            for e in range(a.shape[1]):
+                a[q, e] = a[r, e]
+
+
+def _appended(buf: np.ndarray | None, rows: np.ndarray, new: np.ndarray):
+    """``rows`` with ``new`` appended, as the leading rows of ``buf`` (grown by a quarter when
+    full, so appending a few targets a frame does not copy every model each time): returns
+    ``(rows, buf)``. ``rows`` must be ``buf``'s leading rows (a view); anything else (a copy
+    of the tracker, say) starts a new buffer."""
+    n, m = rows.shape[0], new.shape[0]
+    if buf is None or rows.base is not buf or buf.shape[0] < n + m:
+        grown = np.empty((n + m + (n + m) // 4 + 16,) + rows.shape[1:], rows.dtype)
+        grown[:n] = rows
+        buf = grown
+    buf[n : n + m] = new
+    return buf[: n + m], buf
 
 
 def _channel_sum(a: np.ndarray) -> np.ndarray:
@@ -242,6 +281,9 @@ class KCFAppearance(AppearanceModel):
         self._colw = colw
         self.xf = np.zeros((0, 3, w, wf), np.complex64)
         self.alphaf = np.zeros((0, w, wf), np.complex64)
+        # the models are the leading rows of these (see _appended)
+        self._xf_buf: np.ndarray | None = None
+        self._alphaf_buf: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -262,8 +304,8 @@ class KCFAppearance(AppearanceModel):
         # channels first, C order: the reductions and FFTs below are ~10x faster on it
         x = np.empty((n, c, w, w), np.float32)
         _patches_f32(frame, np.ascontiguousarray(centers - w // 2), w, x)
-        x -= x.reshape(n, c, -1).mean(axis=2)[:, :, None, None]
-        x *= self._train_window if train else self._hann_scaled
+        mean = x.reshape(n, c, -1).mean(axis=2)  # numpy's float32 pairwise sums
+        _centre_and_window(x, mean, self._train_window if train else self._hann_scaled)
         return scipy.fft.rfft2(x, axes=(-2, -1), workers=self._workers())
 
     def _energy(self, xf: np.ndarray) -> np.ndarray:
@@ -281,14 +323,16 @@ class KCFAppearance(AppearanceModel):
             xf.reshape(n, c, -1), np.ascontiguousarray(zf).reshape(n, c, -1), cross.reshape(n, -1)
         )
         if self.kernel == "linear":
-            return (cross / numel).astype(np.complex64)
+            return (cross / numel).astype(np.complex64, copy=False)
         xz = scipy.fft.irfft2(cross, s=(w, w), axes=(-2, -1), workers=self._workers())
         d = self._energy(xf)[:, None, None] + self._energy(zf)[:, None, None] - 2.0 * xz
         k = np.exp(-np.maximum(d, 0.0) / (numel * np.float32(self.kernel_sigma**2)))
         return scipy.fft.rfft2(k.astype(np.float32), axes=(-2, -1), workers=self._workers())
 
     def _train(self, xf: np.ndarray) -> np.ndarray:
-        return (self._yf / (self._kernel_f(xf, xf) + np.float32(self.lam))).astype(np.complex64)
+        return (self._yf / (self._kernel_f(xf, xf) + np.float32(self.lam))).astype(
+            np.complex64, copy=False
+        )
 
     def add(self, frame: np.ndarray, centers: np.ndarray) -> None:
         frame = _check_frame(frame)
@@ -296,13 +340,27 @@ class KCFAppearance(AppearanceModel):
         if len(centers) == 0:
             return
         xf = self._features(frame, centers, train=True)
-        self.xf = np.concatenate([self.xf, xf.astype(np.complex64)])
-        self.alphaf = np.concatenate([self.alphaf, self._train(xf)])
+        alphaf = self._train(xf)
+        self.xf, self._xf_buf = _appended(self._xf_buf, self.xf, xf)
+        self.alphaf, self._alphaf_buf = _appended(self._alphaf_buf, self.alphaf, alphaf)
 
     def keep(self, index: np.ndarray) -> None:
-        index = np.asarray(index, dtype=np.int64)
-        self.xf = self.xf[index]
-        self.alphaf = self.alphaf[index]
+        index = np.asarray(index, dtype=np.int64).reshape(-1)
+        n, m = self.n, len(index)
+        ascending = (
+            m > 0 and index[0] >= 0 and index[-1] < n and bool((index[1:] > index[:-1]).all())
+        )
+        if not ascending:  # any other order (or none kept): a copy
+            self.xf = self.xf[index]
+            self.alphaf = self.alphaf[index]
+            return
+        # the usual case, tracks ending: the kept rows move forward in place
+        self.xf = np.ascontiguousarray(self.xf)
+        self.alphaf = np.ascontiguousarray(self.alphaf)
+        _compact_rows(self.xf.reshape(n, -1), index)
+        _compact_rows(self.alphaf.reshape(n, -1), index)
+        self.xf = self.xf[:m]
+        self.alphaf = self.alphaf[:m]
 
     def scores(self, frame: np.ndarray, centers: np.ndarray) -> np.ndarray:
         frame = _check_frame(frame)

@@ -62,6 +62,48 @@ def test_kcf_batch_equals_single_target_models():
         )
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_kcf_models_grow_and_shrink_in_place_as_by_copies(seed):
+    """Adding, ending (any subset, in order or not) and updating targets in any sequence
+    leaves the models equal bit for bit to plain concatenation and indexing (the buffer
+    with spare rows and the in-place compaction change no value); a deep copy of the model
+    (as a branched tracker is) goes on independently of the original."""
+    import copy
+
+    rng = np.random.default_rng(seed)
+    frame = rng.integers(0, 256, (90, 120, 3), dtype=np.uint8)
+    model = KCFAppearance(10, 4)
+    xf = np.zeros((0,) + model.xf.shape[1:], np.complex64)
+    alphaf = np.zeros((0,) + model.alphaf.shape[1:], np.complex64)
+    for _ in range(24):
+        op = rng.integers(0, 4)
+        if op == 0 or model.n == 0:
+            centers = rng.integers(0, 100, (int(rng.integers(1, 7)), 2))
+            probe = KCFAppearance(10, 4)
+            probe.add(frame, centers)
+            xf = np.concatenate([xf, probe.xf])
+            alphaf = np.concatenate([alphaf, probe.alphaf])
+            model.add(frame, centers)
+        elif op == 1:
+            index = np.flatnonzero(rng.random(model.n) < 0.7)
+            xf, alphaf = xf[index], alphaf[index]
+            model.keep(index)
+        elif op == 2:
+            index = rng.permutation(model.n)[: max(1, model.n // 2)]
+            xf, alphaf = xf[index], alphaf[index]
+            model.keep(index)
+        else:
+            model = copy.deepcopy(model)  # what branching a tracker does
+        np.testing.assert_array_equal(model.xf, xf)
+        np.testing.assert_array_equal(model.alphaf, alphaf)
+    centers = rng.integers(0, 100, (model.n, 2))
+    before = model.scores(frame, centers)
+    branch = copy.deepcopy(model)
+    branch.add(frame, centers[:2])
+    branch.keep(np.arange(1, branch.n))
+    np.testing.assert_array_equal(model.scores(frame, centers), before)
+
+
 @pytest.mark.parametrize("cls", MODELS)
 def test_update_only_when_confident(cls):
     sc, vel = _shifted_scene()
