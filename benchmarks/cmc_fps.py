@@ -20,7 +20,7 @@ import argparse
 import json
 
 
-def measure(spec, tracker: str, corners: list[int], rounds: int) -> dict:
+def measure(spec, tracker: str, corners: list[int], rounds: int, redetect: float = 1.0) -> dict:
     """Best frames/s, ``cmc`` ms a frame and acc@15 of ``tracker`` on ``spec`` per setting."""
     from synth_data.sequence import InMemorySequence
     from tracker.cmc import CMCParams
@@ -34,7 +34,7 @@ def measure(spec, tracker: str, corners: list[int], rounds: int) -> dict:
 
             def prepare(trk, _source, c=c):
                 if c is not None:
-                    trk.cmc_settings = CMCParams(max_corners=c)
+                    trk.cmc_settings = CMCParams(max_corners=c, redetect=redetect)
 
             run = run_tracker(
                 tracker, seq, params={"cmc": c is not None}, metrics="accuracy", prepare=prepare
@@ -59,6 +59,12 @@ def main() -> int:
     ap.add_argument("--tracker", default="bqp", help="a registered detection-free tracker")
     ap.add_argument("--corners", nargs="+", type=int, default=[100], metavar="N")
     ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument(
+        "--redetect",
+        type=float,
+        default=1.0,
+        help="CMCParams.redetect: 1 detects corners on every frame, below 1 tracks them forward",
+    )
     args = ap.parse_args()
     if args.rounds < 1:
         ap.error(f"--rounds must be >= 1, got {args.rounds}")
@@ -68,9 +74,9 @@ def main() -> int:
 
     for c in args.corners:
         try:
-            CMCParams(max_corners=c)
+            CMCParams(max_corners=c, redetect=args.redetect)
         except ValueError as exc:
-            ap.error(f"--corners {c}: {exc}")
+            ap.error(f"--corners {c} --redetect {args.redetect}: {exc}")
     try:
         if "cmc" not in get(args.tracker).field_names():
             ap.error(f"--tracker {args.tracker!r} has no camera-motion compensation (cmc)")
@@ -82,7 +88,7 @@ def main() -> int:
     head = "".join(f"{n:>24}" for n in names)
     print(f"{'sequence':<10}{'size':>11}{'people':>7}{head}   (frames/s, cost, cmc ms a frame)")
     for spec in specs:
-        r = rows[spec.name] = measure(spec, args.tracker, args.corners, args.rounds)
+        r = rows[spec.name] = measure(spec, args.tracker, args.corners, args.rounds, args.redetect)
         cells = f"{r['off']['fps']:>24.1f}" + "".join(
             f"{r[n]['fps']:>10.1f}{-100 * r[n]['fps_cost']:>+6.0f} %{r[n]['cmc_ms']:>5.1f} ms"
             for n in names[1:]
@@ -91,7 +97,13 @@ def main() -> int:
         print(f"{spec.name:<10}{size:>11}{r['people']:>7}{cells}")
     print(
         json.dumps(
-            {"suite": args.suite, "tracker": args.tracker, "rounds": args.rounds, "sequences": rows}
+            {
+                "suite": args.suite,
+                "tracker": args.tracker,
+                "rounds": args.rounds,
+                "redetect": args.redetect,
+                "sequences": rows,
+            }
         )
     )
     return 0

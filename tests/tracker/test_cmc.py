@@ -141,6 +141,38 @@ def test_estimate_recovers_the_planted_camera_motion(method, downscale, tol):
     assert cmc.failures == 0 and cmc.frames == len(sc.frames)
 
 
+def test_corners_tracked_forward_recover_the_motion_with_fewer_detections(monkeypatch):
+    """``redetect < 1`` carries the inlier corners into the next estimate (KLT): Shi-Tomasi
+    runs on a few frames only, and every estimate stays within the 0.3 px of the
+    every-frame detection's test above; the default detects on every frame."""
+    import cv2
+
+    calls = []
+    detect = cv2.goodFeaturesToTrack
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return detect(*args, **kwargs)
+
+    monkeypatch.setattr(cv2, "goodFeaturesToTrack", counted)
+    sc = shaken_scene(shape=(240, 320), seed=1)
+    h, w = sc.frames[0].shape[:2]
+    corners = np.array([[0.0, 0.0], [w - 1, 0.0], [0.0, h - 1], [w - 1, h - 1]])
+    for redetect, most in ((1.0, len(sc.frames) - 1), (0.5, (len(sc.frames) - 1) // 3)):
+        calls.clear()
+        cmc = MotionCompensator(CMCParams(redetect=redetect))
+        cmc.estimate(sc.frames[0])
+        for t in range(1, len(sc.frames)):
+            prev = sc.points[t - 1][np.isfinite(sc.points[t - 1]).all(1)]
+            a = cmc.estimate(sc.frames[t], exclude=prev, exclude_px=2 * sc.template_size)
+            err = np.abs(warp_points(a, corners) - warp_points(sc.planted[t - 1], corners)).max()
+            assert err < 0.3, (redetect, t, err)
+        assert cmc.failures == 0
+        assert 1 <= len(calls) <= most, (redetect, len(calls))
+        if redetect == 1.0:
+            assert len(calls) == len(sc.frames) - 1
+
+
 def test_estimate_recovers_the_renderers_shake(shaky_crowd):
     """On a rendered shaken crowd the estimate follows the planted shake, which moves the
     ground and the people alike (crowdsim/render.py), within 0.4 px on every frame
