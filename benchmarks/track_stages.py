@@ -22,8 +22,13 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
 
-import numba
+# as the ``crowdsim`` command sets it (crowdsim/cli.py): numba's OpenMP threads sleep
+# between parallel regions instead of spinning on the cores the FFT workers need
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numba  # noqa: E402
 
 STAGES = {"bqp": ("appearance", "terms", "solve"), "pnmc": ("queens", "appearance", "update")}
 """The stages each tracker times (``Tracker._tick``), in the order of a frame."""
