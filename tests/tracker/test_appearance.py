@@ -163,6 +163,22 @@ def test_kcf_patches_are_extract_patches_as_float32(size):
     np.testing.assert_array_equal(out, extract_patches(frame, corners, size).astype(np.float32))
 
 
+def test_kcf_centring_and_windowing_is_numpys_bit_for_bit():
+    """The one-pass compiled ``(x - mean) * window`` equals numpy's ``x -= mean; x *= window``
+    exactly (float32, the same two roundings), so the features, and the tracks, are those of
+    the two numpy passes it replaced."""
+    from tracker.appearance import _centre_and_window, hann2d
+
+    rng = np.random.default_rng(5)
+    x = (rng.random((40, 3, 24, 24)) * 255).astype(np.float32)
+    window = hann2d(24) * np.float32(1 / 255)
+    mean = x.reshape(40, 3, -1).mean(axis=2)
+    ref = x - mean[:, :, None, None]
+    ref *= window
+    _centre_and_window(x, mean, window)
+    np.testing.assert_array_equal(x, ref)
+
+
 def test_extract_patches_replicates_border():
     f = np.arange(12, dtype=np.uint8).reshape(3, 4, 1)
     p = extract_patches(f, np.array([[-1, -1], [3, 2]]), 3)
