@@ -161,7 +161,8 @@ def _appended(buf: np.ndarray | None, rows: np.ndarray, new: np.ndarray):
     ``(rows, buf)``. ``rows`` must be ``buf``'s leading rows (a view); anything else (a copy
     of the tracker, say) starts a new buffer."""
     n, m = rows.shape[0], new.shape[0]
-    if buf is None or rows.base is not buf or buf.shape[0] < n + m:
+    leading = buf is not None and rows.base is buf and rows.ctypes.data == buf.ctypes.data
+    if not leading or buf.shape[0] < n + m:
         grown = np.empty((n + m + (n + m) // 4 + 16,) + rows.shape[1:], rows.dtype)
         grown[:n] = rows
         buf = grown

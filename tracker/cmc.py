@@ -107,8 +107,9 @@ class CMCParams:
         are tracked forward, as a KLT tracker does: an estimate's RANSAC inliers, where
         Lucas-Kanade found them in the current frame, are the next estimate's corners, less
         those in the people's discs (``exclude``) or off the frame, and Shi-Tomasi detects
-        afresh only when fewer than ``redetect * max_corners`` are left, after a frame
-        without an estimate, or when the kept corners give none. Measured with 0.5
+        afresh only when fewer than ``redetect * max_corners`` (and ``min_inliers``) are
+        left, after a frame without an estimate, or when the kept corners give none.
+        Measured with 0.5
         (``benchmarks/cmc_error.py``, first 80 frames of each spec): 30-50 % less time, less
         spurious motion on the static ucf9 (0.139 against 0.149 px a frame), about the same
         error on ucf9-shake (0.233 against 0.228 px; per sequence within 0.05 either way), but
