@@ -148,17 +148,19 @@ def test_empty_frame_zero_targets_and_border(cls):
 
 
 @pytest.mark.parametrize("size", [3, 8])
-def test_kcf_patches_are_extract_patches_as_float32(size):
+@pytest.mark.parametrize("channels", [3, 1, 4])
+def test_kcf_patches_are_extract_patches_as_float32(size, channels):
     """The compiled float32 gather of the KCF features is extract_patches exactly: border
-    replicated, corners far outside the frame clipped as there."""
+    replicated, corners far outside the frame clipped as there (the colour frames' path and
+    the general one)."""
     from tracker.appearance import _patches_f32
 
     rng = np.random.default_rng(4)
-    frame = rng.integers(0, 256, (11, 13, 3), dtype=np.uint8)
+    frame = rng.integers(0, 256, (11, 13, channels), dtype=np.uint8)
     corners = np.array([[-1, -1], [3, 2], [10, 9], [-40, 5], [30, -25], [12, 10], [0, 0]])
     # flush with the right edge, and one column past it (inside / clamped column paths)
     corners = np.concatenate([corners, [[13 - size, 1], [14 - size, 1]]])
-    out = np.empty((len(corners), 3, size, size), np.float32)
+    out = np.empty((len(corners), channels, size, size), np.float32)
     _patches_f32(frame, corners, size, out)
     np.testing.assert_array_equal(out, extract_patches(frame, corners, size).astype(np.float32))
 
