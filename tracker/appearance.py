@@ -130,9 +130,14 @@ def gaussian_label(size: int, sigma: float) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _cross_spectrum(xf, zf, out):
+def _cross_spectrum(xf, zf, out, scale):
     """``out[i] = sum_c conj(xf[i, c]) zf[i, c]`` over ``(n, C, F)`` spectra, one target per
-    loop iteration (the same result for any number of threads)."""
+    loop iteration (the same result for any number of threads); then, with ``scale > 0``,
+    divided by the float32 ``scale`` exactly as numpy divides a complex64 array by a float32
+    number (its complex division with a zero imaginary part: ``(re + im * 0) * (1 / scale)``
+    and ``(im - re * 0) * (1 / scale)`` in float32), without a second pass over the array."""
+    zero = np.float32(0.0)
+    inv = np.float32(1.0) / scale if scale > 0 else np.float32(1.0)
     for i in prange(xf.shape[0]):
         # channel by channel over contiguous rows (vectorised), each frequency still summed
         # in channel order
@@ -141,6 +146,11 @@ def _cross_spectrum(xf, zf, out):
         for c in range(1, xf.shape[1]):
             for f in range(xf.shape[2]):
                 out[i, f] += np.conj(xf[i, c, f]) * zf[i, c, f]
+        if scale > 0:
+            for f in range(xf.shape[2]):
+                re = out[i, f].real
+                im = out[i, f].imag
+                out[i, f] = complex((re + im * zero) * inv, (im - re * zero) * inv)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -331,11 +341,15 @@ class KCFAppearance(AppearanceModel):
         numel = np.float32(w * w * xf.shape[1])
         n, c = xf.shape[:2]
         cross = np.empty((n,) + xf.shape[2:], np.complex64)
+        linear = self.kernel == "linear"
         _cross_spectrum(
-            xf.reshape(n, c, -1), np.ascontiguousarray(zf).reshape(n, c, -1), cross.reshape(n, -1)
+            xf.reshape(n, c, -1),
+            np.ascontiguousarray(zf).reshape(n, c, -1),
+            cross.reshape(n, -1),
+            numel if linear else np.float32(0.0),
         )
-        if self.kernel == "linear":
-            return (cross / numel).astype(np.complex64, copy=False)
+        if linear:  # divided by numel in the pass above
+            return cross
         xz = scipy.fft.irfft2(cross, s=(w, w), axes=(-2, -1), workers=self._workers())
         d = self._energy(xf)[:, None, None] + self._energy(zf)[:, None, None] - 2.0 * xz
         k = np.exp(-np.maximum(d, 0.0) / (numel * np.float32(self.kernel_sigma**2)))

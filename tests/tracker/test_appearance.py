@@ -181,6 +181,39 @@ def test_kcf_centring_and_windowing_is_numpys_bit_for_bit():
     np.testing.assert_array_equal(x, ref)
 
 
+def test_kcf_cross_spectrum_divides_as_numpy_does_bit_for_bit():
+    """The linear kernel's division by ``numel`` inside the compiled cross-spectrum pass is
+    numpy's ``complex64 / float32`` bit for bit, signed zeros included (numpy divides by a
+    complex number with a zero imaginary part), so the scores are those of the two passes
+    it replaced; ``scale = 0`` leaves the sum undivided (the Gaussian kernel's path)."""
+    from tracker.appearance import _cross_spectrum
+
+    rng = np.random.default_rng(6)
+
+    def spectra(*shape):
+        v = rng.standard_normal(shape) + 1j * rng.standard_normal(shape)
+        v[..., :3] = 0.0  # zero products, whose signs the division may flip
+        v[..., 3] = -0.0 - 0.0j
+        return v.astype(np.complex64)
+
+    xf, zf = spectra(20, 3, 64), spectra(20, 3, 64)
+    # conj(1 - 0j) (-0 + 1j) = -0 + 1j in every channel: a sum of -0 + 3j, which numpy's
+    # division turns into +0 + ...j ((-0 + 3 * 0) / numel)
+    xf[:, :, 5] = np.complex64(complex(1.0, -0.0))
+    zf[:, :, 5] = np.complex64(complex(-0.0, 1.0))
+    total = np.empty((20, 64), np.complex64)
+    _cross_spectrum(xf, zf, total, np.float32(0.0))
+    want = np.conj(xf[:, 0]) * zf[:, 0]
+    for c in (1, 2):
+        want += np.conj(xf[:, c]) * zf[:, c]
+    np.testing.assert_allclose(total, want, rtol=1e-5, atol=1e-5)  # undivided: the sum
+    numel = np.float32(24 * 24 * 3)
+    divided = np.empty((20, 64), np.complex64)
+    _cross_spectrum(xf, zf, divided, numel)
+    np.testing.assert_array_equal(divided.view(np.uint64), (total / numel).view(np.uint64))
+    assert np.signbit(total.real[:, 5]).all() and not np.signbit(divided.real[:, 5]).any()
+
+
 def test_extract_patches_replicates_border():
     f = np.arange(12, dtype=np.uint8).reshape(3, 4, 1)
     p = extract_patches(f, np.array([[-1, -1], [3, 2]]), 3)
