@@ -109,8 +109,8 @@ class CMCParams:
         those in the people's discs (``exclude``) or off the frame, and Shi-Tomasi detects
         afresh only when fewer than ``redetect * max_corners`` (and ``min_inliers``) are
         left, after a frame without an estimate, or when the kept corners give none.
-        Measured with 0.5
-        (``benchmarks/cmc_error.py``, first 80 frames of each spec): 30-50 % less time, less
+        Measured with 0.5 (``benchmarks/cmc_error.py``, first 80 frames of each spec):
+        30-50 % less time, less
         spurious motion on the static ucf9 (0.139 against 0.149 px a frame), about the same
         error on ucf9-shake (0.233 against 0.228 px; per sequence within 0.05 either way), but
         a third more under a strong shake of up to 17 px steps (0.247 against 0.185 px,
