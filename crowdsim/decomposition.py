@@ -913,10 +913,7 @@ class _Strip:
                 self.body_id[a] = body.id
         if len(gone) or len(new):
             self.agents = ids
-            space_ids = self.body_rows.read_ids()
-            sorter = np.argsort(space_ids)
-            self.rows = sorter[np.searchsorted(space_ids, self.body_id[ids], sorter=sorter)]
-            self.n_rows = len(space_ids)
+            self.n_rows, (self.rows,) = self.body_rows.rows_of(self.body_id[ids])
 
     def close(self) -> None:
         self.shared.close()

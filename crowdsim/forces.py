@@ -741,6 +741,25 @@ class BodyRows:
         self._seen = len(ids)
         return ids
 
+    def rows_of(self, *body_ids: np.ndarray) -> tuple[int, list[np.ndarray]]:
+        """The number of rows pymunk iterates (the walls' static body included) and, for each
+        array of ``Body.id`` values in ``body_ids``, the row of each of those bodies, from one
+        read of the ids (pymunk's order changes when bodies are removed).
+
+        >>> space = pymunk.Space()
+        >>> bodies = [pymunk.Body(1.0, float("inf")) for _ in range(3)]
+        >>> for b in bodies:
+        ...     space.add(b, pymunk.Circle(b, 0.2))
+        >>> space.remove(bodies[0], *bodies[0].shapes)
+        >>> n, (rows,) = BodyRows(space).rows_of(np.array([bodies[1].id, bodies[2].id]))
+        >>> n, sorted(rows.tolist())
+        (2, [0, 1])
+        """
+        space_ids = self.read_ids()
+        sorter = np.argsort(space_ids)
+        rows = [sorter[np.searchsorted(space_ids, ids, sorter=sorter)] for ids in body_ids]
+        return len(space_ids), rows
+
     def write(self, fields: pb.BodyFields, rows: np.ndarray) -> None:
         """Set ``fields`` of every body from ``rows (bodies, k)`` float64, in pymunk's order.
 

@@ -630,12 +630,12 @@ class Simulation:
 
     def _sync_order(self) -> None:
         """Map pymunk's body iteration order to ours (it changes when bodies are removed)."""
-        space_ids = self._rows.read_ids()
-        self._n_rows = len(space_ids)
-        sorter = np.argsort(space_ids)
-        self._row_of_agent = sorter[np.searchsorted(space_ids, self._body_ids, sorter=sorter)]
         if self.world.period > 0:
-            self._row_of_ghost = sorter[np.searchsorted(space_ids, self._ghost_ids, sorter=sorter)]
+            self._n_rows, (self._row_of_agent, self._row_of_ghost) = self._rows.rows_of(
+                self._body_ids, self._ghost_ids
+            )
+        else:
+            self._n_rows, (self._row_of_agent,) = self._rows.rows_of(self._body_ids)
         self._order_dirty = False
 
     def _read_back(self) -> None:
