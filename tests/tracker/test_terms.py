@@ -306,13 +306,18 @@ def test_quadratic_matrix_is_canonical_csc():
     np.testing.assert_allclose(q.toarray(), q.toarray().T, atol=1e-14)
 
 
+INTEGER_CROWDS = {
+    "n": st.integers(2, 6),
+    "k": st.integers(1, 8),
+    "seed": st.integers(0, 2**32 - 1),
+    "span": st.sampled_from([6, 12, 30]),
+}
+"""``n`` targets of ``k`` candidates on integer points in ``[0, span)``: pairs fall exactly on
+a cutoff of 5 px, where a lost boundary entry shows."""
+
+
 @settings(max_examples=60, deadline=None)
-@given(
-    n=st.integers(2, 6),
-    k=st.integers(1, 8),
-    seed=st.integers(0, 2**32 - 1),
-    span=st.sampled_from([6, 12, 30]),
-)
+@given(**INTEGER_CROWDS)
 def test_proximity_links_exactly_the_pairs_within_reach(n, k, seed, span):
     """Every candidate pair of two targets within the cutoff (``d^2 <= reach^2`` as computed,
     boundary included: integer points at distance 5 of a reach of 5) gets an entry, and no
@@ -330,13 +335,7 @@ def test_proximity_links_exactly_the_pairs_within_reach(n, k, seed, span):
 
 
 @settings(max_examples=60, deadline=None)
-@given(
-    n=st.integers(2, 6),
-    k=st.integers(1, 8),
-    seed=st.integers(0, 2**32 - 1),
-    span=st.sampled_from([6, 12, 30]),
-    offsets=st.booleans(),
-)
+@given(**INTEGER_CROWDS, offsets=st.booleans())
 def test_grouping_links_exactly_the_pairs_within_reach(n, k, seed, span, offsets):
     """Along the tree edges, every candidate pair whose deviation from the edge's length
     (``| |p_i - p_j| - e |``, Eq. 10) or offset (``|p_i - p_j - e|``) is within the cutoff,
