@@ -17,6 +17,7 @@ Geometry. With template size ``s`` px and candidate radius ``r`` px the search w
 
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
 
 import cv2
@@ -28,6 +29,14 @@ from numpy.lib.stride_tricks import sliding_window_view
 from tracker.threads import current_threads, in_chunks
 
 KCF_KERNELS: tuple[str, ...] = ("gaussian", "linear")
+
+
+ROWS_PER_THREAD: int = 256
+"""The KCF model's numpy passes over its targets (the training division, the responses'
+crop) run in chunks of at least this many targets on the tracker's threads
+(:func:`tracker.threads.in_chunks`; numpy releases the GIL): one chunk per row range, the
+same numpy loop on each, so the values are those of one call. At 7,850 targets the complex
+division of training took 23 ms on one thread, 11 on two."""
 
 
 def _check_frame(frame: np.ndarray) -> np.ndarray:
@@ -71,12 +80,108 @@ def extract_patches(frame: np.ndarray, top_left: np.ndarray, size: int) -> np.nd
     return view[y, x]
 
 
+@functools.cache
+def pairwise_plan(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How numpy's ``add.reduce`` sums ``n`` contiguous float32 values (``pairwise_sum``):
+    halves (each a multiple of 8) down to blocks of at most 128, each block summed by
+    :func:`_block_sum`, the halves' sums then added pairwise. Returns the blocks ``(L, 2)``
+    (start, length) in order and the additions ``(K, 3)`` (node, left, right) in the order
+    numpy makes them; nodes ``0..L-1`` are the blocks, the last node is the sum. A plan
+    instead of the recursion: numba's cache cannot hold recursive functions a parallel
+    kernel calls (the cached kernel crashed).
+
+    >>> blocks, adds = pairwise_plan(400)
+    >>> blocks.tolist(), adds.tolist()
+    ([[0, 96], [96, 104], [200, 96], [296, 104]], [[4, 0, 1], [5, 2, 3], [6, 4, 5]])
+    """
+    blocks: list[tuple[int, int]] = []
+    adds: list[tuple[int, int, int]] = []
+
+    def split(lo: int, m: int) -> int:
+        if m <= 128:
+            blocks.append((lo, m))
+            return -len(blocks)  # numbered once every block is known
+        half = m // 2
+        half -= half % 8
+        left, right = split(lo, half), split(lo + half, m - half)
+        adds.append((len(adds), left, right))
+        return len(adds) - 1
+
+    split(0, int(n))
+    nb = len(blocks)
+
+    def node(v: int) -> int:  # blocks 0..nb-1, then the additions
+        return -v - 1 if v < 0 else nb + v
+
+    plan = [(nb + d, node(a), node(b)) for d, a, b in adds]
+    return (
+        np.array(blocks, np.int64).reshape(-1, 2),
+        np.array(plan, np.int64).reshape(-1, 3),
+    )
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _block_sum(a, lo, n):
+    """numpy's float32 sum of one block of ``pairwise_sum`` (``n <= 128``): in order under 8
+    values, else eight interleaved accumulators, then the rest in order."""
+    if n < 8:
+        res = np.float32(0.0)
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    end = n - n % 8
+    while i < end:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _planned_sum(a, blocks, adds, work):
+    """The sum of ``a`` by :func:`pairwise_plan`'s ``(blocks, adds)``; ``work`` holds a
+    value per node."""
+    for b in range(blocks.shape[0]):
+        work[b] = _block_sum(a, blocks[b, 0], blocks[b, 1])
+    for d in range(adds.shape[0]):
+        work[adds[d, 0]] = work[adds[d, 1]] + work[adds[d, 2]]
+    return work[blocks.shape[0] + adds.shape[0] - 1]
+
+
+@njit(cache=True, nogil=True)
+def _pairwise_sum(a, blocks, adds):
+    """``a``'s float32 sum as numpy's (``pairwise_plan(len(a))``)."""
+    return _planned_sum(a, blocks, adds, np.empty(blocks.shape[0] + adds.shape[0], np.float32))
+
+
 @njit(cache=True, nogil=True, parallel=True)
-def _patches_f32(frame, top_left, size, out):
-    """``out[i, c] = float32(frame[y0 + v, x0 + u, c])`` with coordinates clamped to the image:
-    :func:`extract_patches` (corners clipped as there, border replicated) written straight
-    into the C-order float32 array the FFT takes, one patch per loop iteration."""
+def _window_patches(frame, top_left, size, window, blocks, adds, work, out):
+    """The KCF windows, one patch per loop iteration: ``out[i, c]`` is
+    ``float32(frame[y0 + v, x0 + u, c])`` with coordinates clamped to the image
+    (:func:`extract_patches`: corners clipped as there, border replicated), less its mean,
+    times ``window``, written into the C-order float32 array the FFT takes.
+
+    Each patch is centred and windowed while it is still in the cache: the same values, bit
+    for bit, as numpy's ``x.reshape(n, c, -1).mean(axis=2)`` (``blocks`` and ``adds`` are
+    :func:`pairwise_plan` ``(size * size)``, ``work`` a row of node values per patch) and
+    ``x -= mean; x *= window`` (two roundings per value), which were two more passes over
+    all the patches (at 7,850 windows of 20 px, 38 MB each).
+    """
     h, w, nc = frame.shape
+    area = size * size
     for i in prange(top_left.shape[0]):
         x0 = min(max(top_left[i, 0], -size), w)
         y0 = min(max(top_left[i, 1], -size), h)
@@ -90,30 +195,22 @@ def _patches_f32(frame, top_left, size, out):
                     out[i, 0, v, u] = np.float32(frame[y, x, 0])
                     out[i, 1, v, u] = np.float32(frame[y, x, 1])
                     out[i, 2, v, u] = np.float32(frame[y, x, 2])
-            continue
-        inside = x0 >= 0 and x0 + size <= w  # the columns need no clamping
+        else:
+            inside = x0 >= 0 and x0 + size <= w  # the columns need no clamping
+            for c in range(nc):
+                for v in range(size):
+                    y = min(max(y0 + v, 0), h - 1)
+                    if inside:
+                        for u in range(size):
+                            out[i, c, v, u] = np.float32(frame[y, x0 + u, c])
+                    else:
+                        for u in range(size):
+                            out[i, c, v, u] = np.float32(frame[y, min(max(x0 + u, 0), w - 1), c])
         for c in range(nc):
+            m = _planned_sum(out[i, c].reshape(area), blocks, adds, work[i]) / np.float32(area)
             for v in range(size):
-                y = min(max(y0 + v, 0), h - 1)
-                if inside:
-                    for u in range(size):
-                        out[i, c, v, u] = np.float32(frame[y, x0 + u, c])
-                else:
-                    for u in range(size):
-                        out[i, c, v, u] = np.float32(frame[y, min(max(x0 + u, 0), w - 1), c])
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _centre_and_window(x, mean, window):
-    """``x[i, c] = (x[i, c] - mean[i, c]) * window`` in float32, in place, one patch per loop
-    iteration: numpy's ``x -= mean; x *= window`` in one pass over the patches, with the same
-    two roundings per value (so the same values, bit for bit)."""
-    for i in prange(x.shape[0]):
-        for c in range(x.shape[1]):
-            m = mean[i, c]
-            for v in range(x.shape[2]):
-                for u in range(x.shape[3]):
-                    x[i, c, v, u] = (x[i, c, v, u] - m) * window[v, u]
+                for u in range(size):
+                    out[i, c, v, u] = (out[i, c, v, u] - m) * window[v, u]
 
 
 def hann2d(size: int) -> np.ndarray:
@@ -325,9 +422,11 @@ class KCFAppearance(AppearanceModel):
         n, c = len(centers), frame.shape[2]
         # channels first, C order: the reductions and FFTs below are ~10x faster on it
         x = np.empty((n, c, w, w), np.float32)
-        _patches_f32(frame, np.ascontiguousarray(centers - w // 2), w, x)
-        mean = x.reshape(n, c, -1).mean(axis=2)  # numpy's float32 pairwise sums
-        _centre_and_window(x, mean, self._train_window if train else self._hann_scaled)
+        window = self._train_window if train else self._hann_scaled
+        blocks, adds = pairwise_plan(w * w)
+        work = np.empty((n, len(blocks) + len(adds)), np.float32)
+        tl = np.ascontiguousarray(centers - w // 2)
+        _window_patches(frame, tl, w, window, blocks, adds, work, x)
         return scipy.fft.rfft2(x, axes=(-2, -1), workers=self._workers())
 
     def _energy(self, xf: np.ndarray) -> np.ndarray:
@@ -356,9 +455,16 @@ class KCFAppearance(AppearanceModel):
         return scipy.fft.rfft2(k.astype(np.float32), axes=(-2, -1), workers=self._workers())
 
     def _train(self, xf: np.ndarray) -> np.ndarray:
-        return (self._yf / (self._kernel_f(xf, xf) + np.float32(self.lam))).astype(
-            np.complex64, copy=False
-        )
+        """``yf / (k_hat^{xx} + lambda)``: the model's dual coefficients (complex64)."""
+        alphaf = self._kernel_f(xf, xf).astype(np.complex64, copy=False)
+        lam = np.float32(self.lam)
+
+        def divide(lo: int, hi: int) -> None:  # numpy's complex division, in place
+            np.add(alphaf[lo:hi], lam, out=alphaf[lo:hi])
+            np.divide(self._yf, alphaf[lo:hi], out=alphaf[lo:hi])
+
+        in_chunks(len(alphaf), divide, ROWS_PER_THREAD)
+        return alphaf
 
     def add(self, frame: np.ndarray, centers: np.ndarray) -> None:
         frame = _check_frame(frame)
@@ -398,6 +504,9 @@ class KCFAppearance(AppearanceModel):
             return np.zeros((0, k, k), np.float32)
         zf = self._features(frame, centers)
         w = self.window
+        # one expression, as ever: numpy multiplies into the temporary kernel spectrum
+        # ("temporary elision", from 256 KiB), and with FMA complex products are not
+        # commutative bit for bit, so a chunked product would change the responses
         resp = scipy.fft.irfft2(
             self.alphaf * self._kernel_f(self.xf, zf),
             s=(w, w),
@@ -405,7 +514,13 @@ class KCFAppearance(AppearanceModel):
             workers=self._workers(),
         )
         c, r = w // 2, self.radius
-        return np.ascontiguousarray(resp[:, c - r : c + r + 1, c - r : c + r + 1], dtype=np.float32)
+        out = np.empty((self.n, k, k), np.float32)
+
+        def crop(lo: int, hi: int) -> None:
+            out[lo:hi] = resp[lo:hi, c - r : c + r + 1, c - r : c + r + 1]
+
+        in_chunks(self.n, crop, ROWS_PER_THREAD)
+        return out
 
     def update(self, frame: np.ndarray, centers: np.ndarray, confidence: np.ndarray) -> None:
         frame = _check_frame(frame)

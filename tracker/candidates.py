@@ -165,13 +165,13 @@ def speedup_candidates(
     if n == 0:
         return Candidates.empty(k)
     flat = np.ascontiguousarray(cost_map, dtype=np.float64).reshape(n, side, side)
-    big = (np.abs(flat).max() + 1.0) * 4.0
+    big = (_abs_max(flat.reshape(n, -1)) + 1.0) * 4.0
     lo = window // 2
     d = np.arange(-lo, window - lo)
     oy, ox = np.meshgrid(d, d, indexing="ij")
     keep = ~((oy == 0) & (ox == 0)).ravel()
     offs = np.stack([ox.ravel()[keep], oy.ravel()[keep]], 1).astype(np.int64)  # (n_off, 2)
-    draws = rng.random((n, m, n_off))  # one draw per target, extremum and offset
+    draws = uniform_draws(rng, (n, m, n_off))  # one draw per target, extremum and offset
     cell = np.empty((n, k), np.int64)
     _speedup_cells(flat, big, m, ns, offs, draws, cell)
     pos = np.empty((n, k, 2))
@@ -188,6 +188,65 @@ def speedup_candidates(
         app,
     )
     return Candidates(pos, cost, app, cell)
+
+
+DRAWS_PER_THREAD: int = 100_000
+""":func:`uniform_draws` fills chunks of at least this many numbers on the tracker's threads."""
+
+
+def uniform_draws(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    """``rng.random(shape)``: the same numbers, and ``rng`` left in the same state, but drawn
+    in row chunks on the tracker's threads (:func:`tracker.threads.in_chunks`) when its bit
+    generator can skip ahead (PCG64, the trackers' ``default_rng``: one 64-bit output per
+    double, so chunk ``c`` starts that many outputs on). At 7,850 targets the draws of the
+    speed-up sampling took 5.7 ms on one thread."""
+    from tracker.threads import current_threads, in_chunks
+
+    bg = rng.bit_generator
+    out = np.empty(shape)
+    flat = out.reshape(-1)
+    if type(bg) is not np.random.PCG64 or current_threads() == 1:
+        rng.random(out=out)
+        return out
+    start = bg.state
+
+    def fill(lo: int, hi: int) -> None:
+        own = np.random.PCG64()
+        own.state = start
+        own.advance(lo)
+        np.random.Generator(own).random(out=flat[lo:hi])
+
+    in_chunks(len(flat), fill, DRAWS_PER_THREAD)
+    end = np.random.PCG64()
+    end.state = start
+    end.advance(len(flat))
+    state = end.state  # advance drops a buffered 32-bit half: the stream keeps it
+    state["has_uint32"], state["uinteger"] = start["has_uint32"], start["uinteger"]
+    bg.state = state
+    return out
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _abs_max(v):
+    """``np.abs(v).max()`` over a ``(n, m)`` array without the temporary (NaN if any is)."""
+    n = v.shape[0]
+    part = np.full(n, -np.inf)
+    for t in prange(n):
+        top = -np.inf
+        for j in range(v.shape[1]):
+            a = abs(v[t, j])
+            if a > top or a != a:
+                top = a
+                if a != a:
+                    break
+        part[t] = top
+    top = -np.inf
+    for t in range(n):
+        if part[t] > top or part[t] != part[t]:
+            top = part[t]
+            if top != top:
+                break
+    return top
 
 
 @njit(cache=True, nogil=True, inline="always")

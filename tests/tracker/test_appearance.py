@@ -147,38 +147,45 @@ def test_empty_frame_zero_targets_and_border(cls):
     assert m.n == 1
 
 
-@pytest.mark.parametrize("size", [3, 8])
+@pytest.mark.parametrize("size", [3, 8, 20])
 @pytest.mark.parametrize("channels", [3, 1, 4])
-def test_kcf_patches_are_extract_patches_as_float32(size, channels):
-    """The compiled float32 gather of the KCF features is extract_patches exactly: border
-    replicated, corners far outside the frame clipped as there (the colour frames' path and
-    the general one)."""
-    from tracker.appearance import _patches_f32
+def test_kcf_windows_are_extract_patches_centred_and_windowed_as_numpy(size, channels):
+    """The compiled KCF windows are extract_patches as float32 (border replicated, corners far
+    outside the frame clipped as there; the colour frames' path and the general one), less
+    numpy's float32 mean (its pairwise sums), times the window: numpy's ``x -= mean;
+    x *= window`` bit for bit, so the features, and the tracks, are those of the three numpy
+    passes the one pass replaced."""
+    from tracker.appearance import _window_patches, hann2d, pairwise_plan
 
     rng = np.random.default_rng(4)
     frame = rng.integers(0, 256, (11, 13, channels), dtype=np.uint8)
     corners = np.array([[-1, -1], [3, 2], [10, 9], [-40, 5], [30, -25], [12, 10], [0, 0]])
     # flush with the right edge, and one column past it (inside / clamped column paths)
     corners = np.concatenate([corners, [[13 - size, 1], [14 - size, 1]]])
+    window = hann2d(size) * np.float32(1 / 255)
     out = np.empty((len(corners), channels, size, size), np.float32)
-    _patches_f32(frame, corners, size, out)
-    np.testing.assert_array_equal(out, extract_patches(frame, corners, size).astype(np.float32))
-
-
-def test_kcf_centring_and_windowing_is_numpys_bit_for_bit():
-    """The one-pass compiled ``(x - mean) * window`` equals numpy's ``x -= mean; x *= window``
-    exactly (float32, the same two roundings), so the features, and the tracks, are those of
-    the two numpy passes it replaced."""
-    from tracker.appearance import _centre_and_window, hann2d
-
-    rng = np.random.default_rng(5)
-    x = (rng.random((40, 3, 24, 24)) * 255).astype(np.float32)
-    window = hann2d(24) * np.float32(1 / 255)
-    mean = x.reshape(40, 3, -1).mean(axis=2)
-    ref = x - mean[:, :, None, None]
+    blocks, adds = pairwise_plan(size * size)
+    work = np.empty((len(corners), len(blocks) + len(adds)), np.float32)
+    _window_patches(frame, corners, size, window, blocks, adds, work, out)
+    ref = extract_patches(frame, corners, size).astype(np.float32)
+    ref -= ref.reshape(len(corners), channels, -1).mean(axis=2)[:, :, None, None]
     ref *= window
-    _centre_and_window(x, mean, window)
-    np.testing.assert_array_equal(x, ref)
+    np.testing.assert_array_equal(out, ref)
+
+
+@pytest.mark.parametrize("n", [1, 7, 8, 9, 64, 128, 129, 300, 400, 576, 1296, 4096])
+def test_pairwise_sum_is_numpys_float32_sum(n):
+    """The windows' means sum as numpy does (pairwise, eight accumulators), bit for bit, on
+    every path: under 8 values, up to 128, and halved above."""
+    from tracker.appearance import _pairwise_sum, pairwise_plan
+
+    rng = np.random.default_rng(n)
+    plan = pairwise_plan(n)
+    for scale in (1.0, 255.0, 1e6):
+        a = (rng.standard_normal(n + 3) * scale).astype(np.float32)[3:]
+        assert _pairwise_sum(a, *plan) == a.sum()
+        a = np.round(rng.random(n) * 255).astype(np.float32)  # pixel values
+        assert _pairwise_sum(a, *plan) == a.sum()
 
 
 def test_kcf_cross_spectrum_divides_as_numpy_does_bit_for_bit():
@@ -271,3 +278,37 @@ def test_ncc_scores_same_for_any_thread_count():
             out.append(m.scores(frame, moved))
     for o in out[1:]:
         np.testing.assert_array_equal(o, out[0])
+
+
+@pytest.mark.parametrize("kernel", ["linear", "gaussian"])
+def test_kcf_numpy_passes_in_chunks_are_one_calls(kernel, monkeypatch):
+    """The means, the training division and the crop of the responses, run in row chunks on
+    two threads, equal the one-call numpy expressions they replace, bit for bit."""
+    import scipy.fft
+
+    import tracker.appearance as appearance
+
+    if max_threads() < 2:
+        pytest.skip("needs 2 cores")
+    monkeypatch.setattr(appearance, "ROWS_PER_THREAD", 7)
+    rng = np.random.default_rng(4)
+    frame = rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)
+    centers = rng.integers(10, 310, (90, 2))
+    centers[:, 1] %= 230
+    m = KCFAppearance(12, 6, kernel=kernel, target_window=1.6)
+    with using_threads(2):
+        m.add(frame, centers)
+        xf = m._features(frame, centers, train=True)
+        alphaf = m._train(xf)
+        got = m.scores(frame, centers + 1)
+    w = m.window
+    x = extract_patches(frame, centers - w // 2, w).astype(np.float32)
+    x -= x.reshape(90, 3, -1).mean(axis=2)[..., None, None]  # one numpy call, all rows
+    x *= m._train_window
+    np.testing.assert_array_equal(xf, scipy.fft.rfft2(x, axes=(-2, -1)))
+    expected = (m._yf / (m._kernel_f(xf, xf) + np.float32(m.lam))).astype(np.complex64)
+    np.testing.assert_array_equal(alphaf, expected)
+    zf = m._features(frame, centers + 1)
+    resp = scipy.fft.irfft2(m.alphaf * m._kernel_f(m.xf, zf), s=(w, w), axes=(-2, -1))
+    c, r = w // 2, m.radius
+    np.testing.assert_array_equal(got, resp[:, c - r : c + r + 1, c - r : c + r + 1])

@@ -196,15 +196,22 @@ def test_update_threshold_gates_the_appearance_update(appearance, quantile):
 
 
 def test_tracks_are_the_same_for_any_number_of_threads(monkeypatch):
-    """Parallel terms, FFTs and component solves: 1 and 2 threads give identical tracks, on a
-    spread-out crowd whose frames split into independent components."""
+    """Parallel terms, FFTs, component solves and numpy passes in chunks (made small here,
+    so that this crowd is cut too): 1 and 2 threads give identical tracks, on a spread-out
+    crowd whose frames split into independent components."""
+    import tracker.appearance as appearance
     import tracker.bqp.frank_wolfe as fw
+    import tracker.bqp.terms as terms
+    import tracker.candidates as candidates
     from synth_data.sequence import synthetic_crowd
     from tracker.runner import run_tracker
     from tracker.threads import max_threads
 
     if max_threads() < 2:
         pytest.skip("needs 2 cores")
+    monkeypatch.setattr(appearance, "ROWS_PER_THREAD", 8)
+    monkeypatch.setattr(terms, "EXP_PER_THREAD", 100)
+    monkeypatch.setattr(candidates, "DRAWS_PER_THREAD", 100)
     split = []
     solve_split = fw._solve_split
     monkeypatch.setattr(fw, "_solve_split", lambda *a: split.append(solve_split(*a)) or split[-1])

@@ -562,3 +562,43 @@ def test_gap_tree_stays_a_max_tree_under_updates(leaves, updates):
         assert _tree_argmax(tree, size) == int(np.argmax(values))
     for node in range(1, size):
         assert tree[node] == max(tree[2 * node], tree[2 * node + 1])
+
+
+def test_a_known_diagonal_solves_as_the_gathered_block_parts():
+    """BlockQP.from_terms with quadratic_matrix's diagonal: the blocks' parts of Q come from
+    it instead of a search of every column; the same arrays, and the same solve bit for bit,
+    whole, split in place and split through the permuted copy."""
+    from tracker.bqp.frank_wolfe import _intra_block, _intra_diagonal
+    from tracker.bqp.terms import quadratic_matrix
+
+    rng = np.random.default_rng(3)
+    centres = np.array([[40.0, 40.0], [300.0, 50.0], [150.0, 300.0]])
+    pos = np.concatenate([c + rng.uniform(-30, 30, (40, 2)) for c in centres])
+    pos = pos[rng.permutation(120)]  # the components interleaved
+    cand = pos[:, None, :] + rng.uniform(-5, 5, (120, 7, 2))
+    edges = np.array([[i, i + 1] for i in range(119)])
+    lengths = np.linalg.norm(pos[edges[:, 0]] - pos[edges[:, 1]], axis=1)
+    args = (cand, 0.5, 4.0, 3.0, 0.5, edges, lengths, 2.0, 2.0, 1.0)
+    for share in (None, 0.9):
+        q, labels, order, diag = quadratic_matrix(
+            *args, components=True, split_share=share, diagonal=True
+        )
+        c = rng.normal(size=q.shape[0])
+        bp = np.arange(0, q.shape[0] + 1, 7)
+        known = BlockQP.from_terms(c, q, bp, diag)
+        gathered = BlockQP.from_terms(c, q, bp)
+        assert gathered.diagonal is None
+        for a, b in zip(
+            _intra_diagonal(diag, bp, known.block_of),
+            _intra_block(q.indptr, q.indices, q.data, bp, known.block_of),
+            strict=True,
+        ):
+            np.testing.assert_array_equal(a, b)
+        for comps in (None, labels):
+            one, two = solve(known, components=comps), solve(gathered, components=comps)
+            np.testing.assert_array_equal(one.x, two.x)
+            assert one.iterations == two.iterations and one.objective == two.objective
+    with pytest.raises(ValueError, match="BlockQP.diagonal"):
+        BlockQP.from_terms(c, q, bp, diag[:-1])
+    with pytest.raises(ValueError, match="BlockQP.diagonal"):
+        BlockQP.from_terms(c, q, bp, diag.astype(np.float32))

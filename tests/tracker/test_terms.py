@@ -521,3 +521,114 @@ def test_quadratic_matrix_components_are_independent():
     assert (labels[coo.row // k] == labels[coo.col // k]).all()
     # exactly symmetric: every value is computed once per side from the same operands
     np.testing.assert_array_equal(q.toarray(), q.toarray().T)
+
+
+def test_quadratic_matrix_diagonal_is_all_q_holds_inside_a_block():
+    """``diagonal=True`` returns Q's diagonal, and inside a target's block Q holds nothing
+    else (what BlockQP.from_terms relies on), in the targets' order and grouped."""
+    for share in (None, 0.9):
+        q, labels, order, diag = _crowd_terms_with(split_share=share, diagonal=True)
+        np.testing.assert_array_equal(diag, q.diagonal())
+        coo = q.tocoo()
+        same_block = coo.row // 9 == coo.col // 9
+        np.testing.assert_array_equal(coo.row[same_block], coo.col[same_block])
+        assert (order is None) == (share is None)
+    plain = quadratic_matrix(
+        np.zeros((3, 4, 2)) + [[[0.0, 0.0]], [[50.0, 0.0]], [[0.0, 90.0]]],
+        1.0,
+        2.0,
+        2.0,
+        0.0,
+        np.zeros((0, 2), int),
+        np.zeros(0),
+        1.0,
+        1.0,
+        diagonal=True,
+    )
+    assert plain[0].nnz == 0 and plain[1].shape == (12,) and not plain[1].any()
+
+
+def test_linked_pair_bits_fill_the_entries_a_full_scan_fills(monkeypatch):
+    """The filling pass over the counting pass's link bits writes the matrix the full scan of
+    every candidate pair writes, bit for bit (grouping by lengths and by offsets)."""
+    import tracker.bqp.terms as terms
+
+    rng = np.random.default_rng(5)
+    pos = rng.uniform(0, 120, (60, 2))
+    cand = pos[:, None, :] + rng.uniform(-6, 6, (60, 33, 2))  # k = 33: the speed-up's
+    edges = np.array([[i, i + 1] for i in range(59)])
+    lengths = np.linalg.norm(pos[edges[:, 0]] - pos[edges[:, 1]], axis=1)
+    offsets = pos[edges[:, 0]] - pos[edges[:, 1]]
+    for ref in (lengths, offsets):
+        args = (cand, 0.4, 4.0, 2.5, 1.0, edges, ref, 3.0, 2.0, 1.0)
+        with_bits = quadratic_matrix(*args)
+        monkeypatch.setattr(terms, "LINK_MASK_MAX_K", 0)
+        scanned = quadratic_matrix(*args)
+        monkeypatch.undo()
+        assert with_bits.nnz > 60 * 33
+        for field in ("indptr", "indices", "data"):
+            np.testing.assert_array_equal(getattr(with_bits, field), getattr(scanned, field))
+
+
+def _crowd_terms_with(**kwargs):
+    """:func:`_crowd_terms`' crowd with ``quadratic_matrix`` options."""
+    rng = np.random.default_rng(11)
+    centres = np.array([[50.0, 50.0], [400.0, 60.0], [220.0, 400.0]])
+    pos = np.concatenate([c + rng.uniform(-40, 40, (100, 2)) for c in centres])
+    cand = pos[:, None, :] + rng.uniform(-5, 5, (300, 9, 2))
+    perm = rng.permutation(300)
+    edges = np.array([[i, i + 1] for i in range(0, 299) if i % 100 != 99])
+    lengths = np.linalg.norm(pos[edges[:, 0]] - pos[edges[:, 1]], axis=1)
+    rank = np.argsort(perm)
+    return quadratic_matrix(
+        cand[perm],
+        0.5,
+        4.0,
+        3.0,
+        1.0,
+        rank[edges],
+        lengths,
+        2.0,
+        2.0,
+        1.0,
+        components=True,
+        **kwargs,
+    )
+
+
+@pytest.mark.parametrize("before", ["fresh", "half-word", "doubles"])
+@pytest.mark.parametrize("shape", [(600, 3, 99), (7, 3, 99), (0, 3, 99)])
+def test_uniform_draws_are_rng_random_in_chunks(shape, before, monkeypatch):
+    """The speed-up sampling's draws filled in chunks on two threads (the bit generator
+    skipped ahead per chunk) are ``rng.random``'s numbers, and leave ``rng`` where it would
+    be, a buffered 32-bit half included."""
+    import tracker.candidates as cands
+    from tracker.threads import max_threads, using_threads
+
+    if max_threads() < 2:
+        pytest.skip("needs 2 cores")
+    monkeypatch.setattr(cands, "DRAWS_PER_THREAD", 1000)
+    a, b = np.random.default_rng(7), np.random.default_rng(7)
+    for r in (a, b):
+        if before == "half-word":
+            r.integers(0, 10, 5, dtype=np.int32)  # leaves half a 64-bit output buffered
+        elif before == "doubles":
+            r.random(3)
+    with using_threads(2):
+        got = cands.uniform_draws(b, shape)
+    np.testing.assert_array_equal(got, a.random(shape))
+    assert a.bit_generator.state == b.bit_generator.state
+    np.testing.assert_array_equal(
+        a.integers(0, 2**30, 9, dtype=np.int32), b.integers(0, 2**30, 9, dtype=np.int32)
+    )
+    np.testing.assert_array_equal(a.random(4), b.random(4))
+
+
+def test_abs_max_is_numpys():
+    from tracker.candidates import _abs_max
+
+    v = np.random.default_rng(0).normal(size=(300, 81))
+    assert _abs_max(v) == np.abs(v).max()
+    assert _abs_max(-np.full((2, 3), 2.5)) == 2.5
+    v[123, 4] = np.nan
+    assert np.isnan(_abs_max(v)) and np.isnan(np.abs(v).max())

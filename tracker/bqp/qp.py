@@ -147,6 +147,9 @@ class BlockQP:
     block_ptr: np.ndarray
     block_of: np.ndarray = field(init=False, repr=False)
     """(l,) int64: the block owning each variable (derived)."""
+    diagonal: np.ndarray | None = field(init=False, default=None, repr=False)
+    """(l,) float64 ``Q``'s diagonal, when it is ``Q``'s only entries inside a block (set by
+    :meth:`from_terms` when its caller knows it); ``None``: not known."""
 
     def __post_init__(self) -> None:
         c, bp, sizes = _checked_layout(self.c, self.block_ptr)
@@ -191,20 +194,38 @@ class BlockQP:
         self.block_of = np.repeat(np.arange(bp.shape[0] - 1, dtype=np.int64), sizes)
 
     @classmethod
-    def from_terms(cls, c: np.ndarray, Q: sp.csc_matrix, block_ptr: np.ndarray) -> BlockQP:
+    def from_terms(
+        cls,
+        c: np.ndarray,
+        Q: sp.csc_matrix,
+        block_ptr: np.ndarray,
+        diagonal: np.ndarray | None = None,
+    ) -> BlockQP:
         """The per-frame problem from :func:`tracker.bqp.terms.quadratic_matrix`'s ``Q``.
 
         That ``Q`` is canonical float64 CSC, finite and exactly symmetric by construction
         (both triangles are written from the same operands), so the O(nnz) checks of the
         constructor are left out: at 1,000 packed targets they took 3 ms of a frame. ``c``
         must still be finite and ``block_ptr`` a valid block layout (both O(l), checked).
+
+        ``diagonal`` is ``Q``'s diagonal as ``quadratic_matrix(..., diagonal=True)`` returns
+        it: that ``Q`` links only candidates of different targets, so inside a block it holds
+        its diagonal alone, and the solver takes the blocks' parts of ``Q`` from it
+        (:attr:`diagonal`) instead of searching every column.
         """
         c, bp, sizes = _checked_layout(c, block_ptr)
         l = c.shape[0]
         if not (sp.isspmatrix_csc(Q) and Q.dtype == np.float64 and Q.shape == (l, l)):
             raise ValueError(f"BlockQP.Q must be ({l}, {l}) float64 CSC from quadratic_matrix")
+        if diagonal is not None:
+            diagonal = np.asarray(diagonal)
+            if diagonal.shape != (l,) or diagonal.dtype != np.float64:
+                raise ValueError(
+                    f"BlockQP.diagonal must be ({l},) float64, got shape {diagonal.shape} "
+                    f"dtype {diagonal.dtype}"
+                )
         qp = object.__new__(cls)
-        qp.c, qp.Q, qp.block_ptr = c, Q, bp
+        qp.c, qp.Q, qp.block_ptr, qp.diagonal = c, Q, bp, diagonal
         qp.block_of = np.repeat(np.arange(len(sizes), dtype=np.int64), sizes)
         return qp
 

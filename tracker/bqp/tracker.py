@@ -261,12 +261,14 @@ class BQPTracker(Tracker):
         self._tick("terms", t0)
         return cands, centers
 
-    def quadratic(self, cands: Candidates) -> tuple[sp.csc_matrix, np.ndarray, np.ndarray | None]:
+    def quadratic(
+        self, cands: Candidates
+    ) -> tuple[sp.csc_matrix, np.ndarray, np.ndarray | None, np.ndarray]:
         """``w_sp C_sp + w_g C_g`` (Eq. 9-10) over the candidates, ``(l, l)`` CSC, the
-        connected component of every block (no entry of ``Q`` joins two components) and the
-        target of every block: ``None`` when block ``i`` is target ``i``, else the targets
-        grouped by component, as the solver will solve them apart
-        (:func:`tracker.bqp.terms.quadratic_matrix` with ``split_share``)."""
+        connected component of every block (no entry of ``Q`` joins two components), the
+        target of every block (``None`` when block ``i`` is target ``i``, else the targets
+        grouped by component, as the solver will solve them apart) and ``Q``'s diagonal
+        (:func:`tracker.bqp.terms.quadratic_matrix` with ``split_share`` and ``diagonal``)."""
         from tracker.bqp.frank_wolfe import SPLIT_MAX_SHARE
 
         p = self.params
@@ -284,6 +286,7 @@ class BQPTracker(Tracker):
             p.laplacian_tau,
             components=True,
             split_share=SPLIT_MAX_SHARE,
+            diagonal=True,
         )
 
     def _step(self, frame: np.ndarray) -> np.ndarray:
@@ -294,10 +297,10 @@ class BQPTracker(Tracker):
         n = len(self.points)
         cands, _ = self.candidates(frame)
         t0 = time.perf_counter()
-        q, components, order = self.quadratic(cands)
+        q, components, order, diagonal = self.quadratic(cands)
         t0 = self._tick("terms", t0)
         cost = cands.cost if order is None else cands.cost[order]
-        qp = BlockQP.from_terms(cost.ravel(), q, cands.block_ptr)
+        qp = BlockQP.from_terms(cost.ravel(), q, cands.block_ptr, diagonal)
         if self.record_qps:
             self.recorded_qps.append(qp)
         res = solve(
