@@ -24,9 +24,17 @@ import hashlib
 import json
 import os
 
-# as the ``crowdsim`` command sets it (crowdsim/cli.py): numba's OpenMP threads sleep
-# between parallel regions instead of spinning on the cores the FFT workers need
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# as the ``crowdsim`` command sets them (crowdsim/cli.py): numba's OpenMP threads sleep
+# between parallel regions instead of spinning on the cores the FFT workers need, and malloc
+# keeps the large per-frame blocks instead of having them zeroed and mapped in again. Code
+# from before process_settings gets the OpenMP setting only; to time it under the same
+# malloc, set MALLOC_MMAP_THRESHOLD_=134217728 MALLOC_TRIM_THRESHOLD_=268435456 for both runs.
+try:
+    from crowdsim.cli import process_settings
+except ImportError:
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+else:
+    process_settings()
 
 import numba  # noqa: E402
 

@@ -922,17 +922,18 @@ def _target_components(n: int, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
     return labels
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _normalise(deg_s, deg_g, tau, w_sp, w_g, n_up, n_low):
     """``(D + tau)^-1/2`` of both degrees (0 where ``D = 0``), the diagonal ``w_sp D_s / (D_s +
     tau) + w_g D_g / (D_g + tau)`` and the CSC column pointers (each column's entries above
-    and below the diagonal, plus the diagonal where it is not 0)."""
+    and below the diagonal, plus the diagonal where it is not 0). One candidate per loop
+    iteration, then the pointers' running sum."""
     size = deg_s.shape[0]
     norm_s = np.zeros(size)
     norm_g = np.zeros(size)
     diag = np.empty(size)
-    indptr = np.zeros(size + 1, np.int64)
-    for i in range(size):
+    count = np.zeros(size + 1, np.int64)
+    for i in prange(size):
         ds = 0.0
         dg = 0.0
         if deg_s[i] > 0:
@@ -942,8 +943,8 @@ def _normalise(deg_s, deg_g, tau, w_sp, w_g, n_up, n_low):
             norm_g[i] = 1.0 / np.sqrt(deg_g[i] + tau)
             dg = deg_g[i] / (deg_g[i] + tau)
         diag[i] = w_sp * ds + w_g * dg
-        indptr[i + 1] = indptr[i] + n_up[i] + n_low[i] + (1 if diag[i] != 0.0 else 0)
-    return norm_s, norm_g, diag, indptr
+        count[i + 1] = n_up[i] + n_low[i] + (1 if diag[i] != 0.0 else 0)
+    return norm_s, norm_g, diag, np.cumsum(count)
 
 
 def proximity_matrix(
