@@ -314,6 +314,36 @@ def _write_back(
 
 
 @numba.njit(cache=True, nogil=True)
+def _sorted_differences(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(a \\ b, b \\ a)`` of two ascending arrays of distinct ids, ascending: one merge,
+    where two ``np.setdiff1d`` sorted both (1.4 ms of a 100k-agent strip step)."""
+    only_a = np.empty(len(a), np.int64)
+    only_b = np.empty(len(b), np.int64)
+    i = j = na = nb = 0
+    while i < len(a) and j < len(b):
+        if a[i] < b[j]:
+            only_a[na] = a[i]
+            na += 1
+            i += 1
+        elif b[j] < a[i]:
+            only_b[nb] = b[j]
+            nb += 1
+            j += 1
+        else:
+            i += 1
+            j += 1
+    while i < len(a):
+        only_a[na] = a[i]
+        na += 1
+        i += 1
+    while j < len(b):
+        only_b[nb] = b[j]
+        nb += 1
+        j += 1
+    return only_a[:na], only_b[:nb]
+
+
+@numba.njit(cache=True, nogil=True)
 def _window_scan(
     alive: np.ndarray,
     pos: np.ndarray,
@@ -889,8 +919,7 @@ class _Strip:
     ) -> None:
         """Bodies for exactly the agents ``ids`` (ascending): remove those that left the
         window, add those that entered (a handful per step, in id order)."""
-        gone = np.setdiff1d(self.agents, ids, assume_unique=True)
-        new = np.setdiff1d(ids, self.agents, assume_unique=True)
+        gone, new = _sorted_differences(self.agents, ids)
         for a in gone:  # only the agents that left the window
             self.space.remove(*self.shapes.pop(int(self.body_id[a])))
             self.body_id[a] = 0

@@ -13,6 +13,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import crowdsim.decomposition as dec
 from crowdsim.cli import main
@@ -298,3 +300,17 @@ def test_workers_do_not_leak_the_pymunk_rows():
         sim.run(150)
         grown = [_resident_mb(pid) - b for pid, b in zip(sim.engine.pids, before, strict=True)]
     assert max(grown) < 6.0, grown
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.sets(st.integers(0, 400), max_size=150),
+    st.sets(st.integers(0, 400), max_size=150),
+)
+def test_sorted_differences_are_setdiff1d(a, b):
+    """A strip's bodies to remove and to add: one merge gives numpy's two set differences."""
+    a = np.array(sorted(a), np.int64)
+    b = np.array(sorted(b), np.int64)
+    gone, new = dec._sorted_differences(a, b)
+    np.testing.assert_array_equal(gone, np.setdiff1d(a, b, assume_unique=True))
+    np.testing.assert_array_equal(new, np.setdiff1d(b, a, assume_unique=True))
