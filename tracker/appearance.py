@@ -81,7 +81,7 @@ def extract_patches(frame: np.ndarray, top_left: np.ndarray, size: int) -> np.nd
 
 
 @functools.cache
-def pairwise_plan(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pairwise_plan(n: int) -> tuple[np.ndarray, np.ndarray]:
     """How numpy's ``add.reduce`` sums ``n`` contiguous float32 values (``pairwise_sum``):
     halves (each a multiple of 8) down to blocks of at most 128, each block summed by
     :func:`_block_sum`, the halves' sums then added pairwise. Returns the blocks ``(L, 2)``
@@ -114,10 +114,10 @@ def pairwise_plan(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return -v - 1 if v < 0 else nb + v
 
     plan = [(nb + d, node(a), node(b)) for d, a, b in adds]
-    return (
-        np.array(blocks, np.int64).reshape(-1, 2),
-        np.array(plan, np.int64).reshape(-1, 3),
-    )
+    out = np.array(blocks, np.int64).reshape(-1, 2), np.array(plan, np.int64).reshape(-1, 3)
+    for a in out:
+        a.flags.writeable = False  # shared by every caller (cached)
+    return out
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
+from tracker.threads import current_threads, in_chunks
+
 
 @dataclass
 class Candidates:
@@ -200,8 +202,6 @@ def uniform_draws(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarra
     generator can skip ahead (PCG64, the trackers' ``default_rng``: one 64-bit output per
     double, so chunk ``c`` starts that many outputs on). At 7,850 targets the draws of the
     speed-up sampling took 5.7 ms on one thread."""
-    from tracker.threads import current_threads, in_chunks
-
     bg = rng.bit_generator
     out = np.empty(shape)
     flat = out.reshape(-1)
