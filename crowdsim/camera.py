@@ -26,6 +26,11 @@ trajectories to the same pixels.
   (:meth:`Camera.canvas`) and warps it, so the view never shows an undrawn border.
 * ``shake_events``: shake bursts (:class:`crowdsim.events.Event` of kind ``shake``), each a
   further seeded AR(1) translation of its own standard deviation acting only on its frames.
+* ``ground_margin_px``: the renderer draws the ground this far beyond each side of the frame
+  at least (:attr:`Camera.ground_margin`; the shake needs :func:`shake_margin`). The ground's
+  texture and clutter are drawn for the whole canvas, so two cameras alike but for the shake
+  see the same ground only with the same margin: ``crowdsim difficulty`` gives the still
+  twin of a shaken spec its margin, and the two then differ by the shake alone.
 
 Examples
 --------
@@ -57,6 +62,13 @@ DRONE_FIELDS: tuple[str, ...] = ("drift_px", "rotate_deg", "zoom", "drone_frames
 MOTION_FIELDS: tuple[str, ...] = tuple(k.name for k in knobs("camera"))
 """The camera's motion fields, one per camera knob (shake and drone profile): what a spec's
 ``[camera]`` section may set besides the geometry (:func:`motion_values`)."""
+
+
+def shake_margin(shake_px: float) -> int:
+    """Pixels of ground beyond each side of the frame that a shake of standard deviation
+    ``shake_px`` needs: 4 deviations and one more pixel for the bilinear neighbour (0 when
+    still)."""
+    return int(math.ceil(4 * shake_px)) + 1 if shake_px > 0 else 0
 
 
 def motion_values(camera: Any) -> dict[str, float]:
@@ -92,6 +104,9 @@ class Camera:
     shake_events : tuple of Event
         Shake bursts (kind ``shake``; magnitude: standard deviation in px), added to the
         jitter on their frames only.
+    ground_margin_px : int
+        Least ground, px, drawn beyond each side of the frame (0: what the shake needs;
+        :attr:`ground_margin`). It changes the drawn ground, never where anyone is seen.
     """
 
     px_per_m: float
@@ -108,6 +123,7 @@ class Camera:
     zoom: float = 0.0
     drone_frames: float = DRONE_FRAMES
     shake_events: tuple[Event, ...] = ()
+    ground_margin_px: int = 0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.px_per_m) and self.px_per_m > 0):
@@ -128,6 +144,12 @@ class Camera:
         if bad:
             raise ValueError(f"camera.shake_events must be shake events, got {bad[0]!r}")
         object.__setattr__(self, "shake_events", tuple(self.shake_events))
+        m = self.ground_margin_px
+        if not isinstance(m, (int, np.integer)) or isinstance(m, bool) or not 0 <= m <= MAX_SIDE:
+            raise ValueError(
+                f"camera.ground_margin_px must be an integer in [0, {MAX_SIDE}], got {m!r}"
+            )
+        object.__setattr__(self, "ground_margin_px", int(m))
         if self.drone_on:
             mx, my = self._canvas_margins()
             if max(self.width + 2 * mx, self.height + 2 * my) > MAX_SIDE:
@@ -239,6 +261,12 @@ class Camera:
     def shake_px(self) -> float:
         """The largest shake deviation on any frame (``jitter_px`` plus the bursts)."""
         return self.jitter_px + sum(e.magnitude for e in self.shake_events)
+
+    @property
+    def ground_margin(self) -> int:
+        """Ground, px, the renderer draws beyond each side of the frame: what the shake needs
+        (:func:`shake_margin`), or ``ground_margin_px`` if that is more."""
+        return max(shake_margin(self.shake_px), self.ground_margin_px)
 
     @property
     def drone_on(self) -> bool:

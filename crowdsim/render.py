@@ -560,7 +560,7 @@ class SceneRenderer:
             [int(seed), 0x5CE4E]
         ).spawn(5)
         self.bank: SpriteBank = build_sprite_bank(params, np.random.default_rng(s_bank))
-        self.margin = int(math.ceil(4 * camera.shake_px)) + 1 if camera.shake_px > 0 else 0
+        self.margin = camera.ground_margin
         h, w = camera.height, camera.width
         m = self.margin
         self.ground = make_ground(

@@ -175,6 +175,7 @@ def camera_for(
         **motion_values(cam),
         seed=seed,
         shake_events=of_kind(events, ("shake",)),
+        ground_margin_px=cam.get("ground_margin_px", 0),
     )
     if "center" in cam:
         camera = replace(camera, center=tuple(float(c) for c in cam["center"]))

@@ -23,6 +23,7 @@ A spec describes one sequence. Example (TOML)::
     # width = 1280           default: the trajectories' extent, at most max_width
     # height = 720
     # center = [0.0, 0.0]    default: centre of the extent
+    # ground_margin_px = 0   least ground drawn beyond the frame (default: the shake's)
     max_width = 1920
     max_height = 1080
 
@@ -96,6 +97,7 @@ CAMERA_FIELDS: dict[str, type | tuple[type, ...]] = {
     "max_width": int,
     "max_height": int,
     "margin_m": (int, float),
+    "ground_margin_px": int,
 }
 MAX_SIDE_PX: int = 8192
 """Largest frame width or height, px (as ``crowdsim render``)."""
@@ -301,6 +303,7 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
             tilt_deg=float(camera.get("tilt_deg", 0.0)),
             distance_m=float(camera.get("distance_m", 60.0)),
             **motion_values(camera),
+            ground_margin_px=camera.get("ground_margin_px", 0),
         )
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None

@@ -324,6 +324,8 @@ def write_sequence(
         }
         if camera.drone_on:  # recorded only when on: drone-free folders stay byte-identical
             meta_out["camera"].update({n: getattr(camera, n) for n in DRONE_FIELDS})
+        if camera.ground_margin_px:  # recorded only when set, as the drone profile
+            meta_out["camera"]["ground_margin_px"] = camera.ground_margin_px
         if camera.shake_events:
             meta_out["camera"]["shake_events"] = [e.to_dict() for e in camera.shake_events]
         meta_out["appearance"] = appearance.to_dict()

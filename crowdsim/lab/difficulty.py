@@ -39,9 +39,12 @@ def variant_specs(spec: Any, groups: Sequence[str] | None = None) -> list[tuple[
     in table order), ``uncalibrated``.
 
     A variant's spec is named ``<sequence>.<variant>``; only its appearance and camera knobs
-    differ (same seed, same crowd, same motion). Raises ``ValueError`` for a spec that was
-    never calibrated (no ``base_*`` values recorded in ``[calibration]``) and for an unknown
-    group.
+    differ (same seed, same crowd, same motion). A ``-<group>`` variant also draws the
+    calibrated spec's ground (``camera.ground_margin_px``): without the shake the renderer
+    would draw a smaller canvas, and with it other ground texture and clutter, so ``-shake``
+    would measure another scene as well as the shake. The ``uncalibrated`` variant is the
+    base spec as it renders on its own. Raises ``ValueError`` for a spec that was never
+    calibrated (no ``base_*`` values recorded in ``[calibration]``) and for an unknown group.
     """
     chosen = check_groups(groups)
     from crowdsim.lab.calibration import uncalibrated_values
@@ -54,13 +57,34 @@ def variant_specs(spec: Any, groups: Sequence[str] | None = None) -> list[tuple[
         )
     section = {name: sec for sec, name in base}
     out = [("calibrated", replace(spec, name=f"{spec.name}.calibrated"))]
+    margin = ground_margin(spec)
     for group in chosen:
         names = DIFFICULTY_GROUPS[group]
         values = {(section[n], n): base[(section[n], n)] for n in names}
         v = apply_knobs(spec, values)
+        if ground_margin(v) < margin:  # the same ground as the calibrated spec
+            v = replace(v, camera={**v.camera, "ground_margin_px": margin})
         out.append((f"-{group}", replace(v, name=f"{spec.name}.no-{_slug(group)}")))
     out.append(("uncalibrated", replace(apply_knobs(spec, base), name=f"{spec.name}.base")))
     return out
+
+
+def ground_margin(spec: Any) -> int:
+    """Ground, px, that ``spec``'s camera draws beyond each side of its frames
+    (:attr:`crowdsim.camera.Camera.ground_margin`: its shake and shake bursts, or its
+    ``ground_margin_px``)."""
+    from crowdsim.camera import Camera, motion_values
+    from crowdsim.events import of_kind
+
+    camera = Camera(  # placeholders for the geometry, which the margin does not depend on
+        px_per_m=1.0,
+        width=8,
+        height=8,
+        **motion_values(spec.camera),
+        shake_events=of_kind(spec.events, ("shake",)),
+        ground_margin_px=spec.camera.get("ground_margin_px", 0),
+    )
+    return camera.ground_margin
 
 
 def check_groups(groups: Sequence[str] | None) -> tuple[str, ...]:

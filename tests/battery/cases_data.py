@@ -176,6 +176,12 @@ gen_spec(
     "camera.margin_m must be in [0, 1000], got 1000000.0",
 )
 gen_spec(
+    "data-gen-ground-margin-negative",
+    "s.toml",
+    SPEC.replace("[camera]", "[camera]\nground_margin_px = -3"),
+    "camera.ground_margin_px must be an integer in [0, 16384], got -3",
+)
+gen_spec(
     "data-gen-output-none",
     "s.toml",
     SPEC + "\n[output]\nimages = false\n",

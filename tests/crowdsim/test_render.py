@@ -177,6 +177,33 @@ def test_camera_shake_moves_people_but_does_not_turn_them():
     assert np.nanmax(np.abs(moved)) > 2  # the people do move with the camera
 
 
+def test_a_still_camera_with_the_shakes_ground_margin_draws_the_shaken_scene_unshaken():
+    """``crowdsim difficulty``'s still twin of a shaken spec: with the shaken camera's ground
+    margin it draws the very frames the shaken camera would with its shake at zero (same
+    ground, clutter, people, light and noise); with its own, smaller margin, other ground."""
+    from dataclasses import replace
+
+    from crowdsim.camera import shake_margin
+
+    params = replace(PARAMS, distractor_density=0.05, moving_shadow_density=0.02)
+    shaken = replace(CAMERA, jitter_px=2.5, seed=4)
+    margin = shake_margin(2.5)
+    assert shaken.ground_margin == margin == 11
+    twin = replace(CAMERA, seed=4, ground_margin_px=margin)
+    assert twin.ground_margin == margin and not twin.moves
+    tracks = prepare_agents(walkers(6), twin, params, seed=1)
+    r_shaken = SceneRenderer(shaken, params, seed=5, fps=25.0)
+    r_shaken._frame_jitter = lambda t: np.zeros(2)  # the shaken camera, held still
+    r_twin = SceneRenderer(twin, params, seed=5, fps=25.0)
+    r_own = SceneRenderer(replace(CAMERA, seed=4), params, seed=5, fps=25.0)
+    np.testing.assert_array_equal(r_twin.ground, r_shaken.ground)
+    for t in range(6):
+        args = (t, tracks.pixels[t], tracks.heading[t], tracks.appearance)
+        frame = r_twin.render(*args, pose=tracks.pose[t])
+        np.testing.assert_array_equal(frame, r_shaken.render(*args, pose=tracks.pose[t]))
+        assert np.abs(frame.astype(int) - r_own.render(*args, pose=tracks.pose[t])).max() > 20
+
+
 def test_gt_rows_are_head_boxes_inside_the_frame():
     traj = walkers(3)
     tracks = prepare_agents(traj, CAMERA, PARAMS, seed=0)

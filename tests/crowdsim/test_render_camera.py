@@ -64,6 +64,8 @@ def test_fit_covers_the_extent():
         ({"tilt_deg": 75.0}, "tilt_deg"),
         ({"jitter_px": -1.0}, "jitter_px"),
         ({"center": (0.0, float("nan"))}, "center"),
+        ({"ground_margin_px": -1}, "ground_margin_px"),
+        ({"ground_margin_px": 2.5}, "ground_margin_px"),
     ],
 )
 def test_bad_camera_values_name_the_field(kwargs, field):

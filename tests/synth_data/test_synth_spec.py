@@ -216,6 +216,7 @@ def test_the_digest_covers_everything_that_changes_the_output():
         "max_width": 500,
         "max_height": 400,
         "margin_m": 3.0,
+        "ground_margin_px": 9,
     }
     assert set(camera) == set(CAMERA_FIELDS), "a new camera field: give it a value here"
     output = {"video": {"video": True}, "images": {"images": False, "video": True}}

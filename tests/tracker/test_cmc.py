@@ -242,6 +242,39 @@ def test_compensation_recovers_the_accuracy_that_shake_costs(name, scene, shaky_
         assert on >= 95 and off <= 50, (name, off, on)
 
 
+def test_the_oracle_benchmark_compensates_each_frame_by_its_planted_shake(shaky_crowd, monkeypatch):
+    """``benchmarks/cmc_oracle.py``'s perfect estimate: the tracker is handed, frame by frame,
+    exactly the shake the camera planted into that frame (its first version handed each
+    frame the step of the frame before, and lost points to it), and tracks through a 17 px
+    shake as the estimate does."""
+    from pathlib import Path
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    from cmc_oracle import planted_prepare
+
+    sc, seq = shaky_crowd
+    jitter = sc.camera.jitter(seq.length)
+    seen = []
+    plant = planted_prepare(jitter)
+
+    def prepare(trk, source):
+        plant(trk, source)
+        start = trk._start_compensator
+
+        def start_logged():
+            start()
+            estimate = trk.compensator.estimate
+            trk.compensator.estimate = lambda *a, **k: seen.append(estimate(*a, **k)) or seen[-1]
+
+        trk._start_compensator = start_logged
+
+    run = run_tracker("ncc", seq, params={"cmc": True}, metrics="accuracy", prepare=prepare)
+    assert len(seen) == seq.length - 1
+    np.testing.assert_array_equal([a[:, 2] for a in seen], np.diff(jitter, axis=0))
+    np.testing.assert_array_equal([a[:, :2] for a in seen], np.tile(np.eye(2), (len(seen), 1, 1)))
+    assert run.report["acc@15"] >= 95
+
+
 @pytest.mark.parametrize("name", FAMILIES)
 def test_switching_cmc_on_after_init_acts_as_if_given_at_start(name, scene):
     """The contract's ``set_params`` check runs on a still camera, where a compensator that
@@ -387,3 +420,16 @@ def test_the_people_mask_is_cv2_circles_drawn_one_by_one(radius):
         if np.isfinite(x) and np.isfinite(y) and abs(x) < 1e6:
             cv2.circle(expect, (int(round(x)), int(round(y))), radius, 0, -1)
     np.testing.assert_array_equal(got, expect)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("--seeds", "-1"), "--jiggle and --seeds must be >= 0, got 0.3 and -1"),
+        (("--tracker", "kcf"), "kcf"),
+        (("--only", "seq99"), "seq99"),
+    ],
+)
+def test_cmc_oracle_benchmark_names_bad_flags(run_benchmark, args, message):
+    out = run_benchmark("cmc_oracle.py", *args)
+    assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr

@@ -9,7 +9,7 @@ import pytest
 
 from crowdsim.cli import main
 from crowdsim.lab.calibration import _uncalibrated
-from crowdsim.lab.difficulty import DIFFICULTY_GROUPS, attribute, variant_specs
+from crowdsim.lab.difficulty import DIFFICULTY_GROUPS, attribute, ground_margin, variant_specs
 from crowdsim.lab.experiments import Row, cell_key
 from synth_data.suites import suite_specs
 
@@ -34,7 +34,24 @@ def test_each_variant_resets_exactly_one_group_to_the_uncalibrated_values():
             assert got[name] == want, (group, name)
         assert cal[names[0]] != base[names[0]]  # seq9 is calibrated hard: each group is on
         assert (v.seed, v.scenario, v.frames) == (spec.seed, spec.scenario, spec.frames)
+        # seq9 shakes by 0.28 px calibrated, 0.5 px uncalibrated: 3 px of ground either way
+        assert ground_margin(v) == ground_margin(spec) == 3 and "ground_margin_px" not in v.camera
     assert len({v.name for v in variants.values()}) == len(variants)
+
+
+def test_the_still_twin_of_a_shaken_spec_draws_its_ground():
+    """ucf9-shake's seq4 shakes by 1.59 px, uncalibrated not at all: its -shake variant keeps
+    the 8 px of ground the shake needs, so the two render the same ground and differ by the
+    shake alone; the uncalibrated spec renders as it would on its own."""
+    (spec,) = suite_specs("ucf9-shake", ["seq4"])
+    variants = dict(variant_specs(spec))
+    assert ground_margin(spec) == 8
+    still = variants["-shake"]
+    assert still.camera["jitter_px"] == 0.0 and still.camera["ground_margin_px"] == 8
+    for label, v in variants.items():
+        assert ground_margin(v) == (0 if label == "uncalibrated" else 8), label
+        if label != "-shake":
+            assert "ground_margin_px" not in v.camera, label
 
 
 def test_groups_limit_the_variants_in_table_order():
