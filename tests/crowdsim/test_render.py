@@ -311,3 +311,12 @@ def test_overwrite_checks_ownership_again_before_the_swap(tmp_path):
         write_sequence(late, traj, camera=CAMERA, appearance=PARAMS, seed=3, progress=user_makes)
     assert sorted(p.name for p in late.iterdir()) == ["notes.txt"]
     assert not list(tmp_path.glob(f"{TMP_PREFIX}*"))
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [(("--frames", "0"), "--frames must be >= 1, got 0"), (("--only", "seq99"), "seq99")],
+)
+def test_ground_sharpness_benchmark_names_bad_flags(run_benchmark, args, message):
+    out = run_benchmark("ground_sharpness.py", *args)
+    assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr
