@@ -7,8 +7,9 @@ For every calibrated sequence, tracks the calibrated spec, the spec with one gro
 appearance / camera knobs put back to its uncalibrated value (look-alike heads, packing, gait,
 clutter, noise and codec, blur, flicker, shake; one group at a time, on the calibrated spec's
 ground, so that the still twin of a shaken spec differs by the shake alone) and the
-uncalibrated spec, with each tracker (default: ncc pnmc bqp). Writes the run's ``table.md`` / ``table.csv``
-and ``attribution.md`` / ``attribution.json``: the acc@15 points each group costs each tracker.
+uncalibrated spec, with each tracker (default: ncc pnmc bqp). Writes the run's ``table.md`` /
+``table.csv`` and ``attribution.md`` / ``attribution.json``: the acc@15 points each group costs
+each tracker.
 ``--groups`` limits the variants to some groups; ``--cmc`` also runs each tracker with
 camera-motion compensation and reports the points it regains, and its share of what shake
 costs.
