@@ -12,7 +12,8 @@ that older versions have too, so the same frames can be timed before and after a
     python benchmarks/track_stages.py --threads 2
 
 ``--threads`` sets numba's threads (the code before threads existed used one). Prints a
-table and one JSON object; ``tracks_sha1`` identifies the tracks (equal across thread counts).
+table and one JSON object; ``tracks_sha1`` identifies the tracks (equal across thread counts)
+and, for BQP, ``fw_steps`` is the solver's mean block steps a frame.
 PNMC before and after its compiled propagation: ``--tracker pnmc`` with commit a0f25ad as
 "before" (``--repeats 2 --sequence stress-10k``; figures in the project README).
 """
@@ -92,8 +93,11 @@ def main() -> int:
     for name, (src, frames, metrics) in cases.items():
         best = None
         for _ in range(args.repeats):
-            r = run_tracker(make_tracker(args.tracker), src, frames=frames, metrics=metrics)
+            trk = make_tracker(args.tracker)
+            r = run_tracker(trk, src, frames=frames, metrics=metrics)
             row = {"fps": r.fps, **{k: r.stage_ms.get(k, 0.0) for k in stages}}
+            if hasattr(trk, "solver_iterations"):  # BQP: Frank-Wolfe block steps a frame
+                row["fw_steps"] = trk.solver_iterations / max(r.result.positions.shape[0] - 1, 1)
             if metrics == "accuracy":
                 row["acc@15"] = r.report["acc@15"]
             row["tracks_sha1"] = hashlib.sha1(r.result.positions.tobytes()).hexdigest()[:12]
@@ -101,9 +105,12 @@ def main() -> int:
                 best = row
         rows[name] = best
     heads = "".join(f"{k[:10]:>11}" for k in stages)
+    steps = any("fw_steps" in r for r in rows.values())
+    heads += f"{'FW steps':>10}" if steps else ""
     print(f"{'case':<44}{'fps':>7}{heads}  tracks (stages in ms a frame)")
     for name, r in rows.items():
         cells = "".join(f"{r[k]:>11.1f}" for k in stages)
+        cells += f"{r.get('fw_steps', 0.0):>10.0f}" if steps else ""
         print(f"{name[-44:]:<44}{r['fps']:>7.2f}{cells}  {r['tracks_sha1']}")
     report = {"benchmark": "track_stages", "tracker": args.tracker, "threads": args.threads}
     print(json.dumps({**report, "cases": rows}))
