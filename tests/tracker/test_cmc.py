@@ -433,3 +433,17 @@ def test_the_people_mask_is_cv2_circles_drawn_one_by_one(radius):
 def test_cmc_oracle_benchmark_names_bad_flags(run_benchmark, args, message):
     out = run_benchmark("cmc_oracle.py", *args)
     assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr
+
+
+def test_cmc_error_benchmark_reports_the_error_at_the_origin_and_over_the_frame(run_benchmark):
+    """``benchmarks/cmc_error.py``: for a pure shake both errors measure the same motion; the
+    frame's is averaged over a grid and bounded by its worst frame."""
+    import json
+
+    out = run_benchmark("cmc_error.py", "--only", "seq9", "--frames", "4", "--config", "d={}")
+    assert out.returncode == 0, out.stderr
+    row = json.loads(out.stdout.splitlines()[-1])["sequences"]["seq9"]["d"]
+    assert 0 <= row["frame_error_px"] <= row["frame_error_max_px"]
+    assert 0 <= row["error_px"] < 2 and row["failures"] == 0
+    bad = run_benchmark("cmc_error.py", "--frames", "1")
+    assert bad.returncode == 2 and "--frames must be >= 2, got 1" in bad.stderr
