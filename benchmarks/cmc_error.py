@@ -1,17 +1,21 @@
-"""Camera-motion estimate against the planted shake: error (px a frame) and cost (ms a frame).
+"""Camera-motion estimate against the planted camera motion: error (px a frame), cost (ms).
 
 For each sequence of a suite (default ``ucf9-shake``), renders the first ``--frames`` frames
 through the camera output (codec and JPEG, what a tracker reads), runs
 :class:`tracker.cmc.MotionCompensator` on them with the people of the previous frame excluded
-(their ground-truth heads, as a tracker passes its points) and compares each estimated
-translation with the shake the camera planted (``Camera.jitter``, the offset the people and,
-since the renderer moves the ground by the same sub-pixel offset, the ground carry). The
-``still`` column is the error of assuming a still camera (the mean planted motion). Each
-``--config`` is ``NAME=JSON`` of :class:`tracker.cmc.CMCParams` fields::
+(their ground-truth heads, as a tracker passes its points) and compares each estimate with the
+motion the camera planted: the shake (``Camera.jitter``, the offset the people and, since the
+renderer moves the ground by the same sub-pixel offset, the ground carry) and, on a drone
+suite such as ``ucf9-drone``, the drone profile's drift, rotation and zoom
+(``Camera.drone``). The ``still`` column is the error of assuming a still camera (the mean
+planted motion). Each ``--config`` is ``NAME=JSON`` of :class:`tracker.cmc.CMCParams`
+fields::
 
     python benchmarks/cmc_error.py --frames 80
     python benchmarks/cmc_error.py --only seq4 seq5 --config default={} \\
         'full-res={"downscale": 1}' 'ecc={"method": "ecc"}'
+    python benchmarks/cmc_error.py --suite ucf9-drone --config default={} \\
+        'shift={"model": "translation"}' 'auto={"model": "auto"}'
 
 Prints a table (mean absolute error per axis, px a frame; ms a frame; frames that fell back
 to the identity) and one JSON object. Choose estimate settings by this error, never by a
@@ -46,6 +50,22 @@ def _config(text: str) -> tuple[str, dict]:
     return name, fields
 
 
+def planted_motion(camera, n_frames: int) -> np.ndarray:
+    """``(n_frames - 1, 2, 3)``: the map from frame ``t - 1``'s pixels to frame ``t``'s that
+    the camera planted, for ``t = 1 ..``: undo the drone view of ``t - 1``, move by the
+    shake's step, apply the drone view of ``t`` (a shift when there is no drone profile)."""
+    jitter = camera.jitter(n_frames)
+    views = camera.drone(n_frames)
+    out = np.empty((max(n_frames - 1, 0), 2, 3))
+    for t in range(1, n_frames):
+        before = np.vstack([views[t - 1], [0.0, 0.0, 1.0]])
+        step = np.array([[1.0, 0, *(jitter[t, :1] - jitter[t - 1, :1])],
+                         [0, 1.0, *(jitter[t, 1:] - jitter[t - 1, 1:])], [0, 0, 1.0]])  # fmt: skip
+        after = np.vstack([views[t], [0.0, 0.0, 1.0]])
+        out[t - 1] = (after @ step @ np.linalg.inv(before))[:2]
+    return out
+
+
 def measure(spec, frames: int, configs: dict[str, dict]) -> dict:
     """Error and cost of each config on the first ``frames`` frames of ``spec``."""
     from synth_data.scene import Scene
@@ -59,7 +79,8 @@ def measure(spec, frames: int, configs: dict[str, dict]) -> dict:
     scene = Scene.from_spec(spec)
     output = partial(camera_output, fps=spec.fps, encoding=spec.appearance.encoding)
     seq = InMemorySequence.from_scene(scene, output=output)
-    truth = np.diff(scene.camera.jitter(seq.length), axis=0)
+    planted = planted_motion(scene.camera, seq.length)
+    truth = planted[:, :, 2]  # the motion of the frame's origin
     _, gt = seq.gt_points()
     images = list(seq.frames())
     gx, gy = np.meshgrid(np.linspace(0, seq.width - 1, 9), np.linspace(0, seq.height - 1, 9))
@@ -73,8 +94,8 @@ def measure(spec, frames: int, configs: dict[str, dict]) -> dict:
             a = cmc.estimate(image, exclude=prev, exclude_px=cmc.params.exclude * seq.template_size)
             if t:
                 found.append(a[:, 2])
-                moved = warp_points(a, grid) - grid
-                frame_error.append(float(np.abs(moved - truth[t - 1]).mean()))
+                moved = warp_points(a, grid) - warp_points(planted[t - 1], grid)
+                frame_error.append(float(np.abs(moved).mean()))
         stats = cmc.stats()
         row[name] = {
             "error_px": float(np.abs(np.array(found) - truth).mean()),

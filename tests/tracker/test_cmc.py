@@ -141,6 +141,40 @@ def test_estimate_recovers_the_planted_camera_motion(method, downscale, tol):
     assert cmc.failures == 0 and cmc.frames == len(sc.frames)
 
 
+@pytest.mark.parametrize(
+    ("turn_deg", "model", "tol", "shifts"),
+    [
+        (0.0, "similarity", 0.3, 0),  # measured: 0.26 px at the corners
+        (0.0, "translation", 0.15, 19),  # 0.12: rotation and zoom fitted to noise are gone
+        (0.0, "auto", 0.15, 19),  # 0.12: every frame a shift
+        (0.5, "similarity", 0.3, 0),  # 0.24
+        (0.5, "translation", 2.0, 19),  # 1.13: a shift cannot follow a turning camera
+        (0.5, "auto", 0.3, 1),  # 0.26: the turn kept on all frames but the one that barely turns
+    ],
+)
+def test_the_shift_and_auto_models_follow_a_camera_that_only_shifts(turn_deg, model, tol, shifts):
+    """``model="translation"`` fits a shift; ``"auto"`` a shift where the camera only shifts
+    and the similarity where it also turns (by up to 0.5 degrees a frame): within ``tol`` px
+    of the planted motion at the frame's corners, with ``shifts`` of the 19 estimates pure
+    shifts (the linear part exactly the identity)."""
+    sc = shaken_scene(shape=(240, 320), seed=1, turn_deg=turn_deg)
+    h, w = sc.frames[0].shape[:2]
+    corners = np.array([[0.0, 0.0], [w - 1, 0.0], [0.0, h - 1], [w - 1, h - 1]])
+    cmc = MotionCompensator(CMCParams(model=model))
+    cmc.estimate(sc.frames[0])
+    errors, pure = [], 0
+    for t in range(1, len(sc.frames)):
+        prev = sc.points[t - 1][np.isfinite(sc.points[t - 1]).all(1)]
+        a = cmc.estimate(sc.frames[t], exclude=prev, exclude_px=2 * sc.template_size)
+        errors.append(
+            np.abs(warp_points(a, corners) - warp_points(sc.planted[t - 1], corners)).max()
+        )
+        pure += int((a[:, :2] == np.eye(2)).all())
+    assert max(errors) < tol and pure == shifts and cmc.failures == 0, (max(errors), pure)
+    if model == "translation" and turn_deg:
+        assert max(errors) > 0.8  # the test can tell a shift from a turn
+
+
 def test_corners_tracked_forward_recover_the_motion_with_fewer_detections(monkeypatch):
     """``redetect < 1`` carries the inlier corners into the next estimate (KLT): Shi-Tomasi
     runs on a few frames only, and every estimate stays within the 0.3 px of the
