@@ -54,7 +54,7 @@ test's Gaussian, independent residuals are not what Lucas-Kanade's corners have,
 was chosen by the estimate's error against the planted motion (``benchmarks/cmc_error.py``,
 first 80 frames of every ``ucf9-shake`` and ``ucf9-drone`` spec, mean over the frame): 0.202,
 0.197, 0.185 and 0.178 px a frame on ``ucf9-shake`` at 1e-2, 1e-3, 1e-5 and 1e-8, and
-0.126-0.124 on ``ucf9-drone`` at all four (the similarity alone: 0.211 and 0.126; a shift
+0.126-0.124 on ``ucf9-drone`` at all four (the similarity alone: 0.211 and 0.125; a shift
 alone: 0.173 and 0.202)."""
 IDENTITY: np.ndarray = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 """The 2x3 identity transform (read-only)."""
@@ -82,7 +82,7 @@ class CMCParams:
         nothing. Measured on the first 80 frames of each spec (``benchmarks/cmc_error.py``,
         error averaged over the frame, mean of the nine): on ``ucf9-shake`` 0.211 px a frame
         for the similarity, 0.173 for the shift, 0.178 for ``"auto"``; on ``ucf9-drone``,
-        where the view also turns and zooms, 0.126, 0.202 and 0.124. ``"auto"`` is the best
+        where the view also turns and zooms, 0.125, 0.202 and 0.124. ``"auto"`` is the best
         of both but not yet the default: the trackers' compensated figures in the README were
         measured with the similarity. ECC fits a Euclidean transform for ``"similarity"`` and
         ``"auto"`` (its closest model: no zoom) and a shift for ``"translation"``.
