@@ -9,6 +9,9 @@ frames/s (tracking alone, :attr:`tracker.runner.TrackRun.fps`), the frames/s com
 takes, its ms a frame (the ``cmc`` stage) and acc@15::
 
     python benchmarks/cmc_fps.py --only seq8 seq2 seq6 seq4 --corners 100 400
+    python benchmarks/cmc_fps.py --suite ucf9-shake --rounds 1 --model auto
+
+``--model`` is :attr:`tracker.cmc.CMCParams.model` (default ``similarity``).
 
 Prints a table and one JSON object. The corner count is chosen by the estimate's error
 (``benchmarks/cmc_error.py``), never by a tracker's score.
@@ -20,7 +23,14 @@ import argparse
 import json
 
 
-def measure(spec, tracker: str, corners: list[int], rounds: int, redetect: float = 1.0) -> dict:
+def measure(
+    spec,
+    tracker: str,
+    corners: list[int],
+    rounds: int,
+    redetect: float = 1.0,
+    model: str = "similarity",
+) -> dict:
     """Best frames/s, ``cmc`` ms a frame and acc@15 of ``tracker`` on ``spec`` per setting."""
     from synth_data.sequence import InMemorySequence
     from tracker.cmc import CMCParams
@@ -34,7 +44,7 @@ def measure(spec, tracker: str, corners: list[int], rounds: int, redetect: float
 
             def prepare(trk, _source, c=c):
                 if c is not None:
-                    trk.cmc_settings = CMCParams(max_corners=c, redetect=redetect)
+                    trk.cmc_settings = CMCParams(max_corners=c, redetect=redetect, model=model)
 
             run = run_tracker(
                 tracker, seq, params={"cmc": c is not None}, metrics="accuracy", prepare=prepare
@@ -65,6 +75,11 @@ def main() -> int:
         default=1.0,
         help="CMCParams.redetect: 1 detects corners on every frame, below 1 tracks them forward",
     )
+    ap.add_argument(
+        "--model",
+        default="similarity",
+        help="CMCParams.model: similarity (the default), affine, translation or auto",
+    )
     args = ap.parse_args()
     if args.rounds < 1:
         ap.error(f"--rounds must be >= 1, got {args.rounds}")
@@ -74,9 +89,9 @@ def main() -> int:
 
     for c in args.corners:
         try:
-            CMCParams(max_corners=c, redetect=args.redetect)
+            CMCParams(max_corners=c, redetect=args.redetect, model=args.model)
         except ValueError as exc:
-            ap.error(f"--corners {c} --redetect {args.redetect}: {exc}")
+            ap.error(f"--corners {c} --redetect {args.redetect} --model {args.model}: {exc}")
     try:
         if "cmc" not in get(args.tracker).field_names():
             ap.error(f"--tracker {args.tracker!r} has no camera-motion compensation (cmc)")
@@ -86,15 +101,21 @@ def main() -> int:
     names = ["off"] + [f"cmc{c}" for c in args.corners]
     rows = {}
     head = "".join(f"{n:>24}" for n in names)
-    print(f"{'sequence':<10}{'size':>11}{'people':>7}{head}   (frames/s, cost, cmc ms a frame)")
+    print(
+        f"{'sequence':<10}{'size':>11}{'people':>7}{head}"
+        "   (frames/s, cost, cmc ms a frame; acc@15 of each)"
+    )
     for spec in specs:
-        r = rows[spec.name] = measure(spec, args.tracker, args.corners, args.rounds, args.redetect)
+        r = rows[spec.name] = measure(
+            spec, args.tracker, args.corners, args.rounds, args.redetect, args.model
+        )
         cells = f"{r['off']['fps']:>24.1f}" + "".join(
             f"{r[n]['fps']:>10.1f}{-100 * r[n]['fps_cost']:>+6.0f} %{r[n]['cmc_ms']:>5.1f} ms"
             for n in names[1:]
         )
         size = "x".join(map(str, r["size"]))
-        print(f"{spec.name:<10}{size:>11}{r['people']:>7}{cells}")
+        acc = " / ".join(f"{r[n]['acc@15']:.1f}" for n in names)
+        print(f"{spec.name:<10}{size:>11}{r['people']:>7}{cells}   {acc}", flush=True)
     print(
         json.dumps(
             {
@@ -102,6 +123,7 @@ def main() -> int:
                 "tracker": args.tracker,
                 "rounds": args.rounds,
                 "redetect": args.redetect,
+                "model": args.model,
                 "sequences": rows,
             }
         )

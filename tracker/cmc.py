@@ -82,9 +82,9 @@ class CMCParams:
         nothing. Measured on the first 80 frames of each spec (``benchmarks/cmc_error.py``,
         error averaged over the frame, mean of the nine): on ``ucf9-shake`` 0.211 px a frame
         for the similarity, 0.173 for the shift, 0.178 for ``"auto"``; on ``ucf9-drone``,
-        where the view also turns and zooms, 0.125, 0.202 and 0.124. ``"auto"`` is the best
-        of both but not yet the default: the trackers' compensated figures in the README were
-        measured with the similarity. ECC fits a Euclidean transform for ``"similarity"`` and
+        where the view also turns and zooms, 0.125, 0.202 and 0.124. ``"auto"`` errs least
+        on both, but BQP tracked no better with it (within one run's noise, 10 sequences of
+        the two suites; the project README), so the similarity stays the default. ECC fits a Euclidean transform for ``"similarity"`` and
         ``"auto"`` (its closest model: no zoom) and a shift for ``"translation"``.
     downscale : int
         The estimate runs on frames shrunk by this factor (BoT-SORT: 2); 1 on small frames.
