@@ -7,9 +7,9 @@ through the camera output (codec and JPEG, what a tracker reads), runs
 motion the camera planted: the shake (``Camera.jitter``, the offset the people and, since the
 renderer moves the ground by the same sub-pixel offset, the ground carry) and, on a drone
 suite such as ``ucf9-drone``, the drone profile's drift, rotation and zoom
-(``Camera.drone``). The ``still`` column is the error of assuming a still camera (the mean
-planted motion). Each ``--config`` is ``NAME=JSON`` of :class:`tracker.cmc.CMCParams`
-fields::
+(``Camera.drone``; both together: ``Camera.frame_motion``). The ``still`` column is the
+error of assuming a still camera (the mean planted motion). Each ``--config`` is
+``NAME=JSON`` of :class:`tracker.cmc.CMCParams` fields::
 
     python benchmarks/cmc_error.py --frames 80
     python benchmarks/cmc_error.py --only seq4 seq5 --config default={} \\
@@ -50,22 +50,6 @@ def _config(text: str) -> tuple[str, dict]:
     return name, fields
 
 
-def planted_motion(camera, n_frames: int) -> np.ndarray:
-    """``(n_frames - 1, 2, 3)``: the map from frame ``t - 1``'s pixels to frame ``t``'s that
-    the camera planted, for ``t = 1 ..``: undo the drone view of ``t - 1``, move by the
-    shake's step, apply the drone view of ``t`` (a shift when there is no drone profile)."""
-    jitter = camera.jitter(n_frames)
-    views = camera.drone(n_frames)
-    out = np.empty((max(n_frames - 1, 0), 2, 3))
-    for t in range(1, n_frames):
-        before = np.vstack([views[t - 1], [0.0, 0.0, 1.0]])
-        step = np.array([[1.0, 0, *(jitter[t, :1] - jitter[t - 1, :1])],
-                         [0, 1.0, *(jitter[t, 1:] - jitter[t - 1, 1:])], [0, 0, 1.0]])  # fmt: skip
-        after = np.vstack([views[t], [0.0, 0.0, 1.0]])
-        out[t - 1] = (after @ step @ np.linalg.inv(before))[:2]
-    return out
-
-
 def measure(spec, frames: int, configs: dict[str, dict]) -> dict:
     """Error and cost of each config on the first ``frames`` frames of ``spec``."""
     from synth_data.scene import Scene
@@ -79,7 +63,7 @@ def measure(spec, frames: int, configs: dict[str, dict]) -> dict:
     scene = Scene.from_spec(spec)
     output = partial(camera_output, fps=spec.fps, encoding=spec.appearance.encoding)
     seq = InMemorySequence.from_scene(scene, output=output)
-    planted = planted_motion(scene.camera, seq.length)
+    planted = scene.camera.frame_motion(seq.length)
     truth = planted[:, :, 2]  # the motion of the frame's origin
     _, gt = seq.gt_points()
     images = list(seq.frames())

@@ -34,37 +34,39 @@ from __future__ import annotations
 
 import argparse
 import json
+from functools import partial
 
 import numpy as np
 
 
-def planted_compensator(jitter: np.ndarray, base_cls, error: np.ndarray | None = None):
+def planted_compensator(motion: np.ndarray, base_cls, error: np.ndarray | None = None):
     """A :class:`tracker.cmc.MotionCompensator` whose estimate into frame ``t`` is the
-    planted translation ``jitter[t] - jitter[t - 1]`` (the identity into the first frame),
-    plus ``error[t]`` if given."""
-    steps = np.diff(jitter, axis=0, prepend=jitter[:1])
+    camera's planted map ``motion[t - 1]`` (:meth:`crowdsim.camera.Camera.frame_motion`; the
+    identity into the first frame), its shift plus ``error[t]`` if given (``(n_frames, 2)``;
+    row 0, the first frame's, unused)."""
+    from tracker.cmc import IDENTITY
+
+    maps = np.array(motion, dtype=np.float64)
     if error is not None:
-        steps = steps + error
+        maps[:, :, 2] += error[1 : len(maps) + 1]
 
     class Planted(base_cls):
         def estimate(self, frame, exclude=None, exclude_px=0.0):
             t = self.frames
             self.frames += 1
-            a = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-            if 0 < t < len(steps):
-                a[:, 2] = steps[t]
+            a = maps[t - 1].copy() if 0 < t <= len(maps) else IDENTITY.copy()
             self.last = a
             return a
 
     return Planted
 
 
-def planted_prepare(jitter: np.ndarray, error: np.ndarray | None = None):
+def planted_prepare(motion: np.ndarray, error: np.ndarray | None = None):
     """``run_tracker``'s ``prepare`` that gives the tracker :func:`planted_compensator`'s
     estimate in place of its own whenever it starts compensating."""
     from tracker.cmc import MotionCompensator
 
-    planted = planted_compensator(jitter, MotionCompensator, error)
+    planted = planted_compensator(motion, MotionCompensator, error)
 
     def prepare(trk, _source):
         start = trk._start_compensator
@@ -88,14 +90,19 @@ def measure(spec, tracker: str, jiggle: float = 0.0, seeds: int = 0, raw: bool =
     from crowdsim.lab.difficulty import variant_specs
     from synth_data.scene import Scene
     from synth_data.sequence import InMemorySequence
+    from synth_data.video import camera_output
     from tracker.runner import run_tracker
 
-    still_spec = dict(variant_specs(spec, ["shake"]))["-shake"]
-    seq = InMemorySequence.from_spec(spec, camera_output=not raw).materialize()
-    jitter = Scene.from_spec(spec).camera.jitter(seq.length)
+    def render(s):  # one simulation gives the frames and the camera that moved them
+        scene = Scene.from_spec(s)
+        out = None if raw else partial(camera_output, fps=s.fps, encoding=s.appearance.encoding)
+        return scene, InMemorySequence.from_scene(scene, output=out).materialize()
+
+    scene, seq = render(spec)
+    motion = scene.camera.frame_motion(seq.length)
 
     def plant(error=None):
-        return planted_prepare(jitter, error)
+        return planted_prepare(motion, error)
 
     def acc(source, cmc: bool, prepare=None) -> float:
         run = run_tracker(tracker, source, params={"cmc": cmc}, metrics="accuracy", prepare=prepare)
@@ -107,14 +114,14 @@ def measure(spec, tracker: str, jiggle: float = 0.0, seeds: int = 0, raw: bool =
         "+planted": acc(seq, True, plant()),
     }
     if seeds:
-        shape = jitter.shape
+        shape = (len(motion) + 1, 2)  # a row per frame, as the jitter
         row["+jiggled"] = [
             acc(seq, True, plant(np.random.default_rng(s).normal(0.0, jiggle, shape)))
             for s in range(seeds)
         ]
-    still = InMemorySequence.from_spec(still_spec, camera_output=not raw).materialize()
+    _, still = render(dict(variant_specs(spec, ["shake"]))["-shake"])
     row["still"] = acc(still, False)
-    row["shake_px"] = float(np.abs(np.diff(jitter, axis=0)).mean())
+    row["shake_px"] = float(np.abs(motion[:, :, 2]).mean())
     cost = row["still"] - row["shaken"]
     row["cost"] = cost
     for name in ("+cmc", "+planted"):

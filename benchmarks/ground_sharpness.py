@@ -2,8 +2,9 @@
 
 For each shaken sequence of a suite (default ``ucf9-shake``) this draws the ground alone (no
 people, no sensor noise, no illumination drift) for ``--frames`` frames twice on the same
-canvas: with the spec's shake, and held still (``jitter_px = 0`` with the shaken camera's
-``ground_margin_px``, as ``crowdsim difficulty``'s ``-shake`` variant). It reports the mean
+canvas: with the spec's shake, and held still (no jitter and no shake bursts, with the
+shaken camera's ``ground_margin_px``, as ``crowdsim difficulty``'s ``-shake`` variant draws
+its ground). It reports the mean
 variance of each grey frame's Laplacian, the energy of the finest texture, and the ratio
 shaken / still. A shaken frame samples the ground between pixels (bilinearly), which softens
 it: a ratio under 1 is texture that a still camera shows and a shaken one does not::

@@ -312,6 +312,33 @@ class Camera:
         out[:, :, 2] = c + np.stack([dx, dy], axis=1) - lin @ c
         return out
 
+    def frame_motion(self, n_frames: int) -> np.ndarray:
+        """``(n_frames - 1, 2, 3)``: for ``t = 1 ..``, the map from frame ``t - 1``'s pixels
+        to frame ``t``'s that this camera makes: undo the drone view of ``t - 1``
+        (:meth:`drone`), move by the shake's step (:meth:`jitter`), apply the drone view of
+        ``t``. Without the drone profile, exactly the shift ``jitter[t] - jitter[t - 1]``.
+        What a camera-motion estimate should find (``benchmarks/cmc_error.py``).
+
+        >>> cam = Camera(px_per_m=10.0, width=64, height=48, jitter_px=2.0, seed=1)
+        >>> m = cam.frame_motion(5)
+        >>> m.shape, bool((m[:, :, 2] == np.diff(cam.jitter(5), axis=0)).all())
+        ((4, 2, 3), True)
+        """
+        jitter = self.jitter(n_frames)
+        steps = np.diff(jitter, axis=0)
+        out = np.zeros((len(steps), 2, 3))
+        out[:, 0, 0] = out[:, 1, 1] = 1.0
+        out[:, :, 2] = steps
+        if not self.drone_on:
+            return out
+        views = np.zeros((n_frames, 3, 3))
+        views[:, :2] = self.drone(n_frames)
+        views[:, 2, 2] = 1.0
+        shift = np.zeros((len(steps), 3, 3))
+        shift[:, :2] = out
+        shift[:, 2, 2] = 1.0
+        return (views[1:] @ shift @ np.linalg.inv(views[:-1]))[:, :2]
+
     def _canvas_margins(self) -> tuple[int, int]:
         half_w, half_h = self.width / 2.0, self.height / 2.0
         sin = math.sin(math.radians(self.rotate_deg))

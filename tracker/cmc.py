@@ -269,12 +269,12 @@ def prefer_shift(a: np.ndarray, src: np.ndarray, dst: np.ndarray, p: float) -> n
     shift = (dst - src).mean(axis=0)
     rss_shift = float(((src + shift - dst) ** 2).sum())
     rss_sim = float(((src @ a[:, :2].T + a[:, 2] - dst) ** 2).sum())
-    if rss_sim <= 0.0:
-        return a if rss_shift > 0.0 else np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]]])
-    f = (rss_shift - rss_sim) / 2.0 / (rss_sim / m)
-    if f >= m / 2.0 * (p ** (-2.0 / m) - 1.0):
-        return a
-    return np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]]])
+    if rss_sim <= 0.0:  # an exact fit: the rotation and zoom matter if the shift misses
+        significant = rss_shift > 0.0
+    else:
+        f = (rss_shift - rss_sim) / 2.0 / (rss_sim / m)
+        significant = f >= m / 2.0 * (p ** (-2.0 / m) - 1.0)
+    return a if significant else np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]]])
 
 
 def warp_points(a: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -289,7 +289,7 @@ def test_the_oracle_benchmark_compensates_each_frame_by_its_planted_shake(shaky_
     sc, seq = shaky_crowd
     jitter = sc.camera.jitter(seq.length)
     seen = []
-    plant = planted_prepare(jitter)
+    plant = planted_prepare(sc.camera.frame_motion(seq.length))
 
     def prepare(trk, source):
         plant(trk, source)
