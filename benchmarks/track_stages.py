@@ -10,6 +10,7 @@ that older versions have too, so the same frames can be timed before and after a
     (cd /tmp && PYTHONPATH=/tmp/before python /path/to/benchmarks/track_stages.py --threads 1)
     python benchmarks/track_stages.py --threads 1
     python benchmarks/track_stages.py --threads 2
+    python benchmarks/track_stages.py --threads 2 --fw-variant block
 
 ``--threads`` sets numba's threads (the code before threads existed used one). Prints a
 table and one JSON object; ``tracks_sha1`` identifies the tracks (equal across thread counts)
@@ -51,6 +52,12 @@ def main() -> int:
     ap.add_argument("--sequence", default=None, metavar="DIR")
     ap.add_argument("--frames", type=int, default=9)
     ap.add_argument(
+        "--fw-variant",
+        default=None,
+        metavar="NAME",
+        help="BQP's Frank-Wolfe variant (fw_variant, e.g. block; default: the tracker's own)",
+    )
+    ap.add_argument(
         "--tracker",
         choices=sorted(STAGES),
         default="bqp",
@@ -58,6 +65,17 @@ def main() -> int:
     )
     args = ap.parse_args()
     stages = STAGES[args.tracker]
+    over = {}
+    if args.fw_variant is not None:
+        from tracker.bqp.params import BQPParams
+
+        if args.tracker != "bqp":
+            ap.error("--fw-variant is BQP's")
+        try:
+            BQPParams(fw_variant=args.fw_variant)
+        except ValueError as exc:  # older versions know fewer variants
+            ap.error(f"--fw-variant: {exc}")
+        over["fw_variant"] = args.fw_variant
     if not 1 <= args.threads <= numba.config.NUMBA_NUM_THREADS:
         ap.error(f"--threads must be in [1, {numba.config.NUMBA_NUM_THREADS}], got {args.threads}")
     numba.set_num_threads(args.threads)
@@ -93,7 +111,7 @@ def main() -> int:
     for name, (src, frames, metrics) in cases.items():
         best = None
         for _ in range(args.repeats):
-            trk = make_tracker(args.tracker)
+            trk = make_tracker(args.tracker, **over)
             r = run_tracker(trk, src, frames=frames, metrics=metrics)
             row = {"fps": r.fps, **{k: r.stage_ms.get(k, 0.0) for k in stages}}
             if hasattr(trk, "solver_iterations"):  # BQP: Frank-Wolfe block steps a frame

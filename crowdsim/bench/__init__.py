@@ -17,7 +17,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "fd": ("crowdsim.bench.fd", "fundamental diagram vs Weidmann and counterflow lanes"),
     "solver": (
         "crowdsim.bench.solver",
-        "Frank-Wolfe plain/away/SWAP iterations and FW-SWAP vs Clarabel (relaxed BQP)",
+        "Frank-Wolfe plain/away/SWAP/block iterations and FW-SWAP vs Clarabel (relaxed BQP)",
     ),
     "render": ("crowdsim.bench.render", "renderer frames/s, 1280x720/1k and 1920x1080/10k agents"),
     "track": (

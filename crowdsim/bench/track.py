@@ -12,7 +12,9 @@ is excluded from the timings):
 3. with ``--cmc``, the BQP tracker again with camera-motion compensation (:mod:`tracker.cmc`,
    ``cmc=True``) on the same frames: its milliseconds per frame (the ``cmc`` column; the
    crowds' camera is still, so the estimate is all it adds);
-4. scaling with ``--threads 1 2 ...``: the BQP tracker (speed-up sampling) at each thread
+4. with ``--fw-variant block``, the BQP tracker again with that Frank-Wolfe variant
+   (:mod:`tracker.bqp.frank_wolfe`; the default is ``swap``) on the same frames;
+5. scaling with ``--threads 1 2 ...``: the BQP tracker (speed-up sampling) at each thread
    count (:mod:`tracker.threads`) on the same frames, its speed-up over the first count and
    whether the tracks are identical (they must be: every parallel kernel is deterministic).
    The other methods run at the largest count.
@@ -30,6 +32,7 @@ import os
 import numpy as np
 
 from synth_data.sequence import InMemorySequence, load_crowd, synthetic_crowd
+from tracker.bqp.frank_wolfe import VARIANTS as FW_VARIANTS
 
 PACKED_DENSITY: float = 2.5
 """People per square metre of the packed speed runs."""
@@ -125,6 +128,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also time BQP with camera-motion compensation (cmc=True) on every crowd",
     )
     parser.add_argument(
+        "--fw-variant",
+        nargs="+",
+        default=[],
+        choices=FW_VARIANTS,
+        metavar="NAME",
+        help="also time BQP (speed-up sampling, the most threads) with these Frank-Wolfe "
+        f"variants (fw_variant; one of {', '.join(FW_VARIANTS)}) on every crowd; "
+        "e.g. block",
+    )
+    parser.add_argument(
         "--threads",
         type=int,
         nargs="+",
@@ -181,6 +194,7 @@ def run(args: argparse.Namespace) -> int:
             runs.append(("ncc", "ncc", {}, top))
             if args.cmc:
                 runs.append(("bqp cmc", "bqp", {"cmc": True}, top))
+            runs += [(f"bqp {v}", "bqp", {"fw_variant": v}, top) for v in args.fw_variant]
             first = None
             for label, name, over, t in runs:
                 if packed and label == "bqp dense" and n > 300:

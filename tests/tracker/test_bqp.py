@@ -63,7 +63,7 @@ def test_speedup_sampling_uses_33_candidates_per_target():
     np.testing.assert_array_equal(res.positions, sc.points)
 
 
-@pytest.mark.parametrize("variant", ["plain", "away", "swap"])
+@pytest.mark.parametrize("variant", ["plain", "away", "swap", "block"])
 def test_every_fw_variant_tracks(variant):
     sc = _convoy(8)
     res = BQPTracker(BQPParams(fw_variant=variant)).track(sc.frames, sc.ids, sc.points[0], 8)
@@ -195,7 +195,8 @@ def test_update_threshold_gates_the_appearance_update(appearance, quantile):
     np.testing.assert_array_equal(changed, conf >= threshold)
 
 
-def test_tracks_are_the_same_for_any_number_of_threads(monkeypatch):
+@pytest.mark.parametrize("variant", ["swap", "block"])
+def test_tracks_are_the_same_for_any_number_of_threads(monkeypatch, variant):
     """Parallel terms, FFTs, component solves and numpy passes in chunks (made small here,
     so that this crowd is cut too): 1 and 2 threads give identical tracks, on a spread-out
     crowd whose frames split into independent components."""
@@ -218,7 +219,7 @@ def test_tracks_are_the_same_for_any_number_of_threads(monkeypatch):
     crowd = synthetic_crowd(120, 8, 3, 12, size=(480, 270))
     tracks = []
     for threads in (1, 2):
-        tr = BQPTracker()
+        tr = BQPTracker(BQPParams(fw_variant=variant))
         tr.threads = threads
         tr.parallel_min_targets = 0  # a small crowd, on every thread all the same
         tracks.append(run_tracker(tr, crowd, metrics="none").result.positions)

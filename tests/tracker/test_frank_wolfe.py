@@ -602,3 +602,153 @@ def test_a_known_diagonal_solves_as_the_gathered_block_parts():
         BlockQP.from_terms(c, q, bp, diag[:-1])
     with pytest.raises(ValueError, match="BlockQP.diagonal"):
         BlockQP.from_terms(c, q, bp, diag.astype(np.float32))
+
+
+# ------------------------------------------------------------------- the exact block step
+def laplacian_qp(seed: int, n: int, kmax: int, isolated: float = 0.2) -> BlockQP:
+    """Random PSD instance shaped as the tracker's: ``Q = a (D + W) + b (D - W)`` with ``W``
+    a sparse non-negative similarity between candidates of different blocks and ``D =
+    diag(W 1)``, so that inside a block ``Q`` holds its diagonal alone; a share of the
+    candidates link to nothing (a zero diagonal)."""
+    rng = np.random.default_rng(seed)
+    sizes = rng.integers(1, kmax + 1, size=n)
+    bp = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    l = int(bp[-1])
+    block_of = np.repeat(np.arange(n), sizes)
+    W = sp.random(l, l, density=min(1.0, 4.0 / max(l, 1)), random_state=rng).tocoo()
+    keep = block_of[W.row] != block_of[W.col]
+    keep &= rng.random(l)[W.row] >= isolated
+    keep &= rng.random(l)[W.col] >= isolated
+    W = sp.csc_matrix((W.data[keep], (W.row[keep], W.col[keep])), shape=(l, l))
+    W = W + W.T
+    D = sp.diags(np.asarray(W.sum(axis=1)).ravel())
+    a, b = rng.uniform(0.0, 1.0, 2)
+    Q = (a * (D + W) + b * (D - W)).tocsc()
+    return BlockQP(rng.normal(size=l), Q, bp)
+
+
+def block_kkt_residual(h: np.ndarray, d: np.ndarray, z: np.ndarray) -> float:
+    """How far ``z`` is from the minimiser of ``sum h z + d z^2`` on the simplex: with ``lam``
+    the smallest partial derivative ``h + 2 d z``, every candidate holding mass must have its
+    derivative at ``lam`` (complementary slackness)."""
+    grad = h + 2.0 * d * z
+    lam = grad.min()
+    return float(np.max(z * (grad - lam)))
+
+
+@FAST
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    k=st.integers(1, 12),
+    zeros=st.integers(0, 3),
+)
+def test_the_block_minimum_meets_its_kkt_conditions(seed, k, zeros):
+    from tracker.bqp.frank_wolfe import _block_minimum
+
+    rng = np.random.default_rng(seed)
+    d = rng.uniform(0.0, 2.0, k)
+    d[rng.permutation(k)[: min(zeros, k)]] = 0.0  # candidates that link to nothing
+    x = rng.dirichlet(np.ones(k))
+    g = rng.normal(size=k) + 2.0 * d * x  # the gradient of h = N(0, 1) at x
+    z = np.empty(k)
+    df = _block_minimum(g, x, d, 0, k, np.empty(k), np.empty(k, np.int64), z)
+    h = g - 2.0 * d * x
+    assert np.all(z >= 0) and z.sum() == pytest.approx(1.0, abs=1e-12)
+    assert block_kkt_residual(h, d, z) <= 1e-9
+    f = lambda v: float(h @ v + d @ (v * v))  # noqa: E731
+    assert df == pytest.approx(f(z) - f(x), abs=1e-12)
+    for v in rng.dirichlet(np.ones(k), 50):  # no point of the simplex does better
+        assert f(v) >= f(z) - 1e-12
+
+
+def test_the_block_minimum_by_hand():
+    from tracker.bqp.frank_wolfe import _block_minimum
+
+    def minimum(h, d):
+        k = len(h)
+        z = np.empty(k)
+        x = np.full(k, 1.0 / k)
+        g = np.asarray(h) + 2.0 * np.asarray(d) * x
+        _block_minimum(g, x, np.asarray(d, float), 0, k, np.empty(k), np.empty(k, np.int64), z)
+        return z
+
+    # Q = I on one block: the projection of -h/2 onto the simplex (test_swap_step_exact_solution)
+    np.testing.assert_allclose(minimum([0.0, -0.2, 1.0], [1.0, 1.0, 1.0]), [0.45, 0.55, 0.0])
+    # a candidate that links to nothing takes what is left at its own cost, 0.1 here
+    np.testing.assert_allclose(minimum([0.0, 0.1, 0.5], [1.0, 0.0, 1.0]), [0.05, 0.95, 0.0])
+    # ... and nothing when the others fill the simplex below it (lam = 1.1 < 5)
+    np.testing.assert_allclose(minimum([0.0, 5.0, 0.2], [1.0, 0.0, 1.0]), [0.55, 0.0, 0.45])
+    # a linear block: its cheapest candidate (the first on ties)
+    np.testing.assert_array_equal(minimum([0.3, -1.0, -1.0], [0.0, 0.0, 0.0]), [0, 1, 0])
+
+
+@FAST
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    n=st.integers(0, 14),
+    kmax=st.integers(1, 8),
+    eps=st.sampled_from([1e-2, 1e-4, 1e-8]),
+)
+def test_the_block_variant_solves_what_swap_solves(seed, n, kmax, eps):
+    qp = laplacian_qp(seed, n, kmax)
+    res = solve(qp, params=FWParams(variant="block", eps=eps, max_iter=20_000, record_history=True))
+    check_result(qp, res, eps)
+    assert res.converged
+    assert res.steps["block"] == res.iterations and res.steps["swap"] == 0
+    assert np.all(np.diff(res.history) <= 1e-12)  # every block step decreases f
+    ref = solve(qp, params=FWParams(variant="swap", eps=1e-9, max_iter=200_000))
+    assert ref.converged
+    assert ref.objective - 1e-9 <= res.objective <= ref.objective + eps + 1e-9
+
+
+def test_the_block_variant_matches_clarabel():
+    for seed in range(6):
+        qp = laplacian_qp(seed, 30, 6)
+        res = solve(qp, params=FWParams(variant="block", eps=1e-8, max_iter=100_000))
+        ref = solve_clarabel(qp)
+        assert res.converged
+        assert res.objective == pytest.approx(ref.objective, abs=1e-6)
+
+
+def test_the_block_variant_takes_swap_steps_where_a_block_holds_more_than_its_diagonal():
+    qp = random_qp(5, 12, 5)  # M M^T: entries between candidates of one block
+    block = solve(qp, params=FWParams(variant="block", eps=1e-6))
+    swap = solve(qp, params=FWParams(variant="swap", eps=1e-6))
+    np.testing.assert_array_equal(block.x, swap.x)
+    assert block.iterations == swap.iterations and block.steps == swap.steps
+
+
+def test_the_block_variant_needs_far_fewer_steps_where_the_optimum_is_inside():
+    """The tracker's frames: the relaxed optimum lies inside the simplices, which SWAP steps
+    approach one pair of candidates at a time."""
+    from tracker.testing import FrameSpec, synthetic_frame_qp
+
+    for seed in range(3):
+        qp = synthetic_frame_qp(FrameSpec(n_targets=60), np.random.default_rng(seed))
+        assert qp.diagonal is None  # gathered: the check of the blocks runs on Q itself
+        swap = solve(qp, params=FWParams(variant="swap", eps=1e-4, max_iter=200_000))
+        block = solve(qp, params=FWParams(variant="block", eps=1e-4, max_iter=200_000))
+        assert swap.converged and block.converged
+        assert block.steps["block"] == block.iterations > 0
+        assert 3 * block.iterations < swap.iterations
+        assert abs(block.objective - swap.objective) <= 1e-4
+
+
+def test_bench_track_times_the_block_variant_beside_swap(capsys):
+    import json
+
+    from crowdsim.bench import main as bench_main
+
+    assert bench_main("track", ["--quick", "--threads", "1", "--fw-variant", "block"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    rows = {(r["method"], r["targets"], tuple(r["frame"])): r for r in report["runs"]}
+    assert {m for m, _, _ in rows} == {"bqp dense", "bqp speedup", "ncc", "bqp block"}
+    # the packed crowd of 200 (--quick), where the quadratic terms couple the targets
+    packed = next(f for m, n, f in rows if m == "bqp block" and n == 200 and f != (1280, 720))
+    swap, block = rows["bqp speedup", 200, packed], rows["bqp block", 200, packed]
+    assert 0 < block["solver_iterations_per_frame"] < swap["solver_iterations_per_frame"]
+    assert abs(block["acc@15"] - swap["acc@15"]) <= 1.0
+    with pytest.raises(SystemExit) as exit_:
+        bench_main("track", ["--quick", "--fw-variant", "newton"])
+    assert exit_.value.code == 2
+    assert "--fw-variant: invalid choice: 'newton'" in capsys.readouterr().err

@@ -146,7 +146,10 @@ class BQPParams:
         uses 6; with our 12 px templates in crowds of 2.5 people/m^2, 6 lost 1.2 points at
         5 px against dense candidates and 10 lost 0.2 (``crowdsim bench track``), so 10.
     fw_variant : str
-        Frank-Wolfe variant: ``"plain"``, ``"away"`` or ``"swap"`` (Sec. 5).
+        Frank-Wolfe variant: ``"plain"``, ``"away"`` or ``"swap"`` (Sec. 5), or ``"block"``:
+        SWAP steps on the chosen target until its gap closes, in closed form
+        (:mod:`tracker.bqp.frank_wolfe`), the same objective and stopping test in a tenth of
+        the steps on packed crowds; the paper's ``"swap"`` stays the default.
     fw_eps : float
         Duality-gap stop of Frank-Wolfe (paper: 0.01).
     fw_max_iter : int
