@@ -710,6 +710,14 @@ def test_the_block_variant_matches_clarabel():
         assert res.objective == pytest.approx(ref.objective, abs=1e-6)
 
 
+def test_the_block_variant_with_eps_zero_stops_at_round_off():
+    for seed in range(20):
+        qp = laplacian_qp(seed, 30, 8)
+        res = solve(qp, params=FWParams(variant="block", eps=0.0, max_iter=100_000))
+        assert res.iterations < 100_000 and res.gap < 1e-9
+        check_result(qp, res, 0.0)
+
+
 def test_the_block_variant_takes_swap_steps_where_a_block_holds_more_than_its_diagonal():
     qp = random_qp(5, 12, 5)  # M M^T: entries between candidates of one block
     block = solve(qp, params=FWParams(variant="block", eps=1e-6))

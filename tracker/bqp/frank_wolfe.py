@@ -1,6 +1,6 @@
 """Frank-Wolfe solvers for the relaxed BQP (paper Sec. 5, Alg. 1 and 2).
 
-One implementation serves three variants, selected by :attr:`FWParams.variant`:
+One implementation serves four variants, selected by :attr:`FWParams.variant`:
 
 ``"plain"``
     Frank-Wolfe (Alg. 1): move towards the toward vertex ``s`` (argmin of the gradient).
@@ -490,21 +490,20 @@ def _fw_loop(
     xn = np.empty(kmax)
     counts = np.zeros(_N_KINDS, dtype=np.int64)
     record = hist_f.shape[0] > 0
-    # the exact block step needs Q's entries inside every block to be its diagonal alone
+    # the exact block step needs Q's entries inside every block to be its diagonal alone,
+    # and that diagonal >= 0 (as a PSD Q's is); otherwise the variant takes SWAP steps
     exact = variant == _BLOCK
+    qdiag = np.zeros(l if exact else 0)
     if exact:
         for j in range(l):
             lo_j = block_ptr[block_of[j]]
             for q in range(in_ptr[j], in_ptr[j + 1]):
-                if in_rows[q] != j - lo_j:
+                if in_rows[q] != j - lo_j or in_vals[q] < 0.0:
                     exact = False
+                qdiag[j] = in_vals[q]
         if not exact:
             variant = _SWAP
     order = np.empty(kmax, dtype=np.int64)
-    qdiag = np.zeros(l)
-    if exact:
-        for j in range(l):
-            qdiag[j] = _intra_entry(in_ptr, in_rows, in_vals, j, j - block_ptr[block_of[j]])
 
     total = _rebuild(indptr, indices, data, c, x, g, block_ptr, s_idx, y_idx, gx, gaps, tree, size)
     fresh = True
