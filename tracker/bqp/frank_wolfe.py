@@ -46,8 +46,8 @@ targets makes almost every SWAP a tiny drop step. We therefore apply Alg. 2 bloc
 largest block gap (gap-greedy selection, Osokin et al. 2016: the stopping test is the sum
 of block gaps, and a block's gap bounds the decrease a step there can make). Each iteration
 then changes at most the support of one block (SWAP: exactly two coordinates), so keeping
-``g = c + 2Qx`` current is a rank-2 (SWAP) or support-sized (FW, away) column update of the
-CSC matrix. The cost of an iteration is O(nnz of the touched columns): the statistics of the
+``g = c + 2Qx`` current is a rank-2 (SWAP) or support-sized (FW, away, block) column update
+of the CSC matrix. The cost of an iteration is O(nnz of the touched columns): the statistics of the
 other blocks those columns reach are updated per touched row, and a block is rescanned
 (O(its size)) only when its toward or away vertex got worse; plus O(log n) per reached
 block for the max-gap tree. ``iterations`` counts block steps, for all three variants
