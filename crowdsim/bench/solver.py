@@ -282,9 +282,9 @@ def run(args: argparse.Namespace) -> int:
             wall = time.perf_counter() - t
             cpu = time.process_time() - cpu
             sw = row["variants"]["swap"]
-            rel = (sw["objective"] - ref.objective) / max(abs(ref.objective), 1e-12)
-            rel_block = (row["variants"]["block"]["objective"] - ref.objective) / max(
-                abs(ref.objective), 1e-12
+            scale = max(abs(ref.objective), 1e-12)
+            rel, rel_block = (
+                (row["variants"][v]["objective"] - ref.objective) / scale for v in ("swap", "block")
             )
             row["reference"] = {
                 "solver": args.reference,
