@@ -36,6 +36,8 @@ from functools import partial
 
 import numpy as np
 
+from crowdsim.bench import add_suite_arguments, suite_specs_or_exit
+
 DEFAULT_CONFIGS = ("default={}", 'full-res={"downscale": 1}', 'ecc={"method": "ecc"}')
 
 
@@ -93,8 +95,7 @@ def measure(spec, frames: int, configs: dict[str, dict]) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--suite", default="ucf9-shake")
-    ap.add_argument("--only", nargs="+", default=None, metavar="SEQ")
+    add_suite_arguments(ap, "ucf9-shake")
     ap.add_argument("--frames", type=int, default=80)
     ap.add_argument(
         "--config", nargs="+", type=_config, default=[_config(c) for c in DEFAULT_CONFIGS]
@@ -103,7 +104,6 @@ def main() -> int:
     if args.frames < 2:
         ap.error(f"--frames must be >= 2, got {args.frames}")
     configs = dict(args.config)
-    from synth_data.suites import suite_specs
     from tracker.cmc import CMCParams
 
     for name, fields in configs.items():
@@ -111,10 +111,7 @@ def main() -> int:
             CMCParams(**fields)
         except (TypeError, ValueError) as exc:
             ap.error(f"--config {name}: {exc}")
-    try:
-        specs = suite_specs(args.suite, args.only)
-    except (FileNotFoundError, ValueError) as exc:
-        ap.error(str(exc))
+    specs = suite_specs_or_exit(ap, args)
     rows = {}
     head = "".join(f"{name[:28]:>30}" for name in configs)
     print(

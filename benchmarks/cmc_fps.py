@@ -22,6 +22,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from crowdsim.bench import add_suite_arguments, suite_specs_or_exit
+
 
 def measure(
     spec,
@@ -64,8 +66,7 @@ def measure(
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--suite", default="ucf9")
-    ap.add_argument("--only", nargs="+", default=None, metavar="SEQ")
+    add_suite_arguments(ap, "ucf9")
     ap.add_argument("--tracker", default="bqp", help="a registered detection-free tracker")
     ap.add_argument("--corners", nargs="+", type=int, default=[100], metavar="N")
     ap.add_argument("--rounds", type=int, default=2)
@@ -83,7 +84,6 @@ def main() -> int:
     args = ap.parse_args()
     if args.rounds < 1:
         ap.error(f"--rounds must be >= 1, got {args.rounds}")
-    from synth_data.suites import suite_specs
     from tracker.cmc import CMCParams
     from tracker.registry import get
 
@@ -95,9 +95,9 @@ def main() -> int:
     try:
         if "cmc" not in get(args.tracker).field_names():
             ap.error(f"--tracker {args.tracker!r} has no camera-motion compensation (cmc)")
-        specs = suite_specs(args.suite, args.only)
-    except (KeyError, FileNotFoundError, ValueError) as exc:
+    except (KeyError, ValueError) as exc:  # an unknown tracker
         ap.error(str(exc).strip("'\""))
+    specs = suite_specs_or_exit(ap, args)
     names = ["off"] + [f"cmc{c}" for c in args.corners]
     rows = {}
     head = "".join(f"{n:>24}" for n in names)

@@ -38,6 +38,8 @@ from functools import partial
 
 import numpy as np
 
+from crowdsim.bench import add_suite_arguments, suite_specs_or_exit
+
 
 def planted_compensator(motion: np.ndarray, base_cls, error: np.ndarray | None = None):
     """A :class:`tracker.cmc.MotionCompensator` whose estimate into frame ``t`` is the
@@ -132,8 +134,7 @@ def measure(spec, tracker: str, jiggle: float = 0.0, seeds: int = 0, raw: bool =
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--suite", default="ucf9-shake")
-    ap.add_argument("--only", nargs="+", default=None, metavar="SEQ")
+    add_suite_arguments(ap, "ucf9-shake")
     ap.add_argument("--tracker", default="bqp", help="a registered detection-free tracker")
     ap.add_argument(
         "--jiggle",
@@ -147,15 +148,14 @@ def main() -> int:
     args = ap.parse_args()
     if not (args.jiggle >= 0 and args.seeds >= 0):
         ap.error(f"--jiggle and --seeds must be >= 0, got {args.jiggle} and {args.seeds}")
-    from synth_data.suites import suite_specs
     from tracker.registry import get
 
     try:
         if "cmc" not in get(args.tracker).field_names():
             ap.error(f"--tracker {args.tracker!r} has no camera-motion compensation (cmc)")
-        specs = [s for s in suite_specs(args.suite, args.only) if s.calibration]
-    except (KeyError, FileNotFoundError, ValueError) as exc:
+    except (KeyError, ValueError) as exc:  # an unknown tracker
         ap.error(str(exc).strip("'\""))
+    specs = [s for s in suite_specs_or_exit(ap, args) if s.calibration]
     if not specs:
         ap.error(f"suite {args.suite!r}: no calibrated sequence")
     cols = ("shaken", "still", "cost", "+cmc", "+planted", "+cmc share", "+planted share")

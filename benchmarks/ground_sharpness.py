@@ -22,6 +22,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from crowdsim.bench import add_suite_arguments, suite_specs_or_exit
+
 
 def measure(spec, frames: int) -> dict:
     """Mean Laplacian variance of the ground alone, shaken and still, over ``frames`` frames."""
@@ -48,18 +50,12 @@ def measure(spec, frames: int) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--suite", default="ucf9-shake")
-    ap.add_argument("--only", nargs="+", default=None, metavar="SEQ")
+    add_suite_arguments(ap, "ucf9-shake")
     ap.add_argument("--frames", type=int, default=40)
     args = ap.parse_args()
     if args.frames < 1:
         ap.error(f"--frames must be >= 1, got {args.frames}")
-    from synth_data.suites import suite_specs
-
-    try:
-        specs = suite_specs(args.suite, args.only)
-    except (KeyError, FileNotFoundError, ValueError) as exc:
-        ap.error(str(exc).strip("'\""))
+    specs = suite_specs_or_exit(ap, args)
     print(f"{'sequence':<10}{'shake px':>10}{'shaken':>10}{'still':>10}{'ratio':>8}")
     rows = {}
     for spec in specs:

@@ -49,3 +49,21 @@ def main(name: str, argv: list[str] | None = None) -> int:
     except (ValueError, OSError) as exc:
         print(f"crowdsim bench {name}: error: {exc}", file=sys.stderr)
         return 2
+
+
+def add_suite_arguments(parser: argparse.ArgumentParser, default: str) -> None:
+    """``--suite`` (default ``default``) and ``--only SEQ ...``, as the per-suite scripts in
+    ``benchmarks/`` take them; :func:`suite_specs_or_exit` reads them."""
+    parser.add_argument("--suite", default=default)
+    parser.add_argument("--only", nargs="+", default=None, metavar="SEQ")
+
+
+def suite_specs_or_exit(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list:
+    """The specs of ``args.suite`` (a built-in name or a suite folder) restricted to
+    ``args.only``; an unknown suite or sequence ends with ``parser.error`` naming it."""
+    from synth_data.suites import suite_specs
+
+    try:
+        return list(suite_specs(args.suite, args.only))
+    except (KeyError, FileNotFoundError, ValueError) as exc:
+        parser.error(str(exc).strip("'\""))
