@@ -379,10 +379,14 @@ def test_grouping_links_exactly_the_pairs_within_reach(n, k, seed, span, offsets
         ([[0.0, 0.0], [6.0, 8.0], [9.0, 9.0]], [-3.0, -4.0]),  # offsets: 5, 5 and 13
     ],
 )
-def test_grouping_pairs_on_the_cutoff_are_linked(b_points, ref):
+@pytest.mark.parametrize("tables", [False, True])
+def test_grouping_pairs_on_the_cutoff_are_linked(b_points, ref, tables, monkeypatch):
     """Candidate pairs exactly on the cutoff (a reach of 5 px) are linked and those beyond
     it are not, whatever the partner's candidate box: the box test that skips candidates
-    must not round a pair on the boundary away."""
+    must not round a pair on the boundary away, nor the tables' bounds (``tables``: used
+    wherever the candidates lie on whole pixels, however few the entries)."""
+    if tables:
+        _tables_always(monkeypatch)
     b = np.array(b_points)
     k = len(b)
     cand = np.stack([np.zeros((k, 2)), b])  # target 0: k copies of the origin
@@ -397,6 +401,78 @@ def test_grouping_pairs_on_the_cutoff_are_linked(b_points, ref):
         for i in range(k):  # every copy of the origin alike
             assert (dense[i, k + j] != 0) == (dev2 <= 25.0), (i, j, dev2)
     assert on_cutoff >= 1
+
+
+def _tables_always(monkeypatch) -> None:
+    """Have quadratic_matrix take the Gaussians from tables whenever the candidates allow it
+    (on whole pixels), however few entries they serve."""
+    from tracker.bqp import terms
+
+    real = terms._gauss_tables_for
+    monkeypatch.setattr(
+        terms, "_gauss_tables_for", lambda *args: real(*args[:-1], np.iinfo(np.int64).max)
+    )
+
+
+def _no_tables(monkeypatch) -> None:
+    """Have quadratic_matrix exp every entry's exponent (the path of fractional candidates)."""
+    from tracker.bqp import terms
+
+    monkeypatch.setattr(terms, "_gauss_tables_for", lambda *args: None)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    offsets=st.booleans(),
+    sp_sigma=st.floats(0.5, 8.0),
+    sp_cutoff=st.floats(0.5, 3.0),
+    g_sigma=st.floats(0.5, 6.0),
+    g_cutoff=st.floats(0.5, 3.0),
+)
+def test_tabled_gaussians_are_the_exp_of_every_entry_bit_for_bit(
+    seed, offsets, sp_sigma, sp_cutoff, g_sigma, g_cutoff
+):
+    """On whole pixels the entries' Gaussians come from tables of the distances the pairs
+    can have (``_gauss_tables``): the matrix is exactly the one of each entry's own exp, for
+    tree edges given by lengths and by offsets, including lengths shorter than the reach."""
+    rng = np.random.default_rng(seed)
+    n, k = 40, 12
+    pos = np.rint(rng.uniform(0, 60, (n, 2)))
+    cand = pos[:, None, :] + rng.integers(-4, 5, (n, k, 2))
+    edges = np.stack([np.arange(n - 1), np.arange(1, n)], 1)
+    rel = pos[edges[:, 0]] - pos[edges[:, 1]] + rng.uniform(-2, 2, (n - 1, 2))
+    ref = rel if offsets else np.linalg.norm(rel, axis=1)
+    args = (cand, 0.5, sp_sigma, sp_cutoff, 1.0, edges, ref, g_sigma, g_cutoff, 1.0)
+    with pytest.MonkeyPatch.context() as mp:
+        _tables_always(mp)
+        tabled = quadratic_matrix(*args)
+    with pytest.MonkeyPatch.context() as mp:
+        _no_tables(mp)
+        each = quadratic_matrix(*args)
+    np.testing.assert_array_equal(tabled.indptr, each.indptr)
+    np.testing.assert_array_equal(tabled.indices, each.indices)
+    np.testing.assert_array_equal(tabled.data, each.data)
+
+
+def test_gaussian_tables_serve_whole_pixels_only():
+    """The tables are built for candidates on whole pixels (the tracker's search grids),
+    when they hold fewer values than the entries; fractional candidates exp each entry."""
+    from tracker.bqp import terms
+
+    flags = np.array([3, 2, 1])
+    ref = np.array([[4.0, 0.0], [12.5, 0.0], [0.0, 0.0]])
+    gauss = (0.5, 9.0, 0.5, 4.0)
+    whole = np.zeros((3, 2, 2))
+    s_tab, box, off, g_tab = terms._gauss_tables_for(whole, flags, ref, 1, gauss, 10_000)
+    np.testing.assert_array_equal(s_tab, np.exp(-np.arange(10) * 0.5))
+    assert box[2, 2] == 0 and off[-1] == len(g_tab)  # no tree edge: no table
+    d = np.arange(box[0, 0], box[0, 0] + box[0, 2])
+    dev2 = (np.sqrt(d) - 4.0) ** 2
+    np.testing.assert_array_equal(g_tab[: off[1]], np.where(dev2 <= 4.0, np.exp(-dev2 * 0.5), 0))
+    assert box[0, 0] <= 4 and box[0, 0] + box[0, 2] - 1 >= 36  # (4 - 2)^2 .. (4 + 2)^2
+    assert terms._gauss_tables_for(whole + 0.5, flags, ref, 1, gauss, 10_000) is None
+    assert terms._gauss_tables_for(whole, flags, ref, 1, gauss, 5) is None  # more than m
 
 
 def _crowd_terms(components: bool = True):

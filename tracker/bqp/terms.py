@@ -42,6 +42,9 @@ EXP_PER_THREAD: int = 65_536
 """The entries' Gaussians are numpy's ``exp`` in chunks of at least this many entries on the
 tracker's threads (:func:`tracker.threads.in_chunks`; element by element, so the values do
 not depend on the chunks): 2 ms of a frame on one thread at 7,800 targets."""
+TABLE_MAX_COORD: float = 2.0**24
+"""Candidates on whole pixels below this magnitude make every squared distance an exact
+integer, so the pairs' Gaussians come from tables (:func:`_gauss_tables`)."""
 LINK_MASK_MAX_K: int = 64
 """Up to this many candidates a target (the bits of a ``uint64``), the counting pass of the
 pair entries notes which candidate pairs it linked and the filling pass evaluates only those
@@ -539,6 +542,148 @@ def _pair_entries(
 
 
 @njit(cache=True, nogil=True, parallel=True)
+def _gauss_tables(flags, ref, mode_g, inv_s, reach2_s, inv_g, reach2_g, g_box, g_off, s_exp, g_exp):
+    """The exponents of :func:`_pair_exponents` at every offset a pair can have when the
+    candidates lie on whole pixels: ``s_exp[D]`` for the squared distances ``D = 0 ..
+    floor(reach2_s)`` and, per pair ``p`` with a tree edge (``flags`` bit 1), ``g_exp[g_off[p]
+    + r]`` over its box ``g_box[p] = (x0, y0, width, height)`` of :func:`_g_boxes` (row ``r``
+    of ``D - x0`` for lengths, ``mode_g`` 1; of ``(dy - y0) width + dx - x0`` for offsets).
+
+    Each exponent is computed from the same operands in the same order as
+    :func:`_pair_exponents` would compute it from the candidates (``dx dx + dy dy`` is the
+    exact integer ``D``), so ``exp`` of the table is the entries' values bit for bit.
+    """
+    for d in range(s_exp.shape[0]):
+        s_exp[d] = -float(d) * inv_s
+    for p in prange(flags.shape[0]):
+        if flags[p] & 2 == 0:
+            continue
+        x0, y0, w, h = g_box[p, 0], g_box[p, 1], g_box[p, 2], g_box[p, 3]
+        rx = ref[p, 0]
+        ry = ref[p, 1]
+        for r in range(w * h):
+            if mode_g == 1:
+                dev = np.sqrt(float(x0 + r)) - rx
+                dev2 = dev * dev
+            else:
+                ex = float(x0 + r % w) - rx
+                ey = float(y0 + r // w) - ry
+                dev2 = ex * ex + ey * ey
+            g_exp[g_off[p] + r] = -dev2 * inv_g if dev2 <= reach2_g else -np.inf
+
+
+def _gauss_tables_for(
+    cand: np.ndarray, flags: np.ndarray, ref: np.ndarray, mode_g: int, gauss: tuple, m: int
+) -> tuple | None:
+    """``(s_tab, g_box, g_off, g_tab)`` for :func:`_pair_values`: the Gaussians of
+    :func:`_gauss_tables`, when the candidates lie on whole pixels (the tracker's grids) and
+    the tables hold fewer values than the ``m`` entries; else ``None`` (each entry's own
+    ``exp``)."""
+    inv_s, reach2_s, inv_g, reach2_g = gauss
+    if not (np.isfinite(reach2_s) and np.isfinite(reach2_g) and reach2_s < m):
+        return None
+    whole = np.abs(cand) < TABLE_MAX_COORD
+    if not (whole.all() and np.array_equal(cand, np.floor(cand))):
+        return None
+    g_box = _g_boxes(flags, ref, mode_g, reach2_g)
+    g_off = np.zeros(len(flags) + 1, np.int64)
+    np.cumsum(g_box[:, 2] * g_box[:, 3], out=g_off[1:])
+    if g_off[-1] > m:
+        return None
+    s_exp = np.empty(int(reach2_s) + 1)
+    g_exp = np.empty(int(g_off[-1]))
+    _gauss_tables(flags, ref, mode_g, inv_s, reach2_s, inv_g, reach2_g, g_box, g_off, s_exp, g_exp)
+    # exp(-inf) = 0 is 4x slower than a finite exp: the offsets (a disc in a box) skip them
+    g_tab = np.zeros_like(g_exp)
+    np.exp(g_exp, out=g_tab, where=g_exp > -np.inf)
+    return np.exp(s_exp), g_box, g_off, g_tab
+
+
+def _g_boxes(flags: np.ndarray, ref: np.ndarray, mode_g: int, reach2_g: float) -> np.ndarray:
+    """``(P, 4)`` int64 ``(x0, y0, width, height)`` per pair: the whole-pixel offsets whose
+    grouping exponent can be finite, with a margin of a millionth of the bound (beyond it
+    ``|dev| > reach`` however the square root and the differences round); zero-sized for
+    pairs without a tree edge. Lengths (``mode_g`` 1): squared distances ``D`` from ``x0``,
+    one row; offsets: ``dx`` from ``x0`` and ``dy`` from ``y0``."""
+    reach = np.sqrt(reach2_g) * (1.0 + 1e-6) + 1e-6 * np.abs(ref).max(initial=0.0)
+    box = np.zeros((len(flags), 4), np.int64)
+    g = (flags & 2) != 0
+    if mode_g == 1:
+        e = ref[g, 0]
+        box[g, 0] = np.floor(np.maximum(e - reach, 0.0) ** 2)
+        box[g, 2] = np.ceil((e + reach) ** 2) - box[g, 0] + 1
+        box[g, 3] = 1
+    else:
+        for axis in (0, 1):
+            lo = np.floor(ref[g, axis] - reach)
+            box[g, axis] = lo
+            box[g, 2 + axis] = np.ceil(ref[g, axis] + reach) - lo + 1
+    return box
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _pair_values(
+    cand,
+    pa,
+    pb,
+    flags,
+    mode_g,
+    reach2_s,
+    s_tab,
+    g_box,
+    g_off,
+    g_tab,
+    offsets,
+    links,
+    cand_a,
+    cand_b,
+    s_out,
+    g_out,
+):
+    """The filling pass of :func:`_pair_entries` (with its ``links``) for candidates on whole
+    pixels: the entries' values ``S`` and ``Gamma`` looked up in the tables of
+    :func:`_gauss_tables` (their ``exp``) instead of exponents to ``exp`` one by one."""
+    k = cand.shape[1]
+    for p in prange(pa.shape[0]):
+        if offsets[p] == offsets[p + 1]:
+            continue
+        a = pa[p]
+        b = pb[p]
+        flag = flags[p]
+        x0, y0, w, h = g_box[p, 0], g_box[p, 1], g_box[p, 2], g_box[p, 3]
+        m = offsets[p]
+        for i in range(k):
+            row = links[p, i]
+            if row == 0:
+                continue
+            for j in range(k):
+                if (row >> np.uint64(j)) & np.uint64(1) == 0:
+                    continue
+                dx = cand[a, i, 0] - cand[b, j, 0]
+                dy = cand[a, i, 1] - cand[b, j, 1]
+                d2 = dx * dx + dy * dy
+                s = 0.0
+                g = 0.0
+                if flag & 1 and d2 <= reach2_s:
+                    s = s_tab[int(d2)]
+                if flag & 2:
+                    if mode_g == 1:
+                        r = int(d2) - x0
+                        if 0 <= r < w:
+                            g = g_tab[g_off[p] + r]
+                    else:
+                        cx = int(dx) - x0
+                        cy = int(dy) - y0
+                        if 0 <= cx < w and 0 <= cy < h:
+                            g = g_tab[g_off[p] + cy * w + cx]
+                cand_a[m] = i
+                cand_b[m] = j
+                s_out[m] = s
+                g_out[m] = g
+                m += 1
+
+
+@njit(cache=True, nogil=True, parallel=True)
 def _degrees(
     k, offsets, cand_a, cand_b, s_val, g_val, a_ptr, b_order, b_ptr, deg_s, deg_g, n_up, n_low
 ):
@@ -821,13 +966,31 @@ def quadratic_matrix(
     cand_b = np.empty(m, np.int32)  # and of its second
     s_val = np.empty(m)
     g_val = np.empty(m)
-    _pair_entries(*pairs_geometry, offsets, cand_a, cand_b, s_val, g_val, True, links)
+    tables = _gauss_tables_for(cand, flags, ref, mode_g, gauss, m) if len(links) else None
+    if tables is not None:  # whole pixels: the values from tables, no exp per entry
+        _pair_values(
+            cand,
+            pa,
+            pb,
+            flags,
+            mode_g,
+            gauss[1],
+            *tables,
+            offsets,
+            links,
+            cand_a,
+            cand_b,
+            s_val,
+            g_val,
+        )
+    else:
+        _pair_entries(*pairs_geometry, offsets, cand_a, cand_b, s_val, g_val, True, links)
 
-    def gaussians(lo: int, hi: int) -> None:  # numpy's exp (-inf, not linked, gives 0)
-        np.exp(s_val[lo:hi], out=s_val[lo:hi])
-        np.exp(g_val[lo:hi], out=g_val[lo:hi])
+        def gaussians(lo: int, hi: int) -> None:  # numpy's exp (-inf, not linked, gives 0)
+            np.exp(s_val[lo:hi], out=s_val[lo:hi])
+            np.exp(g_val[lo:hi], out=g_val[lo:hi])
 
-    in_chunks(m, gaussians, EXP_PER_THREAD)
+        in_chunks(m, gaussians, EXP_PER_THREAD)
     # pairs are sorted by (a, b): as first target a target's pairs are one run; as second
     # target a stable sort by b keeps them in order of a
     targets = np.arange(n + 1)
