@@ -621,6 +621,15 @@ def _g_boxes(flags: np.ndarray, ref: np.ndarray, mode_g: int, reach2_g: float) -
     return box
 
 
+_DE_BRUIJN = np.uint64(0x03F79D71B4CB0A89)
+_BIT_INDEX = np.zeros(64, np.int64)
+_BIT_INDEX[((np.uint64(1) << np.arange(64, dtype=np.uint64)) * _DE_BRUIJN) >> np.uint64(58)] = (
+    np.arange(64)
+)
+"""``_BIT_INDEX[(b * _DE_BRUIJN) >> 58]`` is ``log2(b)`` for a single bit ``b`` of a uint64
+(a de Bruijn sequence): :func:`_pair_values` visits a row's linked candidates by their bits."""
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _pair_values(
     cand,
@@ -654,13 +663,14 @@ def _pair_values(
         m = offsets[p]
         for i in range(k):
             row = links[p, i]
-            if row == 0:
-                continue
-            for j in range(k):
-                if (row >> np.uint64(j)) & np.uint64(1) == 0:
-                    continue
-                dx = cand[a, i, 0] - cand[b, j, 0]
-                dy = cand[a, i, 1] - cand[b, j, 1]
+            xi = cand[a, i, 0]
+            yi = cand[a, i, 1]
+            while row != 0:  # the set bits, lowest first, without a branch per bit
+                low = row & (~row + np.uint64(1))
+                row ^= low
+                j = _BIT_INDEX[(low * _DE_BRUIJN) >> np.uint64(58)]
+                dx = xi - cand[b, j, 0]
+                dy = yi - cand[b, j, 1]
                 d2 = dx * dx + dy * dy
                 s = 0.0
                 g = 0.0
