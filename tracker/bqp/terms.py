@@ -39,9 +39,10 @@ from tracker.bqp.frank_wolfe import solved_apart
 from tracker.threads import in_chunks
 
 EXP_PER_THREAD: int = 65_536
-"""The entries' Gaussians are numpy's ``exp`` in chunks of at least this many entries on the
-tracker's threads (:func:`tracker.threads.in_chunks`; element by element, so the values do
-not depend on the chunks): 2 ms of a frame on one thread at 7,800 targets."""
+"""Off whole pixels, the entries' Gaussians are numpy's ``exp`` in chunks of at least this
+many entries on the tracker's threads (:func:`tracker.threads.in_chunks`; element by element,
+so the values do not depend on the chunks): 2 ms of a frame on one thread at 7,800 targets.
+On whole pixels they come from tables (:func:`_gauss_tables_for`)."""
 TABLE_MAX_COORD: float = 2.0**24
 """Candidates on whole pixels below this magnitude make every squared distance an exact
 integer, so the pairs' Gaussians come from tables (:func:`_gauss_tables`)."""
@@ -901,7 +902,10 @@ def quadratic_matrix(
     paper's ``I -/+ D^-1/2 W D^-1/2`` (identity only where ``D > 0``); see the module docstring.
 
     Compiled kernels evaluate each linked candidate pair once and write a canonical CSC
-    (sorted rows, no duplicates) directly: no COO stage, no dense matrix. They run on numba's
+    (sorted rows, no duplicates) directly: no COO stage, no dense matrix. Where the
+    candidates lie on whole pixels (the tracker's search grids), two candidates are an
+    integer offset apart, and the Gaussians are looked up in tables of the offsets each
+    pair can have (one ``exp`` per table value, not per entry; the same values bit for bit). They run on numba's
     threads (:func:`numba.set_num_threads`), one target pair or one target per loop
     iteration with sums in a fixed order, so the matrix is the same bit for bit for any
     number of threads.
