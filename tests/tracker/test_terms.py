@@ -473,6 +473,26 @@ def test_gaussian_tables_serve_whole_pixels_only():
     assert box[0, 0] <= 4 and box[0, 0] + box[0, 2] - 1 >= 36  # (4 - 2)^2 .. (4 + 2)^2
     assert terms._gauss_tables_for(whole + 0.5, flags, ref, 1, gauss, 10_000) is None
     assert terms._gauss_tables_for(whole, flags, ref, 1, gauss, 5) is None  # more than m
+    # a reference no table can hold: each entry's own exp (which links none of its pairs)
+    for bad in (np.nan, np.inf, 1e30):
+        odd = ref.copy()
+        odd[1, 0] = bad
+        for mode in (1, 2):
+            assert terms._gauss_tables_for(whole, flags, odd, mode, gauss, 10**12) is None
+
+
+@pytest.mark.parametrize("length", [np.nan, 1e30])
+def test_tree_edges_of_any_length_give_the_same_matrix_with_or_without_tables(length, monkeypatch):
+    """An edge length no table can hold (not finite, or beyond every candidate) falls back to
+    each entry's exp: that edge links nothing, the others as ever."""
+    rng = np.random.default_rng(5)
+    cand = np.rint(rng.uniform(0, 30, (6, 5, 2)))
+    edges = np.array([[0, 1], [1, 2], [3, 4]])
+    lengths = np.array([5.0, length, 7.0])
+    tabled = quadratic_matrix(cand, 0.5, 3.0, 2.0, 1.0, edges, lengths, 2.0, 2.0, 1.0)
+    _no_tables(monkeypatch)
+    each = quadratic_matrix(cand, 0.5, 3.0, 2.0, 1.0, edges, lengths, 2.0, 2.0, 1.0)
+    assert (tabled != each).nnz == 0 and np.isfinite(tabled.data).all()
 
 
 def _crowd_terms(components: bool = True):

@@ -586,11 +586,11 @@ def _gauss_tables_for(
     whole = np.abs(cand) < TABLE_MAX_COORD
     if not (whole.all() and np.array_equal(cand, np.floor(cand))):
         return None
-    g_box = _g_boxes(flags, ref, mode_g, reach2_g)
+    g_box = _g_boxes(flags, ref, mode_g, reach2_g, m)
+    if g_box is None:
+        return None
     g_off = np.zeros(len(flags) + 1, np.int64)
     np.cumsum(g_box[:, 2] * g_box[:, 3], out=g_off[1:])
-    if g_off[-1] > m:
-        return None
     s_exp = np.empty(int(reach2_s) + 1)
     g_exp = np.empty(int(g_off[-1]))
     _gauss_tables(flags, ref, mode_g, inv_s, reach2_s, inv_g, reach2_g, g_box, g_off, s_exp, g_exp)
@@ -600,25 +600,34 @@ def _gauss_tables_for(
     return np.exp(s_exp), g_box, g_off, g_tab
 
 
-def _g_boxes(flags: np.ndarray, ref: np.ndarray, mode_g: int, reach2_g: float) -> np.ndarray:
+def _g_boxes(
+    flags: np.ndarray, ref: np.ndarray, mode_g: int, reach2_g: float, most: int
+) -> np.ndarray | None:
     """``(P, 4)`` int64 ``(x0, y0, width, height)`` per pair: the whole-pixel offsets whose
     grouping exponent can be finite, with a margin of a millionth of the bound (beyond it
     ``|dev| > reach`` however the square root and the differences round); zero-sized for
     pairs without a tree edge. Lengths (``mode_g`` 1): squared distances ``D`` from ``x0``,
-    one row; offsets: ``dx`` from ``x0`` and ``dy`` from ``y0``."""
-    reach = np.sqrt(reach2_g) * (1.0 + 1e-6) + 1e-6 * np.abs(ref).max(initial=0.0)
-    box = np.zeros((len(flags), 4), np.int64)
+    one row; offsets: ``dx`` from ``x0`` and ``dy`` from ``y0``. ``None`` where the boxes
+    would hold more than ``most`` offsets in all, or a reference is not finite or farther
+    than any two candidates of :data:`TABLE_MAX_COORD` can be."""
     g = (flags & 2) != 0
+    r = ref[g]
+    if not (np.abs(r) < 2.0 * TABLE_MAX_COORD).all():  # NaN too
+        return None
+    reach = np.sqrt(reach2_g) * (1.0 + 1e-6) + 1e-6 * np.abs(r).max(initial=0.0)
     if mode_g == 1:
-        e = ref[g, 0]
-        box[g, 0] = np.floor(np.maximum(e - reach, 0.0) ** 2)
-        box[g, 2] = np.ceil((e + reach) ** 2) - box[g, 0] + 1
-        box[g, 3] = 1
+        x0 = np.floor(np.maximum(r[:, 0] - reach, 0.0) ** 2)
+        width = np.ceil((r[:, 0] + reach) ** 2) - x0 + 1
+        y0 = np.zeros_like(x0)
+        height = np.ones_like(x0)
     else:
-        for axis in (0, 1):
-            lo = np.floor(ref[g, axis] - reach)
-            box[g, axis] = lo
-            box[g, 2 + axis] = np.ceil(ref[g, axis] + reach) - lo + 1
+        x0, y0 = np.floor(r[:, 0] - reach), np.floor(r[:, 1] - reach)
+        width = np.ceil(r[:, 0] + reach) - x0 + 1
+        height = np.ceil(r[:, 1] + reach) - y0 + 1
+    if (width * height).sum() > most:
+        return None
+    box = np.zeros((len(flags), 4), np.int64)
+    box[g] = np.stack([x0, y0, width, height], 1)
     return box
 
 
@@ -902,13 +911,13 @@ def quadratic_matrix(
     paper's ``I -/+ D^-1/2 W D^-1/2`` (identity only where ``D > 0``); see the module docstring.
 
     Compiled kernels evaluate each linked candidate pair once and write a canonical CSC
-    (sorted rows, no duplicates) directly: no COO stage, no dense matrix. Where the
-    candidates lie on whole pixels (the tracker's search grids), two candidates are an
-    integer offset apart, and the Gaussians are looked up in tables of the offsets each
-    pair can have (one ``exp`` per table value, not per entry; the same values bit for bit). They run on numba's
-    threads (:func:`numba.set_num_threads`), one target pair or one target per loop
+    (sorted rows, no duplicates) directly: no COO stage, no dense matrix. They run on
+    numba's threads (:func:`numba.set_num_threads`), one target pair or one target per loop
     iteration with sums in a fixed order, so the matrix is the same bit for bit for any
-    number of threads.
+    number of threads. Where the candidates lie on whole pixels (the tracker's search
+    grids), two candidates are an integer offset apart, and the Gaussians are looked up in
+    tables of the offsets each pair can have (one ``exp`` per table value, not per entry;
+    the same values bit for bit).
 
     With ``components=True`` returns ``(Q, labels, order)``: ``labels (n,)`` int64 names the
     connected component of every block in the graph of linked target pairs (targets of two
