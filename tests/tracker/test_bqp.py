@@ -227,6 +227,24 @@ def test_tracks_are_the_same_for_any_number_of_threads(monkeypatch, variant):
     np.testing.assert_array_equal(tracks[0], tracks[1])
 
 
+def test_the_trackers_pair_gaussians_come_from_tables(monkeypatch):
+    """The tracker's candidates lie on whole pixels, so every frame's quadratic terms take
+    their Gaussians from tables (no exp per entry): a change that moved candidates off the
+    pixel grid would quietly lose that."""
+    import tracker.bqp.terms as terms
+    from synth_data.sequence import synthetic_crowd
+    from tracker.runner import run_tracker
+
+    served = []
+    real = terms._gauss_tables_for
+    monkeypatch.setattr(
+        terms, "_gauss_tables_for", lambda *a: served.append(real(*a) is not None) or real(*a)
+    )
+    crowd = synthetic_crowd(150, 12, 1, 12, size=(320, 180), contrast=0.3, noise_sigma=8.0)
+    run_tracker(BQPTracker(), crowd, metrics="none")
+    assert len(served) == 11 and all(served)
+
+
 @pytest.mark.parametrize("bad", [0, -1, 1.5, 10**6, "2"])
 def test_threads_out_of_range_are_refused(bad):
     tr = BQPTracker()
