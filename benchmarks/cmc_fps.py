@@ -22,7 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from crowdsim.bench import add_suite_arguments, suite_specs_or_exit
+from crowdsim.bench import add_suite_arguments, cmc_tracker_or_exit, suite_specs_or_exit
 
 
 def measure(
@@ -85,18 +85,13 @@ def main() -> int:
     if args.rounds < 1:
         ap.error(f"--rounds must be >= 1, got {args.rounds}")
     from tracker.cmc import CMCParams
-    from tracker.registry import get
 
     for c in args.corners:
         try:
             CMCParams(max_corners=c, redetect=args.redetect, model=args.model)
         except ValueError as exc:
             ap.error(f"--corners {c} --redetect {args.redetect} --model {args.model}: {exc}")
-    try:
-        if "cmc" not in get(args.tracker).field_names():
-            ap.error(f"--tracker {args.tracker!r} has no camera-motion compensation (cmc)")
-    except (KeyError, ValueError) as exc:  # an unknown tracker
-        ap.error(str(exc).strip("'\""))
+    cmc_tracker_or_exit(ap, args.tracker)
     specs = suite_specs_or_exit(ap, args)
     names = ["off"] + [f"cmc{c}" for c in args.corners]
     rows = {}

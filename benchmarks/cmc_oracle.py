@@ -38,7 +38,7 @@ from functools import partial
 
 import numpy as np
 
-from crowdsim.bench import add_suite_arguments, suite_specs_or_exit
+from crowdsim.bench import add_suite_arguments, cmc_tracker_or_exit, suite_specs_or_exit
 
 
 def planted_compensator(motion: np.ndarray, base_cls, error: np.ndarray | None = None):
@@ -148,13 +148,7 @@ def main() -> int:
     args = ap.parse_args()
     if not (args.jiggle >= 0 and args.seeds >= 0):
         ap.error(f"--jiggle and --seeds must be >= 0, got {args.jiggle} and {args.seeds}")
-    from tracker.registry import get
-
-    try:
-        if "cmc" not in get(args.tracker).field_names():
-            ap.error(f"--tracker {args.tracker!r} has no camera-motion compensation (cmc)")
-    except (KeyError, ValueError) as exc:  # an unknown tracker
-        ap.error(str(exc).strip("'\""))
+    cmc_tracker_or_exit(ap, args.tracker)
     specs = [s for s in suite_specs_or_exit(ap, args) if s.calibration]
     if not specs:
         ap.error(f"suite {args.suite!r}: no calibrated sequence")

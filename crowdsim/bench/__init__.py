@@ -67,3 +67,15 @@ def suite_specs_or_exit(parser: argparse.ArgumentParser, args: argparse.Namespac
         return list(suite_specs(args.suite, args.only))
     except (KeyError, FileNotFoundError, ValueError) as exc:
         parser.error(str(exc).strip("'\""))
+
+
+def cmc_tracker_or_exit(parser: argparse.ArgumentParser, name: str) -> None:
+    """Ends with ``parser.error`` unless ``name`` is a registered tracker with camera-motion
+    compensation (a ``cmc`` parameter), naming the tracker."""
+    from tracker.registry import get
+
+    try:
+        if "cmc" not in get(name).field_names():
+            parser.error(f"--tracker {name!r} has no camera-motion compensation (cmc)")
+    except (KeyError, ValueError) as exc:  # an unknown tracker
+        parser.error(str(exc).strip("'\""))
