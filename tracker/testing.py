@@ -182,7 +182,7 @@ def synthetic_frame_qp(spec: FrameSpec, rng: np.random.Generator) -> BlockQP:
     """A relaxed QP shaped like a real frame of the BQP tracker (see :class:`FrameSpec`).
 
     Returns a :class:`BlockQP` with ``c = c_a + zeta c_m`` and ``Q = w_sp C_sp + w_g C_g``.
-    As in :mod:`tracker.bqp.terms`, ``C_sp`` is the *signless* normalised Laplacian
+    As in :mod:`tracker.bqp.quadratic`, ``C_sp`` is the *signless* normalised Laplacian
     ``I + D^-1/2 S D^-1/2`` (the paper's ``I - ...`` would reward co-selecting close
     candidates) and ``C_g = I - D^-1/2 Gamma D^-1/2``; both are PSD, so ``Q`` is PSD.
     """

@@ -114,12 +114,8 @@ def test_each_term_weight_scales_exactly_its_own_term(name, value):
     and nothing else: a weight that is ignored, or applied to another term, fails here."""
     from dataclasses import replace
 
-    from tracker.bqp.terms import (
-        motion_cost,
-        neighbourhood_cost,
-        neighbours_in_groups,
-        quadratic_matrix,
-    )
+    from tracker.bqp.quadratic import quadratic_matrix
+    from tracker.bqp.terms import motion_cost, neighbourhood_cost, neighbours_in_groups
 
     tr, frame, copy = _tracked_convoy()
     base, alt = copy(tr), copy(tr)
@@ -202,7 +198,7 @@ def test_tracks_are_the_same_for_any_number_of_threads(monkeypatch, variant):
     crowd whose frames split into independent components."""
     import tracker.appearance as appearance
     import tracker.bqp.frank_wolfe as fw
-    import tracker.bqp.terms as terms
+    import tracker.bqp.quadratic as quadratic
     import tracker.candidates as candidates
     from synth_data.sequence import synthetic_crowd
     from tracker.runner import run_tracker
@@ -211,7 +207,7 @@ def test_tracks_are_the_same_for_any_number_of_threads(monkeypatch, variant):
     if max_threads() < 2:
         pytest.skip("needs 2 cores")
     monkeypatch.setattr(appearance, "ROWS_PER_THREAD", 8)
-    monkeypatch.setattr(terms, "EXP_PER_THREAD", 100)
+    monkeypatch.setattr(quadratic, "EXP_PER_THREAD", 100)
     monkeypatch.setattr(candidates, "DRAWS_PER_THREAD", 100)
     split = []
     solve_split = fw._solve_split
@@ -231,14 +227,14 @@ def test_the_trackers_pair_gaussians_come_from_tables(monkeypatch):
     """The tracker's candidates lie on whole pixels, so every frame's quadratic terms take
     their Gaussians from tables (no exp per entry): a change that moved candidates off the
     pixel grid would quietly lose that."""
-    import tracker.bqp.terms as terms
+    import tracker.bqp.quadratic as quadratic
     from synth_data.sequence import synthetic_crowd
     from tracker.runner import run_tracker
 
     served = []
-    real = terms._gauss_tables_for
+    real = quadratic._gauss_tables_for
     monkeypatch.setattr(
-        terms, "_gauss_tables_for", lambda *a: served.append(real(*a) is not None) or real(*a)
+        quadratic, "_gauss_tables_for", lambda *a: served.append(real(*a) is not None) or real(*a)
     )
     crowd = synthetic_crowd(150, 12, 1, 12, size=(320, 180), contrast=0.3, noise_sigma=8.0)
     run_tracker(BQPTracker(), crowd, metrics="none")

@@ -569,7 +569,7 @@ def test_a_known_diagonal_solves_as_the_gathered_block_parts():
     it instead of a search of every column; the same arrays, and the same solve bit for bit,
     whole, split in place and split through the permuted copy."""
     from tracker.bqp.frank_wolfe import _intra_block, _intra_diagonal
-    from tracker.bqp.terms import quadratic_matrix
+    from tracker.bqp.quadratic import quadratic_matrix
 
     rng = np.random.default_rng(3)
     centres = np.array([[40.0, 40.0], [300.0, 50.0], [150.0, 300.0]])

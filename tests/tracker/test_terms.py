@@ -10,16 +10,14 @@ from hypothesis import strategies as st
 from scipy.sparse.csgraph import connected_components
 
 from tracker.bqp.params import BQPParams
-from tracker.bqp.terms import _target_components as target_components
+from tracker.bqp.quadratic import _target_components as target_components
+from tracker.bqp.quadratic import grouping_matrix, proximity_matrix, quadratic_matrix
 from tracker.bqp.terms import (
     coherent_groups,
     group_trees,
-    grouping_matrix,
     motion_cost,
     neighbourhood_cost,
     neighbours_in_groups,
-    proximity_matrix,
-    quadratic_matrix,
 )
 from tracker.candidates import dense_candidates, grid_positions, search_radius, speedup_candidates
 
@@ -406,19 +404,19 @@ def test_grouping_pairs_on_the_cutoff_are_linked(b_points, ref, tables, monkeypa
 def _tables_always(monkeypatch) -> None:
     """Have quadratic_matrix take the Gaussians from tables whenever the candidates allow it
     (on whole pixels), however few entries they serve."""
-    from tracker.bqp import terms
+    from tracker.bqp import quadratic
 
-    real = terms._gauss_tables_for
+    real = quadratic._gauss_tables_for
     monkeypatch.setattr(
-        terms, "_gauss_tables_for", lambda *args: real(*args[:-1], np.iinfo(np.int64).max)
+        quadratic, "_gauss_tables_for", lambda *args: real(*args[:-1], np.iinfo(np.int64).max)
     )
 
 
 def _no_tables(monkeypatch) -> None:
     """Have quadratic_matrix exp every entry's exponent (the path of fractional candidates)."""
-    from tracker.bqp import terms
+    from tracker.bqp import quadratic
 
-    monkeypatch.setattr(terms, "_gauss_tables_for", lambda *args: None)
+    monkeypatch.setattr(quadratic, "_gauss_tables_for", lambda *args: None)
 
 
 @settings(max_examples=60, deadline=None)
@@ -458,27 +456,27 @@ def test_tabled_gaussians_are_the_exp_of_every_entry_bit_for_bit(
 def test_gaussian_tables_serve_whole_pixels_only():
     """The tables are built for candidates on whole pixels (the tracker's search grids),
     when they hold fewer values than the entries; fractional candidates exp each entry."""
-    from tracker.bqp import terms
+    from tracker.bqp import quadratic
 
     flags = np.array([3, 2, 1])
     ref = np.array([[4.0, 0.0], [12.5, 0.0], [0.0, 0.0]])
     gauss = (0.5, 9.0, 0.5, 4.0)
     whole = np.zeros((3, 2, 2))
-    s_tab, box, off, g_tab = terms._gauss_tables_for(whole, flags, ref, 1, gauss, 10_000)
+    s_tab, box, off, g_tab = quadratic._gauss_tables_for(whole, flags, ref, 1, gauss, 10_000)
     np.testing.assert_array_equal(s_tab, np.exp(-np.arange(10) * 0.5))
     assert box[2, 2] == 0 and off[-1] == len(g_tab)  # no tree edge: no table
     d = np.arange(box[0, 0], box[0, 0] + box[0, 2])
     dev2 = (np.sqrt(d) - 4.0) ** 2
     np.testing.assert_array_equal(g_tab[: off[1]], np.where(dev2 <= 4.0, np.exp(-dev2 * 0.5), 0))
     assert box[0, 0] <= 4 and box[0, 0] + box[0, 2] - 1 >= 36  # (4 - 2)^2 .. (4 + 2)^2
-    assert terms._gauss_tables_for(whole + 0.5, flags, ref, 1, gauss, 10_000) is None
-    assert terms._gauss_tables_for(whole, flags, ref, 1, gauss, 5) is None  # more than m
+    assert quadratic._gauss_tables_for(whole + 0.5, flags, ref, 1, gauss, 10_000) is None
+    assert quadratic._gauss_tables_for(whole, flags, ref, 1, gauss, 5) is None  # more than m
     # a reference no table can hold: each entry's own exp (which links none of its pairs)
     for bad in (np.nan, np.inf, 1e30):
         odd = ref.copy()
         odd[1, 0] = bad
         for mode in (1, 2):
-            assert terms._gauss_tables_for(whole, flags, odd, mode, gauss, 10**12) is None
+            assert quadratic._gauss_tables_for(whole, flags, odd, mode, gauss, 10**12) is None
 
 
 @pytest.mark.parametrize("length", [np.nan, 1e30])
@@ -647,7 +645,7 @@ def test_quadratic_matrix_diagonal_is_all_q_holds_inside_a_block():
 def test_linked_pair_bits_fill_the_entries_a_full_scan_fills(monkeypatch):
     """The filling pass over the counting pass's link bits writes the matrix the full scan of
     every candidate pair writes, bit for bit (grouping by lengths and by offsets)."""
-    import tracker.bqp.terms as terms
+    import tracker.bqp.quadratic as quadratic
 
     rng = np.random.default_rng(5)
     pos = rng.uniform(0, 120, (60, 2))
@@ -658,7 +656,7 @@ def test_linked_pair_bits_fill_the_entries_a_full_scan_fills(monkeypatch):
     for ref in (lengths, offsets):
         args = (cand, 0.4, 4.0, 2.5, 1.0, edges, ref, 3.0, 2.0, 1.0)
         with_bits = quadratic_matrix(*args)
-        monkeypatch.setattr(terms, "LINK_MASK_MAX_K", 0)
+        monkeypatch.setattr(quadratic, "LINK_MASK_MAX_K", 0)
         scanned = quadratic_matrix(*args)
         monkeypatch.undo()
         assert with_bits.nnz > 60 * 33

@@ -4,7 +4,8 @@
   quadratic program per frame;
 * :mod:`tracker.bqp.params` -- :class:`~tracker.bqp.params.BQPParams`, every weight and
   threshold (Eq. 1-10);
-* :mod:`tracker.bqp.terms` -- motion, neighbourhood motion, proximity and grouping terms;
+* :mod:`tracker.bqp.terms` -- motion and neighbourhood-motion terms, coherent-motion groups;
+* :mod:`tracker.bqp.quadratic` -- the proximity and grouping terms, one sparse matrix;
 * :mod:`tracker.bqp.qp` -- :class:`~tracker.bqp.qp.BlockQP`, the relaxed QP over a product of
   simplices;
 * :mod:`tracker.bqp.frank_wolfe` -- plain, away-step and SWAP Frank-Wolfe (numba);

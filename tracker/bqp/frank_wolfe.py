@@ -89,7 +89,7 @@ than the threads gain)."""
 def solved_apart(sizes: np.ndarray, share: float = SPLIT_MAX_SHARE) -> bool:
     """Whether components of these ``sizes`` (blocks each) are solved apart: the largest
     holds less than ``share`` of the blocks (the one rule of :func:`solve` and of
-    :func:`tracker.bqp.terms.quadratic_matrix`'s grouping)."""
+    :func:`tracker.bqp.quadratic.quadratic_matrix`'s grouping)."""
     return len(sizes) > 0 and sizes.max() < share * sizes.sum()
 
 
@@ -859,7 +859,7 @@ def solve(
         Variant, ``eps``, ``max_iter``; default ``FWParams()`` (SWAP, eps 0.01).
     components : (n,) int, optional
         A label per block such that ``Q`` has no entry between blocks of different labels
-        (:func:`tracker.bqp.terms.quadratic_matrix` with ``components=True``). The
+        (:func:`tracker.bqp.quadratic.quadratic_matrix` with ``components=True``). The
         components are then independent problems: when the largest holds less than
         :data:`SPLIT_MAX_SHARE` of the blocks they are solved apart, in parallel on numba's
         threads, each with its share of ``eps`` and ``max_iter`` (the gaps still sum to at

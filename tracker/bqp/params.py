@@ -121,13 +121,13 @@ class BQPParams:
     laplacian_tau : float
         Degree regulariser ``tau`` of both normalised Laplacians,
         ``(D + tau I)^-1/2 (D -/+ W) (D + tau I)^-1/2`` (0 = the paper's ``I -/+ D^-1/2 W
-        D^-1/2``); see :func:`tracker.bqp.terms.quadratic_matrix`. Default 1: with ``tau = 0``
+        D^-1/2``); see :func:`tracker.bqp.quadratic.quadratic_matrix`. Default 1: with ``tau = 0``
         a candidate pair that is barely similar but has no other neighbour gets a
         full-strength proximity penalty, which cost 0.4 points at 5 px on a 300-person
         synthetic crowd; ``tau = 1`` lost nothing.
     group_offsets : bool
         Grouping term on relative positions ``e_ij = p_i - p_j`` (2-vectors) instead of the
-        distances ``|p_i - p_j|`` of Eq. 10; see :func:`tracker.bqp.terms.grouping_matrix`.
+        distances ``|p_i - p_j|`` of Eq. 10; see :func:`tracker.bqp.quadratic.grouping_matrix`.
     group_cutoff : float
         Entries of ``Gamma`` (Eq. 10) with ``| |p_i - p_j| - e_ij | > group_cutoff * sigma`` are
         dropped (same reasoning as ``proximity_cutoff``).

@@ -201,7 +201,7 @@ class BlockQP:
         block_ptr: np.ndarray,
         diagonal: np.ndarray | None = None,
     ) -> BlockQP:
-        """The per-frame problem from :func:`tracker.bqp.terms.quadratic_matrix`'s ``Q``.
+        """The per-frame problem from :func:`tracker.bqp.quadratic.quadratic_matrix`'s ``Q``.
 
         That ``Q`` is canonical float64 CSC, finite and exactly symmetric by construction
         (both triangles are written from the same operands), so the O(nnz) checks of the

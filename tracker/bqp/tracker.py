@@ -15,8 +15,8 @@ Stages of a frame (their seconds are accumulated in ``timings``):
 ``terms``
     Motion (Eq. 6) and neighbourhood-motion (Eq. 7-8) maps, candidate selection (dense or
     speed-up sampling, :mod:`tracker.candidates`), the sparse quadratic terms (Eq. 9-10,
-    :mod:`tracker.bqp.terms`) and, every ``group_refresh`` frames, the coherent-motion groups and
-    their spanning trees.
+    :mod:`tracker.bqp.quadratic`) and, every ``group_refresh`` frames, the coherent-motion
+    groups and their spanning trees.
 ``solve``
     Building the :class:`tracker.bqp.qp.BlockQP` and running Frank-Wolfe. Where the targets
     fall into independent groups (no proximity or grouping entry between them), the terms
@@ -43,13 +43,8 @@ import scipy.sparse as sp
 from tracker.appearance import make_appearance
 from tracker.base import Tracker
 from tracker.bqp.params import BQPParams
-from tracker.bqp.terms import (
-    coherent_groups,
-    group_trees,
-    linear_cost,
-    neighbours_in_groups,
-    quadratic_matrix,
-)
+from tracker.bqp.quadratic import quadratic_matrix
+from tracker.bqp.terms import coherent_groups, group_trees, linear_cost, neighbours_in_groups
 from tracker.candidates import (
     Candidates,
     dense_candidates,
@@ -268,7 +263,7 @@ class BQPTracker(Tracker):
         connected component of every block (no entry of ``Q`` joins two components), the
         target of every block (``None`` when block ``i`` is target ``i``, else the targets
         grouped by component, as the solver will solve them apart) and ``Q``'s diagonal
-        (:func:`tracker.bqp.terms.quadratic_matrix` with ``split_share`` and ``diagonal``)."""
+        (:func:`tracker.bqp.quadratic.quadratic_matrix` with ``split_share`` and ``diagonal``)."""
         from tracker.bqp.frank_wolfe import SPLIT_MAX_SHARE
 
         p = self.params
