@@ -122,10 +122,10 @@ def pairwise_plan(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 @njit(cache=True, nogil=True, inline="always")
 def _block_sum(a, lo, n):
-    """numpy's float32 sum of one block of ``pairwise_sum`` (``n <= 128``): in order under 8
-    values, else eight interleaved accumulators, then the rest in order."""
+    """numpy's sum of one block of ``pairwise_sum`` (``n <= 128``), in ``a``'s float type: in
+    order under 8 values, else eight interleaved accumulators, then the rest in order."""
     if n < 8:
-        res = np.float32(0.0)
+        res = a.dtype.type(0.0)
         for i in range(n):
             res += a[lo + i]
         return res
@@ -159,6 +159,45 @@ def _planned_sum(a, blocks, adds, work):
     for d in range(adds.shape[0]):
         work[adds[d, 0]] = work[adds[d, 1]] + work[adds[d, 2]]
     return work[blocks.shape[0] + adds.shape[0] - 1]
+
+
+@njit(cache=True, nogil=True)
+def numpy_sum(a, lo, n):
+    """``a[lo:lo + n].sum()`` bit for bit as numpy sums a contiguous float array (its
+    ``pairwise_sum``: halves, each a multiple of 8, down to blocks of at most 128 values,
+    :func:`_block_sum`), for compiled code that must give numpy's value; one segment's plan
+    walked with a stack instead of :func:`pairwise_plan`'s table."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    depth = 64  # each level halves n: far more than an int64 length needs
+    start = np.empty(depth, np.int64)
+    size = np.empty(depth, np.int64)
+    stage = np.zeros(depth, np.int64)  # 0: left half next, 1: right half next, 2: add
+    sums = np.empty(depth, a.dtype)
+    start[0], size[0] = lo, n
+    top = 0
+    held = 0
+    while top >= 0:
+        m = size[top]
+        if m <= 128:
+            sums[held] = _block_sum(a, start[top], m)
+            held += 1
+            top -= 1
+            continue
+        half = m // 2
+        half -= half % 8
+        if stage[top] == 2:  # both halves summed: numpy adds left + right
+            sums[held - 2] = sums[held - 2] + sums[held - 1]
+            held -= 1
+            top -= 1
+            continue
+        first = stage[top] == 0
+        stage[top] += 1
+        top += 1
+        start[top] = start[top - 1] if first else start[top - 1] + half
+        size[top] = half if first else m - half
+        stage[top] = 0
+    return sums[0]
 
 
 @njit(cache=True, nogil=True)

@@ -173,6 +173,22 @@ def test_kcf_windows_are_extract_patches_centred_and_windowed_as_numpy(size, cha
     np.testing.assert_array_equal(out, ref)
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_numpy_sum_of_a_segment_is_numpys_sum_bit_for_bit(dtype):
+    """:func:`tracker.appearance.numpy_sum` (compiled code that must give numpy's value, e.g.
+    PNMC's flow weights) sums a segment as numpy sums it: in order under 8 values, eight
+    accumulators up to 128, halves (multiples of 8) above, at any offset into the array."""
+    from tracker.appearance import numpy_sum
+
+    rng = np.random.default_rng(3)
+    lengths = [*range(0, 140), 255, 256, 257, 300, 1000, 1024, 1031, 4096, 10_007, 100_003]
+    for n in lengths:
+        lo = int(rng.integers(0, 9))
+        a = (rng.standard_normal(n + 9) * 10.0 ** rng.uniform(-3, 3, n + 9)).astype(dtype)
+        got = dtype(numpy_sum(a, lo, n))  # numba hands back a Python float
+        assert got.tobytes() == a[lo : lo + n].sum().tobytes(), n
+
+
 @pytest.mark.parametrize("n", [1, 7, 8, 9, 64, 128, 129, 300, 400, 576, 1296, 4096])
 def test_pairwise_sum_is_numpys_float32_sum(n):
     """The windows' means sum as numpy does (pairwise, eight accumulators), bit for bit, on

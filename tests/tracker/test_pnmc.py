@@ -234,6 +234,110 @@ def test_flow_recovers_a_translation():
     assert len(flat.near(np.array([20.0, 20.0]), 8.0)[0]) == 0
 
 
+def test_near_many_gives_each_centres_patches_as_a_lone_call_would():
+    """:meth:`InstantaneousFlow.near_many`: per centre, the valid patches whose start lies
+    within the radius, in row-major order (checked against every cell of the grid), with the
+    same tracks as when each centre is asked for alone on a fresh flow; centres off the
+    frame and with no patch near get empty segments."""
+    rng = np.random.default_rng(1)
+    tex = rng.integers(0, 255, (80, 100, 3)).astype(np.uint8)
+    tex[30:50, 60:90] = 90  # a flat region: its patches are not valid
+
+    def fresh():
+        flow = InstantaneousFlow(patch=4, spacing=4, frames=5, search=3, min_ncc=0.5)
+        for k in range(6):
+            flow.push(np.ascontiguousarray(np.roll(tex, (k, 2 * k), axis=(0, 1))))
+        return flow
+
+    centres = np.array([[50.0, 40.0], [3.0, 2.0], [75.0, 40.0], [-40.0, 10.0], [51.5, 39.0]])
+    flow = fresh()
+    ptr, pos, vel = flow.near_many(centres, 9.0)
+    gh, gw = flow._shape
+    rows, cols = np.divmod(np.arange(gh * gw), gw)
+    assert ptr[0] == 0 and ptr[-1] == len(pos) == len(vel)
+    for t, (cx, cy) in enumerate(centres):
+        inside = (cols * 4 + 2.0 - cx) ** 2 + (rows * 4 + 2.0 - cy) ** 2 <= 81.0
+        r, c = rows[inside], cols[inside]
+        ok = flow._valid[r, c]
+        np.testing.assert_array_equal(pos[ptr[t] : ptr[t + 1]], flow._last[r[ok], c[ok]])
+        np.testing.assert_array_equal(vel[ptr[t] : ptr[t + 1]], flow._vel[r[ok], c[ok]])
+        alone = fresh().near(centres[t], 9.0)
+        np.testing.assert_array_equal(alone[0], pos[ptr[t] : ptr[t + 1]])
+        np.testing.assert_array_equal(alone[1], vel[ptr[t] : ptr[t + 1]])
+    assert ptr[4] - ptr[3] == 0  # off the frame
+    assert ptr[1] - ptr[0] >= 4 and ptr[3] - ptr[2] < ptr[1] - ptr[0]  # the flat region
+    empty = fresh().near_many(np.zeros((0, 2)), 9.0)
+    assert empty[0].tolist() == [0] and empty[1].shape == (0, 2)
+
+
+def test_patches_matched_in_place_are_the_gathered_patches_matches():
+    """The flow matches each patch in its window read in place from the padded frames, each
+    moved back inside the frame where it reaches past it: the same offsets and NCC, bit for
+    bit, as :func:`ncc_argmax` on gathered, clipped copies."""
+    from tracker.pnmc.flow import _ncc_argmax_in
+
+    rng = np.random.default_rng(2)
+    prev = rng.integers(0, 255, (1, 40, 50)).astype(np.float32)
+    nxt = np.roll(prev, (1, -2), axis=(1, 2)) + rng.integers(-3, 4, prev.shape)
+    nxt = nxt.astype(np.float32)
+    prev[0, 10:20, 10:20] = 7.0  # flat patches: score 0
+    p, r = 4, 3
+    tl = np.stack([rng.integers(-6, 52, 300), rng.integers(-6, 42, 300)], 1)
+
+    def gather(frame, top_left, size):
+        x = np.clip(top_left[:, 0], 0, frame.shape[2] - size)
+        y = np.clip(top_left[:, 1], 0, frame.shape[1] - size)
+        d = np.arange(size)
+        out = frame[:, (y[:, None] + d)[:, :, None], (x[:, None] + d)[:, None, :]]
+        return np.ascontiguousarray(out.transpose(1, 0, 2, 3))
+
+    best, score = _ncc_argmax_in(prev, nxt, tl, p, r)
+    want = ncc_argmax(gather(prev, tl, p), gather(nxt, tl - r, p + 2 * r))
+    np.testing.assert_array_equal(best, want[0])
+    assert score.tobytes() == want[1].tobytes()
+    assert (score == 0).any() and (score > 0.9).mean() > 0.5
+
+
+def test_flow_priors_taken_ahead_in_one_batch_are_those_taken_one_at_a_time(monkeypatch):
+    """The flow priors of every target whose likelihood peak is below ``tau``, taken in one
+    batch before the propagation (:data:`tracker.pnmc.tracker.FLOW_PRIORS_AHEAD`), give, on
+    every frame, the positions, update order, delays and flow choices of taking each one
+    when the propagation asks for it."""
+    import tracker.pnmc.tracker as pnmc
+    from synth_data.sequence import synthetic_crowd
+
+    crowd = synthetic_crowd(60, 12, 0, 12, size=(220, 160), contrast=0.3, noise_sigma=8.0)
+    frames = list(crowd.frames())
+    ids, points = crowd.gt_points()
+    start = np.isfinite(points[0]).all(1)
+    batches = []
+    real = pnmc._flow_map_cells
+
+    def counted(targets, *args):
+        batches.append(len(targets))
+        return real(targets, *args)
+
+    monkeypatch.setattr(pnmc, "_flow_map_cells", counted)
+    trackers = {ahead: PNMCTracker(PNMCParams(tau=0.95)) for ahead in (True, False)}
+    for t in trackers.values():
+        t.init(frames[0], ids[start], points[0, start], 12)
+    used = 0
+    for frame in frames[1:]:
+        seen = {}
+        for ahead, t in trackers.items():
+            monkeypatch.setattr(pnmc, "FLOW_PRIORS_AHEAD", ahead)
+            batches.clear()
+            t.step(frame)
+            seen[ahead] = (t.ids, t.points, t.update_order, t.delayed, t.used_flow, batches[:])
+        for a, b in zip(seen[True][:5], seen[False][:5], strict=True):
+            assert a.tobytes() == b.tobytes()
+        assert set(seen[False][5]) <= {1}  # one target at a time when asked
+        used += int(seen[True][4].sum())
+        if seen[True][4].any():
+            assert max(seen[True][5]) >= 2  # ahead: one batch of several
+    assert used >= 10
+
+
 def test_batched_ncc_matches_the_definition():
     rng = np.random.default_rng(0)
     win = rng.random((2, 1, 8, 8)).astype(np.float32)
