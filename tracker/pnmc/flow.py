@@ -13,7 +13,8 @@ The flow is only needed for targets whose update confidence is low, so it is com
 and cached at two levels:
 
 * per frame pair and grid cell, the best NCC displacement of the cell's patch (one numba
-  kernel, :func:`ncc_argmax`, over all requested cells at once); a pair stays in the cache
+  kernel over all requested cells at once, reading the patches in place from the buffered
+  frames: :func:`ncc_argmax`'s loop on ungathered patches); a pair stays in the cache
   while it is among the last ``frames`` frames, so each pair is matched once, not once per
   frame that uses it;
 * per start cell, the patch track: from the cell in the oldest frame, each step applies the
