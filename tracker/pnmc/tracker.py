@@ -65,8 +65,8 @@ Algorithm 1's order, separable Gaussians); likelihoods, the neighbour graph (``c
 the flow priors (:func:`_flow_map_cells`), flow matching (numba, read in place from the
 buffered frames) and queens (numpy EM) are batched, with no Python loop over targets. The
 1,000 packed targets of ``crowdsim bench track`` (``benchmarks/track_stages.py --tracker
-pnmc --threads 2``, 2 cores): 14.2 frames/s, update stage 47 ms a frame (8.9 frames/s and
-86-100 ms with a Python call per target that needed the flow).
+pnmc --threads 2``, 2 cores, a slow spell): 12.0-13.6 frames/s, update stage 48-56 ms a
+frame (7.4-8.3 frames/s and 90-104 ms with a Python call per target that needed the flow).
 """
 
 from __future__ import annotations
