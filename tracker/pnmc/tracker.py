@@ -93,7 +93,7 @@ FLOW_PRIORS_AHEAD: bool = True
 """Compute the flow priors (Eq. 9) of the targets whose best likelihood is below ``tau`` in
 one batch before the propagation (they will all ask for it), instead of one at a time as the
 propagation asks. The same cells either way (a test compares); on a packed 1,000-target
-frame the per-target Python calls took 40 % of PNMC's update stage."""
+frame the per-target Python calls took about 40 % of PNMC's update stage."""
 
 
 @njit(cache=True, nogil=True)
