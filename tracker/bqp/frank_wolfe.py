@@ -47,11 +47,11 @@ largest block gap (gap-greedy selection, Osokin et al. 2016: the stopping test i
 of block gaps, and a block's gap bounds the decrease a step there can make). Each iteration
 then changes at most the support of one block (SWAP: exactly two coordinates), so keeping
 ``g = c + 2Qx`` current is a rank-2 (SWAP) or support-sized (FW, away, block) column update
-of the CSC matrix. The cost of an iteration is O(nnz of the touched columns): the statistics of the
-other blocks those columns reach are updated per touched row, and a block is rescanned
+of the CSC matrix. The cost of an iteration is O(nnz of the touched columns): the statistics
+of the other blocks those columns reach are updated per touched row, and a block is rescanned
 (O(its size)) only when its toward or away vertex got worse; plus O(log n) per reached
-block for the max-gap tree. ``iterations`` counts block steps, for all three variants
-alike, so Fig. 13-style comparisons are like for like.
+block for the max-gap tree. ``iterations`` counts block steps, for every variant alike, so
+Fig. 13-style comparisons are like for like.
 
 Line search (Eq. 13) is exact: ``f(x + lam d) = f(x) + lam g.d + lam^2 d^T Q d``, so
 ``lam = -g.d / (2 d^T Q d)`` clipped to ``[0, lam_max]``; ``lam_max`` is 1 for FW steps,

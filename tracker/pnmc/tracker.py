@@ -512,9 +512,10 @@ class PNMCTracker(Tracker):
 
         def flow_priors(targets: np.ndarray) -> None:
             """The flow prior's MAP cell of ``targets`` (Eq. 9), all at once."""
-            ptr, fpos, fvel = self.flow.near_many(flow_at[targets], p.flow_radius * s)
+            at = flow_at[targets]
+            ptr, fpos, fvel = self.flow.near_many(at, p.flow_radius * s)
             seg = np.repeat(np.arange(len(targets)), np.diff(ptr))
-            dist = np.sqrt(((fpos - flow_at[targets][seg]) ** 2).sum(1))
+            dist = np.sqrt(((fpos - at[seg]) ** 2).sum(1))
             near = np.flatnonzero(ptr[1:] > ptr[:-1])
             nearest = np.zeros(len(targets))
             if len(near):
