@@ -3,15 +3,19 @@
 For each sequence of a suite (default the static ``ucf9``), renders the whole sequence once
 into memory (camera output: codec and JPEG, what a tracker reads), then tracks it with the
 tracker (default BQP with KCF appearance) without compensation and with it at each
-``--corners`` count, back to back in one process, ``--rounds`` times; the best round of each
-counts (the rounds alternate, so a slower spell of a shared machine falls on all). Reports
-frames/s (tracking alone, :attr:`tracker.runner.TrackRun.fps`), the frames/s compensation
-takes, its ms a frame (the ``cmc`` stage) and acc@15::
+``--corners`` count and each ``--redetect`` setting, back to back in one process, ``--rounds``
+times; the best round of each counts (the rounds alternate, so a slower spell of a shared
+machine falls on all). Reports frames/s (tracking alone, :attr:`tracker.runner.TrackRun.fps`),
+the frames/s compensation takes, its ms a frame (the ``cmc`` stage) and acc@15::
 
-    python benchmarks/cmc_fps.py --only seq8 seq2 seq6 seq4 --corners 100 400
+    python benchmarks/cmc_fps.py --only seq8 seq2 seq6 seq4 --redetect 0.5 1
+    python benchmarks/cmc_fps.py --only seq8 --corners 100 400
     python benchmarks/cmc_fps.py --suite ucf9-shake --rounds 1 --model auto
 
-``--model`` is :attr:`tracker.cmc.CMCParams.model` (default ``similarity``).
+``--redetect`` and ``--model`` are :attr:`tracker.cmc.CMCParams.redetect` (default
+:class:`~tracker.cmc.CMCParams`' own: corners tracked forward) and ``.model`` (default
+``similarity``). The trackers run under the ``crowdsim`` command's process settings
+(:func:`crowdsim.cli.process_settings`).
 
 Prints a table and one JSON object. The corner count is chosen by the estimate's error
 (``benchmarks/cmc_error.py``), never by a tracker's score.
@@ -21,8 +25,17 @@ from __future__ import annotations
 
 import argparse
 import json
+from itertools import product
 
 from crowdsim.bench import add_suite_arguments, cmc_tracker_or_exit, suite_specs_or_exit
+from crowdsim.cli import process_settings
+
+
+def setting_names(corners: list[int], redetect: list[float]) -> list[str]:
+    """``off``, then ``cmc<corners>`` for each count, suffixed ``/r<redetect>`` when more
+    than one ``redetect`` is compared (corners outer, redetect inner)."""
+    tag = (lambda r: f"/r{r:g}") if len(redetect) > 1 else (lambda r: "")
+    return ["off"] + [f"cmc{c}{tag(r)}" for c, r in product(corners, redetect)]
 
 
 def measure(
@@ -30,23 +43,26 @@ def measure(
     tracker: str,
     corners: list[int],
     rounds: int,
-    redetect: float = 1.0,
+    redetect: list[float] | None = None,
     model: str = "similarity",
 ) -> dict:
-    """Best frames/s, ``cmc`` ms a frame and acc@15 of ``tracker`` on ``spec`` per setting."""
+    """Best frames/s, ``cmc`` ms a frame and acc@15 of ``tracker`` on ``spec`` per setting
+    (:func:`setting_names`)."""
     from synth_data.sequence import InMemorySequence
     from tracker.cmc import CMCParams
     from tracker.runner import run_tracker
 
+    redetect = redetect or [CMCParams().redetect]
     seq = InMemorySequence.from_spec(spec, camera_output=True).materialize()
-    settings = [("off", None)] + [(f"cmc{c}", c) for c in corners]
+    options = [None, *product(corners, redetect)]
+    settings = list(zip(setting_names(corners, redetect), options, strict=True))
     rows: dict[str, dict] = {}
     for _ in range(rounds):
         for name, c in settings:
 
             def prepare(trk, _source, c=c):
                 if c is not None:
-                    trk.cmc_settings = CMCParams(max_corners=c, redetect=redetect, model=model)
+                    trk.cmc_settings = CMCParams(max_corners=c[0], redetect=c[1], model=model)
 
             run = run_tracker(
                 tracker, seq, params={"cmc": c is not None}, metrics="accuracy", prepare=prepare
@@ -72,9 +88,12 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument(
         "--redetect",
+        nargs="+",
         type=float,
-        default=1.0,
-        help="CMCParams.redetect: 1 detects corners on every frame, below 1 tracks them forward",
+        default=None,
+        metavar="R",
+        help="CMCParams.redetect, one or more: 1 detects corners on every frame, below 1 tracks "
+        "them forward (default: CMCParams' own, 0.5)",
     )
     ap.add_argument(
         "--model",
@@ -82,20 +101,23 @@ def main() -> int:
         help="CMCParams.model: similarity (the default), affine, translation or auto",
     )
     args = ap.parse_args()
+    process_settings()  # time the trackers as the crowdsim command runs them
     if args.rounds < 1:
         ap.error(f"--rounds must be >= 1, got {args.rounds}")
     from tracker.cmc import CMCParams
 
-    for c in args.corners:
+    if args.redetect is None:
+        args.redetect = [CMCParams().redetect]
+    for c, r in product(args.corners, args.redetect):
         try:
-            CMCParams(max_corners=c, redetect=args.redetect, model=args.model)
+            CMCParams(max_corners=c, redetect=r, model=args.model)
         except ValueError as exc:
-            ap.error(f"--corners {c} --redetect {args.redetect} --model {args.model}: {exc}")
+            ap.error(f"--corners {c} --redetect {r:g} --model {args.model}: {exc}")
     cmc_tracker_or_exit(ap, args.tracker)
     specs = suite_specs_or_exit(ap, args)
-    names = ["off"] + [f"cmc{c}" for c in args.corners]
+    names = setting_names(args.corners, args.redetect)
     rows = {}
-    head = "".join(f"{n:>24}" for n in names)
+    head = f"{names[0]:>24}" + "".join(f"{n:>26}" for n in names[1:])
     print(
         f"{'sequence':<10}{'size':>11}{'people':>7}{head}"
         "   (frames/s, cost, cmc ms a frame; acc@15 of each)"

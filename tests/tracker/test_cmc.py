@@ -10,6 +10,7 @@ with ``cmc=True`` than without. With ``cmc=False`` nothing of the compensation m
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 from types import MappingProxyType, SimpleNamespace
 
 import cv2
@@ -26,6 +27,8 @@ from tracker.testing import PALETTE, check_tracker_contract
 COMPENSATED = ("ncc", "meanshift", "pnmc", "bqp", "bqp-ncc", "bqp-dense")
 """Every detection-free tracker of the registry (they all carry ``cmc``)."""
 FAMILIES = ("ncc", "meanshift", "pnmc", "bqp")
+SHAKE17 = Path(__file__).resolve().parents[2] / "benchmarks" / "suites" / "shake17" / "shaky.toml"
+"""The strong-shake spec the estimate's benchmarks and these tests share."""
 """One registry name per tracker class."""
 
 
@@ -102,23 +105,14 @@ def scene() -> Shaken:
 @pytest.fixture(scope="module")
 def shaky_crowd():
     """A rendered crossing crowd (30 people, 10 px heads) under a fast 6 px camera shake
-    (``camera.jitter_px = 6``, ``jitter_frames = 1``: steps of up to 17 px)."""
+    (``camera.jitter_px = 6``, ``jitter_frames = 1``: steps of up to 17 px); the spec is
+    ``benchmarks/suites/shake17``'s, which ``benchmarks/cmc_error.py`` measures the estimate
+    on."""
     from synth_data.scene import Scene
     from synth_data.sequence import InMemorySequence
-    from synth_data.spec import spec_from_dict
+    from synth_data.spec import load_spec
 
-    spec = spec_from_dict(
-        {
-            "name": "shaky",
-            "seed": 1,
-            "frames": 24,
-            "warmup_steps": 10,
-            "scenario": {"name": "crossing", "n_agents": 30, "density": 0.5},
-            "camera": {"jitter_px": 6.0, "jitter_frames": 1.0},
-            "appearance": {"template_px": 10, "noise_sigma": 3.0},
-        },
-        source="shaky.toml",
-    )
+    spec = load_spec(SHAKE17)
     sc = Scene.from_spec(spec)
     return sc, InMemorySequence.from_scene(sc).materialize()
 
@@ -175,10 +169,22 @@ def test_the_shift_and_auto_models_follow_a_camera_that_only_shifts(turn_deg, mo
         assert max(errors) > 0.8  # the test can tell a shift from a turn
 
 
-def test_corners_tracked_forward_recover_the_motion_with_fewer_detections(monkeypatch):
+@pytest.mark.parametrize(
+    ("step_px", "settings", "detections"),
+    [
+        (7.0, {}, "every"),  # the default, BoT-SORT's: Shi-Tomasi on every frame
+        (7.0, {"redetect": 0.5}, "every"),  # each 4-7 px step is beyond redetect_px
+        (7.0, {"redetect": 0.5, "redetect_px": 10_000.0}, "few"),  # no step rule: carried
+        (1.2, {"redetect": 0.5}, "few"),  # steps of 0.7-1.2 px: carried over
+    ],
+)
+def test_corners_tracked_forward_recover_the_motion_with_fewer_detections(
+    monkeypatch, step_px, settings, detections
+):
     """``redetect < 1`` carries the inlier corners into the next estimate (KLT): Shi-Tomasi
     runs on a few frames only, and every estimate stays within the 0.3 px of the
-    every-frame detection's test above; the default detects on every frame."""
+    every-frame detection's test above. A view motion beyond ``redetect_px`` (by default
+    2 px) detects afresh."""
     import cv2
 
     calls = []
@@ -189,22 +195,21 @@ def test_corners_tracked_forward_recover_the_motion_with_fewer_detections(monkey
         return detect(*args, **kwargs)
 
     monkeypatch.setattr(cv2, "goodFeaturesToTrack", counted)
-    sc = shaken_scene(shape=(240, 320), seed=1)
+    sc = shaken_scene(shape=(240, 320), seed=1, step_px=step_px)
     h, w = sc.frames[0].shape[:2]
     corners = np.array([[0.0, 0.0], [w - 1, 0.0], [0.0, h - 1], [w - 1, h - 1]])
-    for redetect, most in ((1.0, len(sc.frames) - 1), (0.5, (len(sc.frames) - 1) // 3)):
-        calls.clear()
-        cmc = MotionCompensator(CMCParams(redetect=redetect))
-        cmc.estimate(sc.frames[0])
-        for t in range(1, len(sc.frames)):
-            prev = sc.points[t - 1][np.isfinite(sc.points[t - 1]).all(1)]
-            a = cmc.estimate(sc.frames[t], exclude=prev, exclude_px=2 * sc.template_size)
-            err = np.abs(warp_points(a, corners) - warp_points(sc.planted[t - 1], corners)).max()
-            assert err < 0.3, (redetect, t, err)
-        assert cmc.failures == 0
-        assert 1 <= len(calls) <= most, (redetect, len(calls))
-        if redetect == 1.0:
-            assert len(calls) == len(sc.frames) - 1
+    cmc = MotionCompensator(CMCParams(**settings))
+    cmc.estimate(sc.frames[0])
+    for t in range(1, len(sc.frames)):
+        prev = sc.points[t - 1][np.isfinite(sc.points[t - 1]).all(1)]
+        a = cmc.estimate(sc.frames[t], exclude=prev, exclude_px=2 * sc.template_size)
+        err = np.abs(warp_points(a, corners) - warp_points(sc.planted[t - 1], corners)).max()
+        assert err < 0.3, (t, err)
+    assert cmc.failures == 0
+    if detections == "every":
+        assert len(calls) == len(sc.frames) - 1
+    else:
+        assert 1 <= len(calls) <= (len(sc.frames) - 1) // 3, len(calls)
 
 
 def test_estimate_recovers_the_renderers_shake(shaky_crowd):
@@ -281,8 +286,6 @@ def test_the_oracle_benchmark_compensates_each_frame_by_its_planted_shake(shaky_
     exactly the shake the camera planted into that frame (its first version handed each
     frame the step of the frame before, and lost points to it), and tracks through a 17 px
     shake as the estimate does."""
-    from pathlib import Path
-
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from cmc_oracle import planted_prepare
 
@@ -393,6 +396,9 @@ def test_cmc_is_timed_deterministic_and_validated(scene, shaky_crowd):
         assert registry.make_tracker(name, cmc=True).params.cmc is True
     for field, bad in (("lk_window", 3), ("lk_levels", 7), ("max_corners", 4)):
         with pytest.raises(ValueError, match=rf"cmc\.{field} must be an integer in .*got {bad}"):
+            CMCParams(**{field: bad})
+    for field, bad in (("redetect", 1.5), ("redetect_px", -1.0), ("redetect_px", float("nan"))):
+        with pytest.raises(ValueError, match=rf"cmc\.{field} must be a finite number in .*got"):
             CMCParams(**{field: bad})
 
 
