@@ -13,7 +13,7 @@ the frames/s compensation takes, its ms a frame (the ``cmc`` stage) and acc@15::
     python benchmarks/cmc_fps.py --suite ucf9-shake --rounds 1 --model auto
 
 ``--redetect`` and ``--model`` are :attr:`tracker.cmc.CMCParams.redetect` (default
-:class:`~tracker.cmc.CMCParams`' own: corners tracked forward) and ``.model`` (default
+:class:`~tracker.cmc.CMCParams`' own: corners detected on every frame) and ``.model`` (default
 ``similarity``). The trackers run under the ``crowdsim`` command's process settings
 (:func:`crowdsim.cli.process_settings`).
 
@@ -93,7 +93,7 @@ def main() -> int:
         default=None,
         metavar="R",
         help="CMCParams.redetect, one or more: 1 detects corners on every frame, below 1 tracks "
-        "them forward (default: CMCParams' own, 0.5)",
+        "them forward (default: CMCParams' own)",
     )
     ap.add_argument(
         "--model",

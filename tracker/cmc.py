@@ -134,8 +134,8 @@ class CMCParams:
         ``ucf9-shake`` 0.212 against 0.211 px a frame, ``ucf9-drone`` 0.121 against 0.125,
         the static ``ucf9`` 0.114 against 0.116 (spurious motion), the rendered crowd of
         ``tests/tracker/test_cmc.py`` under a shake of up to 17 px steps 0.095 against
-        0.095, in about 40 % less time (summed over the nine: 15 against 9 ms a frame on
-        ``ucf9``, 17 against 10 on ``ucf9-drone``). But its worst frames are worse: a spec's
+        0.095, in 38-55 % less time (summed over the nine: 9 against 15 ms a frame on
+        ``ucf9``, 10 against 17 on ``ucf9-drone``). But its worst frames are worse: a spec's
         worst frame erred more than 0.05 px more on 6 of the 27 specs (seq6 of
         ``ucf9-shake`` 2.03 against 1.16 px, its seq9 1.42 against 0.98 and seq1 0.27
         against 0.20, seq5 of all three suites by 0.18-0.27 px) and less on 2 (by 0.05 and
