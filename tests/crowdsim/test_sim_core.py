@@ -212,6 +212,19 @@ def test_circulation_turns_counter_clockwise():
     assert np.mean(omega) > 0.03
 
 
+@pytest.mark.parametrize(
+    ("n", "density", "seed"),
+    [(34, 3.0, 65537), (36, 2.59, 924353164), (44, 2.91, 1591042559), (60, 3.0, 0), (235, 3.0, 3)],
+)
+def test_circulation_starts_with_nobody_inside_another(n, density, seed):
+    """A few agents around the block leave an annulus narrower than two people, where the
+    shaken random packing could jam (the first three cases, found by the property test and
+    a sweep, started 0.25-0.84 of a radius deep in each other); the rings are kept then.
+    Elsewhere the shaken packing stays (nobody within ``2 r_max - 0.2 r_min``)."""
+    sim = Simulation(make_scenario("circulation", n_agents=n, density=density), seed=seed)
+    assert max_overlap(sim.state.pos, sim.state.radius) <= 0.2
+
+
 def test_counterflow_forms_lanes_well_above_random_mix():
     from crowdsim.validation import lane_formation
 

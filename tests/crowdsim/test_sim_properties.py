@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from crowdsim.scenarios import SCENARIOS, make_scenario
@@ -22,6 +22,8 @@ scenes = st.fixed_dictionaries(
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scene=scenes)
+# found by this test on a fresh clone: circulation's shaken packing jammed in a narrow annulus
+@example(scene={"name": "circulation", "n_agents": 34, "density": 3.0, "seed": 65537})
 def test_any_small_scene_stays_finite_bounded_and_apart(scene):
     sc = make_scenario(scene["name"], n_agents=scene["n_agents"], density=scene["density"])
     sim = Simulation(sc, seed=scene["seed"])
