@@ -219,7 +219,8 @@ def test_circulation_turns_counter_clockwise():
 def test_circulation_starts_with_nobody_inside_another(n, density, seed):
     """A few agents around the block leave an annulus narrower than two people, where the
     shaken random packing could jam (the first three cases, found by the property test and
-    a sweep, started 0.25-0.84 of a radius deep in each other); the rings are kept then.
+    a sweep, were still 0.25-0.59 of a radius deep in each other after the first step); the
+    rings are kept then.
     Elsewhere the shaken packing stays (nobody within ``2 r_max - 0.2 r_min``)."""
     sim = Simulation(make_scenario("circulation", n_agents=n, density=density), seed=seed)
     assert max_overlap(sim.state.pos, sim.state.radius) <= 0.2

@@ -27,9 +27,9 @@ from tracker.testing import PALETTE, check_tracker_contract
 COMPENSATED = ("ncc", "meanshift", "pnmc", "bqp", "bqp-ncc", "bqp-dense")
 """Every detection-free tracker of the registry (they all carry ``cmc``)."""
 FAMILIES = ("ncc", "meanshift", "pnmc", "bqp")
+"""One registry name per tracker class."""
 SHAKE17 = Path(__file__).resolve().parents[2] / "benchmarks" / "suites" / "shake17" / "shaky.toml"
 """The strong-shake spec the estimate's benchmarks and these tests share."""
-"""One registry name per tracker class."""
 
 
 @dataclass
