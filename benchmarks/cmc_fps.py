@@ -43,7 +43,7 @@ def measure(
     tracker: str,
     corners: list[int],
     rounds: int,
-    redetect: list[float] | None = None,
+    redetect: list[float],
     model: str = "similarity",
 ) -> dict:
     """Best frames/s, ``cmc`` ms a frame and acc@15 of ``tracker`` on ``spec`` per setting
@@ -52,7 +52,6 @@ def measure(
     from tracker.cmc import CMCParams
     from tracker.runner import run_tracker
 
-    redetect = redetect or [CMCParams().redetect]
     seq = InMemorySequence.from_spec(spec, camera_output=True).materialize()
     options = [None, *product(corners, redetect)]
     settings = list(zip(setting_names(corners, redetect), options, strict=True))
