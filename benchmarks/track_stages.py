@@ -1,10 +1,11 @@
 """Tracker per-stage milliseconds on fixed frames, for comparing two versions of the code.
 
-Runs the BQP tracker (speed-up sampling; ``--tracker pnmc``: PNMC) on the ``crowdsim bench
-track`` crowds of ``--targets`` people (spread over 1280x720 and packed at 2.5 people/m^2, 30
-frames) and, with ``--sequence DIR``, on the first ``--frames`` frames of a MOT sequence
-(e.g. the stress suite's 10k sequence); best of ``--repeats`` runs. It only uses interfaces
-that older versions have too, so the same frames can be timed before and after a change::
+Runs the BQP tracker (speed-up sampling; ``--tracker pnmc``: PNMC; ``meanshift`` or ``ncc``:
+the baselines) on the ``crowdsim bench track`` crowds of ``--targets`` people (spread over
+1280x720 and packed at 2.5 people/m^2, 30 frames) and, with ``--sequence DIR``, on the first
+``--frames`` frames of a MOT sequence (e.g. the stress suite's 10k sequence); best of
+``--repeats`` runs. It only uses interfaces that older versions have too, so the same frames
+can be timed before and after a change::
 
     git archive 4860528 | tar -x -C /tmp/before
     (cd /tmp && PYTHONPATH=/tmp/before python /path/to/benchmarks/track_stages.py --threads 1)
@@ -16,7 +17,9 @@ that older versions have too, so the same frames can be timed before and after a
 table and one JSON object; ``tracks_sha1`` identifies the tracks (equal across thread counts)
 and, for BQP, ``fw_steps`` is the solver's mean block steps a frame.
 PNMC before and after its compiled propagation: ``--tracker pnmc`` with commit a0f25ad as
-"before" (``--repeats 2 --sequence stress-10k``; figures in the project README).
+"before" (``--repeats 2 --sequence stress-10k``; figures in the project README). The
+mean-shift baseline before and after its compiled search: ``--tracker meanshift --threads 2``
+with commit b88d583 as "before".
 """
 
 from __future__ import annotations
@@ -40,17 +43,28 @@ else:
 
 import numba  # noqa: E402
 
-STAGES = {"bqp": ("appearance", "terms", "solve"), "pnmc": ("queens", "appearance", "update")}
+STAGES = {
+    "bqp": ("appearance", "terms", "solve"),
+    "pnmc": ("queens", "appearance", "update"),
+    "meanshift": ("appearance",),
+    "ncc": ("appearance",),
+}
 """The stages each tracker times (``Tracker._tick``), in the order of a frame."""
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--targets", type=int, default=1000)
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--sequence", default=None, metavar="DIR")
-    ap.add_argument("--frames", type=int, default=9)
+    ap.add_argument("--threads", type=int, default=1, help="numba threads (default: 1)")
+    ap.add_argument(
+        "--targets", type=int, default=1000, help="people in each bench crowd (default: 1000)"
+    )
+    ap.add_argument(
+        "--repeats", type=int, default=3, help="runs of each case; the fastest counts (default: 3)"
+    )
+    ap.add_argument("--sequence", default=None, metavar="DIR", help="also time this MOT sequence")
+    ap.add_argument(
+        "--frames", type=int, default=9, help="frames of --sequence to track (default: 9)"
+    )
     ap.add_argument(
         "--fw-variant",
         default=None,
@@ -61,7 +75,8 @@ def main() -> int:
         "--tracker",
         choices=sorted(STAGES),
         default="bqp",
-        help="bqp (appearance / terms / solve) or pnmc (queens / appearance / update)",
+        help="bqp (appearance / terms / solve), pnmc (queens / appearance / update), or the "
+        "meanshift or ncc baseline (appearance)",
     )
     args = ap.parse_args()
     stages = STAGES[args.tracker]

@@ -68,16 +68,30 @@ def extract_patches(frame: np.ndarray, top_left: np.ndarray, size: int) -> np.nd
     array([[0, 0],
            [4, 4]], dtype=uint8)
     """
+    padded, x, y = padded_origins(frame, top_left, size)
+    view = sliding_window_view(padded, (size, size), axis=(0, 1))  # (H', W', C, size, size)
+    return view[y, x]
+
+
+def padded_origins(
+    frame: np.ndarray, top_left: np.ndarray, size: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What :func:`extract_patches` gathers from, for kernels that read the patches in place.
+
+    Returns the frame with ``size`` replicated border pixels on every side, ``(H + 2 size,
+    W + 2 size, C)``, and the ``x`` and ``y`` ``(n,)`` int64 of each patch's top-left corner
+    in it (clipped so that every patch lies inside): patch ``i`` is
+    ``padded[y[i]:y[i] + size, x[i]:x[i] + size]``.
+    """
     top_left = np.asarray(top_left, dtype=np.int64).reshape(-1, 2)
     h, w = frame.shape[:2]
     pad = size
     padded = cv2.copyMakeBorder(frame, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
     if padded.ndim == 2:
         padded = padded[:, :, None]
-    view = sliding_window_view(padded, (size, size), axis=(0, 1))  # (H', W', C, size, size)
     x = np.clip(top_left[:, 0] + pad, 0, w + 2 * pad - size)
     y = np.clip(top_left[:, 1] + pad, 0, h + 2 * pad - size)
-    return view[y, x]
+    return padded, x, y
 
 
 @functools.cache

@@ -4,15 +4,22 @@ from __future__ import annotations
 
 from dataclasses import fields, replace
 
+import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from tracker.appearance import extract_patches, padded_origins
 from tracker.baselines.meanshift import (
+    _SPACE,
     COLOR_SPACES,
     MeanShiftParams,
     MeanShiftTracker,
     bin_index,
+    channel_bins,
     histograms,
+    shift_windows,
 )
 from tracker.registry import make_tracker
 from tracker.testing import make_scene
@@ -47,6 +54,56 @@ def test_histograms_and_bins():
     h = histograms(np.array([[0, 0, 1, 3]]), 4)
     np.testing.assert_allclose(h, [[0.5, 0.25, 0.0, 0.25]])
     np.testing.assert_allclose(np.sqrt(h * h).sum(1), 1.0)  # Bhattacharyya of itself
+
+
+def _cv2_windows(image, tl, hists, space, bins, s, r, max_iter, epsilon):
+    """What the compiled pass replaced: the regions binned and back-projected in numpy, then
+    ``cv2.meanShift`` one target at a time, and the histogram under each final window."""
+    side = s + 2 * r
+    idx = bin_index(extract_patches(image, tl, side).transpose(0, 2, 3, 1), space, bins)
+    top = np.maximum(hists.max(1, keepdims=True), 1e-12)
+    back = np.rint(255.0 * np.take_along_axis(hists / top, idx.reshape(len(tl), -1), 1))
+    back = back.reshape(idx.shape).astype(np.uint8)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, max_iter, epsilon)
+    win = np.array([cv2.meanShift(b, (r, r, s, s), criteria)[1][:2] for b in back], np.int64)
+    d = np.arange(s)
+    rows = (win[:, 1:2] + d)[:, :, None]
+    cols = (win[:, 0:1] + d)[:, None, :]
+    return win, histograms(idx[np.arange(len(tl))[:, None, None], rows, cols], hists.shape[1])
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    space=st.sampled_from(COLOR_SPACES),
+    bins=st.integers(2, 6),
+    s=st.integers(2, 15),
+    r=st.integers(1, 9),
+    max_iter=st.integers(1, 12),
+    epsilon=st.sampled_from([0.3, 0.5, 1.0, 1.5, 2.0, 3.0]),
+)
+def test_compiled_search_finds_opencv_meanshift_windows(seed, space, bins, s, r, max_iter, epsilon):
+    rng = np.random.default_rng(seed)
+    # blocky colours (runs of equal bins) so that windows move, on a frame the regions leave
+    small = rng.integers(0, 256, (rng.integers(2, 9), rng.integers(2, 9), 3), dtype=np.uint8)
+    image = cv2.resize(small, (int(rng.integers(8, 40)), int(rng.integers(8, 40))), 0, 0, 0)
+    n = 12
+    n_bins = bins ** len(_SPACE[space][1])
+    hists = rng.random((n, n_bins)) * (rng.random((n, n_bins)) < 0.4)
+    hists[0] = 0.0  # a histogram that scores no pixel: the window stays
+    hists /= np.maximum(hists.sum(1, keepdims=True), 1.0)
+    tl = rng.integers(-s - 2 * r - 3, np.array(image.shape[1::-1]) + 3, (n, 2))
+    want_win, want_under = _cv2_windows(image, tl, hists, space, bins, s, r, max_iter, epsilon)
+    padded, ox, oy = padded_origins(image, tl, s + 2 * r)
+    top = np.maximum(hists.max(1, keepdims=True), 1e-12)
+    channels = np.array(_SPACE[space][1], np.int64)
+    lut = channel_bins(space, bins)
+    eps2 = int(np.rint(epsilon * epsilon))
+    scale = hists / top
+    win, under = shift_windows(padded, ox, oy, scale, channels, lut, bins, s, r, max_iter, eps2)
+    np.testing.assert_array_equal(win, want_win)
+    np.testing.assert_array_equal(under, want_under)
+    assert (win[0] == r).all()
 
 
 def test_registry_determinism_and_edge_cases():
