@@ -8,7 +8,9 @@
    simulated head detections, all through :func:`tracker.runner.run_tracker`;
 4. print the accuracy table (the papers' metric at 5 and 15 px, MOTA, IDF1, HOTA, frames/s);
 5. write the accuracy-curve PNG, the overlay MP4 (ground truth green, BQP tracks yellow), the
-   MOT result files and ``summary.json`` into the output folder (every file atomically).
+   MOT result files and ``summary.json`` into the output folder (every file atomically; the
+   record ``demo.json`` lists their digests, and a rerun into the folder replaces only files
+   an earlier demo wrote: any other file of those names is refused before any work).
 
 Every step calls library functions; nothing re-enters the command line.
 """
@@ -92,21 +94,54 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+RECORD = "demo.json"
+"""The demo's record in its output folder: the digests of the files it wrote
+(:mod:`envs.outputs`), so that a rerun replaces those and refuses to replace anything else."""
+
+
+def _results_name(tracker: str) -> str:
+    return f"results_{tracker.replace('-', '_')}.txt"
+
+
+def demo_files() -> list[str]:
+    """The files the demo writes into its output folder (besides ``sequences/``)."""
+    results = [_results_name(name) for _, name in DEMO_TRACKERS]
+    return ["marathon.npz", *results, "accuracy_curve.png", "overlay_bqp.mp4", "summary.json"]
+
+
+def _ours(doc: dict) -> bool:
+    return doc.get("written_by") == "crowdsim demo"
+
+
+def _earlier_summary(path: Path) -> bool:
+    """A ``summary.json`` as demos before :data:`RECORD` wrote it (it then vouches for the
+    files beside it)."""
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    keys = {"sequence", "frames", "people", "template_px", "results", "files"}
+    return isinstance(doc, dict) and set(doc) == keys
+
+
 def run(args: argparse.Namespace) -> int:
     import time
 
     from crowdsim.commands.simulate import summary_table
     from crowdsim.scenarios import make_scenario
     from crowdsim.simulation import Simulation
+    from envs.outputs import check_outputs
     from synth_data.generate import generate
     from synth_data.spec import parse_spec_text, spec_from_dict
 
     if args.frames is not None and args.frames < 2:
         raise ValueError(f"--frames must be >= 2, got {args.frames}")
     out: Path = args.out
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out}: is a file, not a folder")
-    out.mkdir(parents=True, exist_ok=True)  # a folder that cannot be made fails before work
+    # before any work: a folder that cannot be made or written, and a file of one of the
+    # demo's names that an earlier demo did not write, are refused
+    legacy = not (out / RECORD).exists() and _earlier_summary(out / "summary.json")
+    check_outputs(out, RECORD, () if legacy else demo_files(), _ours, "crowdsim demo")
+    out.mkdir(parents=True, exist_ok=True)
     progress = not args.no_progress
     t_start = time.perf_counter()
 
@@ -115,7 +150,6 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     traj = sim.run(250, progress=progress)
     wall = time.perf_counter() - t0
-    traj.save(out / "marathon.npz")
     print(summary_table(sim, traj, 250, wall, out / "marathon.npz"), flush=True)
 
     # --- 2. a synthetic benchmark sequence -------------------------------------------------
@@ -129,13 +163,13 @@ def run(args: argparse.Namespace) -> int:
         progress=progress,
         log=lambda msg: print(msg, flush=True),
     )
-    return _track_and_report(out, out / "sequences" / spec.name, progress, t_start)
+    return _track_and_report(out, out / "sequences" / spec.name, progress, t_start, traj)
 
 
-def _track_and_report(out: Path, seq_dir: Path, progress: bool, t_start: float) -> int:
+def _track_and_report(out: Path, seq_dir: Path, progress: bool, t_start: float, traj) -> int:
     import time
 
-    from crowdsim.atomic import write_text_atomic
+    from envs.outputs import write_outputs
     from synth_data.detections import attach_detections
     from synth_data.mot import write_mot
     from synth_data.sequence import InMemorySequence, open_sequence
@@ -154,11 +188,12 @@ def _track_and_report(out: Path, seq_dir: Path, progress: bool, t_start: float) 
     )
     runs = {}
     files = {}
+    writers = {"marathon.npz": traj.save}
     for label, name in DEMO_TRACKERS:
         run = run_tracker(name, seq, progress=progress, prepare=attach_detections)
-        path = out / f"results_{name.replace('-', '_')}.txt"
-        write_mot(path, tracks_to_mot_rows(run.result.ids, run.result.positions, size))
-        runs[label], files[label] = run, str(path)
+        rows = tracks_to_mot_rows(run.result.ids, run.result.positions, size)
+        writers[_results_name(name)] = lambda p, rows=rows: write_mot(p, rows)
+        runs[label], files[label] = run, str(out / _results_name(name))
 
     head = (
         f"{'method':<11}{'acc@5':>8}{'acc@15':>8}{'MOTA':>8}{'IDF1':>8}{'HOTA':>8}"
@@ -180,14 +215,14 @@ def _track_and_report(out: Path, seq_dir: Path, progress: bool, t_start: float) 
     )
 
     curve_png = out / "accuracy_curve.png"
-    plot_accuracy(
+    writers["accuracy_curve.png"] = lambda p: plot_accuracy(
         {n: [c["acc"] for c in r.report["curve"]] for n, r in runs.items()},
-        curve_png,
+        p,
         title=f"{seq.name}: tracking accuracy vs pixel threshold",
     )
     overlay = out / "overlay_bqp.mp4"
-    write_overlay(
-        overlay,
+    writers["overlay_bqp.mp4"] = lambda p: write_overlay(
+        p,
         seq.frames(),
         size,
         tracks=runs["BQP"].result.positions,
@@ -202,7 +237,10 @@ def _track_and_report(out: Path, seq_dir: Path, progress: bool, t_start: float) 
         "results": {n: {**r.report, "fps": r.fps, "stage_ms": r.stage_ms} for n, r in runs.items()},
         "files": {"accuracy_curve": str(curve_png), "overlay": str(overlay), "results": files},
     }
-    write_text_atomic(out / "summary.json", json.dumps(summary, indent=1))
+    writers["summary.json"] = lambda p: p.write_text(json.dumps(summary, indent=1))
+    # every file renders to a temporary one first; the record lists them all before any is
+    # renamed into place (envs.outputs), so a rerun can prove which files the demo wrote
+    write_outputs(out, RECORD, {"written_by": "crowdsim demo"}, writers)
     print(
         f"\naccuracy curve -> {curve_png}\noverlay video  -> {overlay} "
         f"(ground truth green, BQP tracks yellow)\nresults        -> "

@@ -15,10 +15,8 @@ import os
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
-from crowdsim.atomic import write_text_atomic
 from crowdsim.knobs import apply_knobs, difficulty_groups
 
 DIFFICULTY_GROUPS: dict[str, tuple[str, ...]] = difficulty_groups()
@@ -135,7 +133,7 @@ def attribute(
     """
     import json
 
-    from crowdsim.lab.experiments import CELLS_FILE, Row, cell_key, read_cells, run_table
+    from crowdsim.lab.experiments import Row, cell_key, run_table
     from synth_data.suites import suite_specs
     from tracker.registry import get
 
@@ -159,6 +157,40 @@ def attribute(
         raise ValueError(f"suite {str(suite)!r}: no calibrated sequence to attribute")
     variants = {s.name: variant_specs(s, chosen) for s in specs}
     all_specs = [v for vs in variants.values() for _, v in vs]
+    doc: dict[str, Any] = {
+        "suite": str(suite),
+        "groups": {g: DIFFICULTY_GROUPS[g] for g in chosen},
+        "sequences": {},
+    }
+
+    def attribution(cells: dict[str, dict[str, Any]]) -> dict[str, Any]:
+        """The attribution files' writers, from the finished cells (checked: figures as the
+        trackers measured them)."""
+        for seq, vs in variants.items():
+            per = {}
+            for row in rows:
+                acc = {
+                    label: float(cells[cell_key(sp.name, row, frames)]["acc@15"])
+                    for label, sp in vs
+                }
+                per[row.label] = {
+                    "calibrated": acc["calibrated"],
+                    "uncalibrated": acc["uncalibrated"],
+                    "regained": {g: acc[f"-{g}"] - acc["calibrated"] for g in chosen},
+                }
+            if cmc:
+                for name in trackers:
+                    r, c = per[name], per[f"{name}+cmc"]
+                    r["cmc"] = c["calibrated"] - r["calibrated"]
+                    shake = r["regained"].get("shake")
+                    if shake is not None and shake > 0:
+                        r["cmc_share_of_shake"] = r["cmc"] / shake
+            doc["sequences"][seq] = per
+        return {
+            "attribution.json": lambda p: p.write_text(json.dumps(doc, indent=2) + "\n"),
+            "attribution.md": lambda p: p.write_text(attribution_table(doc)),
+        }
+
     run_table(
         rows,
         all_specs,
@@ -170,35 +202,9 @@ def attribute(
         progress=progress,
         title=f"difficulty attribution on {suite}",
         log=log,
+        more_outputs=("attribution.json", "attribution.md"),
+        finish=attribution,
     )
-    cells = read_cells(Path(out) / CELLS_FILE)  # checked: figures as the trackers measured
-    doc: dict[str, Any] = {
-        "suite": str(suite),
-        "groups": {g: DIFFICULTY_GROUPS[g] for g in chosen},
-        "sequences": {},
-    }
-    for seq, vs in variants.items():
-        per = {}
-        for row in rows:
-            acc = {
-                label: float(cells[cell_key(sp.name, row, frames)]["acc@15"]) for label, sp in vs
-            }
-            per[row.label] = {
-                "calibrated": acc["calibrated"],
-                "uncalibrated": acc["uncalibrated"],
-                "regained": {g: acc[f"-{g}"] - acc["calibrated"] for g in chosen},
-            }
-        if cmc:
-            for name in trackers:
-                r, c = per[name], per[f"{name}+cmc"]
-                r["cmc"] = c["calibrated"] - r["calibrated"]
-                shake = r["regained"].get("shake")
-                if shake is not None and shake > 0:
-                    r["cmc_share_of_shake"] = r["cmc"] / shake
-        doc["sequences"][seq] = per
-    out = Path(out)
-    write_text_atomic(out / "attribution.json", json.dumps(doc, indent=2) + "\n")
-    write_text_atomic(out / "attribution.md", attribution_table(doc))
     return doc
 
 

@@ -30,7 +30,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from crowdsim.atomic import write_text_atomic
 from synth_data.detections import DetectionParams
 from tracker.detect.inference import DetectorParams
 
@@ -161,6 +160,29 @@ def run_cell(
 
 CELLS_FILE = "cells.json"
 """The manifest of finished cells in a table's output folder (section ``cells``)."""
+OUTPUTS_FILE = "outputs.json"
+"""The record of the tables, CSVs and plots a table run wrote into its output folder, with
+their digests (:mod:`envs.outputs`): a rerun replaces only files it can prove it wrote, never
+a user's own ``table.md``."""
+_WRITER = "crowdsim tables"
+
+
+def _ours(doc: Any) -> bool:
+    return doc.get("written_by") == _WRITER
+
+
+def check_table_outputs(out: Path, names: Sequence[str]) -> None:
+    """Refuse (``ValueError`` naming ``--out`` and the file) to run a table into ``out`` when
+    one of the output files ``names`` is there and this program cannot prove it wrote it.
+    A folder from before :data:`OUTPUTS_FILE` (a ``cells.json`` and no record) vouches for
+    the outputs beside its cells."""
+    from envs.outputs import check_outputs
+
+    legacy = not (out / OUTPUTS_FILE).exists() and (out / CELLS_FILE).is_file()
+    what = "a crowdsim table run (compare, ablation or difficulty)"
+    check_outputs(out, OUTPUTS_FILE, () if legacy else names, _ours, what)
+
+
 CHECKSUM = "sha256"
 """The field of a stored cell holding :func:`cell_checksum`."""
 
@@ -274,6 +296,9 @@ def run_table(
     title: str = "comparison",
     paper_table: str = "acc@15",
     log: Callable[[str], None] = print,
+    more_outputs: Sequence[str] = (),
+    finish: Callable[[dict[str, dict[str, Any]]], dict[str, Callable[[Path], object]]]
+    | None = None,
 ) -> str:
     """Generate the suite, run every row on every sequence, write the table; returns its text.
 
@@ -295,6 +320,11 @@ def run_table(
         ``backend="ray"``.
     paper_table : str
         The section of the suite's ``paper.json`` holding the 15 px figures of these rows.
+    more_outputs, finish
+        Further files the caller writes into ``out`` (checked with the table's own before any
+        work) and, called with the finished cells (:func:`read_cells`), their writers
+        ``{name: write(temporary path)}``; they are recorded in :data:`OUTPUTS_FILE` with the
+        table's.
     """
     from crowdsim.checks import require_number
     from crowdsim.jobs import Job, run_jobs
@@ -337,6 +367,8 @@ def run_table(
             f"({_first_dup(list(keys.values()))})"
         )
     read_cells(out / CELLS_FILE)  # an edited or foreign cells.json fails before any work
+    curve_names = [f"curves/{s.name}.png" for s in specs]
+    check_table_outputs(out, ["table.md", "table.csv", *curve_names, *more_outputs])
     seq_root = out / "sequences"
     try:
         generate(
@@ -387,9 +419,17 @@ def run_table(
     cells = {cell: done[key] for cell, key in keys.items()}
     names = [s.name for s in specs]
     text = format_table(rows, names, cells, paper, paper_table, title)
-    write_text_atomic(out / "table.md", text)
-    write_text_atomic(out / "table.csv", table_csv(rows, names, cells, paper, paper_table))
-    _plot_curves(rows, names, cells, out / "curves")
+    csv_text = table_csv(rows, names, cells, paper, paper_table)
+    outputs: dict[str, Callable[[Path], object]] = {
+        "table.md": lambda p: p.write_text(text),
+        "table.csv": lambda p: p.write_text(csv_text),
+        **_curve_writers(rows, names, cells),
+    }
+    if finish is not None:
+        outputs.update(finish(done))
+    from envs.outputs import write_outputs
+
+    write_outputs(out, OUTPUTS_FILE, {"written_by": _WRITER, "title": title}, outputs)
     return text
 
 
@@ -468,12 +508,18 @@ def table_csv(
     return buf.getvalue()
 
 
-def _plot_curves(rows: Sequence[Row], seqs: Sequence[str], cells: dict, folder: Path) -> None:
+def _curve_writers(
+    rows: Sequence[Row], seqs: Sequence[str], cells: dict
+) -> dict[str, Callable[[Path], object]]:
+    """``{"curves/<sequence>.png": write(path)}``: each sequence's accuracy curves."""
     from tracker.metrics import plot_accuracy
 
+    writers: dict[str, Callable[[Path], object]] = {}
     for s in seqs:
         curves = {
             r.label: cells[(s, r.label)]["curve"] for r in rows if cells[(s, r.label)].get("curve")
         }
         if curves:
-            plot_accuracy(curves, folder / f"{s}.png", title=f"{s}: accuracy vs threshold")
+            title = f"{s}: accuracy vs threshold"
+            writers[f"curves/{s}.png"] = lambda p, c=curves, t=title: plot_accuracy(c, p, title=t)
+    return writers

@@ -813,7 +813,7 @@ case(
 case("demo-out-is-file", "demo --out {afile}", "afile: is a file, not a folder")
 case("demo-out-under-file", "demo --out {afile}/demo", "afile is a file, not a folder")
 case("demo-out-sysfs", "demo --out /sys/crowdsim-battery", "/sys/crowdsim-battery")
-case("demo-out-readonly", "demo --out {ro}/demo", "read-only file system", needs="ro")
+case("demo-out-readonly", "demo --out {ro}/demo", "/ro is not writable", needs="ro")
 case("demo-frames-0", "demo --out {w}/d --frames 0 --no-progress", "--frames must be >= 2, got 0")
 case("demo-frames-text", "demo --out {w}/d --frames few", "'few'")
 

@@ -293,3 +293,37 @@ api_case("own-api-step-nan-birth", _step("nan-birth"), "birth")
 api_case("own-api-step-gray", _step("gray"), "frame")
 
 assert GOOD_CSV  # the shared inputs come from the harness
+
+
+# --- demo and the table commands never replace a user's file of one of their names ----------
+def _users_file(name: str):
+    def setup(w: Path, env: Env) -> None:
+        p = w / "o" / name
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text("my own notes\n")
+
+    return setup
+
+
+DEMO = "demo --out {w}/o --frames 2 --no-progress"
+for name in ("summary.json", "results_bqp.txt", "overlay_bqp.mp4"):
+    case(
+        f"own-demo-user-{name.split('.')[0]}",
+        DEMO,
+        f"{name} exists and was not written by crowdsim demo",
+        setup=_users_file(name),
+    )
+for command in ("compare", "ablation", "difficulty"):
+    for name in ("table.md", "table.csv"):
+        case(
+            f"own-{command}-user-{name.replace('.', '-')}",
+            f"{command} --only seq1 --frames 2 --out {{w}}/o --no-progress",
+            f"{name} exists and was not written by a crowdsim table run",
+            setup=_users_file(name),
+        )
+case(
+    "own-difficulty-user-attribution",
+    "difficulty --only seq1 --frames 2 --out {w}/o --no-progress",
+    "attribution.md exists and was not written by a crowdsim table run",
+    setup=_users_file("attribution.md"),
+)

@@ -5,6 +5,8 @@ test against brute force."""
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -175,3 +177,30 @@ def test_matching_agrees_with_brute_force(pred, gt, radius):
     k, total = _brute_force(pred, gt, radius)
     assert len(p) == k
     assert d.sum() == pytest.approx(total, abs=1e-9)
+
+
+LOOPED = [
+    # five predictions (two at one spot) against three heads within 4 px
+    ([[0.5, 3.5], [2.5, 4.5], [2.5, 4.5], [5.0, 0.5], [2.5, 0.0]], [[1, 4], [6, 5], [2, 2.5]], 4.0),
+    (
+        [[4, 2], [2, 5], [3, 2.5], [1.5, 1.5], [3, 3], [0.5, 1.5]],
+        [[5.5, 5.5], [5.5, 4], [5, 1.5], [0.5, 5], [2.5, 3], [2.5, 2.5]],
+        4.0,
+    ),
+]
+
+
+def test_matching_returns_on_scenes_where_the_solver_looped_on_fractional_costs():
+    """SciPy's LAPJVsp never returned on these scenes with the distances as costs; whole-number
+    costs make it exact. In a child process, so that a regression fails instead of hanging."""
+    code = (
+        "from tracker.detect.matching import match_points\n"
+        f"for pred, gt, radius in {LOOPED!r}:\n"
+        "    p, g, d = match_points(pred, gt, radius)\n"
+        "    print(len(p), round(float(d.sum()), 9))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
+    )
+    want = [_brute_force(np.array(p, float), np.array(g, float), r) for p, g, r in LOOPED]
+    assert out.stdout.split() == [v for k, t in want for v in (str(k), str(round(t, 9)))]

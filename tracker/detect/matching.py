@@ -99,8 +99,15 @@ def match_points(
     A full matching then costs ``sum_M d + C (m' + n' - 2 |M|)``. With
     ``C > radius * min(m', n') / 2`` one more pair always saves more (``2C``) than any change
     of total distance, so the optimum has maximum cardinality first, minimum distance second.
-    Every cost is offset by 1 (the same for every full matching) because sparse zeros are not
-    edges.
+
+    The costs go to the solver as whole numbers, in units of ``2^-e`` px with ``e`` as large
+    as keeps any full matching's cost below ``2^50`` (``e`` is 42 for six points of each 4 px
+    apart, 19 for 10,000 of each within 15 px), then offset by 1 (the same for every full
+    matching) because sparse zeros are not edges. On some fractional costs SciPy's LAPJVsp
+    never returned (five predictions, two of them at one spot, against three heads within
+    4 px; one in 30,000-70,000 random scenes of up to six points of each on a half-pixel
+    grid); in whole numbers its arithmetic is exact. The rounding moves a total by at most
+    ``(m' + n') 2^-(e+1)`` px.
 
     >>> p, g, d = match_points([[0.0, 0.0], [3.0, 0.0]], [[2.0, 0.0], [np.nan, np.nan],
     ...                                                   [-2.5, 0.0]], radius=3.0)
@@ -133,7 +140,9 @@ def _match(
     ip, ig = np.arange(mp), np.arange(ng)
     r = np.concatenate([ci, ip, mp + ig, mp + cj])
     c = np.concatenate([cj, ng + ip, ig, ng + ci])
-    w = 1.0 + np.concatenate([cd, np.full(mp, big), np.full(ng, big), np.zeros(len(cd))])
+    w = np.concatenate([cd, np.full(mp, big), np.full(ng, big), np.zeros(len(cd))])
+    unit = 2.0 ** math.floor(math.log2(2.0**50 / ((mp + ng) * (big + 1.0))))
+    w = 1.0 + np.rint(w * unit)  # whole numbers: see the Notes
     graph = coo_array((w, (r, c)), shape=(mp + ng, ng + mp)).tocsr()
     row_ind, col_ind = min_weight_full_bipartite_matching(graph)
     real = (row_ind < mp) & (col_ind < ng)

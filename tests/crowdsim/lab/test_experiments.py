@@ -346,6 +346,30 @@ def test_a_hand_edited_cell_is_refused_naming_it(tmp_path, monkeypatch):
         assert path.read_bytes() == bad
 
 
+def test_a_rerun_replaces_its_own_tables_and_never_a_users_file(tmp_path, monkeypatch):
+    monkeypatch.setattr(experiments, "run_cell", _fake_cell)
+    out = tmp_path / "t"
+    first = run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
+    record = json.loads((out / experiments.OUTPUTS_FILE).read_text())
+    assert set(record["files"]) == {"table.md", "table.csv"}
+    assert run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None) == first
+    (out / "table.md").write_text("my notes\n")
+    with pytest.raises(ValueError, match=r"--out: .*table.md exists and was not written by a "):
+        run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
+    assert (out / "table.md").read_text() == "my notes\n"
+    # a user's folder: refused before anything is generated or run
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "table.csv").write_text("my,table\n")
+    with pytest.raises(ValueError, match=r"table.csv exists and was not written by a "):
+        run_table(ROWS, [tiny("a")], mine, progress=False, log=lambda m: None)
+    assert sorted(p.name for p in mine.iterdir()) == ["table.csv"]
+    # a folder from before the record: its cells vouch for the tables beside them
+    (out / experiments.OUTPUTS_FILE).unlink()
+    assert run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None) == first
+    assert (out / "table.md").read_text() == first
+
+
 def test_address_needs_ray_and_a_suite_folder_brings_its_paper_figures(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="--address needs --backend ray, got --address 'x:1'"):
         run_table(ROWS, [tiny("a")], tmp_path / "t", address="x:1", progress=False)
