@@ -24,6 +24,7 @@ import numpy as np
 import pymunk
 import pymunk.batch as pb
 
+from crowdsim.checks import require_memory
 from crowdsim.params import SocialForceParams
 
 
@@ -276,8 +277,17 @@ class WallGrid:
         lo = np.minimum(walls[:, :2], walls[:, 2:4]) - reach[:, None]
         hi = np.maximum(walls[:, :2], walls[:, 2:4]) + reach[:, None]
         x0, y0 = lo.min(axis=0)
-        nx = int((hi[:, 0].max() - x0) // cell) + 1
-        ny = int((hi[:, 1].max() - y0) // cell) + 1
+        w, h = hi[:, 0].max() - x0, hi[:, 1].max() - y0
+        nx = int(w // cell) + 1
+        ny = int(h // cell) + 1
+        # the cell starts and one entry per (wall, cell) pair: the grid grows with the world's
+        # area, so a world of 1e9 m would take all memory before the first step
+        pairs = (((hi - lo) // cell + 2).prod(axis=1)).sum()
+        require_memory(
+            f"the walls' grid ({nx} x {ny} cells of {cell:g} m over a world of {w:.4g} x "
+            f"{h:.4g} m)",
+            8.0 * (float(nx) * ny + float(pairs)),
+        )
         self.params = np.array([x0, y0, cell, nx, ny], dtype=np.float64)
         self.start, self.items = _bin_walls(walls, reach, x0, y0, cell, nx, ny)
 

@@ -22,7 +22,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from crowdsim.checks import require_number
+from crowdsim.checks import require_memory, require_number
 from crowdsim.trajectories import ANOMALY_KINDS
 from crowdsim.world import (
     RUNNERS,
@@ -46,6 +46,13 @@ scale runs: one million agents split across worker processes)."""
 EXIT_DISTANCE = 3.0
 """Metres beyond a station door, or the far kerb of a crossing's queue, at which walkers
 leave: sinks sit outside the area a camera frames."""
+PILLAR_SIDE = 0.8
+"""Side of a station pillar, m."""
+MAX_LENGTH_M = 10_000.0
+"""Largest width, radius or side a scenario takes, m (a 10 km street; the walls' grid of a
+world that size takes about 0.4 GB, and one of 1e9 m would not fit in memory)."""
+MAX_SPEED = 10.0
+"""Largest mean walking speed a scenario takes, m/s (faster than any runner's average)."""
 MAX_DENSITY = 6.0
 
 
@@ -77,7 +84,8 @@ class Scenario(ABC):
     Attributes
     ----------
     n_agents : int
-        Agents placed at the start (1 to 100,000); sources may add more later.
+        Agents placed at the start (1 to :data:`MAX_AGENTS`, 1,000,000); sources may add more
+        later.
     density : float
         Density of the initial crowd, persons/m² (0 < density <= 6).
     prominent_fraction : float
@@ -112,6 +120,12 @@ class Scenario(ABC):
     def _positive(self, *names: str) -> None:
         for name in names:
             require_number(self.name, name, getattr(self, name), lo=0, lo_open=True)
+
+    def _sizes(self, *names: str) -> None:
+        """Widths, radii and sides: positive and at most :data:`MAX_LENGTH_M`."""
+        for name in names:
+            value = getattr(self, name)
+            require_number(self.name, name, value, lo=0, hi=MAX_LENGTH_M, lo_open=True)
 
     def _fraction(self, *names: str) -> None:
         for name in names:
@@ -196,7 +210,7 @@ class Counterflow(Scenario):
     name: ClassVar[str] = "counterflow"
 
     def validate(self) -> None:
-        self._positive("width")
+        self._sizes("width")
         self._fraction("right_fraction")
         if self.width < 2 * self.radius[1] + 0.2:
             raise ValueError(
@@ -281,7 +295,7 @@ class Groups(Scenario):
     name: ClassVar[str] = "groups"
 
     def validate(self) -> None:
-        self._positive("width")
+        self._sizes("width")
         self._fraction("group_fraction")
         lo, hi = self.group_size
         if not 2 <= lo <= hi <= 10:
@@ -335,7 +349,7 @@ class Anomalies(Scenario):
     name: ClassVar[str] = "anomalies"
 
     def validate(self) -> None:
-        self._positive("width")
+        self._sizes("width")
         self._fraction("anomaly_fraction")
         bad = [k for k in self.kinds if k not in ANOMALY_KINDS[1:]]
         if bad or not self.kinds:
@@ -423,7 +437,7 @@ class Marathon(Scenario):
     name: ClassVar[str] = "marathon"
 
     def validate(self) -> None:
-        self._positive("road_width", "bend_radius")
+        self._sizes("road_width", "bend_radius")
         self._fraction("inflow_fraction")
         if not 0 <= self.bend_deg <= 180:
             raise ValueError(f"marathon.bend_deg must be in [0, 180], got {self.bend_deg}")
@@ -496,7 +510,7 @@ class Crossing(Scenario):
     name: ClassVar[str] = "crossing"
 
     def validate(self) -> None:
-        self._positive("street_width", "crossing_width")
+        self._sizes("street_width", "crossing_width")
 
     def build(self, rng: np.random.Generator) -> Setup:
         n, sw, cw = self.n_agents, self.street_width, self.crossing_width
@@ -569,7 +583,8 @@ class Circulation(Scenario):
     name: ClassVar[str] = "circulation"
 
     def validate(self) -> None:
-        self._positive("block_side", "speed_mean")
+        self._sizes("block_side")
+        require_number(self.name, "speed_mean", self.speed_mean, lo=0, hi=MAX_SPEED, lo_open=True)
 
     def build(self, rng: np.random.Generator) -> Setup:
         n = self.n_agents
@@ -658,11 +673,16 @@ class Station(Scenario):
     name: ClassVar[str] = "station"
 
     def validate(self) -> None:
-        self._positive("door_width")
+        self._sizes("door_width")
         if not 2 <= self.n_doors <= 8:
             raise ValueError(f"station.n_doors must be in [2, 8], got {self.n_doors}")
-        if self.pillar_spacing < 0:
-            raise ValueError(f"station.pillar_spacing must be >= 0, got {self.pillar_spacing}")
+        lo = PILLAR_SIDE + 2 * self.radius[1] + 0.1  # the widest person between two pillars
+        require_number("station", "pillar_spacing", self.pillar_spacing, lo=0)
+        if 0 < self.pillar_spacing < lo:
+            raise ValueError(
+                f"station.pillar_spacing must be 0 (no pillars) or >= {lo:g} m (room for a "
+                f"person between two {PILLAR_SIDE:g} m pillars), got {self.pillar_spacing}"
+            )
 
     def _doors(self, side: float) -> np.ndarray:
         """``(n_doors, 4)`` door segments spread over the four walls, and their out-normals."""
@@ -699,10 +719,17 @@ class Station(Scenario):
                 t = c + self.door_width / 2
             walls.append(polyline([a + t * u, b]))
         if self.pillar_spacing > 0:
-            ticks = np.arange(self.pillar_spacing, side - 1.0, self.pillar_spacing)
-            for px in ticks:
-                for py in ticks:
-                    walls.append(rectangle(px - 0.4, py - 0.4, px + 0.4, py + 0.4))
+            sp = self.pillar_spacing
+            k = max(0, math.ceil((side - 1.0 - sp) / sp))  # pillars a row
+            require_memory(
+                f"station: {k} x {k} pillars (pillar_spacing {sp:g} m in a hall of {side:.4g} m)",
+                8.0 * k * k * 4 * (5 + 4),  # 4 segments each, and their wall-grid entries
+            )
+            ticks = np.arange(sp, side - 1.0, sp)
+            px, py = (t.ravel() for t in np.meshgrid(ticks, ticks, indexing="ij"))
+            h = PILLAR_SIDE / 2
+            offsets = np.column_stack([px, py, px, py, np.zeros(len(px))])
+            walls.append((rectangle(-h, -h, h, h)[None] + offsets[:, None]).reshape(-1, 5))
         walls = np.vstack(walls)
         world = World(
             walls,

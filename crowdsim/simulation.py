@@ -183,7 +183,10 @@ class Simulation:
         self._spawn_rng = np.random.default_rng(spawn_seq)
         setup = scenario.build(np.random.default_rng(build_seq))
         self.world = setup.world
-        self._wall_grid = WallGrid(self.world.walls, self.params.cutoff)
+        try:
+            self._wall_grid = WallGrid(self.world.walls, self.params.cutoff)
+        except ValueError as exc:  # a world too large for memory: name the scenario
+            raise ValueError(f"{scenario.name}: {exc}") from None
         self.routes = RouteTable(setup.routes)
         self.sources = setup.sources
         self.info = setup.info

@@ -349,10 +349,12 @@ def hex_positions(
     cols = int(np.ceil(n / rows))
     if length is not None:
         a = length / cols
-    ys = y0 + r_max + dy * np.arange(rows) + 0.5 * ((y1 - y0 - 2 * r_max) - dy * (rows - 1))
+    # a band wider than n rows fills one column: only its first n rows are built
+    used = min(rows, n)
+    ys = y0 + r_max + dy * np.arange(used) + 0.5 * ((y1 - y0 - 2 * r_max) - dy * (rows - 1))
     xs = a * (np.arange(cols) + 0.5)
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
-    gx = gx + 0.5 * a * (np.arange(rows)[None, :] % 2)
+    gx = gx + 0.5 * a * (np.arange(used)[None, :] % 2)
     pts = np.column_stack([gx.ravel(), gy.ravel()])[:n]
     coverage = density * np.pi * r_max**2
     if not ordered and coverage <= 0.55:

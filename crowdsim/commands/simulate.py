@@ -53,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=int,
         default=200,
         metavar="N",
-        help="agents placed at the start, 1..100000 (default 200)",
+        help="agents placed at the start, 1..1000000 (default 200)",
     )
     p.add_argument(
         "--density",
@@ -92,7 +92,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         dest="scenario_params",
         action="append",
         metavar="NAME=VALUE",
-        help="scenario parameter, e.g. --set width=8 (repeatable)",
+        help="scenario parameter, e.g. --set width=8 for counterflow (repeatable; an "
+        "unknown NAME lists the scenario's own)",
     )
     p.add_argument(
         "--param",

@@ -34,6 +34,25 @@ case(
 )
 case("sim-steps-float", f"{SIM} --steps 2.5", "'2.5'")
 case("sim-dt-0", f"{SIM} --dt 0", "--dt must be in (0, 0.2] seconds, got 0.0")
+# sizes and speeds far outside any crowd: named before the world's walls fill the memory
+SIM1 = "simulate {} --agents 10 --steps 1 --no-progress --set {}"
+case(
+    "sim-width-huge",
+    SIM1.format("counterflow", "width=1e9"),
+    "counterflow.width must be a finite number in (0, 10000], got 1000000000.0",
+)
+case("sim-width-1e308", SIM1.format("groups", "width=1e308"), "groups.width must be a finite")
+case("sim-door-huge", SIM1.format("station", "door_width=1e9"), "station.door_width must be a")
+case(
+    "sim-pillars-tight",
+    SIM1.format("station", "pillar_spacing=0.01"),
+    "station.pillar_spacing must be 0 (no pillars) or >= 1.4 m",
+)
+case(
+    "sim-speed-huge",
+    SIM1.format("circulation", "speed_mean=1e9"),
+    "circulation.speed_mean must be a finite number in (0, 10], got 1000000000.0",
+)
 case("sim-dt-neg", f"{SIM} --dt -0.04", "got -0.04")
 case("sim-dt-nan", f"{SIM} --dt nan", "got nan")
 case("sim-dt-inf", f"{SIM} --dt inf", "got inf")

@@ -87,6 +87,18 @@ def test_wall_grid_gives_the_same_forces_as_one_cell_with_every_wall():
     np.testing.assert_array_equal(binned, one_cell)
 
 
+def test_a_wall_grid_too_large_for_memory_is_refused_with_its_size():
+    wall = np.array([[0.0, 0.0, 1e9, 0.0, 0.05], [0.0, 0.0, 0.0, 1e9, 0.05]])
+    with pytest.raises(
+        ValueError,
+        match=r"the walls' grid \(666666669 x 666666669 cells of "
+        r"1.5 m over a world of 1e\+09 x 1e\+09 m\) needs about .* PiB",
+    ):
+        WallGrid(wall, 1.5)
+    grid = WallGrid(wall[:1] / 1e6, 1.5)  # 1 km: 669 cells of 1.5 m along it
+    assert grid.params[3:].tolist() == [669.0, 3.0]
+
+
 def test_headway_caps_speed_behind_a_standing_body():
     """A walker behind a standing person may not exceed (v0 / v_ref) gap / T."""
     p = SocialForceParams()
