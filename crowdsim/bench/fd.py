@@ -50,9 +50,22 @@ def run(args: argparse.Namespace) -> int:
     bad = [d for d in densities if not 0 < d <= 6]
     if bad or not densities:
         raise ValueError(f"--densities must lie in (0, 6] /m², got {args.densities!r}")
-    for name in ("length", "width", "warmup", "measure", "lane_seconds"):
-        if not getattr(args, name) > 0:
-            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
+    from crowdsim.checks import require_number, require_output_dir
+    from crowdsim.scenarios import MAX_AGENTS, MAX_LENGTH_M
+
+    for name, hi in (("length", MAX_LENGTH_M), ("width", MAX_LENGTH_M)) + tuple(
+        (name, 3600.0) for name in ("warmup", "measure", "lane_seconds")
+    ):
+        flag = f"--{name.replace('_', '-')}"
+        require_number("", flag, getattr(args, name), lo=0, hi=hi, lo_open=True)
+    require_number("", "--seed", args.seed, lo=0, integer=True)
+    crowd = max(densities) * args.length * args.width
+    if crowd > MAX_AGENTS:
+        raise ValueError(
+            f"--length {args.length:g} x --width {args.width:g} m at {max(densities):g} /m² "
+            f"holds {crowd:.3g} people, more than the {MAX_AGENTS} a scenario takes"
+        )
+    require_output_dir("--out", args.out)
 
     from crowdsim.atomic import write_text_atomic
     from crowdsim.validation import fundamental_diagram, lane_formation

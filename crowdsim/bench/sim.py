@@ -371,13 +371,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _parse_sizes(text: str) -> list[int]:
+def _parse_sizes(text: str, flag: str = "--sizes") -> list[int]:
+    from crowdsim.scenarios import MAX_AGENTS
+
     try:
         sizes = [int(s) for s in text.split(",") if s.strip()]
     except ValueError:
-        raise ValueError(f"--sizes must be comma-separated integers, got {text!r}") from None
-    if not sizes or min(sizes) < 1:
-        raise ValueError(f"--sizes must be positive integers, got {text!r}")
+        raise ValueError(f"{flag} must be comma-separated integers, got {text!r}") from None
+    if not sizes or min(sizes) < 1 or max(sizes) > MAX_AGENTS:
+        raise ValueError(f"{flag} must be integers in [1, {MAX_AGENTS}], got {text!r}")
     return sizes
 
 
@@ -407,10 +409,17 @@ def run_split(sizes: list[int], workers: list[int]) -> list[dict[str, Any]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from crowdsim.checks import require_number, require_output_file
+    from crowdsim.scenarios import MAX_AGENTS
+
     sizes = _parse_sizes(args.sizes)
     workers = _parse_workers(args.workers)
     _parse_workers([args.scale_workers], flag="--scale-workers")
-    split_sizes = _parse_sizes(args.split_sizes) if workers else []
+    split_sizes = _parse_sizes(args.split_sizes, "--split-sizes") if workers else []
+    require_number("", "--scale", args.scale, lo=0, hi=MAX_AGENTS, integer=True)
+    require_number("", "--psf-max", args.psf_max, lo=1, hi=MAX_AGENTS, integer=True)
+    if args.json_out is not None:
+        require_output_file("--json-out", args.json_out)  # before any run
     if args.validate and not workers:
         raise ValueError("--validate needs --workers (e.g. --workers 1 2 4)")
     peers = {p.strip() for p in args.peers.split(",") if p.strip() and p.strip() != "none"}
@@ -480,8 +489,9 @@ def run(args: argparse.Namespace) -> int:
     text = json.dumps(report, indent=None)
     print(text)
     if args.json_out:
-        Path(args.json_out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json_out).write_text(text + "\n")
+        from crowdsim.atomic import write_text_atomic
+
+        write_text_atomic(args.json_out, text + "\n")
     return 0
 
 

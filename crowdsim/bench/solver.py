@@ -219,8 +219,20 @@ def _plot(path: str, label: str, runs: dict, f_ref: float) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from crowdsim.checks import require_number, require_output_dir, require_output_file
+
     if args.repeats < 1:
         raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
+    require_number("", "--seed", args.seed, lo=0, integer=True)
+    require_number("", "--max-iter", args.max_iter, lo=1, integer=True)
+    require_number("", "--frames", args.frames, lo=1, hi=10_000, integer=True)
+    require_number("", "--tracker-frames", args.tracker_frames, lo=0, hi=100_000, integer=True)
+    require_number("", "--reference-tol", args.reference_tol, lo=0, lo_open=True)
+    require_number("", "--reference-max-targets", args.reference_max_targets, lo=0, integer=True)
+    if args.save_npz:  # the files are written after the runs: check where they go first
+        require_output_file("--save-npz", args.save_npz)
+    if not args.no_plot:
+        require_output_dir("--out", args.out)
     params = {v: FWParams(variant=v, eps=args.eps, max_iter=args.max_iter) for v in VARIANTS}
     t0 = time.perf_counter()
     problems = _problems(args)

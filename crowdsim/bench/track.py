@@ -159,8 +159,24 @@ def run(args: argparse.Namespace) -> int:
     targets, frames, n_sampling = args.targets, args.frames, args.sampling_targets
     if args.quick:
         targets, frames, n_sampling = [50, 200], 12, 100
-    if frames < 2 or min(targets) < 1 or n_sampling < 1:
-        raise ValueError("need --frames >= 2 and crowd sizes >= 1")
+    from crowdsim.checks import require_number
+
+    require_number("", "--frames", frames, lo=2, hi=100_000, integer=True)
+    for n in targets:
+        require_number("", "--targets", n, lo=1, hi=100_000, integer=True)
+    require_number("", "--sampling-targets", n_sampling, lo=1, hi=100_000, integer=True)
+    require_number("", "--template", args.template, lo=4, hi=64, integer=True)
+    require_number("", "--seed", args.seed, lo=0, integer=True)
+    if args.sampling_frame is not None:
+        try:
+            sw, sh = (int(v) for v in args.sampling_frame.lower().split("x"))
+        except ValueError:
+            sw = sh = 0
+        if not (16 <= sw <= 16384 and 16 <= sh <= 16384):
+            raise ValueError(
+                "--sampling-frame must look like 480x270 (16 to 16384 px a side), got "
+                f"{args.sampling_frame!r}"
+            )
     threads = args.threads or sorted({1, max_threads()})
     threads = [check_threads(t, "--threads") for t in threads]
     top = max(threads)
@@ -213,12 +229,6 @@ def run(args: argparse.Namespace) -> int:
     if args.sampling_frame is None:
         sw, sh = packed_size(n_sampling, ppm)
         args.sampling_frame = f"{sw}x{sh}"
-    try:
-        sw, sh = (int(v) for v in args.sampling_frame.lower().split("x"))
-    except ValueError:
-        raise ValueError(
-            f"--sampling-frame must look like 480x270, got {args.sampling_frame!r}"
-        ) from None
     crowd = synthetic_crowd(
         n_sampling,
         frames,

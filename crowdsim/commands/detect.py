@@ -61,11 +61,11 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.all and args.frames < 1:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
-    out = Path(args.out)
-    if out.suffix.lower() != ".csv":
+    from crowdsim.checks import require_output_file
+
+    if Path(args.out).suffix.lower() != ".csv":
         raise ValueError(f"--out must end in .csv, got {args.out!r}")
-    if out.is_dir():
-        raise ValueError(f"--out {out} is a folder, not a file")
+    out = require_output_file("--out", args.out)  # before any work
     detector = HeadDetector(detector_params(args.weights, args.threshold, "--threshold"))
     src = open_sequence(args.input)
     n = src.length if args.all else min(args.frames, src.length)

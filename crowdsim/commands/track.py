@@ -139,18 +139,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _check_output(path: str, flag: str, suffix: str | None = None) -> Path:
-    """Refuse an output path that cannot be written, before any work is done."""
-    out = Path(path)
-    if suffix and out.suffix.lower() != suffix:
+    """Refuse an output path that cannot be written (a folder, under a regular file, in a
+    folder that is not writable), before any work is done."""
+    from crowdsim.checks import require_output_file
+
+    if suffix and Path(path).suffix.lower() != suffix:
         raise ValueError(f"{flag} must end in {suffix}, got {path!r}")
-    if out.is_dir():
-        raise IsADirectoryError(21, "is a folder, not a file", str(out))
-    for parent in out.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise NotADirectoryError(20, f"{parent} is a file, not a folder", str(out))
-            break
-    return out
+    return require_output_file(flag, path)
 
 
 def _overrides(args: argparse.Namespace, name: str) -> dict:

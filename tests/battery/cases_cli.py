@@ -679,6 +679,14 @@ case(
 case(
     "track-out-full-disk", f"{T} --out {{full}}/r.txt", "no space left on the device", needs="full"
 )
+# a read-only folder is refused before any frame is tracked, naming the flag
+case("track-out-readonly", f"{T} --out {{ro}}/r.txt", "--out&&is not writable", needs="ro")
+case(
+    "track-video-readonly",
+    f"{T} --out {{w}}/r.txt --video {{ro}}/v.mp4",
+    "--video&&is not writable",
+    needs="ro",
+)
 case(
     "track-video-under-file",
     f"{T} --out {{w}}/r.txt --video {{afile}}/o.mp4",
@@ -835,6 +843,77 @@ case("demo-out-sysfs", "demo --out /sys/crowdsim-battery", "/sys/crowdsim-batter
 case("demo-out-readonly", "demo --out {ro}/demo", "/ro is not writable", needs="ro")
 case("demo-frames-0", "demo --out {w}/d --frames 0 --no-progress", "--frames must be >= 2, got 0")
 case("demo-frames-text", "demo --out {w}/d --frames few", "'few'")
+
+# --- bench: every number checked, and every output path, before any run --------------------
+BENCH = (
+    (
+        "bench-sim-scale-neg",
+        "sim --sizes 10 --peers none --scale -1",
+        "--scale must be an integer in [0, 1000000], got -1",
+    ),
+    (
+        "bench-sim-split-neg",
+        "sim --sizes 10 --peers none --workers 1 --split-sizes -4",
+        "--split-sizes must be integers in [1, 1000000], got '-4'",
+    ),
+    (
+        "bench-sim-json-under-file",
+        "sim --sizes 10 --peers none --json-out {afile}/x.json",
+        "afile is a file, not a folder",
+    ),
+    (
+        "bench-fd-length-inf",
+        "fd --densities 1 --length inf",
+        "--length must be a finite number in (0, 10000], got inf",
+    ),
+    (
+        "bench-fd-warmup-inf",
+        "fd --densities 1 --warmup inf",
+        "--warmup must be a finite number",
+    ),
+    (
+        "bench-fd-crowd-huge",
+        "fd --densities 6 --length 9000 --width 9000",
+        "holds 4.86e+08 people, more than the 1000000",
+    ),
+    (
+        "bench-fd-seed-neg",
+        "fd --densities 1 --seed -1",
+        "--seed must be an integer >= 0, got -1",
+    ),
+    (
+        "bench-track-template-0",
+        "track --targets 5 --frames 2 --template 0",
+        "--template must be an integer in [4, 64], got 0",
+    ),
+    (
+        "bench-track-frame-0x0",
+        "track --targets 5 --frames 2 --sampling-frame 0x0",
+        "--sampling-frame must look like 480x270",
+    ),
+    (
+        "bench-track-targets-0",
+        "track --targets 0 --frames 2",
+        "--targets must be an integer in [1, 100000], got 0",
+    ),
+    (
+        "bench-solver-seed-neg",
+        "solver --seed -1",
+        "--seed must be an integer >= 0, got -1",
+    ),
+    (
+        "bench-solver-max-iter-0",
+        "solver --max-iter 0",
+        "--max-iter must be an integer >= 1, got 0",
+    ),
+    (
+        "bench-solver-npz-under-file",
+        "solver --save-npz {afile}/q.npz",
+        "afile is a file, not a folder",
+    ),
+)
+for cid, argv, needle in BENCH:
+    case(cid, f"bench {argv}", needle)
 
 # --- global -----------------------------------------------------------------------------
 case("cli-unknown-command", "frobnicate", "'frobnicate'")
