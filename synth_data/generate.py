@@ -57,7 +57,7 @@ from crowdsim.jobs import (
     read_manifest,
 )
 from crowdsim.jobs import run_jobs as _run_jobs
-from synth_data.mot import SUITE_MANIFEST, verify_sequence
+from synth_data.mot import SUITE_MANIFEST, not_ours, verify_sequence
 from synth_data.scene import Scene
 from synth_data.spec import SequenceSpec
 from synth_data.writer import clean_stale_tmp, require_ours, write_sequence
@@ -233,6 +233,12 @@ def _generate(
             continue
         entry, why = _existing_entry(seq_dir, spec)
         if entry is None and not overwrite:
+            foreign = not_ours(seq_dir)
+            if foreign is not None:  # --overwrite would refuse it too: say why, not --overwrite
+                raise FileExistsError(
+                    f"{seq_dir} exists and {why}, and crowdsim cannot replace it ({foreign}); "
+                    "move it away or choose another --out"
+                )
             raise FileExistsError(f"{seq_dir} exists and {why}; pass --overwrite to replace it")
         if entry is None:  # to be replaced: refuse before anything (the manifest) changes
             require_ours(seq_dir)

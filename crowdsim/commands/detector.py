@@ -20,6 +20,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import shlex
 import sys
 
@@ -125,13 +126,16 @@ def run_train(args: argparse.Namespace) -> int:
 
     from crowdsim.lab.detector import TrainConfig, train
 
-    config = replace(
-        TrainConfig(),
-        seed=args.seed,
-        iterations=args.iterations,
-        sequences=args.sequences,
-        batch=args.batch,
-    )
+    try:
+        config = replace(
+            TrainConfig(),
+            seed=args.seed,
+            iterations=args.iterations,
+            sequences=args.sequences,
+            batch=args.batch,
+        )
+    except ValueError as exc:  # name the flag the user gave, not the config's field
+        raise ValueError(re.sub(r"\bTrainConfig\.(\w+)", r"--\1", str(exc))) from None
     command = "crowdsim " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     rec = train(
         args.out,
@@ -151,8 +155,16 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def run_eval(args: argparse.Namespace) -> int:
-    from crowdsim.lab.detector import evaluate, write_eval
+    from crowdsim.lab.detector import check_eval_out, evaluate, write_eval
+    from tracker.detect.inference import DetectorParams
+    from tracker.registry import get
 
+    check_eval_out(args.out)  # before any work
+    get(args.tracker)  # an unknown name lists the valid ones, with or without --tracking
+    try:
+        DetectorParams.given(args.weights, args.threshold)
+    except ValueError as exc:
+        raise ValueError(re.sub(r"\bDetectorParams\.(\w+)", r"--\1", str(exc))) from None
     rep = evaluate(
         weights=args.weights,
         threshold=args.threshold,
@@ -165,9 +177,7 @@ def run_eval(args: argparse.Namespace) -> int:
     )
     if args.tracking:
         from crowdsim.lab.detector import tracking_table
-        from tracker.registry import get
 
-        get(args.tracker)  # an unknown name lists the valid ones
         rep["tracking"] = tracking_table(
             tracker=args.tracker, weights=args.weights, progress=not args.no_progress
         )

@@ -114,6 +114,9 @@ def run(args: argparse.Namespace) -> int:
     require_number("", "--threshold", args.threshold, lo=0)
     if args.frames is not None:
         require_number("", "--frames", args.frames, lo=2, integer=True)
+    if args.algo == "scene":  # checked here, where the flags are, before any work
+        require_number("", "--candidates", args.candidates, lo=1, hi=1024, integer=True)
+        require_number("", "--episodes", args.episodes, lo=1, integer=True)
     kwargs = {"k_frames": args.k, "threshold_px": args.threshold, "extended": args.extended}
     if args.tracker != "bqp":  # policies of the default tracker keep their metadata as before
         kwargs["tracker"] = args.tracker

@@ -724,18 +724,35 @@ def eval_markdown(rep: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_eval(out: str | os.PathLike[str], rep: dict[str, Any]) -> str:
-    """Write ``detector_eval.json`` and ``detector_eval.md`` into folder ``out``; returns the
-    Markdown."""
-    from crowdsim.atomic import write_text_atomic
+EVAL_RECORD = "detector_eval.json"
+_EVAL_WRITER = "crowdsim detector eval"
 
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out}: is a file, not a folder")
-    out.mkdir(parents=True, exist_ok=True)
+
+def _eval_ours(doc: dict[str, Any]) -> bool:
+    """An evaluation this program wrote (evaluations before the ``written_by`` mark vouch
+    by their own keys)."""
+    legacy = {"weights", "threshold", "radius_px", "frames", "baseline", "kinds"} <= set(doc)
+    return doc.get("written_by") == _EVAL_WRITER or legacy
+
+
+def check_eval_out(out: str | os.PathLike[str]) -> None:
+    """Before any work: refuse an ``--out`` that cannot be a folder written here, or that
+    holds a ``detector_eval.json`` / ``.md`` this program did not write
+    (:func:`envs.outputs.check_outputs`)."""
+    from envs.outputs import check_outputs
+
+    check_outputs(out, EVAL_RECORD, ("detector_eval.md",), _eval_ours, _EVAL_WRITER)
+
+
+def write_eval(out: str | os.PathLike[str], rep: dict[str, Any]) -> str:
+    """Write ``detector_eval.json`` (the report, which also lists the files' digests) and
+    ``detector_eval.md`` into folder ``out`` (call :func:`check_eval_out` first, before any
+    work); returns the Markdown."""
+    from envs.outputs import write_outputs
+
     md = eval_markdown(rep)
-    write_text_atomic(out / "detector_eval.json", json.dumps(rep, indent=1) + "\n")
-    write_text_atomic(out / "detector_eval.md", md)
+    doc = {**rep, "written_by": _EVAL_WRITER}
+    write_outputs(out, EVAL_RECORD, doc, {"detector_eval.md": lambda p: p.write_text(md)})
     return md
 
 

@@ -381,7 +381,7 @@ def run_table(
             log=log,
         )
     except FileExistsError as exc:  # a sequence folder made from another spec
-        why = str(exc).split("; pass --overwrite")[0]
+        why = str(exc).split("; pass --overwrite")[0].split("; move it away")[0]
         raise ValueError(
             f"{why}; a table run never replaces a sequence: remove that folder, or choose "
             "another --out"

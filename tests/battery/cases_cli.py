@@ -844,6 +844,17 @@ case("demo-out-readonly", "demo --out {ro}/demo", "/ro is not writable", needs="
 case("demo-frames-0", "demo --out {w}/d --frames 0 --no-progress", "--frames must be >= 2, got 0")
 case("demo-frames-text", "demo --out {w}/d --frames few", "'few'")
 
+# --- detector and train: flags named as given, not as the config field behind them ----------
+case("detector-train-iterations-0", "detector train --out {w}/d --iterations 0", "--iterations")
+case("detector-eval-threshold-2", "detector eval --threshold 2 --out {w}/e", "--threshold must be")
+case("detector-eval-tracker", "detector eval --tracker nosuch --out {w}/e", "tracker 'nosuch'")
+case(
+    "detector-eval-out-is-file",
+    "detector eval --out {afile}",
+    "afile: is a file, not a folder",
+)
+case("train-candidates-0", "train --algo scene --candidates 0 --out {w}/o", "--candidates must be")
+
 # --- bench: every number checked, and every output path, before any run --------------------
 BENCH = (
     (

@@ -327,3 +327,16 @@ case(
     "attribution.md exists and was not written by a crowdsim table run",
     setup=_users_file("attribution.md"),
 )
+
+
+def _foreign_sequence_folder(w: Path, env: Env) -> None:
+    (w / "out" / "tiny").mkdir(parents=True)
+    (w / "out" / "tiny" / "notes.txt").write_text("mine\n")
+
+
+case(
+    "own-generate-foreign-folder-advice",
+    "generate --spec {spec} --out {w}/out --no-progress",
+    "crowdsim cannot replace it&&move it away or choose another --out",
+    setup=_foreign_sequence_folder,
+)
