@@ -155,16 +155,13 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def run_eval(args: argparse.Namespace) -> int:
+    from crowdsim.commands.detect import detector_params
     from crowdsim.lab.detector import check_eval_out, evaluate, write_eval
-    from tracker.detect.inference import DetectorParams
     from tracker.registry import get
 
     check_eval_out(args.out)  # before any work
     get(args.tracker)  # an unknown name lists the valid ones, with or without --tracking
-    try:
-        DetectorParams.given(args.weights, args.threshold)
-    except ValueError as exc:
-        raise ValueError(re.sub(r"\bDetectorParams\.(\w+)", r"--\1", str(exc))) from None
+    detector_params(args.weights, args.threshold, "--threshold")
     rep = evaluate(
         weights=args.weights,
         threshold=args.threshold,

@@ -322,7 +322,12 @@ def run(args: argparse.Namespace) -> int:
     if args.detect_every < 1:
         raise ValueError(f"--detect-every must be >= 1, got {args.detect_every}")
     feed_detector = args.detections == "detector" or (args.detections is None and not is_folder)
-    detector = _detector(args) if use_detector or args.births == "detect" or feed_detector else None
+    uses_detector = use_detector or args.births == "detect" or feed_detector
+    if not uses_detector and args.detector_threshold is not None:  # checked even when unused
+        from crowdsim.commands.detect import detector_params
+
+        detector_params(None, args.detector_threshold, "--detector-threshold")
+    detector = _detector(args) if uses_detector else None
     src = open_sequence(args.input, init=None if use_detector else args.init)
     if is_folder:
         verify_folder(src)  # a damaged, truncated or swapped image is named, not tracked

@@ -679,6 +679,11 @@ case(
 case(
     "track-out-full-disk", f"{T} --out {{full}}/r.txt", "no space left on the device", needs="full"
 )
+case(
+    "track-detector-threshold-unused",
+    f"{T} --out {{w}}/r.txt --detector-threshold 1.5",
+    "--detector-threshold must be a finite number in (0, 1), got 1.5",
+)
 # a read-only folder is refused before any frame is tracked, naming the flag
 case("track-out-readonly", f"{T} --out {{ro}}/r.txt", "--out&&is not writable", needs="ro")
 case(
