@@ -54,7 +54,8 @@ def add_table_arguments(p: argparse.ArgumentParser) -> None:
         "--out",
         required=True,
         metavar="DIR",
-        help="output folder: sequences/, cells.json (resume), table.md, table.csv, curves/*.png",
+        help="output folder: sequences/, cells.json (resume), table.md, table.csv, "
+        "curves/*.png and outputs.json (their digests: a rerun replaces only those)",
     )
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
 

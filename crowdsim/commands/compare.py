@@ -15,7 +15,9 @@ prints the table.
 Resumable: a rerun with the same ``--out`` skips finished cells, each checked against the
 checksum stored with it in ``cells.json`` (an edited cell is refused, naming it; see
 :mod:`crowdsim.lab.experiments`). A sequence folder in ``DIR/sequences`` made from another
-spec is never replaced (exit 2: remove it or choose another ``--out``).
+spec is never replaced (exit 2: remove it or choose another ``--out``), nor is a
+``table.md``, ``table.csv`` or curve that no table run wrote (``outputs.json`` lists the
+digests of what one did).
 """
 
 from __future__ import annotations

@@ -13,7 +13,9 @@ OC-SORT at two detector miss rates), ``crowdsim ablation`` paper 1's Table 3 row
    (:func:`seal_cell`): a cell edited by hand or damaged is refused, naming it, before any work
    (:func:`read_cells`), so a table never prints a figure no tracker measured;
 3. write ``table.md`` and ``table.csv`` (our figures beside the papers' where they report
-   one), one accuracy-versus-threshold PNG per sequence, and return the table text.
+   one), one accuracy-versus-threshold PNG per sequence, and return the table text. The
+   files' digests go to ``OUT/outputs.json`` (:data:`OUTPUTS_FILE`), and a run refuses,
+   before any work, to replace a file of those names that it cannot prove a table run wrote.
 
 A cell tracks with :func:`tracker.runner.run_tracker` and scores with every metric
 (acc@15, acc@5, MOTA, IDF1, HOTA) plus frames/s.
