@@ -105,6 +105,23 @@ def check_outputs(
             raise _refuse(p, what, flag)
 
 
+def _still_listed(path: Path, outputs: Mapping[str, object]) -> dict[str, str]:
+    """The earlier record's files that this run does not rewrite and that are still there as
+    listed (a run over fewer sequences keeps vouching for the curves of the others)."""
+    try:
+        listed = json.loads(path.read_text()).get("files") or {}
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+        return {}
+    if not isinstance(listed, dict):
+        return {}
+    kept = {}
+    for name, digest in listed.items():
+        p = path.parent / str(name)
+        if name not in outputs and p.is_file() and _sha256(p) == digest:
+            kept[name] = digest
+    return kept
+
+
 def write_outputs(
     out: str | os.PathLike[str],
     record: str,
@@ -112,14 +129,15 @@ def write_outputs(
     outputs: Mapping[str, Callable[[Path], object]],
 ) -> dict[str, Path]:
     """Write ``outputs`` (``name -> writer(temporary path)``) and the JSON ``record`` (``doc``
-    plus the outputs' digests) into ``out``; ``{name: path}`` of everything written.
+    plus the outputs' digests, and those of the earlier record's files that this run leaves
+    as they were) into ``out``; ``{name: path}`` of everything written.
 
     Call :func:`check_outputs` first (before any work): this function replaces what is there.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     previous = {name: _sha256(out / name) for name in outputs if (out / name).is_file()}
-    files: dict[str, str] = {}
+    files = _still_listed(out / record, outputs)
     with ExitStack() as stack:
         for name, write in outputs.items():
             tmp = stack.enter_context(atomic_path(out / name))

@@ -370,6 +370,22 @@ def test_a_rerun_replaces_its_own_tables_and_never_a_users_file(tmp_path, monkey
     assert (out / "table.md").read_text() == first
 
 
+def test_a_run_over_fewer_sequences_keeps_vouching_for_the_others_curves(tmp_path, monkeypatch):
+    def cell(seq_dir, tracker, overrides, frames, detections=None):
+        return _fake_cell(seq_dir, tracker, overrides, frames) | {"curve": [50.0] * 26}
+
+    monkeypatch.setattr(experiments, "run_cell", cell)
+    out, quiet = tmp_path / "t", {"progress": False, "log": lambda m: None}
+    run_table(ROWS, [tiny("a"), tiny("b")], out, **quiet)
+    run_table(ROWS, [tiny("a")], out, **quiet)  # rewrites a's curve, leaves b's
+    files = json.loads((out / experiments.OUTPUTS_FILE).read_text())["files"]
+    assert {"curves/a.png", "curves/b.png"} <= set(files)
+    run_table(ROWS, [tiny("a"), tiny("b")], out, **quiet)  # b's curve is still provably ours
+    (out / "curves" / "b.png").write_bytes(b"my own plot")
+    with pytest.raises(ValueError, match=r"b.png exists and was not written by a "):
+        run_table(ROWS, [tiny("a"), tiny("b")], out, **quiet)
+
+
 def test_address_needs_ray_and_a_suite_folder_brings_its_paper_figures(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="--address needs --backend ray, got --address 'x:1'"):
         run_table(ROWS, [tiny("a")], tmp_path / "t", address="x:1", progress=False)
