@@ -117,10 +117,6 @@ class Scenario(ABC):
     def validate(self) -> None:  # noqa: B027 - optional hook
         """Scenario-specific checks (raise ``ValueError`` naming the field and value)."""
 
-    def _positive(self, *names: str) -> None:
-        for name in names:
-            require_number(self.name, name, getattr(self, name), lo=0, lo_open=True)
-
     def _sizes(self, *names: str) -> None:
         """Widths, radii and sides: positive and at most :data:`MAX_LENGTH_M`."""
         for name in names:
