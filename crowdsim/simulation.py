@@ -50,9 +50,13 @@ import pymunk.batch as pb
 from crowdsim.checks import require_number
 from crowdsim.forces import BodyRows, WallGrid, contact_space, social_force
 from crowdsim.params import SocialForceParams
-from crowdsim.scenarios import Scenario
+from crowdsim.scenarios import MAX_SPEED, Scenario
 from crowdsim.trajectories import Trajectories, TrajectoryRecorder
 from crowdsim.world import WALKERS, AgentBatch, RouteTable
+
+MAX_RADIUS = 1.0
+"""Largest body radius :meth:`Simulation.add_agents` takes, m (a wheelchair or a pram with
+its pusher; the scenarios draw 0.1-0.4 m)."""
 
 if TYPE_CHECKING:
     from crowdsim.decomposition import StripEngine
@@ -178,6 +182,8 @@ class Simulation:
             raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
         self.scenario = scenario
         self.seed = int(seed)
+        if params is not None and not isinstance(params, SocialForceParams):
+            raise ValueError(f"params must be a SocialForceParams, got {type(params).__name__}")
         self.params = params if params is not None else SocialForceParams()
         build_seq, spawn_seq = np.random.SeedSequence(self.seed).spawn(2)
         self._spawn_rng = np.random.default_rng(spawn_seq)
@@ -360,10 +366,13 @@ class Simulation:
         radius = _per_agent(radius, m, np.float64, "radius")
         speed = _per_agent(desired_speed, m, np.float64, "desired_speed")
         routes = _per_agent(route, m, np.int64, "route")
-        if m and not ((radius > 0).all() and np.isfinite(radius).all()):
-            raise ValueError(f"add_agents.radius must be finite and > 0, got {radius}")
-        if m and not ((speed >= 0).all() and np.isfinite(speed).all()):
-            raise ValueError(f"add_agents.desired_speed must be finite and >= 0, got {speed}")
+        if m and not ((radius > 0).all() and (radius <= MAX_RADIUS).all()):
+            raise ValueError(f"add_agents.radius must be in (0, {MAX_RADIUS}] m, got {radius}")
+        if m and not ((speed >= 0).all() and (speed <= MAX_SPEED).all()):
+            raise ValueError(
+                f"add_agents.desired_speed must be in [0, {MAX_SPEED}] m/s, got {speed}"
+            )
+        self._require_inside(pos, "add_agents.pos")
         n_routes = len(self.routes.length)
         if m and not ((routes >= 0).all() and (routes < n_routes).all()):
             raise ValueError(f"add_agents.route must be in [0, {n_routes}), got {routes}")
@@ -386,6 +395,20 @@ class Simulation:
         first = self._n_total
         self._add_agents(batch)
         return np.arange(first, self._n_total, dtype=np.int64)
+
+    def _require_inside(self, pos: np.ndarray, name: str) -> None:
+        """Refuse positions beyond the world's bounds by more than the 1 m after which a step
+        removes an agent (x wraps in a periodic world)."""
+        xmin, ymin, xmax, ymax = self.world.bounds
+        x = pos[:, 0] % self.world.period if self.world.period > 0 else pos[:, 0]
+        out = (x < xmin - 1) | (x > xmax + 1) | (pos[:, 1] < ymin - 1) | (pos[:, 1] > ymax + 1)
+        if out.any():
+            i = int(np.flatnonzero(out)[0])
+            raise ValueError(
+                f"{name}[{i}] = ({pos[i, 0]:g}, {pos[i, 1]:g}) m lies outside the world "
+                f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g} m; a step removes agents more "
+                "than 1 m beyond it)"
+            )
 
     def remove_agents(self, ids: np.ndarray) -> None:
         """Remove the present agents ``ids`` ``(m,)`` at once (between steps: from the next
@@ -436,6 +459,8 @@ class Simulation:
                 raise ValueError(f"{name} must have shape ({n}, 2), got {value.shape}")
             if not np.isfinite(value).all():
                 raise ValueError(f"{name} must be finite")
+            if name == "pos":
+                self._require_inside(value, "set_state.pos")
             setattr(self.state, name, value)
         if self.world.period > 0:
             self.state.pos[:, 0] %= self.world.period
@@ -534,6 +559,12 @@ class Simulation:
             else:
                 ids = self._present_ids(c, "step.controlled")
         vel = _velocities(desired_velocity, len(ids), "step.desired_velocity")
+        fast = np.hypot(vel[:, 0], vel[:, 1]) > MAX_SPEED
+        if fast.any():
+            raise ValueError(
+                f"step.desired_velocity must be at most {MAX_SPEED} m/s, got "
+                f"{vel[fast][0].tolist()} for agent {int(ids[fast][0])}"
+            )
         if len(ids) > 1 and not (ids[1:] > ids[:-1]).all() and len(np.unique(ids)) != len(ids):
             raise ValueError("step.controlled lists an agent more than once")
         return ids, vel
@@ -859,10 +890,18 @@ def _velocities(value: Any, m: int, where: str) -> np.ndarray:
 
 
 def _per_agent(value: Any, m: int, dtype: Any, name: str) -> np.ndarray:
-    """A scalar or ``(m,)`` value as an ``(m,)`` array of ``dtype``."""
+    """A scalar or ``(m,)`` value as an ``(m,)`` array of ``dtype``: numbers for a float
+    field, whole numbers for an integer one, booleans for a flag (never cast in silence)."""
     v = np.asarray(value)
     if v.ndim == 0:
         v = np.broadcast_to(v, (m,))
     if v.shape != (m,):
         raise ValueError(f"add_agents.{name} must be a scalar or have shape ({m},), got {v.shape}")
+    kind = np.dtype(dtype).kind
+    ok = v.dtype.kind == "b" if kind == "b" else v.dtype.kind in "biuf"
+    if ok and kind in "iu" and v.dtype.kind == "f":
+        ok = bool(np.isfinite(v).all() and (v == np.round(v)).all())
+    if not ok:
+        what = {"b": "booleans", "i": "whole numbers", "u": "whole numbers"}.get(kind, "numbers")
+        raise ValueError(f"add_agents.{name} must be {what}, got {value!r}")
     return np.array(v, dtype=dtype)

@@ -219,12 +219,16 @@ class CrowdParallelEnv(ParallelEnv):
         self.max_agents = max_agents
         ids = np.arange(max_agents)
         if controlled_ids is not None:
-            try:
-                chosen = np.unique(np.asarray(controlled_ids, dtype=np.int64).reshape(-1))
-            except (TypeError, ValueError):
+            raw = np.asarray(controlled_ids).reshape(-1)
+            whole = raw.dtype.kind in "iu" or (
+                raw.dtype.kind == "f"
+                and bool(np.isfinite(raw).all() and (raw == np.round(raw)).all())
+            )
+            if not whole:  # never cast 1.5 to agent 1 in silence
                 raise ValueError(
                     f"controlled_ids must be a list of integer agent ids, got {controlled_ids!r}"
-                ) from None
+                )
+            chosen = np.unique(raw.astype(np.int64))
             if len(chosen) and (chosen[0] < 0 or chosen[-1] >= max_agents):
                 raise ValueError(
                     f"controlled_ids must lie in [0, {max_agents}), got {chosen.tolist()[:10]}"

@@ -378,7 +378,10 @@ def _read_table(p: Path) -> dict[str, Any]:
         raise ValueError(f"{p}: not a {kind} distribution file (binary, not UTF-8)") from None
     try:
         if kind == "TOML":
-            import tomllib
+            if sys.version_info >= (3, 11):
+                import tomllib
+            else:  # pragma: no cover - Python 3.10 (pyproject installs tomli there)
+                import tomli as tomllib
 
             data = tomllib.loads(text)
         else:
@@ -1028,6 +1031,8 @@ def make_episodes(
     """
     if (suite is None) == (scenarios is None):
         raise ValueError("give exactly one of --suite NAME and --scenarios DIST")
+    if frames is not None:  # 2.7 frames is a mistake, not 2
+        require_number("", "frames", frames, lo=2, integer=True)
     store = None if episode_cache is None else EpisodeCache(episode_cache)
     if suite is not None:
         from synth_data.suites import SUITE_NAMES

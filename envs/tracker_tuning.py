@@ -218,7 +218,7 @@ class TrackerTuningEnv(gym.Env):
     ## Action Space
 
     For BQP ``Box(-1, 1, (5,), float32)`` (8 with ``extended=True``: also search factor,
-    motion sigma, KCF learning rate; PNMC 4 / 6, NCC 2 / 3), mapped to parameter ranges by
+    motion sigma, KCF learning rate; PNMC 4 / 9, NCC 2 / 3), mapped to parameter ranges by
     :class:`envs.param_space.ParamSpace`:
     piecewise linear with ``-1`` the low end, ``0`` **the paper defaults exactly** and ``+1``
     the high end (zeta 0 / 0.3 / 1.5, eta 0 / 0.2 / 1, w_sp 0 / 0.3 / 1.5, w_g 0 / 1 / 3,
@@ -351,6 +351,8 @@ class TrackerTuningEnv(gym.Env):
         from tracker.registry import get
 
         base = get(tracker).make_params() if start_params is None else start_params
+        if not isinstance(extended, (bool, np.bool_)):
+            raise ValueError(f"extended must be True or False, got {extended!r}")
         self.space = ParamSpace(extended=extended, base=base)
         self.start_action = self.space.to_action(base)
         self.action_space = spaces.Box(-1.0, 1.0, (self.space.dim,), np.float32)
@@ -366,7 +368,9 @@ class TrackerTuningEnv(gym.Env):
     # ------------------------------------------------------------------ episode
     def _pick(self, options: dict | None) -> Any:
         if options and "episode" in options:
-            return self.episodes.episode(int(options["episode"]))
+            k = options["episode"]
+            require_number("reset", "options['episode']", k, lo=0, integer=True)
+            return self.episodes.episode(int(k))
         return self.episodes.sample(self.np_random)
 
     def _start(self, seq: Any) -> np.ndarray:

@@ -274,8 +274,16 @@ class InMemorySequence:
         from functools import partial
 
         from synth_data.scene import Scene
+        from synth_data.spec import SequenceSpec, spec_from_dict
         from synth_data.video import camera_output as camera
 
+        if isinstance(spec, dict):  # a spec's table, as a spec file holds it
+            spec = spec_from_dict(spec, "spec")
+        if not isinstance(spec, SequenceSpec):
+            raise ValueError(
+                f"spec must be a SequenceSpec (synth_data.spec.load_spec) or its table, got "
+                f"{type(spec).__name__}"
+            )
         if frames is not None:
             spec = spec.truncated(frames)
         output = (
@@ -387,11 +395,14 @@ def synthetic_crowd(
     """
     from crowdsim.appearance_model import AppearanceParams
     from crowdsim.camera import Camera
+    from crowdsim.checks import require_number
     from crowdsim.render import SceneRenderer, default_px_per_m, prepare_agents
     from crowdsim.trajectories import Trajectories
 
-    if n < 1 or n_frames < 2:
-        raise ValueError(f"need n >= 1 and n_frames >= 2, got {n}, {n_frames}")
+    require_number("synthetic_crowd", "n", n, lo=1, hi=100_000, integer=True)
+    require_number("synthetic_crowd", "n_frames", n_frames, lo=2, hi=100_000, integer=True)
+    require_number("synthetic_crowd", "template_px", template_px, lo=2, hi=256, integer=True)
+    n, n_frames = int(n), int(n_frames)
     rng = np.random.default_rng(seed)
     ppm = default_px_per_m(template_px)
     w_m, h_m = size[0] / ppm, size[1] / ppm

@@ -64,6 +64,12 @@ LiveBirths = Callable[[int, np.ndarray, np.ndarray, np.ndarray], "Births | None"
 """``births(t, frame, ids, points) -> (ids, points) | None``: births found while tracking."""
 
 
+MAX_TEMPLATE_PX = 256
+"""Largest template (head) size a tracker takes, px: the appearance models hold
+``(n, 3, w, w)`` arrays per target with ``w`` about twice the template; 256 px keeps 1000
+targets under 2 GiB (heads in crowd footage span 6-40 px)."""
+
+
 @dataclass
 class TrackResult:
     """Tracks of a whole sequence.
@@ -210,8 +216,13 @@ class Tracker(ABC):
                 "(build the parameters with tracker.registry.make_tracker or the dataclass)"
             )
         frame = self._check_frame(frame, first=True)
-        if not (isinstance(template_size, (int, np.integer)) and template_size >= 2):
-            raise ValueError(f"template_size must be an integer >= 2 px, got {template_size!r}")
+        if not (
+            isinstance(template_size, (int, np.integer)) and 2 <= template_size <= MAX_TEMPLATE_PX
+        ):
+            raise ValueError(
+                f"template_size must be an integer in [2, {MAX_TEMPLATE_PX}] px, got "
+                f"{template_size!r}"
+            )
         ids, points = as_points(ids, points, "initial targets")
         small = len(ids) < self.parallel_min_targets
         with using_threads(1 if small else self._threads):

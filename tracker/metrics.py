@@ -352,6 +352,10 @@ def evaluate(
     only concerns acc@T (module docstring); ``strict`` refuses track ids unknown to the ground
     truth when ``id_mapping="same"`` is asked for (``"auto"`` scores them as unmatched).
     """
+    for name, ids in (("gt_ids", gt_ids), ("tr_ids", tr_ids)):
+        values, counts = np.unique(np.asarray(ids), return_counts=True)
+        if (counts > 1).any():  # one column of points per id: a twice-listed id is two tracks
+            raise ValueError(f"{name}: id {values[counts > 1][0].item()!r} appears more than once")
     mode = resolve_id_mapping(gt_ids, tr_ids, id_mapping, gt_points, tr_points, similarity_scale)
     if id_mapping == "same" and strict:
         _align(gt_ids, gt_points, tr_ids, tr_points, True)  # unknown ids refused

@@ -133,18 +133,34 @@ def run_tracker(
         tracking (:class:`synth_data.births.DetectionBirths`), which then also adds the
         scheduled births of ``start`` / the source.
     """
+    from crowdsim.checks import require_number
+
+    if not all(hasattr(source, a) for a in ("frames", "births", "length", "template_size")):
+        raise ValueError(
+            "source must be a sequence source (synth_data.sequence.open_sequence, "
+            f"InMemorySequence), got {type(source).__name__}"
+        )
+    if frames is not None:
+        require_number("run_tracker", "frames", frames, lo=1, integer=True)
+        frames = int(frames)
+    if template_size is not None:
+        require_number("run_tracker", "template_size", template_size, lo=2, integer=True)
+    if metrics not in ("full", "accuracy", "none"):
+        raise ValueError(f"metrics must be 'full', 'accuracy' or 'none', got {metrics!r}")
+    if start is not None and not (isinstance(start, tuple) and len(start) == 2):
+        raise ValueError(
+            f"start must be ((ids0, points0), {{frame: (ids, points)}}), got {type(start).__name__}"
+        )
     trk = make_tracker(tracker, params)
     if prepare is not None:
         prepare(trk, source)
-    if frames is not None and frames < 1:
-        raise ValueError(f"frames must be >= 1, got {frames}")
     n = source.length if frames is None else min(frames, source.length or frames)
     (ids, pts), scheduled = start if start is not None else source.births()
     scheduled = {t: b for t, b in scheduled.items() if t < n}
     if births is None:
         births = scheduled
     t0 = time.perf_counter()
-    size = int(template_size or source.template_size)
+    size = int(source.template_size if template_size is None else template_size)
     res = trk.track(
         itertools.islice(source.frames(), n),
         ids,

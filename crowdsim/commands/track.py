@@ -21,12 +21,9 @@ import json
 import sys
 from pathlib import Path
 
-MAX_TEMPLATE_PX = 256
-"""Largest template (head) size: the appearance models hold (n, 3, w, w) arrays per target
-with ``w`` about twice the template; 256 px keeps 1000 targets under 2 GiB."""
-
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from tracker.base import MAX_TEMPLATE_PX
     from tracker.registry import TRACKERS
 
     listing = "; ".join(f"{name}: {e.summary}" for name, e in TRACKERS.items())
@@ -297,6 +294,7 @@ def run(args: argparse.Namespace) -> int:
     from envs.episodes import verify_folder
     from synth_data.mot import write_mot
     from synth_data.sequence import open_sequence
+    from tracker.base import MAX_TEMPLATE_PX
     from tracker.metrics import format_table
     from tracker.mot_io import tracks_to_mot_rows
     from tracker.registry import make_tracker

@@ -30,6 +30,7 @@ import scipy.sparse as sp
 from numba import njit, prange
 from scipy.spatial import cKDTree
 
+from crowdsim.checks import require_memory
 from tracker.bqp.frank_wolfe import solved_apart
 from tracker.threads import in_chunks
 
@@ -677,6 +678,8 @@ def quadratic_matrix(
             pairs_geometry = (cand, box, pa, pb, flags, ref, mode_g, *gauss)
     np.cumsum(offsets, out=offsets)
     m = int(offsets[-1])
+    # per linked candidate pair: its two candidates and two values here, and two CSC entries
+    require_memory(f"a quadratic matrix of {m} linked candidate pairs", 48.0 * m)
     cand_a = np.empty(m, np.int32)  # the pair's candidate of its first target
     cand_b = np.empty(m, np.int32)  # and of its second
     s_val = np.empty(m)
