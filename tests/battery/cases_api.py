@@ -139,3 +139,15 @@ def _crowd_env(w: Path, env: Env) -> object:
 
 
 api_case("api-crowd-env-ids-float", _crowd_env, "controlled_ids must be a list of integer")
+
+
+def _dense_256(w: Path, env: Env) -> object:
+    from tracker.registry import make_tracker
+    from tracker.testing import make_scene
+
+    sc = make_scene([[40, 40], [60, 40], [50, 55], [30, 60]], [[1, 0]] * 4, n_frames=2)
+    return make_tracker("bqp-dense").track(sc.frames, sc.ids, sc.points[0], 256)
+
+
+# the links' counting pass alone would have run for hours, deaf to SIGTERM inside numba
+api_case("api-dense-template-256", _dense_256, "candidate pairs to test, more than 2e+10")

@@ -34,6 +34,10 @@ from crowdsim.checks import require_memory
 from tracker.bqp.frank_wolfe import solved_apart
 from tracker.threads import in_chunks
 
+MAX_PAIR_TESTS: float = 2e10
+"""Most candidate pairs :func:`quadratic_matrix` tests for a link (about a minute on two
+cores): 1,000 packed targets with speed-up sampling test about 1e7, dense candidates of a
+24 px template about 4e9; dense candidates of a 256 px template, 2e11 for twenty people."""
 EXP_PER_THREAD: int = 65_536
 """Off whole pixels, the entries' Gaussians are numpy's ``exp`` in chunks of at least this
 many entries on the tracker's threads (:func:`tracker.threads.in_chunks`; element by element,
@@ -648,6 +652,13 @@ def quadratic_matrix(
         alone = np.arange(n, dtype=np.int64)  # every target its own component, in order
         return empty, alone, (alone if _splits(np.ones(n), split_share) else None), *diag
     pa, pb, flags, ref, mode_g = _merged_pairs(n, pairs, edges, lengths)
+    tests = float(len(pa)) * k * k
+    if tests > MAX_PAIR_TESTS:  # the counting pass alone would run for minutes to hours
+        raise ValueError(
+            f"{len(pa)} target pairs of {k} candidates each make {tests:.3g} candidate pairs "
+            f"to test, more than {MAX_PAIR_TESTS:.0e}: use speed-up sampling or a smaller "
+            "template"
+        )
     gauss = (
         1.0 / (2.0 * sp_sigma * sp_sigma),
         reach_s**2,
