@@ -271,8 +271,8 @@ class TrackerTuningEnv(gym.Env):
     ## Episode End
 
     One episode is one sequence: ``terminated`` is true once its last frame is tracked (the
-    last step may hold fewer than ``K`` frames). There is no truncation; wrap the env in
-    ``TimeLimit`` if needed.
+    last step may hold fewer than ``K`` frames); a step after that raises ``ResetNeeded``, as
+    the bandit's does. There is no truncation; wrap the env in ``TimeLimit`` if needed.
 
     ## Arguments
 
@@ -472,6 +472,10 @@ class TrackerTuningEnv(gym.Env):
         return clipped
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._ep is not None:
+            self.space.clip(action)  # a bad action is named first, even after the last frame
+            if self._ep.t + 1 >= self._ep.seq.length:  # as the bandit: nothing left to score
+                raise gym.error.ResetNeeded("the episode is over; call reset()")
         clipped = self._apply(action)
         seen = self._seen
         seen.restart()

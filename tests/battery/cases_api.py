@@ -151,3 +151,30 @@ def _dense_256(w: Path, env: Env) -> object:
 
 # the links' counting pass alone would have run for hours, deaf to SIGTERM inside numba
 api_case("api-dense-template-256", _dense_256, "candidate pairs to test, more than 2e+10")
+
+
+def _step_past_the_end(w: Path, env: Env) -> object:
+    import gymnasium as gym
+
+    import envs  # noqa: F401 - registers the ids
+    from envs.episodes import tiny_scenarios
+
+    e = gym.make("crowdsim/TrackerTuning-v0", scenarios=tiny_scenarios(), k_frames=11)
+    e.reset(seed=0)
+    e.step(np.zeros(5))  # frames 1-11 of 12: the episode ends
+    return e.step(np.zeros(5))
+
+
+def _reset_needed() -> tuple[type[BaseException], ...]:
+    import gymnasium as gym
+
+    return (gym.error.ResetNeeded,)
+
+
+# as the bandit: a step past the last frame had returned reward 0 as if it were scored
+api_case(
+    "api-tuning-step-past-end",
+    _step_past_the_end,
+    "the episode is over; call reset()",
+    raises=_reset_needed(),
+)
