@@ -64,6 +64,19 @@ def require_number(
         )
 
 
+def whole_numbers(values: Any) -> bool:
+    """Whether ``values`` are integers, or finite floats with no fractional part (ids and
+    indices given as ``2.0``), never booleans or text.
+
+    >>> whole_numbers([1, 2]), whole_numbers([1.0, 2.0]), whole_numbers([1.5]), whole_numbers(["1"])
+    (True, True, False, False)
+    """
+    v = np.asarray(values)
+    if v.dtype.kind in "iu":
+        return True
+    return v.dtype.kind == "f" and bool(np.isfinite(v).all() and (v == np.round(v)).all())
+
+
 def require_cpus(flag: str, values: Any, lo: int = 1) -> None:
     """Raise ``ValueError("<flag> must be in [lo, cpus] (os.cpu_count()), got <first bad>")``
     unless every count of ``values`` (an int or a sequence of them) is within the cores.

@@ -47,7 +47,7 @@ import numpy as np
 import pymunk
 import pymunk.batch as pb
 
-from crowdsim.checks import require_number
+from crowdsim.checks import require_number, whole_numbers
 from crowdsim.forces import BodyRows, WallGrid, contact_space, social_force
 from crowdsim.params import SocialForceParams
 from crowdsim.scenarios import MAX_SPEED, Scenario
@@ -898,9 +898,12 @@ def _per_agent(value: Any, m: int, dtype: Any, name: str) -> np.ndarray:
     if v.shape != (m,):
         raise ValueError(f"add_agents.{name} must be a scalar or have shape ({m},), got {v.shape}")
     kind = np.dtype(dtype).kind
-    ok = v.dtype.kind == "b" if kind == "b" else v.dtype.kind in "biuf"
-    if ok and kind in "iu" and v.dtype.kind == "f":
-        ok = bool(np.isfinite(v).all() and (v == np.round(v)).all())
+    if kind == "b":
+        ok = v.dtype.kind == "b"
+    elif kind in "iu":
+        ok = v.dtype.kind == "b" or whole_numbers(v)
+    else:
+        ok = v.dtype.kind in "biuf"
     if not ok:
         what = {"b": "booleans", "i": "whole numbers", "u": "whole numbers"}.get(kind, "numbers")
         raise ValueError(f"add_agents.{name} must be {what}, got {value!r}")

@@ -17,7 +17,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
-from crowdsim.checks import require_number
+from crowdsim.checks import require_number, whole_numbers
 from crowdsim.forces import WallGrid, k_nearest, nearest_wall
 from crowdsim.params import SocialForceParams
 from crowdsim.scenarios import MAX_AGENTS, Scenario, make_scenario
@@ -220,11 +220,7 @@ class CrowdParallelEnv(ParallelEnv):
         ids = np.arange(max_agents)
         if controlled_ids is not None:
             raw = np.asarray(controlled_ids).reshape(-1)
-            whole = raw.dtype.kind in "iu" or (
-                raw.dtype.kind == "f"
-                and bool(np.isfinite(raw).all() and (raw == np.round(raw)).all())
-            )
-            if not whole:  # never cast 1.5 to agent 1 in silence
+            if not whole_numbers(raw):  # never cast 1.5 to agent 1 in silence
                 raise ValueError(
                     f"controlled_ids must be a list of integer agent ids, got {controlled_ids!r}"
                 )

@@ -74,11 +74,16 @@ def check_outputs(
     is_ours: Callable[[Any], bool],
     what: str,
     flag: str = "--out",
+    earlier: Callable[[Path], bool] | None = None,
 ) -> None:
     """Refuse (``ValueError`` naming ``flag`` and the file) to go on when ``out`` holds
     ``record`` or one of ``owned`` that this program cannot prove it wrote (see the module
     docstring); a folder that cannot be made or written (under a regular file, read-only)
-    and a folder where a file is expected are refused too. Reads only."""
+    and a folder where a file is expected are refused too. Reads only.
+
+    ``earlier(out)``: where there is no record, whether ``out`` is a folder that a release
+    from before the record wrote (its own files then vouch for the outputs beside them, as a
+    record that lists no files does)."""
     out = require_output_dir(flag, out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"{flag} {out}: is a file, not a folder")
@@ -94,7 +99,9 @@ def check_outputs(
     for key in ("files", "previous_files"):
         for name, digest in ((doc or {}).get(key) or {}).items():
             listed.setdefault(name, set()).add(digest)
-    legacy = doc is not None and "files" not in doc
+    legacy = (doc is not None and "files" not in doc) or (
+        doc is None and earlier is not None and earlier(out)
+    )
     for name in owned:
         p = out / name
         if p.is_dir():
@@ -108,10 +115,7 @@ def check_outputs(
 def _still_listed(path: Path, outputs: Mapping[str, object]) -> dict[str, str]:
     """The earlier record's files that this run does not rewrite and that are still there as
     listed (a run over fewer sequences keeps vouching for the curves of the others)."""
-    try:
-        listed = json.loads(path.read_text()).get("files") or {}
-    except (OSError, UnicodeDecodeError, ValueError, AttributeError):
-        return {}
+    listed = (read_record(path, lambda doc: True) or {}).get("files") or {}
     if not isinstance(listed, dict):
         return {}
     kept = {}

@@ -113,11 +113,11 @@ def _ours(doc: dict) -> bool:
     return doc.get("written_by") == "crowdsim demo"
 
 
-def _earlier_summary(path: Path) -> bool:
-    """A ``summary.json`` as demos before :data:`RECORD` wrote it (it then vouches for the
-    files beside it)."""
+def _earlier_summary(out: Path) -> bool:
+    """``out`` holds a ``summary.json`` as demos before :data:`RECORD` wrote it (it then
+    vouches for the files beside it)."""
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads((out / "summary.json").read_text())
     except (OSError, UnicodeDecodeError, ValueError):
         return False
     keys = {"sequence", "frames", "people", "template_px", "results", "files"}
@@ -139,8 +139,7 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     # before any work: a folder that cannot be made or written, and a file of one of the
     # demo's names that an earlier demo did not write, are refused
-    legacy = not (out / RECORD).exists() and _earlier_summary(out / "summary.json")
-    check_outputs(out, RECORD, () if legacy else demo_files(), _ours, "crowdsim demo")
+    check_outputs(out, RECORD, demo_files(), _ours, "crowdsim demo", earlier=_earlier_summary)
     out.mkdir(parents=True, exist_ok=True)
     progress = not args.no_progress
     t_start = time.perf_counter()

@@ -180,9 +180,12 @@ def check_table_outputs(out: Path, names: Sequence[str]) -> None:
     the outputs beside its cells."""
     from envs.outputs import check_outputs
 
-    legacy = not (out / OUTPUTS_FILE).exists() and (out / CELLS_FILE).is_file()
     what = "a crowdsim table run (compare, ablation or difficulty)"
-    check_outputs(out, OUTPUTS_FILE, () if legacy else names, _ours, what)
+    check_outputs(out, OUTPUTS_FILE, names, _ours, what, earlier=_has_cells)
+
+
+def _has_cells(folder: Path) -> bool:
+    return (folder / CELLS_FILE).is_file()
 
 
 CHECKSUM = "sha256"
