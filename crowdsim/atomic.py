@@ -3,12 +3,35 @@
 A reader never sees a half-written file, and a crash leaves the previous file (or none)
 in place. Files get the usual permissions (``0o666`` less the umask), not ``mkstemp``'s
 owner-only ``0o600``.
+
+A file the user names (``crowdsim track --out res.txt``) is replaced only when crowdsim can
+prove it wrote it, or when the user says ``--overwrite``: :func:`require_replaceable` checks
+before any work, and :func:`record_written` notes each file's SHA-256 after writing it in a
+small ledger beside it (:data:`LEDGER`, a hidden JSON file in the same folder). A file that is
+not listed there with its present digest (a user's own, or one edited since) is refused.
+
+>>> import tempfile, pathlib
+>>> out = pathlib.Path(tempfile.mkdtemp()) / "res.txt"
+>>> _ = out.write_text("my notes")  # the user's file
+>>> try:
+...     require_replaceable("--out", out)
+... except ValueError as exc:
+...     print(str(exc).replace(str(out), "res.txt"))
+--out res.txt: the file exists and crowdsim cannot prove it wrote it; refusing to replace \
+it (pass --overwrite to replace it, or choose another path)
+>>> _ = write_text_atomic(out, "1,1,10,10")  # with --overwrite: the command writes ...
+>>> record_written(out)  # ... and vouches for what it wrote
+>>> require_replaceable("--out", out) == out  # so a rerun may replace it
+True
 """
 
 from __future__ import annotations
 
 import errno
+import hashlib
+import json
 import os
+import sys
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -78,3 +101,87 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return Path(path)
+
+
+def sha256_file(path: str | os.PathLike[str]) -> str:
+    """Hex SHA-256 of the file at ``path``, read in 1 MiB blocks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+OVERWRITE_HELP: str = (
+    "replace the output file(s) even when crowdsim cannot prove it wrote them (files it wrote "
+    "itself, unchanged since, are replaced without it)"
+)
+"""The ``--overwrite`` flag's help, for every command that writes a file the user names."""
+
+LEDGER: str = ".crowdsim-files.json"
+"""The hidden ledger, in an output's folder, of the files crowdsim wrote there:
+``{"written_by": "crowdsim", "files": {name: sha256}}``."""
+
+
+def _ledger(folder: Path) -> dict[str, str] | None:
+    """The ledger's ``files`` in ``folder`` (``{}`` when there is none); ``None`` when a file
+    of that name is there that crowdsim did not write (it is then never replaced)."""
+    path = folder / LEDGER
+    if not path.exists():
+        return {}
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    if not isinstance(doc, dict) or doc.get("written_by") != "crowdsim":
+        return None
+    files = doc.get("files")
+    if not isinstance(files, dict):
+        return {}
+    return {str(k): str(v) for k, v in files.items()}
+
+
+def require_replaceable(flag: str, path: str | os.PathLike[str], overwrite: bool = False) -> Path:
+    """Check, before any work, that the file the user named with ``flag`` may be written:
+    it can be written (:func:`crowdsim.checks.require_output_file`), and it is new, or
+    crowdsim wrote it (its digest is in the folder's :data:`LEDGER`), or ``overwrite``.
+    Raises ``ValueError`` naming ``flag`` and the path otherwise; returns the path."""
+    from crowdsim.checks import require_output_file
+
+    p = require_output_file(flag, path)
+    if overwrite or not os.path.lexists(p):
+        return p
+    if p.is_file():
+        listed = (_ledger(p.parent) or {}).get(p.name)
+        if listed is not None and listed == sha256_file(p):
+            return p
+    raise ValueError(
+        f"{flag} {p}: the file exists and crowdsim cannot prove it wrote it; refusing to "
+        f"replace it (pass --overwrite to replace it, or choose another path)"
+    )
+
+
+def record_written(*paths: str | os.PathLike[str]) -> None:
+    """Note, in each folder's :data:`LEDGER`, the digests of ``paths`` that crowdsim has just
+    written, so a later run may replace them (:func:`require_replaceable`). Entries of files
+    no longer there are dropped. A ledger that cannot be written costs only that proof: one
+    line on stderr, and the next run asks for ``--overwrite``."""
+    by_folder: dict[Path, list[Path]] = {}
+    for path in paths:
+        p = Path(path).absolute()
+        by_folder.setdefault(p.parent, []).append(p)
+    for folder, files in by_folder.items():
+        listed = _ledger(folder)
+        if listed is None:  # a foreign file has the ledger's name: leave it alone
+            continue
+        listed = {name: d for name, d in listed.items() if (folder / name).is_file()}
+        listed.update({p.name: sha256_file(p) for p in files if p.is_file()})
+        doc = {"written_by": "crowdsim", "files": dict(sorted(listed.items()))}
+        try:
+            write_text_atomic(folder / LEDGER, json.dumps(doc, indent=1) + "\n")
+        except OSError as exc:
+            print(
+                f"crowdsim: could not note the written files in {folder / LEDGER} ({exc}); "
+                "a rerun will ask for --overwrite",
+                file=sys.stderr,
+            )

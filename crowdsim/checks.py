@@ -166,3 +166,33 @@ def require_output_dir(flag: str, path: str | os.PathLike[str]) -> Path:
                 raise ValueError(f"{flag} {p}: the folder {parent} is not writable")
             break
     return p
+
+
+def require_apart(
+    flag: str,
+    path: str | os.PathLike[str],
+    inputs: dict[str, str | os.PathLike[str] | None],
+) -> None:
+    """Refuse an output ``path`` that is one of the ``inputs`` (``{name: path}``, ``None``
+    skipped) or lies inside one that is a folder: ``--overwrite`` never lets a command replace
+    what it reads.
+
+    >>> import tempfile, pathlib
+    >>> seq = pathlib.Path(tempfile.mkdtemp())
+    >>> try:
+    ...     require_apart("--plot", seq / "gt" / "a.png", {"SEQUENCE": seq})
+    ... except ValueError as exc:
+    ...     print(str(exc).replace(str(seq), "seq"))
+    --plot seq/gt/a.png would overwrite or sit inside the input SEQUENCE seq; choose another \
+path
+    """
+    out = Path(path).resolve()
+    for name, given in inputs.items():
+        if given is None:
+            continue
+        inp = Path(given).resolve()
+        if out == inp or inp in out.parents:
+            raise ValueError(
+                f"{flag} {path} would overwrite or sit inside the input {name} {given}; "
+                "choose another path"
+            )

@@ -38,14 +38,8 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
-from crowdsim.atomic import atomic_path, write_text_atomic
+from crowdsim.atomic import atomic_path, sha256_file, write_text_atomic
 from crowdsim.checks import require_output_dir
-
-
-def _sha256(path: Path) -> str:
-    from synth_data.mot import sha256_file
-
-    return sha256_file(path)
 
 
 def _refuse(path: Path, what: str, flag: str) -> ValueError:
@@ -108,7 +102,7 @@ def check_outputs(
             raise ValueError(f"{flag}: {p} is a folder, not a file")
         if not p.exists() or legacy:
             continue
-        if doc is None or _sha256(p) not in listed.get(name, set()):
+        if doc is None or sha256_file(p) not in listed.get(name, set()):
             raise _refuse(p, what, flag)
 
 
@@ -121,7 +115,7 @@ def _still_listed(path: Path, outputs: Mapping[str, object]) -> dict[str, str]:
     kept = {}
     for name, digest in listed.items():
         p = path.parent / str(name)
-        if name not in outputs and p.is_file() and _sha256(p) == digest:
+        if name not in outputs and p.is_file() and sha256_file(p) == digest:
             kept[name] = digest
     return kept
 
@@ -140,13 +134,13 @@ def write_outputs(
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    previous = {name: _sha256(out / name) for name in outputs if (out / name).is_file()}
+    previous = {name: sha256_file(out / name) for name in outputs if (out / name).is_file()}
     files = _still_listed(out / record, outputs)
     with ExitStack() as stack:
         for name, write in outputs.items():
             tmp = stack.enter_context(atomic_path(out / name))
             write(tmp)
-            files[name] = _sha256(tmp)
+            files[name] = sha256_file(tmp)
         full = {**doc, "files": files, "previous_files": previous}
         write_text_atomic(out / record, json.dumps(full, indent=2) + "\n")
     # leaving the stack renamed every output into place (the record already lists them)

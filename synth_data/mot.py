@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import configparser
 import csv
-import hashlib
 import json
 import os
 from collections.abc import Iterator
@@ -52,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from crowdsim.atomic import write_text_atomic
+from crowdsim.atomic import sha256_file, write_text_atomic
 from synth_data.births import Births, births_from_ground_truth, births_from_init
 
 MOT_COLUMNS: tuple[str, ...] = (
@@ -285,15 +284,6 @@ def gt_rows(
             column,
         ]
     ).astype(np.float64)
-
-
-def sha256_file(path: Path) -> str:
-    """Hex SHA-256 of the file at ``path``, read in 1 MiB blocks."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def check_checksums(seq_dir: str | os.PathLike[str]) -> dict[str, str] | None:

@@ -250,3 +250,33 @@ def test_track_refuses_a_truncated_frame_without_checksums(tmp_path, seq, capsys
     assert main(["track", str(jpg), "--tracker", "ncc", "--no-progress", "--out", str(out)]) == 2
     assert f"{cut}: not a complete image" in _error_line(capsys, "track")
     assert not out.exists()
+
+
+def test_a_rerun_replaces_its_own_results_and_only_overwrite_replaces_a_users(
+    tmp_path, seq, capsys
+):
+    """``track --out`` replaces the file it wrote itself (the folder's ledger vouches for its
+    digest), refuses one it did not write or that was edited since, unless ``--overwrite``."""
+    from crowdsim.atomic import LEDGER
+
+    out, video = tmp_path / "res.txt", tmp_path / "v.mp4"
+    argv = ["track", str(seq), "--tracker", "ncc", "--no-progress", "--out", str(out)]
+    assert main([*argv, "--frames", "3", "--video", str(video)]) == 0
+    three = out.read_text()
+    ledger = json.loads((tmp_path / LEDGER).read_text())
+    assert set(ledger["files"]) == {"res.txt", "v.mp4"}
+    assert main([*argv, "--frames", "5", "--video", str(video)]) == 0  # ours: replaced
+    five = out.read_text()
+    assert five != three and five.startswith(three.splitlines()[0])
+    out.write_text(five + "1,99,0,0,12,12,1,-1,-1,-1\n")  # the user adds a row
+    capsys.readouterr()
+    assert main([*argv, "--frames", "3"]) == 2
+    assert "cannot prove it wrote it" in _error_line(capsys, "track")
+    assert out.read_text().endswith("1,99,0,0,12,12,1,-1,-1,-1\n")  # untouched
+    assert main([*argv, "--frames", "3", "--overwrite"]) == 0
+    assert out.read_text() == three
+    ledger = json.loads((tmp_path / LEDGER).read_text())
+    assert set(ledger["files"]) == {"res.txt", "v.mp4"}
+    video.unlink()  # a file gone from the folder leaves the ledger at the next write
+    assert main([*argv, "--frames", "3"]) == 0
+    assert set(json.loads((tmp_path / LEDGER).read_text())["files"]) == {"res.txt"}

@@ -39,6 +39,8 @@ from typing import Any
 
 import numpy as np
 
+from crowdsim.atomic import OVERWRITE_HELP
+
 CROWD_TARGET_STEPS_PER_S = 200.0
 
 
@@ -419,6 +421,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--json-out", default=None, metavar="FILE", help="also write the JSON to FILE"
     )
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 def _sections(text: str) -> list[str]:
@@ -443,6 +446,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--frames must be >= 2, got {args.frames}")
     if getattr(args, "warmup", 0) < 0:
         raise ValueError(f"--warmup must be >= 0, got {args.warmup}")
+    if args.json_out:  # before any run
+        from crowdsim.atomic import require_replaceable
+
+        require_replaceable("--json-out", args.json_out, args.overwrite)
     report: dict[str, Any] = {"benchmark": "envs", "sections": {}}
     for name in chosen:
         bench, show = SECTIONS[name]
@@ -452,7 +459,8 @@ def run(args: argparse.Namespace) -> int:
     text = json.dumps(report)
     print(text)
     if args.json_out:
-        from crowdsim.atomic import write_text_atomic
+        from crowdsim.atomic import record_written, write_text_atomic
 
         write_text_atomic(args.json_out, text + "\n")
+        record_written(args.json_out)
     return 0

@@ -7,7 +7,8 @@
   corridor, next to its value for a random mix of the same positions.
 * Sanity: the deepest body overlap seen (target: <= 20 % of the radius at <= 4 /m²).
 
-Writes ``fd.png`` and ``lanes.png`` into ``--out`` and prints a table and one JSON object.
+Writes ``fd.png``, ``lanes.png`` and ``fd.json`` into ``--out`` and prints a table and one
+JSON object.
 """
 
 from __future__ import annotations
@@ -16,6 +17,10 @@ import argparse
 import json
 from pathlib import Path
 from typing import Any
+
+from crowdsim.atomic import OVERWRITE_HELP
+
+OUTPUTS = ("fd.png", "lanes.png", "fd.json")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,6 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=Path("benchmarks/out"),
         help="folder for fd.png, lanes.png and fd.json",
     )
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -50,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     bad = [d for d in densities if not 0 < d <= 6]
     if bad or not densities:
         raise ValueError(f"--densities must lie in (0, 6] /m², got {args.densities!r}")
+    from crowdsim.atomic import require_replaceable
     from crowdsim.checks import require_number, require_output_dir
     from crowdsim.scenarios import MAX_AGENTS, MAX_LENGTH_M
 
@@ -66,8 +73,11 @@ def run(args: argparse.Namespace) -> int:
             f"holds {crowd:.3g} people, more than the {MAX_AGENTS} a scenario takes"
         )
     require_output_dir("--out", args.out)
+    outputs = [args.out / name for name in OUTPUTS]
+    for path in outputs:
+        require_replaceable("--out", path, args.overwrite)
 
-    from crowdsim.atomic import write_text_atomic
+    from crowdsim.atomic import record_written, write_text_atomic
     from crowdsim.validation import fundamental_diagram, lane_formation
 
     points = fundamental_diagram(
@@ -107,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     _plot(report, args.out)
     write_text_atomic(args.out / "fd.json", json.dumps(report) + "\n")
+    record_written(*outputs)
 
     print(
         f"{'rho target':>10} {'rho PedPy':>10} {'v (m/s)':>8} {'Weidmann':>9} {'ratio':>6} "

@@ -40,6 +40,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from crowdsim.atomic import OVERWRITE_HELP
 from crowdsim.optional import DependencyNotInstalled, require
 
 DENSITY = 2.0
@@ -369,6 +370,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--json-out", default=None, metavar="FILE", help="also write the JSON to FILE"
     )
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 def _parse_sizes(text: str, flag: str = "--sizes") -> list[int]:
@@ -409,7 +411,8 @@ def run_split(sizes: list[int], workers: list[int]) -> list[dict[str, Any]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from crowdsim.checks import require_number, require_output_file
+    from crowdsim.atomic import require_replaceable
+    from crowdsim.checks import require_number
     from crowdsim.scenarios import MAX_AGENTS
 
     sizes = _parse_sizes(args.sizes)
@@ -419,7 +422,7 @@ def run(args: argparse.Namespace) -> int:
     require_number("", "--scale", args.scale, lo=0, hi=MAX_AGENTS, integer=True)
     require_number("", "--psf-max", args.psf_max, lo=1, hi=MAX_AGENTS, integer=True)
     if args.json_out is not None:
-        require_output_file("--json-out", args.json_out)  # before any run
+        require_replaceable("--json-out", args.json_out, args.overwrite)  # before any run
     if args.validate and not workers:
         raise ValueError("--validate needs --workers (e.g. --workers 1 2 4)")
     peers = {p.strip() for p in args.peers.split(",") if p.strip() and p.strip() != "none"}
@@ -489,9 +492,10 @@ def run(args: argparse.Namespace) -> int:
     text = json.dumps(report, indent=None)
     print(text)
     if args.json_out:
-        from crowdsim.atomic import write_text_atomic
+        from crowdsim.atomic import record_written, write_text_atomic
 
         write_text_atomic(args.json_out, text + "\n")
+        record_written(args.json_out)
     return 0
 
 

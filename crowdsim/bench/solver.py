@@ -36,6 +36,7 @@ from dataclasses import asdict
 
 import numpy as np
 
+from crowdsim.atomic import OVERWRITE_HELP
 from tracker.bqp.frank_wolfe import VARIANTS, FWParams, solve
 from tracker.bqp.qp import BlockQP, load_many
 from tracker.testing import FrameSpec, synthetic_frame_qp
@@ -47,6 +48,8 @@ CLAIM_REL_OBJECTIVE: float = 1e-3
 """... to the same relaxed objective within this relative difference."""
 CLAIM_SIZE: int = 1000
 """Number of targets at which the speed claim is checked."""
+PLOT: str = "solver_convergence.png"
+"""The convergence plot's name in ``--out``."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -128,6 +131,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="folder of the convergence plot (default: %(default)s)",
     )
     parser.add_argument("--no-plot", action="store_true", help="skip the PNG")
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 def _parse_sizes(text: str) -> list[int]:
@@ -219,7 +223,8 @@ def _plot(path: str, label: str, runs: dict, f_ref: float) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from crowdsim.checks import require_number, require_output_dir, require_output_file
+    from crowdsim.atomic import record_written, require_replaceable
+    from crowdsim.checks import require_apart, require_number, require_output_dir
 
     if args.repeats < 1:
         raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
@@ -230,9 +235,12 @@ def run(args: argparse.Namespace) -> int:
     require_number("", "--reference-tol", args.reference_tol, lo=0, lo_open=True)
     require_number("", "--reference-max-targets", args.reference_max_targets, lo=0, integer=True)
     if args.save_npz:  # the files are written after the runs: check where they go first
-        require_output_file("--save-npz", args.save_npz)
+        for given in args.from_npz or ():
+            require_apart("--save-npz", args.save_npz, {"--from-npz": given})
+        require_replaceable("--save-npz", args.save_npz, args.overwrite)
     if not args.no_plot:
         require_output_dir("--out", args.out)
+        require_replaceable("--out", os.path.join(args.out, PLOT), args.overwrite)
     params = {v: FWParams(variant=v, eps=args.eps, max_iter=args.max_iter) for v in VARIANTS}
     t0 = time.perf_counter()
     problems = _problems(args)
@@ -240,6 +248,7 @@ def run(args: argparse.Namespace) -> int:
         from tracker.bqp.qp import save_many
 
         save_many(args.save_npz, [qp for _, qp in problems])
+        record_written(args.save_npz)
     build_s = time.perf_counter() - t0
     # Compile (or load from cache) the numba kernels outside the timings.
     solve(problems[0][1], params=FWParams(max_iter=1))
@@ -421,8 +430,9 @@ def run(args: argparse.Namespace) -> int:
         if ref_row is not None:
             f_ref = min(f_ref, ref_row["objective"])
         os.makedirs(args.out, exist_ok=True)
-        plot_path = os.path.join(args.out, "solver_convergence.png")
+        plot_path = os.path.join(args.out, PLOT)
         _plot(plot_path, label, rec, f_ref - 1e-9)
+        record_written(plot_path)
         print(f"\nconvergence plot: {plot_path}")
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else None

@@ -15,6 +15,8 @@ import sys
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from crowdsim.atomic import OVERWRITE_HELP
+
     p = sub.add_parser(
         "detect",
         help="find heads with the trained detector, write a frame,id,x,y points CSV",
@@ -22,6 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("input", help="video file or MOT sequence folder")
     p.add_argument("--out", required=True, metavar="CSV", help="points CSV to write")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     frames = p.add_mutually_exclusive_group()
     frames.add_argument(
         "--frames", type=int, default=1, metavar="N", help="detect the first N frames (1)"
@@ -54,18 +57,18 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from crowdsim.atomic import write_text_atomic
+    from crowdsim.atomic import record_written, require_replaceable, write_text_atomic
+    from crowdsim.checks import require_apart
     from crowdsim.progress import progress_bar
     from synth_data.sequence import open_sequence
     from tracker.detect import HeadDetector
 
     if not args.all and args.frames < 1:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
-    from crowdsim.checks import require_output_file
-
     if Path(args.out).suffix.lower() != ".csv":
         raise ValueError(f"--out must end in .csv, got {args.out!r}")
-    out = require_output_file("--out", args.out)  # before any work
+    require_apart("--out", args.out, {"INPUT": args.input, "--weights": args.weights})
+    out = require_replaceable("--out", args.out, args.overwrite)  # before any work
     detector = HeadDetector(detector_params(args.weights, args.threshold, "--threshold"))
     src = open_sequence(args.input)
     n = src.length if args.all else min(args.frames, src.length)
@@ -89,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     if done == 0:
         raise ValueError(f"{args.input}: no frames to detect in")
     write_text_atomic(out, buf.getvalue())
+    record_written(out)
     print(
         f"{next_id - 1} heads in {done} frame(s) of {src.width}x{src.height}, "
         f"{done / max(seconds, 1e-9):.1f} frames/s -> {out}",

@@ -20,6 +20,8 @@ from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from crowdsim.atomic import OVERWRITE_HELP
+
     p = sub.add_parser(
         "evaluate",
         help="score MOT results against a sequence's ground truth",
@@ -35,6 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="T_sim of the point similarity fed to TrackEval (px)",
     )
     p.add_argument("--plot", help="write the accuracy-curve PNG here")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.set_defaults(func=run)
 
 
@@ -78,7 +81,8 @@ def check_args(args: argparse.Namespace) -> None:
     """Validate the flags and paths before reading anything large."""
     import math
 
-    from crowdsim.checks import require_output_file
+    from crowdsim.atomic import require_replaceable
+    from crowdsim.checks import require_apart
 
     if not (math.isfinite(args.similarity_px) and 0 < args.similarity_px <= MAX_SIMILARITY_PX):
         raise ValueError(
@@ -93,13 +97,12 @@ def check_args(args: argparse.Namespace) -> None:
         plot = Path(args.plot)
         if plot.suffix.lower() != ".png":
             raise ValueError(f"--plot must end in .png, got {args.plot!r}")
-        require_output_file("--plot", plot)
-        seq = Path(args.sequence).resolve()
-        if plot.resolve() == results.resolve() or seq in plot.resolve().parents:
-            raise ValueError(f"--plot {args.plot} would overwrite an input; choose another file")
+        require_apart("--plot", plot, {"RESULTS": results, "SEQUENCE": args.sequence})
+        require_replaceable("--plot", plot, args.overwrite)
 
 
 def run(args: argparse.Namespace) -> int:
+    from crowdsim.atomic import record_written
     from synth_data.mot import verify_frames
     from tracker.metrics import evaluate, format_table, plot_accuracy
 
@@ -119,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
     name = Path(args.results).stem
     if args.plot:
         plot_accuracy({name: [c["acc"] for c in report["curve"]]}, args.plot, title=seq.name)
+        record_written(args.plot)
     if args.json:
         print(json.dumps({"sequence": seq.name, "results": str(args.results), **report}))
         return 0

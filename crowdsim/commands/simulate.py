@@ -39,6 +39,7 @@ def _is_float(text: str) -> bool:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from crowdsim.atomic import OVERWRITE_HELP
     from crowdsim.scenarios import SCENARIOS  # light: no numba compile at import
 
     p = sub.add_parser(
@@ -87,6 +88,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="FILE.png",
         help="also draw the trajectories over the walls as a PNG",
     )
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument(
         "--set",
         dest="scenario_params",
@@ -124,7 +126,8 @@ trajectories (16 B) and the summary's velocities and speeds (24 B)."""
 def check_args(args: argparse.Namespace) -> None:
     """Validate the flags before anything is simulated; errors name the flag and the value."""
 
-    from crowdsim.checks import require_cpus, require_memory, require_output_file
+    from crowdsim.atomic import require_replaceable
+    from crowdsim.checks import require_cpus, require_memory
     from crowdsim.scenarios import MAX_AGENTS
 
     require_cpus("--workers", args.workers)
@@ -147,9 +150,9 @@ def check_args(args: argparse.Namespace) -> None:
         float(BYTES_PER_AGENT_STEP) * (args.steps + 1) * args.agents,
     )
     if args.out is not None:
-        require_output_file("--out", args.out)
+        require_replaceable("--out", args.out, args.overwrite)
     if args.plot is not None:
-        require_output_file("--plot", args.plot)
+        require_replaceable("--plot", args.plot, args.overwrite)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -158,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
     import time
 
+    from crowdsim.atomic import record_written
     from crowdsim.decomposition import WorkerFailed
     from crowdsim.params import SocialForceParams
     from crowdsim.scenarios import make_scenario
@@ -189,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
     assert traj is not None
     if args.out is not None:
         traj.save(args.out)
+        record_written(args.out)
     if args.plot is not None:
         from crowdsim.plotting import plot_trajectories
 
@@ -198,6 +203,7 @@ def run(args: argparse.Namespace) -> int:
             args.plot,
             title=f"{scenario.name}: {traj.n_agents} agents, seed {args.seed}",
         )
+        record_written(args.plot)
     print(summary_table(sim, traj, args.steps, wall, args.out, args.plot))
     return 0
 

@@ -23,6 +23,7 @@ from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from crowdsim.atomic import OVERWRITE_HELP
     from tracker.base import MAX_TEMPLATE_PX
     from tracker.registry import TRACKERS
 
@@ -87,6 +88,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="head detector threshold in (0, 1) (default: the detector's)",
     )
     p.add_argument("--video", help="write an overlay MP4 (gt green, tracks yellow)")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument(
         "--evaluate",
         action="store_true",
@@ -135,14 +137,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _check_output(path: str, flag: str, suffix: str | None = None) -> Path:
-    """Refuse an output path that cannot be written (a folder, under a regular file, in a
-    folder that is not writable), before any work is done."""
-    from crowdsim.checks import require_output_file
+def _check_output(
+    path: str, flag: str, overwrite: bool, inputs: dict, suffix: str | None = None
+) -> Path:
+    """Refuse, before any work is done, an output path that cannot be written (a folder,
+    under a regular file, in a folder that is not writable), one of the ``inputs`` or inside
+    one, and a file there that crowdsim cannot prove it wrote, unless ``overwrite``
+    (:func:`crowdsim.atomic.require_replaceable`)."""
+    from crowdsim.atomic import require_replaceable
+    from crowdsim.checks import require_apart
 
     if suffix and Path(path).suffix.lower() != suffix:
         raise ValueError(f"{flag} must end in {suffix}, got {path!r}")
-    return require_output_file(flag, path)
+    require_apart(flag, path, inputs)
+    return require_replaceable(flag, path, overwrite)
 
 
 def _overrides(args: argparse.Namespace, name: str) -> dict:
@@ -291,6 +299,7 @@ def _detected_start(
 def run(args: argparse.Namespace) -> int:
     from functools import partial
 
+    from crowdsim.atomic import record_written
     from envs.episodes import verify_folder
     from synth_data.mot import write_mot
     from synth_data.sequence import open_sequence
@@ -311,9 +320,16 @@ def run(args: argparse.Namespace) -> int:
     is_folder = Path(args.input).is_dir()
     if args.evaluate and not is_folder:
         raise ValueError("--evaluate needs a sequence folder with ground truth as INPUT")
-    out = _check_output(args.out, "--out")
+    inputs = {
+        "INPUT": args.input,
+        "--init": args.init if args.init != "detect" else None,
+        "--params": args.params,
+        "--policy": args.policy,
+        "--detector-weights": args.detector_weights,
+    }
+    out = _check_output(args.out, "--out", args.overwrite, inputs)
     if args.video:
-        _check_output(args.video, "--video", ".mp4")
+        _check_output(args.video, "--video", args.overwrite, {**inputs, "--out": out}, ".mp4")
     if not (args.params or args.policy):
         over = _overrides(args, args.tracker or "bqp")
     use_detector = args.init == "detect" or (args.init is None and not is_folder)
@@ -352,6 +368,7 @@ def run(args: argparse.Namespace) -> int:
     if births is not None:
         print(f"head detector: {births.born} people born while tracking", file=sys.stderr)
     write_mot(out, tracks_to_mot_rows(result.ids, result.positions, size))
+    record_written(out)
     stages = ", ".join(f"{k} {v:.1f} ms" for k, v in run.stage_ms.items())
     print(
         f"{run.tracker}: {result.n_frames} frames, {len(result.ids)} targets, "
@@ -370,6 +387,7 @@ def run(args: argparse.Namespace) -> int:
             ground_truth=gt_pts,
             fps=getattr(src, "frame_rate", 25.0),
         )
+        record_written(args.video)
         print(f"overlay -> {args.video}", file=sys.stderr)
     if args.evaluate:
         print(format_table({run.tracker: run.report}))

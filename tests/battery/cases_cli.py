@@ -543,7 +543,11 @@ case(
     "c.png: is a folder, not a file",
     setup=lambda w, env: (w / "c.png").mkdir(),
 )
-case("eval-plot-into-seq", f"{E} --plot {{seq}}/curve.png", "would overwrite an input")
+case(
+    "eval-plot-into-seq",
+    f"{E} --plot {{seq}}/curve.png",
+    "would overwrite or sit inside the input SEQUENCE",
+)
 case(
     "eval-plot-sysfs",
     f"{E} --plot /sys/crowdsim-battery.png",

@@ -340,3 +340,99 @@ case(
     "crowdsim cannot replace it&&move it away or choose another --out",
     setup=_foreign_sequence_folder,
 )
+
+
+# --- a file the user names: replaced only when crowdsim wrote it, or with --overwrite ------
+MINE = "the file exists and crowdsim cannot prove it wrote it"
+TRACK = "track {seq} --tracker ncc --no-progress --frames 2"
+NAMED_FILES = (
+    ("own-file-track-out", f"{TRACK} --out {{w}}/r.txt", "r.txt", f"r.txt: {MINE}"),
+    (
+        "own-file-track-video",
+        f"{TRACK} --out {{w}}/r.txt --video {{w}}/v.mp4",
+        "v.mp4",
+        f"--video {{w}}/v.mp4: {MINE}",
+    ),
+    (
+        "own-file-simulate-out",
+        "simulate marathon --agents 5 --steps 2 --no-progress --out {w}/t.npz",
+        "t.npz",
+        f"--out {{w}}/t.npz: {MINE}",
+    ),
+    (
+        "own-file-simulate-plot",
+        "simulate marathon --agents 5 --steps 2 --no-progress --plot {w}/t.png",
+        "t.png",
+        f"--plot {{w}}/t.png: {MINE}",
+    ),
+    ("own-file-evaluate-plot", "evaluate {res} {seq} --plot {w}/p.png", "p.png", MINE),
+    ("own-file-detect-out", "detect {seq} --no-progress --out {w}/h.csv", "h.csv", MINE),
+    (
+        "own-file-bench-sim-json",
+        "bench sim --sizes 10 --peers none --json-out {w}/b.json",
+        "b.json",
+        f"--json-out {{w}}/b.json: {MINE}",
+    ),
+    (
+        "own-file-bench-envs-json",
+        "bench envs --only crowd --agents 10 --steps 2 --json-out {w}/b.json",
+        "b.json",
+        f"--json-out {{w}}/b.json: {MINE}",
+    ),
+    ("own-file-bench-fd", "bench fd --densities 1 --out {w}/o", "o/fd.json", f"fd.json: {MINE}"),
+    (
+        "own-file-bench-solver-plot",
+        "bench solver --sizes 10 --out {w}/o",
+        "o/solver_convergence.png",
+        f"solver_convergence.png: {MINE}",
+    ),
+    (
+        "own-file-bench-solver-npz",
+        "bench solver --sizes 10 --no-plot --save-npz {w}/q.npz",
+        "q.npz",
+        f"--save-npz {{w}}/q.npz: {MINE}",
+    ),
+)
+for cid, argv, name, needle in NAMED_FILES:
+    case(cid, argv, needle, files=((name, "the user's own\n"),))
+
+
+def _track_then_edit(w: Path, env: Env) -> None:
+    """``r.txt`` written by ``crowdsim track``, then edited by the user."""
+    from crowdsim.cli import main
+
+    argv = [str(env.seq), "--tracker", "ncc", "--no-progress", "--frames", "2"]
+    assert main(["track", *argv, "--out", str(w / "r.txt")]) == 0
+    with open(w / "r.txt", "a") as fh:
+        fh.write("# my note\n")
+
+
+case("own-file-edited-since", f"{TRACK} --out {{w}}/r.txt", MINE, setup=_track_then_edit)
+case(
+    "own-file-foreign-ledger",
+    f"{TRACK} --out {{w}}/r.txt",
+    MINE,
+    files=(("r.txt", "mine\n"), (".crowdsim-files.json", '{"files": {"r.txt": "x"}}')),
+)
+case(
+    "own-file-track-out-in-input",
+    f"{TRACK} --out {{seq}}/gt/gt.txt --overwrite",
+    "would overwrite or sit inside the input INPUT",
+)
+case(
+    "own-file-track-video-is-out",
+    f"{TRACK} --out {{w}}/r.mp4 --video {{w}}/r.mp4",
+    "--video {w}/r.mp4 would overwrite or sit inside the input --out",
+)
+case(
+    "own-file-track-out-is-init",
+    f"{TRACK} --init {{w}}/i.csv --out {{w}}/i.csv --overwrite",
+    "--out {w}/i.csv would overwrite or sit inside the input --init",
+    files=(("i.csv", GOOD_CSV),),
+)
+case(
+    "own-file-detect-out-is-input",
+    "detect {w}/v.csv --no-progress --out {w}/v.csv --overwrite",
+    "would overwrite or sit inside the input INPUT",
+    files=(("v.csv", "frame,id,x,y\n"),),
+)

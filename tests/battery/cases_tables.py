@@ -392,8 +392,8 @@ case(
 )
 case(
     "tables-eval-plot-over-results",
-    "evaluate {w}/r.png {seq} --plot {w}/r.png",
-    "would overwrite an input",
+    "evaluate {w}/r.png {seq} --plot {w}/r.png --overwrite",
+    "would overwrite or sit inside the input RESULTS",
     files=(("r.png", "1,1,4,6,12,12\n"),),
 )
 

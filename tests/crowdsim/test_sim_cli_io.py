@@ -9,6 +9,7 @@ import sys
 import numpy as np
 import pytest
 
+from crowdsim.atomic import LEDGER
 from crowdsim.cli import main
 from crowdsim.trajectories import Trajectories
 
@@ -61,7 +62,8 @@ def test_simulate_writes_npz_contract(tmp_path, capsys):
     )
     a, b = Trajectories.load(out), Trajectories.load(again)
     assert np.array_equal(a.positions, b.positions, equal_nan=True)
-    assert not list(tmp_path.glob(".*"))  # no temporary file left behind
+    # no temporary file left behind: only the ledger of what crowdsim wrote
+    assert [p.name for p in tmp_path.glob(".*")] == [LEDGER]
 
 
 @pytest.mark.parametrize(
