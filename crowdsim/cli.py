@@ -210,7 +210,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     process_settings()
     parser = build_parser()
     args = parser.parse_args(argv)
-    prefix = f"crowdsim {args.command}: error:"
+    command = " ".join(filter(None, (args.command, getattr(args, "verb", None))))
+    prefix = f"crowdsim {command}: error:"
     try:
         with interruptible():
             return int(args.func(args) or 0)
@@ -218,7 +219,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         name = getattr(exc, "signal_name", "SIGINT")
         detail = getattr(exc, "detail", "")
         print(
-            f"crowdsim {args.command}: interrupted by {name}" + (f"; {detail}" if detail else ""),
+            f"crowdsim {command}: interrupted by {name}" + (f"; {detail}" if detail else ""),
             file=sys.stderr,
         )
         return EXIT_CODES.get(name, 130)

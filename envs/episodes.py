@@ -868,20 +868,22 @@ class ScenarioEpisodes(EpisodeSource):
 
 
 class SuiteEpisodes(EpisodeSource):
-    """Episodes from a suite: a built-in suite name or a folder of MOT sequence folders.
+    """Episodes from a suite: a built-in suite name, a folder of spec files, or a folder of
+    MOT sequence folders.
 
     Parameters
     ----------
     suite : str or path
-        ``ucf9`` / ``galleria`` / ``stress`` (specs simulated and rendered in memory), or a
-        folder whose sub-folders are MOT sequences (``crowdsim generate`` output), or one MOT
-        sequence folder.
+        ``ucf9`` / ``galleria`` / ``stress`` or a folder of ``*.toml`` spec files such as
+        ``crowdsim calibrate --out`` writes (specs simulated and rendered in memory;
+        :func:`synth_data.suites.is_spec_suite`), or a folder whose sub-folders are MOT
+        sequences (``crowdsim generate`` output), or one MOT sequence folder.
     only : sequence of str, optional
         Keep only these sequence names.
     frames : int, optional
         Use only the first ``frames`` frames of each sequence.
     reseed : int
-        Built-in suites only: add ``reseed`` to every spec's seed (another crowd and rendering
+        Spec suites only: add ``reseed`` to every spec's seed (another crowd and rendering
         of the same scene type: held-out scoring never sees a tuning seed).
     """
 
@@ -896,7 +898,7 @@ class SuiteEpisodes(EpisodeSource):
         store: EpisodeCache | None = None,
     ) -> None:
         super().__init__(cache, store)
-        from synth_data.suites import SUITE_NAMES, suite_specs
+        from synth_data.suites import SUITE_NAMES, is_spec_suite, suite_specs
 
         if frames is not None:
             require_number("SuiteEpisodes", "frames", frames, lo=2, integer=True)
@@ -906,7 +908,7 @@ class SuiteEpisodes(EpisodeSource):
         self.reseed = int(reseed)
         self.cache_frames = bool(cache_frames)
         only = [only] if isinstance(only, str) else (list(only) if only else None)
-        if self.suite in SUITE_NAMES:
+        if is_spec_suite(self.suite):
             specs = [s.truncated(frames) for s in suite_specs(self.suite, only)]
             self.items: list[Any] = [replace(s, seed=s.seed + self.reseed) for s in specs]
             self.on_disk = False
@@ -915,7 +917,7 @@ class SuiteEpisodes(EpisodeSource):
         if not path.is_dir():
             raise ValueError(
                 f"unknown suite {self.suite!r}: neither a built-in suite "
-                f"({', '.join(SUITE_NAMES)}) nor a folder of sequences"
+                f"({', '.join(SUITE_NAMES)}) nor a folder of spec files or of sequences"
             )
         if reseed:
             raise ValueError(
@@ -1035,10 +1037,10 @@ def make_episodes(
         require_number("", "frames", frames, lo=2, integer=True)
     store = None if episode_cache is None else EpisodeCache(episode_cache)
     if suite is not None:
-        from synth_data.suites import SUITE_NAMES
+        from synth_data.suites import is_spec_suite
 
-        reseed = seed if str(suite) in SUITE_NAMES else 0
-        if seed and str(suite) not in SUITE_NAMES:
+        reseed = seed if is_spec_suite(suite) else 0
+        if seed and not is_spec_suite(suite):
             raise ValueError(
                 f"{suite}: a folder of sequences cannot be re-seeded for held-out "
                 "scoring; give held-out sequences with --only or another folder"

@@ -13,12 +13,13 @@ frames after the first):
 * **(c) per-segment oracle**: the tracker runs in segments of ``k_frames``; before each
   segment its state is copied once per candidate, each copy tracks the segment with that
   candidate, and the copy with the best accuracy on the segment *by the ground truth* goes
-  on. A greedy upper bound for an adaptive policy switching among the same candidates every
-  ``k_frames`` frames.
+  on. What an adaptive policy switching among the same candidates every ``k_frames`` frames
+  could reach; greedy, so not a strict bound: where a choice's effect outlasts its segment
+  (a track lost or kept), it can end below (b).
 
 ``(b) - (a)`` is the room for scene-aware tuning, ``(c) - (b)`` the extra room for
 adaptation. Candidates and the choice of (a) and (b) come from the held-out sequences
-themselves: these are bounds, not results a tuner has earned.
+themselves: these are what choosing could reach, not results a tuner has earned.
 """
 
 from __future__ import annotations

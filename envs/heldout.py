@@ -45,9 +45,9 @@ def heldout_episodes(
     re-seeded).
     """
     require_number("heldout", "seeds", seeds, lo=1, integer=True)
-    from synth_data.suites import SUITE_NAMES
+    from synth_data.suites import is_spec_suite
 
-    if objective.suite is not None and str(objective.suite) not in SUITE_NAMES:
+    if objective.suite is not None and not is_spec_suite(objective.suite):
         src = objective.episodes(heldout=True)
         for i, name in enumerate(src.names()):
             yield name, src.episode(i), src.spec(i)
@@ -89,11 +89,11 @@ def heldout_episodes(
 
 def heldout_count(objective: Any, seeds: int) -> int:
     """How many sequences :func:`heldout_episodes` yields (without building any)."""
-    from synth_data.suites import SUITE_NAMES
+    from synth_data.suites import is_spec_suite
 
     if objective.suite is None:
         return len(objective.episodes(heldout=True).dist.families) * seeds
-    if str(objective.suite) not in SUITE_NAMES:
+    if not is_spec_suite(objective.suite):
         return len(objective.episodes(heldout=True))
     return len(make_episodes(suite=objective.suite, only=objective.only or None)) * seeds
 

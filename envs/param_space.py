@@ -293,6 +293,18 @@ TUNABLES: Mapping[str, TunableRow] = MappingProxyType(
 registry names it) -> :class:`TunableRow`. Adding a tunable tracker is one row here."""
 
 
+def extended_summary() -> str:
+    """What ``extended`` adds, per tracker family, for ``--help`` texts.
+
+    >>> extended_summary().split("; ")[0]
+    'BQP: search_factor, motion_sigma, kcf_learning_rate'
+    """
+    return "; ".join(
+        f"{key.rsplit(':', 1)[1].removesuffix('Params')}: " + ", ".join(t.name for t in row.extra)
+        for key, row in TUNABLES.items()
+    )
+
+
 def _row_key(params_cls: type) -> str:
     return f"{params_cls.__module__}:{params_cls.__qualname__}"
 

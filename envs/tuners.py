@@ -59,8 +59,8 @@ class Objective:
     only : tuple of str
         Suite sequences to tune on.
     heldout_only : tuple of str
-        Suite-folder sequences to score on (a folder cannot be re-seeded; built-in suites and
-        scenarios use other seeds of the same sequences instead).
+        Sequences of a folder of MOT sequences to score on (it cannot be re-seeded; built-in
+        suites, spec folders and scenarios use other seeds of the same sequences instead).
     frames : int, optional
         Frames per sequence.
     train_episodes : int
@@ -105,9 +105,9 @@ class Objective:
 
     def episodes(self, heldout: bool = False, cache: int = 0) -> EpisodeSource:
         """Training (stream 0) or held-out episodes."""
-        from synth_data.suites import SUITE_NAMES
+        from synth_data.suites import is_spec_suite
 
-        folder = self.suite is not None and str(self.suite) not in SUITE_NAMES
+        folder = self.suite is not None and not is_spec_suite(self.suite)
         if heldout and folder:
             if not self.heldout_only:
                 raise ValueError(

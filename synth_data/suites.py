@@ -74,6 +74,30 @@ def suite_dir(suite: str | os.PathLike[str]) -> Path:
     return path
 
 
+def is_spec_suite(suite: object) -> bool:
+    """Whether ``suite`` is a suite of specs to render (a built-in name, or a folder of
+    ``*.toml`` spec files such as ``crowdsim calibrate --out`` writes) rather than a folder of
+    MOT sequences on disk. A spec suite can be re-seeded (other crowds of the same scenes,
+    for held-out scoring); a folder of sequences cannot.
+
+    >>> is_spec_suite("ucf9"), is_spec_suite(suite_dir("stress")), is_spec_suite("/nonexistent")
+    (True, True, False)
+    """
+    if str(suite) in SUITE_NAMES:
+        return True
+    if not isinstance(suite, (str, os.PathLike)) or not str(suite):
+        return False
+    path = Path(suite)
+    try:
+        return (
+            path.is_dir()
+            and not (path / "seqinfo.ini").is_file()
+            and any(f.is_file() for f in path.glob("*.toml"))
+        )
+    except OSError:
+        return False
+
+
 def suite_label(suite: str | os.PathLike[str]) -> str:
     """How titles and logs name the suite: the built-in name, or the folder as given."""
     return str(suite)

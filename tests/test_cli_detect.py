@@ -145,9 +145,9 @@ def test_detect_bad_inputs(tmp_path, rendered, capsys):
 
 def test_detector_train_refuses_bad_flags(tmp_path, capsys):
     assert main(["detector", "train", "--out", str(tmp_path / "d"), "--workers", "999"]) == 2
-    assert "--workers" in _error_line(capsys, "detector")
+    assert "--workers" in _error_line(capsys, "detector train")
     assert main(["detector", "train", "--out", str(tmp_path / "d"), "--iterations", "0"]) == 2
-    assert "iterations" in _error_line(capsys, "detector")
+    assert "iterations" in _error_line(capsys, "detector train")
     assert not (tmp_path / "d").exists()
 
 

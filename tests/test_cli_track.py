@@ -185,6 +185,14 @@ def test_an_empty_results_file_scores_zero_and_says_so(tmp_path, seq, capsys):
     assert "the results hold no track" in capsys.readouterr().out
 
 
+def test_demo_frames_bound_is_the_embedded_sequences_length():
+    import tomllib
+
+    from crowdsim.commands.demo import DEMO_FRAMES, DEMO_SPEC
+
+    assert tomllib.loads(DEMO_SPEC)["frames"] == DEMO_FRAMES
+
+
 def test_demo_writes_table_curve_and_overlay(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--frames", "6", "--no-progress"]) == 0

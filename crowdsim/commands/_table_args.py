@@ -110,7 +110,8 @@ def add_episode_arguments(p: argparse.ArgumentParser, only_help: str) -> None:
     src.add_argument(
         "--suite",
         metavar="NAME",
-        help="built-in suite (ucf9, ucf9-shake, ucf9-drone, galleria) or a folder of MOT sequences",
+        help="built-in suite (ucf9, ucf9-shake, ucf9-drone, galleria, stress), a folder of "
+        "spec files (such as calibrate --out writes) or a folder of MOT sequences",
     )
     src.add_argument(
         "--scenarios",
@@ -124,7 +125,8 @@ def add_episode_arguments(p: argparse.ArgumentParser, only_help: str) -> None:
         "--heldout-only",
         nargs="+",
         metavar="SEQ",
-        help="with a suite folder: score on these (built-in suites and scenarios use other seeds)",
+        help="with a folder of MOT sequences: score on these (built-in suites, spec folders "
+        "and scenarios use other seeds)",
     )
     p.add_argument("--frames", type=int, metavar="N", help="frames per sequence")
 
@@ -132,14 +134,15 @@ def add_episode_arguments(p: argparse.ArgumentParser, only_help: str) -> None:
 def episode_objective(args: argparse.Namespace, **fields: object) -> object:
     """The :class:`envs.tuners.Objective` of :func:`add_episode_arguments`' flags (checked)."""
     from envs.tuners import Objective
-    from synth_data.suites import SUITE_NAMES
+    from synth_data.suites import is_spec_suite
 
     if args.only and not args.suite:
         raise ValueError("--only needs --suite (name scenarios in --scenarios)")
-    if args.heldout_only and (not args.suite or args.suite in SUITE_NAMES):
+    if args.heldout_only and (not args.suite or is_spec_suite(args.suite)):
         raise ValueError(
-            "--heldout-only names sequences of a suite folder; built-in suites and "
-            "--scenarios are scored on other seeds of the same sequences (drop it)"
+            "--heldout-only names sequences of a folder of MOT sequences; built-in suites, "
+            "spec folders and --scenarios are scored on other seeds of the same sequences "
+            "(drop it)"
         )
     if args.frames is not None and args.frames < 2:
         raise ValueError(f"--frames must be >= 2, got {args.frames}")

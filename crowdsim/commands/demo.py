@@ -21,6 +21,9 @@ import argparse
 import json
 from pathlib import Path
 
+DEMO_FRAMES = 100
+"""Frames of the demo sequence (``frames`` of :data:`DEMO_SPEC`)."""
+
 DEMO_SPEC = """\
 # crowdsim demo sequence: a short, dense marathon (embedded in crowdsim/commands/demo.py)
 name = "marathon_demo"
@@ -88,7 +91,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--frames",
         type=int,
         default=None,
-        help="truncate the demo sequence to N frames (default: the spec's 100)",
+        help=f"track the demo sequence's first N frames, 2..{DEMO_FRAMES} (default: all)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
@@ -134,8 +137,11 @@ def run(args: argparse.Namespace) -> int:
     from synth_data.generate import generate
     from synth_data.spec import parse_spec_text, spec_from_dict
 
-    if args.frames is not None and args.frames < 2:
-        raise ValueError(f"--frames must be >= 2, got {args.frames}")
+    if args.frames is not None and not 2 <= args.frames <= DEMO_FRAMES:
+        raise ValueError(
+            f"--frames must be in [2, {DEMO_FRAMES}] (the demo sequence's length), "
+            f"got {args.frames}"
+        )
     out: Path = args.out
     # before any work: a folder that cannot be made or written, and a file of one of the
     # demo's names that an earlier demo did not write, are refused

@@ -27,7 +27,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     frames = p.add_mutually_exclusive_group()
     frames.add_argument(
-        "--frames", type=int, default=1, metavar="N", help="detect the first N frames (1)"
+        "--frames",
+        type=int,
+        default=1,
+        metavar="N",
+        help="detect the first N frames (1); past frame 1 every head of every frame gets its "
+        "own id: detections, not an --init file (track would start each as a new person)",
     )
     frames.add_argument("--all", action="store_true", help="detect every frame")
     p.add_argument("--weights", default=None, metavar="FILE", help="weights (default: shipped)")

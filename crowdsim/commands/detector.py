@@ -60,7 +60,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=int,
         default=d.sequences,
         metavar="N",
-        help=f"generated training sequences ({d.sequences})",
+        help=f"generated training sequences, at least one per scene kind of the mix, up to "
+        f"100000 ({d.sequences})",
     )
     t.add_argument(
         "--batch", type=int, default=d.batch, metavar="B", help=f"crops per step ({d.batch})"

@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--similarity-px",
         type=float,
         default=15.0,
-        help="T_sim of the point similarity fed to TrackEval (px)",
+        help="T_sim of the point similarity fed to TrackEval, px in (0, 1000] (default 15)",
     )
     p.add_argument("--plot", help="write the accuracy-curve PNG here")
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)

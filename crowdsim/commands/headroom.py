@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="measure the room for scene-aware tuning and adaptive policies (oracle bounds)",
         description=__doc__.split("\n\n")[0].replace("``", "").replace("\n", " "),
     )
-    add_episode_arguments(p, only_help="with a built-in suite: these")
+    add_episode_arguments(p, only_help="with --suite: these sequences")
     p.add_argument(
         "--seeds", type=int, default=3, metavar="S", help="held-out sequences per family (3)"
     )

@@ -33,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="score defaults, tuned parameters and policies on held-out sequences",
         description=__doc__.split("\n\n")[0].replace("``", "").replace("\n", " "),
     )
-    add_episode_arguments(p, only_help="with a built-in suite: these")
+    add_episode_arguments(p, only_help="with --suite: these sequences")
     p.add_argument(
         "--seeds",
         type=int,

@@ -80,7 +80,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="scenario distribution (default 'all'; 'nonstationary': an event part-way "
         "through every episode; see crowdsim tune)",
     )
-    src.add_argument("--suite", metavar="NAME", help="built-in suite or folder of sequences")
+    src.add_argument(
+        "--suite",
+        metavar="NAME",
+        help="built-in suite, folder of spec files or folder of MOT sequences",
+    )
     p.add_argument("--only", nargs="+", metavar="SEQ", help="with --suite: these sequences")
     p.add_argument("--frames", type=int, metavar="N", help="frames per sequence")
     p.add_argument("--k", type=int, default=25, metavar="K", help="frames per step (25)")

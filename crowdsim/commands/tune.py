@@ -28,6 +28,8 @@ from crowdsim.commands._table_args import (
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from envs.param_space import extended_summary
+
     p = sub.add_parser(
         "tune",
         help="tune a tracker's parameters, BQP's by default (Optuna / Ray Tune)",
@@ -83,7 +85,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--extended",
         action="store_true",
-        help="also tune search factor, motion sigma and KCF learning rate",
+        help=f"also tune the tracker's extra parameters ({extended_summary()})",
     )
     add_tracker_argument(p)
     p.add_argument("--seed", type=int, default=0, help="sampler seed")

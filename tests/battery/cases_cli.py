@@ -850,7 +850,12 @@ case("demo-out-is-file", "demo --out {afile}", "afile: is a file, not a folder")
 case("demo-out-under-file", "demo --out {afile}/demo", "afile is a file, not a folder")
 case("demo-out-sysfs", "demo --out /sys/crowdsim-battery", "/sys/crowdsim-battery")
 case("demo-out-readonly", "demo --out {ro}/demo", "/ro is not writable", needs="ro")
-case("demo-frames-0", "demo --out {w}/d --frames 0 --no-progress", "--frames must be >= 2, got 0")
+case("demo-frames-0", "demo --out {w}/d --frames 0 --no-progress", "--frames must be in [2, 100]")
+case(
+    "demo-frames-past-the-sequence",
+    "demo --out {w}/d --frames 101 --no-progress",
+    "(the demo sequence's length), got 101",
+)
 case("demo-frames-text", "demo --out {w}/d --frames few", "'few'")
 
 # --- detector and train: flags named as given, not as the config field behind them ----------

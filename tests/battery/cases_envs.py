@@ -212,7 +212,7 @@ case(
 case(
     "envs-tune-heldout-only-scenarios",
     "tune --scenarios all --heldout-only s1 --trials 1 --out {w}/o",
-    "--heldout-only names sequences of a suite folder",
+    "--heldout-only names sequences of a folder of MOT sequences",
 )
 case(
     "envs-tune-folder-needs-heldout-only",

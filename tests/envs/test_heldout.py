@@ -74,6 +74,28 @@ def test_builtin_suite_sequences_are_reseeded_per_held_out_seed():
     assert len({(f, s.seed) for f, s in drawn}) == 4
 
 
+def test_a_folder_of_spec_files_is_reseeded_like_a_builtin_suite(tmp_path):
+    """A suite folder of specs (``calibrate --out`` writes one) renders in memory and is
+    re-seeded for held-out scoring, as its built-in twin is; a folder of MOT sequences is not."""
+    import shutil
+
+    from synth_data.suites import is_spec_suite, suite_files
+
+    for f in suite_files("ucf9"):
+        shutil.copy(f, tmp_path / f.name)
+    assert is_spec_suite(tmp_path) and is_spec_suite(str(tmp_path))
+    mine = Objective(suite=str(tmp_path), only=("seq8", "seq2"), frames=3)
+    builtin = Objective(suite="ucf9", only=("seq8", "seq2"), frames=3)
+    assert heldout_count(mine, 2) == heldout_count(builtin, 2) == 4
+    assert [spec.seed for _, _, spec in heldout_episodes(mine, 2)] == [
+        spec.seed for _, _, spec in heldout_episodes(builtin, 2)
+    ]
+    train = mine.episodes()
+    assert not train.on_disk and len(train) == 2
+    (tmp_path / "seqinfo.ini").write_text("[Sequence]\n")  # now a MOT sequence folder
+    assert not is_spec_suite(tmp_path)
+
+
 def test_scores_equal_the_runner_and_a_default_action_policy_equals_the_defaults():
     obj = objective()
     base = obj.space().base
