@@ -52,6 +52,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from crowdsim.checks import whole_numbers
 from tracker.cmc import IDENTITY, CMCParams, MotionCompensator, warp_points, warp_vectors
 from tracker.threads import check_threads, using_threads
 
@@ -106,7 +107,7 @@ def as_points(ids, points, what: str = "targets") -> tuple[np.ndarray, np.ndarra
     if ids.size == 0:
         return np.zeros(0, np.int64), np.zeros((0, 2))
     if ids.ndim != 1 or not np.issubdtype(ids.dtype, np.integer):
-        if ids.ndim == 1 and np.issubdtype(ids.dtype, np.floating) and np.all(ids == np.round(ids)):
+        if ids.ndim == 1 and np.issubdtype(ids.dtype, np.floating) and whole_numbers(ids):
             ids = ids.astype(np.int64)
         else:
             raise ValueError(

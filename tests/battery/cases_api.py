@@ -113,6 +113,31 @@ def _init_template(size: int):
 api_case("api-tracker-template-3000", _init_template(3000), "template_size must be an integer in")
 
 
+def _init_ids(ids):
+    def call(w: Path, env: Env) -> object:
+        from tracker.registry import make_tracker
+
+        frame = np.zeros((96, 128, 3), np.uint8)
+        return make_tracker("ncc").init(frame, ids, np.array([[40.0, 40.0], [60.0, 60.0]]), 8)
+
+    return call
+
+
+api_case("api-tracker-ids-inf", _init_ids([np.inf, 1.0]), "ids must be a 1-D integer array")
+api_case("api-tracker-ids-nan", _init_ids([np.nan, 1.0]), "ids must be a 1-D integer array")
+
+
+def _qp_block_ptr_inf(w: Path, env: Env) -> object:
+    import scipy.sparse as sp
+
+    from tracker.bqp.qp import BlockQP
+
+    return BlockQP(np.zeros(2), sp.csc_matrix((2, 2)), np.array([0.0, np.inf]))
+
+
+api_case("api-qp-block-ptr-inf", _qp_block_ptr_inf, "block_ptr must be integers")
+
+
 def _evaluate_duplicate(w: Path, env: Env) -> object:
     from tracker.metrics import evaluate
 

@@ -24,6 +24,8 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
+from crowdsim.checks import whole_numbers
+
 SYMMETRY_RTOL: float = 1e-9
 """Relative tolerance of the symmetry check of ``Q`` (see :func:`_check_csc`)."""
 
@@ -87,7 +89,7 @@ def _checked_layout(c: Any, block_ptr: Any) -> tuple[np.ndarray, np.ndarray, np.
     if bp.ndim != 1 or bp.shape[0] < 1:
         raise ValueError(f"BlockQP.block_ptr must be 1-D (n+1,), got shape {bp.shape}")
     if not np.issubdtype(bp.dtype, np.integer):
-        if np.issubdtype(bp.dtype, np.floating) and np.all(bp == np.round(bp)):
+        if np.issubdtype(bp.dtype, np.floating) and whole_numbers(bp):
             bp = bp.astype(np.int64)
         else:
             raise ValueError(f"BlockQP.block_ptr must be integers, got dtype {bp.dtype}")
