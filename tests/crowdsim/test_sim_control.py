@@ -128,6 +128,7 @@ def test_add_remove_query_round_trip_and_ids_never_reused():
     np.testing.assert_array_equal(sim.state.route[rows], [0, 1])
     assert 11 in sim.agents_in_range([2.0, 3.1], 0.2)
     assert 10 not in sim.agents_in_range([2.0, 3.1], 0.2)
+    assert 11 in sim.agents_in_range([2.05, 3.0], 0.2)  # the cell of a point off the grid
     # Periodic: a point just across the seam finds the agent at x = 1.
     assert 10 in sim.agents_in_range([sim.world.period - 0.1, 1.0], 1.2)
     sim.step()

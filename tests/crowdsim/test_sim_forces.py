@@ -219,3 +219,17 @@ def test_body_rows_count_the_walls_static_body_and_refuse_a_short_write():
     io.write(fields, rows)
     assert space.static_body.velocity == (0.0, 0.0)
     assert [b.velocity.x for b in space.bodies] == [1.0, 1.0, 1.0]
+
+
+def test_exponential_potential_repels_by_the_sum_of_the_radii():
+    """``potential="exponential"``: ``A exp((r_i + r_j - d) / B)`` along the line between two
+    people who see each other (hand-computed; no driving, wall or group force)."""
+    p = SocialForceParams(potential="exponential", headway_time=0.0, speed_cap=1000.0)
+    pos = np.array([[0.0, 0.0], [1.0, 0.0]])
+    facing = np.array([[1.0, 0.0], [-1.0, 0.0]])
+    radius = np.array([0.3, 0.2])
+    acc = social_force(
+        pos, np.zeros((2, 2)), radius, np.zeros(2), facing, np.array([-1, -1]), np.zeros((0, 5)), p
+    )
+    w = p.A * math.exp((0.3 + 0.2 - 1.0) / p.B)
+    np.testing.assert_allclose(acc, [[-w, 0.0], [w, 0.0]], rtol=1e-12)

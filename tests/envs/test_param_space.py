@@ -130,3 +130,21 @@ def test_tunable_validation():
         Tunable(name="zeta", low=0.0, default=2.0, high=1.0)
     with pytest.raises(ValueError, match="high"):
         Tunable(name="zeta", low=1.0, default=1.0, high=1.0)
+
+
+def test_integer_tunables_round_to_nearest():
+    space = ParamSpace(extended=True, tracker="pnmc")
+    values = space.typed({**dict.fromkeys(space.names, 1.0), "update_every": 10.6})
+    assert values["update_every"] == 11
+
+
+def test_candidate_actions_are_the_defaults_then_sobol_points_over_the_whole_box():
+    from scipy.stats import qmc
+
+    from envs.param_space import candidate_actions
+
+    actions = candidate_actions(ParamSpace(), 9, seed=3)
+    assert np.array_equal(actions[0], np.zeros(5))
+    want = 2.0 * qmc.Sobol(5, scramble=True, seed=3).random(8) - 1.0
+    np.testing.assert_array_equal(actions[1:], want)
+    assert (actions[1:] < 0).any() and (actions[1:] > 0).any()

@@ -521,3 +521,15 @@ def test_distribution_files_are_bounded_and_a_single_name_is_one_family(tmp_path
     (tmp_path / "b.json").write_bytes(b"\xff\xfe\x00binary")
     with pytest.raises(ValueError, match="b.json: not a JSON distribution file"):
         ScenarioDistribution.from_arg(str(tmp_path / "b.json"))
+
+
+def test_a_point_exactly_the_threshold_away_counts_as_tracked():
+    """The reward's acc@T counts errors ``<= T`` (the papers' "within T pixels")."""
+    env = TrackerTuningEnv(scenarios=dict(TINY), k_frames=5, threshold_px=1.0)
+    env.reset(seed=5)
+    ep = env._ep
+    ep.tracks[1:6] = ep.gt_points[1:6] + np.array([1.0, 0.0])  # every point 1 px off
+    acc, n = env._score(1, 5)
+    assert acc == 1.0 and n == np.isfinite(ep.gt_points[1:6, :, 0]).sum() > 0
+    ep.tracks[1:6] = ep.gt_points[1:6] + np.array([1.0 + 1e-9, 0.0])
+    assert env._score(1, 5) == (0.0, n)

@@ -249,3 +249,26 @@ def test_not_ours_names_the_first_file_crowdsim_did_not_write(tmp_path):
         == f"{other / 'manifest.json'} is not a crowdsim manifest (no sequences table)"
     )
     assert not_ours(tmp_path / "nothing") == f"{tmp_path / 'nothing'} is not a folder"
+
+
+def test_mot_ids_rank_negative_ids():
+    from synth_data.mot import mot_ids
+
+    assert mot_ids(np.array([5, -1, 3])).tolist() == [3, 1, 2]
+    assert mot_ids(np.array([5, 0, 3])).tolist() == [6, 1, 4]
+
+
+def test_gt_visibility_is_the_boxs_fraction_inside_the_frame():
+    """Without a drawn visibility, the column is the share of the head box in the frame: a
+    10 px box centred 3 px from the right edge has 8 of its 10 columns inside."""
+    from synth_data.mot import gt_rows
+
+    class Camera:
+        width, height = 100, 100
+
+        def visible(self, pix):
+            x, y = pix[..., 0], pix[..., 1]
+            return np.isfinite(pix).all(-1) & (x >= 0) & (x < 100) & (y >= 0) & (y < 100)
+
+    rows = gt_rows(np.array([[[97.0, 50.0]]]), Camera(), 10, np.array([1]))
+    assert rows.tolist() == [[1, 1, 92.0, 45.0, 10, 10, 1, 1, 0.8]]

@@ -487,3 +487,12 @@ def test_cmc_error_benchmark_reports_the_error_at_the_origin_and_over_the_frame(
     assert 0 <= row["error_px"] < 2 and row["failures"] == 0
     bad = run_benchmark("cmc_error.py", "--frames", "1")
     assert bad.returncode == 2 and "--frames must be >= 2, got 1" in bad.stderr
+
+
+def test_fit_shift_keeps_displacements_strictly_within_the_threshold():
+    from tracker.cmc import fit_shift
+
+    src = np.zeros((3, 2))
+    a, inliers = fit_shift(src, np.array([[0.0, 0.0], [1.0, 0.0], [0.5, 0.0]]), 0.5)
+    assert a.tolist() == [[1.0, 0.0, 0.5], [0.0, 1.0, 0.0]]
+    assert inliers.ravel().tolist() == [0, 0, 1]  # 0 and 1 lie exactly 0.5 from the median

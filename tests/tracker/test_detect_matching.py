@@ -204,3 +204,10 @@ def test_matching_returns_on_scenes_where_the_solver_looped_on_fractional_costs(
     )
     want = [_brute_force(np.array(p, float), np.array(g, float), r) for p, g, r in LOOPED]
     assert out.stdout.split() == [v for k, t in want for v in (str(k), str(round(t, 9)))]
+
+
+def test_the_most_pairs_come_first_even_through_an_augmenting_path():
+    """Prediction 0 is nearer head 1 (1 px) than head 0 (4 px), but only taking head 0 lets
+    prediction 1 pair too: two pairs at 4 px beat one at 1 px."""
+    p, g, d = match_points([[4.0, 0.0], [9.0, 0.0]], [[0.0, 0.0], [5.0, 0.0]], radius=4.0)
+    assert (p.tolist(), g.tolist(), d.tolist()) == ([0, 1], [0, 1], [4.0, 4.0])

@@ -315,3 +315,14 @@ def test_own_ids_stay_on_majority_mapping():
         [exact, exact[:, :1]], 1)) == "same"  # fmt: skip
     with pytest.raises(ValueError, match="needs the points"):
         resolve_id_mapping(ids, shifted, "auto")
+
+
+def test_majority_map_ties_go_to_the_earlier_person_and_the_earlier_track():
+    """A track with as many votes for two people maps to the earlier gt column; two tracks
+    with as many votes for one person: the earlier track gives the person's position."""
+    gt = np.array([[[0.0, 0.0], [100.0, 0.0]], [[0.0, 0.0], [100.0, 0.0]]])
+    ids, votes = map_track_ids([7, 8], gt, [0], np.array([[[1.0, 0.0]], [[101.0, 0.0]]]))
+    assert ids.tolist() == [7] and votes.tolist() == [1]
+    one = np.array([[[0.0, 0.0]], [[0.0, 0.0]]])
+    two = np.array([[[1.0, 0.0], [2.0, 0.0]], [[1.0, 0.0], [2.0, 0.0]]])
+    assert mapped_positions([7], one, [0, 1], two).tolist() == [[[1.0, 0.0]], [[1.0, 0.0]]]

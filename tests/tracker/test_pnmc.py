@@ -14,7 +14,7 @@ import pytest
 
 from tracker.pnmc import PNMCParams, PNMCTracker
 from tracker.pnmc.flow import InstantaneousFlow, batched_ncc, ncc_argmax
-from tracker.pnmc.queens import back_assign, fit_gmm, select_queens
+from tracker.pnmc.queens import QUEEN_ORDERS, back_assign, cluster_order_key, fit_gmm, select_queens
 from tracker.registry import make_tracker
 from tracker.testing import PALETTE, make_scene
 
@@ -525,3 +525,17 @@ def test_births_reselect_queens_and_copy_is_independent():
 def test_bad_params_name_field_and_value(field, value):
     with pytest.raises(ValueError, match=rf"PNMCParams\.{field} .*got {value!r}"):
         PNMCParams(**{field: value})
+
+
+def test_cluster_order_keys_by_hand():
+    mass, volume = np.array([2, 3]), np.array([4.0, 0.5])
+    want = {
+        "density": [0.5, 6.0],
+        "mass": [2.0, 3.0],
+        "volume": [4.0, 0.5],
+        "mass_volume": [8.0, 1.5],
+        "inverse_density": [2.0, 1.0 / 6.0],
+    }
+    assert set(want) == set(QUEEN_ORDERS)
+    for order, key in want.items():
+        np.testing.assert_allclose(cluster_order_key(mass, volume, order), key, rtol=1e-15)

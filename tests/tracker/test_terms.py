@@ -726,3 +726,11 @@ def test_abs_max_is_numpys():
     assert _abs_max(-np.full((2, 3), 2.5)) == 2.5
     v[123, 4] = np.nan
     assert np.isnan(_abs_max(v)) and np.isnan(np.abs(v).max())
+
+
+def test_a_correlation_exactly_at_the_threshold_links_the_pair():
+    """``coherent_groups`` links at ``corr >= threshold``: steps (5, 0) and (3, 4) have a
+    cosine of exactly 0.6."""
+    t = np.arange(4.0)[:, None]
+    history = np.stack([np.hstack([5 * t, 0 * t]), np.hstack([10 + 3 * t, 4 * t])], axis=1)
+    assert coherent_groups(history, radius=100.0, threshold=0.6).tolist() == [0, 0]
