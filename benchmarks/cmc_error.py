@@ -71,7 +71,11 @@ def measure(spec, frames: int, configs: dict[str, dict]) -> dict:
     images = list(seq.frames())
     gx, gy = np.meshgrid(np.linspace(0, seq.width - 1, 9), np.linspace(0, seq.height - 1, 9))
     grid = np.column_stack([gx.ravel(), gy.ravel()])
-    row = {"size": [seq.width, seq.height], "still": float(np.abs(truth).mean())}
+    row = {
+        "size": [seq.width, seq.height],
+        "frames": seq.length,
+        "still": float(np.abs(truth).mean()),
+    }
     for name, fields in configs.items():
         cmc = MotionCompensator(CMCParams(**fields))
         found, frame_error = [], []
@@ -96,9 +100,20 @@ def measure(spec, frames: int, configs: dict[str, dict]) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     add_suite_arguments(ap, "ucf9-shake")
-    ap.add_argument("--frames", type=int, default=80)
     ap.add_argument(
-        "--config", nargs="+", type=_config, default=[_config(c) for c in DEFAULT_CONFIGS]
+        "--frames",
+        type=int,
+        default=80,
+        help="first frames of each sequence, at least 2 (80; a shorter sequence gives all of "
+        "its own, recorded per sequence)",
+    )
+    ap.add_argument(
+        "--config",
+        nargs="+",
+        type=_config,
+        default=[_config(c) for c in DEFAULT_CONFIGS],
+        metavar="NAME={JSON}",
+        help="estimate settings to compare, each a name and CMCParams fields as JSON",
     )
     args = ap.parse_args()
     if args.frames < 2:
@@ -126,7 +141,8 @@ def main() -> int:
             for n in configs
         )
         print(f"{spec.name:<10}{'x'.join(map(str, r['size'])):>11}{r['still']:>7.3f}{cells}")
-    print(json.dumps({"suite": args.suite, "frames": args.frames, "sequences": rows}))
+    report = {"benchmark": "cmc_error", "suite": args.suite, "max_frames": args.frames}
+    print(json.dumps({**report, "sequences": rows}))
     return 0
 
 

@@ -83,8 +83,17 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     add_suite_arguments(ap, "ucf9")
     ap.add_argument("--tracker", default="bqp", help="a registered detection-free tracker")
-    ap.add_argument("--corners", nargs="+", type=int, default=[100], metavar="N")
-    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument(
+        "--corners",
+        nargs="+",
+        type=int,
+        default=[100],
+        metavar="N",
+        help="CMCParams.max_corners, one or more (100)",
+    )
+    ap.add_argument(
+        "--rounds", type=int, default=2, help="runs of each setting in turn, best kept (2)"
+    )
     ap.add_argument(
         "--redetect",
         nargs="+",

@@ -22,16 +22,31 @@ import time
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--people", type=int, default=1000)
-    ap.add_argument("--frames", type=int, default=10)
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--threads", type=int, nargs="+", default=None)
+    ap.add_argument(
+        "--people", type=int, default=1000, help="people in the crowd, 1..100000 (1000)"
+    )
+    ap.add_argument("--frames", type=int, default=10, help="frames timed, 2..100000 (10)")
+    ap.add_argument("--repeats", type=int, default=3, help="timed passes, best kept (3)")
+    ap.add_argument(
+        "--threads",
+        type=int,
+        nargs="+",
+        default=None,
+        help="torch and OpenCV thread counts, each 1..cores (default: 1 and all cores)",
+    )
     args = ap.parse_args()
     cores = os.cpu_count() or 1
     threads = args.threads or sorted({1, cores})
     for n in threads:
         if not 1 <= n <= cores:
             ap.error(f"--threads must be in [1, {cores}], got {n}")
+    for flag, value, lo, hi in (
+        ("--people", args.people, 1, 100_000),
+        ("--frames", args.frames, 2, 100_000),
+        ("--repeats", args.repeats, 1, 1000),
+    ):
+        if not lo <= value <= hi:
+            ap.error(f"{flag} must be in [{lo}, {hi}], got {value}")
 
     import cv2
     import numpy as np
@@ -77,7 +92,27 @@ def main() -> int:
             f"{r['method']:<14} {r['threads']:>7} {r['ms_per_frame']:>9.1f} {r['fps']:>9.1f} "
             f"{r['f1@5px']:>7.3f}"
         )
-    print(json.dumps({"size": "1280x720", "people": args.people, "rows": rows}))
+    ratios = {
+        str(n): round(
+            next(r for r in rows if r["threads"] == n and r["method"] == "head detector")[
+                "ms_per_frame"
+            ]
+            / next(r for r in rows if r["threads"] == n and r["method"] == "LoG baseline")[
+                "ms_per_frame"
+            ],
+            2,
+        )
+        for n in threads
+    }
+    print(f"head detector / LoG time per frame: {ratios} (by threads)")
+    report = {
+        "benchmark": "detect",
+        "size": "1280x720",
+        "people": args.people,
+        "rows": rows,
+        "time_ratio_detector_vs_log": ratios,
+    }
+    print(json.dumps(report))
     return 0
 
 

@@ -42,11 +42,14 @@ def main() -> int:
 
     from crowdsim.forces import social_force
     from crowdsim.params import SocialForceParams
+    from crowdsim.scenarios import MAX_AGENTS
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
-    ap.add_argument("--agents", type=int, default=100_000)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument(
+        "--threads", type=int, nargs="+", default=[1, 2], help="numba thread counts (1 2)"
+    )
+    ap.add_argument("--agents", type=int, default=100_000, help=f"agents, 1..{MAX_AGENTS} (100000)")
+    ap.add_argument("--repeats", type=int, default=5, help="timed calls, best kept (5)")
     args = ap.parse_args()
     most = numba.config.NUMBA_NUM_THREADS
     bad = [t for t in args.threads if not 1 <= t <= most]
@@ -54,6 +57,8 @@ def main() -> int:
         ap.error(f"--threads must be in [1, {most}] (NUMBA_NUM_THREADS), got {bad[0]}")
     if args.agents < 1 or args.repeats < 1:
         ap.error("--agents and --repeats must be >= 1")
+    if args.agents > MAX_AGENTS:
+        ap.error(f"--agents must be in [1, {MAX_AGENTS}], got {args.agents}")
     params, walls = SocialForceParams(), np.zeros((0, 5))
     social_force(*crowd(50), walls, params)  # compiles (or loads) the serial kernel first
     arrays = crowd(args.agents)

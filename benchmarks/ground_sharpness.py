@@ -51,10 +51,10 @@ def measure(spec, frames: int) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     add_suite_arguments(ap, "ucf9-shake")
-    ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--frames", type=int, default=40, help="frames per sequence, 1..10000 (40)")
     args = ap.parse_args()
-    if args.frames < 1:
-        ap.error(f"--frames must be >= 1, got {args.frames}")
+    if not 1 <= args.frames <= 10_000:
+        ap.error(f"--frames must be in [1, 10000], got {args.frames}")
     specs = suite_specs_or_exit(ap, args)
     print(f"{'sequence':<10}{'shake px':>10}{'shaken':>10}{'still':>10}{'ratio':>8}")
     rows = {}

@@ -1,5 +1,6 @@
-"""Equal strips against strips re-cut at the agents' quantiles, on scenes whose crowd is not
-spread evenly along the strips' axis.
+"""Equal strips against strips re-cut at the agents' quantiles, on unevenly spread crowds.
+
+The scenes' crowds are not spread evenly along the strips' axis.
 
 The split simulator (:mod:`crowdsim.decomposition`) starts with ``N`` equal strips. In a
 station or a circulation square most people are in the middle of the world: 250 steps into a
@@ -91,11 +92,18 @@ def main() -> int:
     from crowdsim.scenarios import SCENARIOS
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--scenarios", nargs="+", default=["station", "circulation"])
-    ap.add_argument("--workers", type=int, nargs="+", default=[2])
-    ap.add_argument("--agents", type=int, default=40_000)
-    ap.add_argument("--warmup", type=int, default=100)
-    ap.add_argument("--steps", type=int, default=100)
+    ap.add_argument(
+        "--scenarios",
+        nargs="+",
+        default=["station", "circulation"],
+        help="scenarios to split (station circulation)",
+    )
+    ap.add_argument(
+        "--workers", type=int, nargs="+", default=[2], help="worker counts, each 2..cores (2)"
+    )
+    ap.add_argument("--agents", type=int, default=40_000, help="agents per scene (40000)")
+    ap.add_argument("--warmup", type=int, default=100, help="steps before timing (100)")
+    ap.add_argument("--steps", type=int, default=100, help="timed steps (100)")
     ap.add_argument(
         "--png",
         default="benchmarks/out/split_balance.png",

@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
+import os
 import time
 
 import numba
@@ -173,12 +174,21 @@ def plot(rows: list[dict], path: str) -> None:
 
 def main() -> int:
     from crowdsim.checks import require_cpus
+    from crowdsim.scenarios import MAX_AGENTS
 
+    cores = os.cpu_count() or 1
+    default_workers = sorted({min(2, cores), min(4, cores)} - {1}) or [1]
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--workers", type=int, nargs="+", default=[2, 4])
-    ap.add_argument("--agents", type=int, default=100_000)
-    ap.add_argument("--warmup", type=int, default=10)
-    ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument(
+        "--workers",
+        type=int,
+        nargs="+",
+        default=default_workers,
+        help=f"worker counts beside 1, each 1..cores (default here: {default_workers})",
+    )
+    ap.add_argument("--agents", type=int, default=100_000, help=f"agents, 1..{MAX_AGENTS} (100000)")
+    ap.add_argument("--warmup", type=int, default=10, help="steps before timing (10)")
+    ap.add_argument("--steps", type=int, default=20, help="timed steps (20)")
     ap.add_argument("--no-probes", action="store_true", help="skip the machine probes")
     ap.add_argument(
         "--png",
@@ -193,6 +203,8 @@ def main() -> int:
         ap.error(str(exc))
     if min(args.agents, args.warmup, args.steps) < 1:
         ap.error("--agents, --warmup and --steps must be >= 1")
+    if args.agents > MAX_AGENTS:
+        ap.error(f"--agents must be in [1, {MAX_AGENTS}], got {args.agents}")
     from crowdsim.progress import progress_bar
 
     counts = [1] + [w for w in args.workers if w > 1]

@@ -28,6 +28,7 @@ import argparse
 import hashlib
 import json
 import os
+from pathlib import Path
 
 # as the ``crowdsim`` command sets them (crowdsim/cli.py): numba's OpenMP threads sleep
 # between parallel regions instead of spinning on the cores the FFT workers need, and malloc
@@ -93,6 +94,14 @@ def main() -> int:
         over["fw_variant"] = args.fw_variant
     if not 1 <= args.threads <= numba.config.NUMBA_NUM_THREADS:
         ap.error(f"--threads must be in [1, {numba.config.NUMBA_NUM_THREADS}], got {args.threads}")
+    if not 1 <= args.targets <= 100_000:
+        ap.error(f"--targets must be in [1, 100000], got {args.targets}")
+    if not 1 <= args.repeats <= 1000:
+        ap.error(f"--repeats must be in [1, 1000], got {args.repeats}")
+    if args.frames is not None and args.frames < 2:
+        ap.error(f"--frames must be >= 2, got {args.frames}")
+    if args.sequence and not Path(args.sequence).exists():
+        ap.error(f"--sequence {args.sequence}: no such sequence folder or video file")
     numba.set_num_threads(args.threads)
 
     from crowdsim.bench.track import packed_size

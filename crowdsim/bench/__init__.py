@@ -54,8 +54,12 @@ def main(name: str, argv: list[str] | None = None) -> int:
 def add_suite_arguments(parser: argparse.ArgumentParser, default: str) -> None:
     """``--suite`` (default ``default``) and ``--only SEQ ...``, as the per-suite scripts in
     ``benchmarks/`` take them; :func:`suite_specs_or_exit` reads them."""
-    parser.add_argument("--suite", default=default)
-    parser.add_argument("--only", nargs="+", default=None, metavar="SEQ")
+    parser.add_argument(
+        "--suite", default=default, help=f"built-in suite or folder of spec files ({default})"
+    )
+    parser.add_argument(
+        "--only", nargs="+", default=None, metavar="SEQ", help="only these sequences (all)"
+    )
 
 
 def suite_specs_or_exit(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list:

@@ -439,9 +439,16 @@ def run(args: argparse.Namespace) -> int:
     chosen = _sections(args.only)
     for name in ("agents", "steps", "repeat", "episodes", "vector_steps", "k"):
         if getattr(args, name, 1) < 1:
-            raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
-    if min(getattr(args, "targets", [1]) + getattr(args, "workers", [1])) < 1:
-        raise ValueError("--targets and --workers must be >= 1")
+            flag = "--" + name.replace("_", "-")
+            raise ValueError(f"{flag} must be >= 1, got {getattr(args, name)}")
+    for name in ("targets", "workers"):
+        bad = [v for v in getattr(args, name, None) or () if v < 1]
+        if bad:
+            raise ValueError(f"--{name} must be >= 1, got {bad[0]}")
+    if getattr(args, "episode_cache", None):
+        from crowdsim.checks import require_output_dir
+
+        require_output_dir("--episode-cache", args.episode_cache)
     if getattr(args, "frames", 2) < 2:
         raise ValueError(f"--frames must be >= 2, got {args.frames}")
     if getattr(args, "warmup", 0) < 0:

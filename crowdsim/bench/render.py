@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=10,
         metavar="PX",
-        help="person template size in pixels (default 10)",
+        help="person template size in pixels, 4..64 (default 10)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic crowd")
     parser.add_argument(
@@ -155,12 +155,19 @@ def run_case(
 def run(args: argparse.Namespace) -> int:
     import os
 
+    from crowdsim.checks import require_number
+    from crowdsim.scenarios import MAX_AGENTS
+
     if args.frames < 1:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
+    require_number("", "--seed", args.seed, lo=0, integer=True)
+    require_number("", "--template-px", args.template_px, lo=4, hi=64, integer=True)
     cases = [_parse_case(c) for c in args.cases]
     for w, h, n in cases:
-        if not (8 <= w <= 16384 and 8 <= h <= 16384 and n >= 0):
-            raise ValueError(f"--cases: bad case {w}x{h}:{n}")
+        if not (8 <= w <= 16384 and 8 <= h <= 16384 and 0 <= n <= MAX_AGENTS):
+            raise ValueError(
+                f"--cases: bad case {w}x{h}:{n} (sides 8..16384 px, 0..{MAX_AGENTS} agents)"
+            )
     knobs = _parse_knobs(args.knobs)
     rows = [run_case(w, h, n, args.frames, args.template_px, args.seed, knobs) for w, h, n in cases]
     head = (

@@ -235,12 +235,15 @@ def run(args: argparse.Namespace) -> int:
     require_number("", "--reference-tol", args.reference_tol, lo=0, lo_open=True)
     require_number("", "--reference-max-targets", args.reference_max_targets, lo=0, integer=True)
     if args.save_npz:  # the files are written after the runs: check where they go first
+        if not str(args.save_npz).lower().endswith(".npz"):
+            raise ValueError(f"--save-npz must end in .npz, got {args.save_npz!r}")
         for given in args.from_npz or ():
             require_apart("--save-npz", args.save_npz, {"--from-npz": given})
         require_replaceable("--save-npz", args.save_npz, args.overwrite)
     if not args.no_plot:
         require_output_dir("--out", args.out)
         require_replaceable("--out", os.path.join(args.out, PLOT), args.overwrite)
+    require_number("", "--eps", args.eps, lo=0)
     params = {v: FWParams(variant=v, eps=args.eps, max_iter=args.max_iter) for v in VARIANTS}
     t0 = time.perf_counter()
     problems = _problems(args)

@@ -936,6 +936,21 @@ BENCH = (
         "solver --save-npz {afile}/q.npz",
         "afile is a file, not a folder",
     ),
+    (
+        "bench-solver-npz-suffix",
+        "solver --sizes 10 --save-npz {w}/q",
+        "--save-npz must end in .npz, got",
+    ),
+    ("bench-solver-eps-neg", "solver --eps -1", "--eps must be a finite number >= 0, got -1.0"),
+    ("bench-render-seed-neg", "render --seed -1", "--seed must be an integer >= 0, got -1"),
+    ("bench-render-template-1", "render --template-px 1", "--template-px must be an integer in"),
+    ("bench-envs-vector-steps-0", "envs --vector-steps 0", "--vector-steps must be >= 1, got 0"),
+    ("bench-envs-targets-0", "envs --targets 0", "--targets must be >= 1, got 0"),
+    (
+        "bench-envs-cache-under-file",
+        "envs --episode-cache {afile}/c",
+        "--episode-cache {afile}/c: {afile} is a file, not a folder",
+    ),
 )
 for cid, argv, needle in BENCH:
     case(cid, f"bench {argv}", needle)

@@ -356,15 +356,19 @@ def save_many(path: str | os.PathLike, qps: list[BlockQP]) -> None:
     """Write several problems to one ``.npz``.
 
     A single problem is stored under the plain keys ``c, Q_data, Q_indices, Q_indptr,
-    block_ptr``; several under ``p0/c, p0/Q_data, ...``, ``p1/...`` and ``count``.
+    block_ptr``; several under ``p0/c, p0/Q_data, ...``, ``p1/...`` and ``count``. The file is
+    written atomically, at ``path`` exactly (numpy would add ``.npz`` to a name without it).
     """
+    from crowdsim.atomic import atomic_path
+
     if len(qps) == 1:
-        np.savez_compressed(path, **qps[0].to_arrays())
-        return
-    arrays: dict[str, np.ndarray] = {"count": np.array(len(qps))}
-    for i, qp in enumerate(qps):
-        arrays.update(qp.to_arrays(prefix=f"p{i}/"))
-    np.savez_compressed(path, **arrays)
+        arrays = qps[0].to_arrays()
+    else:
+        arrays = {"count": np.array(len(qps))}
+        for i, qp in enumerate(qps):
+            arrays.update(qp.to_arrays(prefix=f"p{i}/"))
+    with atomic_path(path, suffix=".npz") as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
 
 
 def load_many(path: str | os.PathLike) -> list[BlockQP]:
