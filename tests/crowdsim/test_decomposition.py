@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 import crowdsim.decomposition as dec
 from crowdsim.cli import main
-from crowdsim.decomposition import StripLayout, WorkerFailed, strip_layout
+from crowdsim.decomposition import StripLayout, WorkerFailed, _write_back, strip_layout
 from crowdsim.scenarios import make_scenario
 from crowdsim.simulation import Simulation
 from crowdsim.validation import corridor_speed, lane_formation, overlap_stats
@@ -314,3 +314,27 @@ def test_sorted_differences_are_setdiff1d(a, b):
     gone, new = dec._sorted_differences(a, b)
     np.testing.assert_array_equal(gone, np.setdiff1d(a, b, assume_unique=True))
     np.testing.assert_array_equal(new, np.setdiff1d(b, a, assume_unique=True))
+
+
+def test_balanced_strips_crowded_at_the_far_end_are_pushed_back_inside():
+    """Agents packed at the top end: strips are pushed back, each 2 * halo wide."""
+    lay = StripLayout.equal(axis=0, lo=0.0, width=25.0, n=4, period=0.0, halo=2.0)
+    bal = lay.balanced(np.linspace(98.0, 100.0, 100))
+    assert bal.edges == (0.0, 88.0, 92.0, 96.0, 100.0)
+
+
+def test_write_back_keeps_agents_within_one_metre_outside_the_bounds():
+    """An agent up to 1 m beyond the y bounds is still written back; one farther out has left."""
+    bodies = np.array([[5.0, 10.5, 1.0, 0.0], [5.0, 11.5, 1.0, 0.0], [5.0, -0.5, 0.0, 1.0]])
+    rows = np.arange(3, dtype=np.int64)
+    ids = np.array([0, 1, 2], np.int64)
+    wp = np.array([3, 4, 5], np.int64)
+    bounds = np.array([0.0, 0.0, 10.0, 10.0])
+    pos = np.zeros((3, 2))
+    vel = np.zeros((3, 2))
+    wp_out = np.zeros(3, np.int64)
+    alive = np.zeros(3, np.uint8)
+    assert _write_back(bodies, rows, ids, wp, 0.0, bounds, pos, vel, wp_out, alive)
+    np.testing.assert_array_equal(alive, [1, 0, 1])
+    np.testing.assert_array_equal(pos, [[5.0, 10.5], [0.0, 0.0], [5.0, -0.5]])
+    np.testing.assert_array_equal(wp_out, [3, 0, 5])

@@ -15,6 +15,7 @@ import synth_data.spec
 from crowdsim import knobs
 from crowdsim.appearance_model import AppearanceParams, Encoding
 from crowdsim.camera import Camera
+from crowdsim.knobs import knob
 from crowdsim.lab import calibration
 from crowdsim.lab.difficulty import DIFFICULTY_GROUPS, variant_specs
 from synth_data.spec import CAMERA_FIELDS, spec_from_dict
@@ -179,3 +180,12 @@ def test_the_static_profile_keeps_a_fixed_camera_and_realistic_image_formation()
     assert "Realistic for a fixed camera: up to 10 (Liu et al." in docs
     with pytest.raises(ValueError, match="profile must be one of"):
         knobs.knob_values(spec, 0.5, 0.5, "shaky")
+
+
+def test_a_log_scale_knob_switches_on_exactly_at_its_on_value():
+    """Knob.at: below `on` a knob stays at its default; at `on` it takes `easy`."""
+    k = knob("video_kbps")
+    assert (k.on, k.easy, k.default) == (0.1, 4000.0, 0.0)
+    assert k.at(0.1, 0.0) == 4000.0
+    assert k.at(0.0999, 0.0) == 0.0
+    assert k.at(1.0, 0.0) == 150.0

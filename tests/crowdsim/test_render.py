@@ -7,9 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from crowdsim.appearance_model import AppearanceParams, build_sprite_bank
+from crowdsim.appearance_model import (
+    PROMINENT_COLOURS,
+    AppearanceParams,
+    appearance_colours,
+    build_sprite_bank,
+)
 from crowdsim.camera import Camera
-from crowdsim.render import SceneRenderer, prepare_agents
+from crowdsim.render import SceneRenderer, _headings, assign_appearance, prepare_agents
 from crowdsim.trajectories import Trajectories
 from synth_data.mot import gt_rows, mot_ids, read_sequence
 from synth_data.writer import write_sequence
@@ -320,3 +325,47 @@ def test_overwrite_checks_ownership_again_before_the_swap(tmp_path):
 def test_ground_sharpness_benchmark_names_bad_flags(run_benchmark, args, message):
     out = run_benchmark("ground_sharpness.py", *args)
     assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr
+
+
+def test_headings_before_the_first_move_are_back_filled():
+    """Headings before an agent's first move are back-filled, not random."""
+    t = np.arange(6, dtype=np.float64)
+    pixels = np.stack([np.full(6, 10.0), 5.0 + 2.0 * t], axis=1)[:, None, :]  # walks +v (down)
+    speed_ok = np.array([False, False, True, True, True, True])[:, None]
+    out = _headings(pixels, speed_ok, np.random.default_rng(0))
+    np.testing.assert_allclose(out[:, 0], np.full(6, math.pi / 2))
+
+
+def test_prominent_agents_get_a_prominent_look_and_the_rest_a_cluster_variant():
+    """Prominent agents get the prominent looks (indices from n_var on), others below."""
+    params = AppearanceParams()
+    n_var = params.n_clusters * params.variants_per_cluster
+    prominent = np.arange(400) % 2 == 0
+    app, prom = assign_appearance(prominent, 400, params, np.random.default_rng(3))
+    np.testing.assert_array_equal(prom, prominent)
+    assert (app[prominent] >= n_var).all()
+    assert (app[prominent] < n_var + len(PROMINENT_COLOURS)).all()
+    assert set(app[prominent].tolist()) == set(range(n_var, n_var + len(PROMINENT_COLOURS)))
+    assert (app[~prominent] < n_var).all() and (app[~prominent] >= 0).all()
+
+
+def test_clothing_contrast_scales_colours_about_the_ground():
+    """Contrast c maps a clothing colour x to ground + c (x - ground)."""
+    full = appearance_colours(AppearanceParams(), np.random.default_rng(0))
+    half = appearance_colours(AppearanceParams(contrast=0.5), np.random.default_rng(0))
+    ground = np.array(AppearanceParams().ground_bgr, np.float64)
+    np.testing.assert_allclose(half, ground + 0.5 * (np.clip(full, 0, 255) - ground), atol=1e-9)
+    assert np.abs(half - ground).max() < np.abs(full - ground).max()
+
+
+def test_moving_shadows_wrap_over_the_frame_plus_one_mask():
+    """Moving shadows wrap over [-S, W) x [-S, H), reaching the right and bottom edges."""
+    cam = Camera(px_per_m=10.0, width=64, height=48)
+    params = AppearanceParams(moving_shadow_density=0.5)
+    r = SceneRenderer(cam, params, seed=1, fps=25.0)
+    size = int(math.ceil(2.0 * params.moving_shadow_m * cam.px_per_m)) + 3
+    corners = np.stack([r.moving_shadow_corners(t) for t in range(0, 2000, 5)])
+    assert corners.shape[1] > 3
+    x, y = corners[..., 0], corners[..., 1]
+    assert x.min() >= -size and x.max() <= 63 and y.min() >= -size and y.max() <= 47
+    assert x.max() >= 62 and y.max() >= 46

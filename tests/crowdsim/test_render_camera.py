@@ -197,3 +197,26 @@ def test_frame_motion_carries_every_ground_point_from_one_frame_to_the_next():
         np.testing.assert_allclose(warp_points(motion[t - 1], seen[t - 1]), seen[t], atol=1e-9)
     still = Camera(px_per_m=10.0, width=64, height=48)
     np.testing.assert_array_equal(still.frame_motion(3), np.tile(np.eye(2, 3), (2, 1, 1)))
+
+
+def test_drone_view_is_a_rotation_and_zoom_about_the_frame_centre():
+    """Drone maps are z R(theta) about the frame centre (proper rotation, centre fixed)."""
+    cam = Camera(px_per_m=10.0, width=160, height=90, seed=4, rotate_deg=20.0, zoom=0.2)
+    m = cam.drone(200)
+    lin = m[:, :, :2]
+    assert np.abs(lin[:, 1, 0]).max() > 0.1  # it does rotate
+    np.testing.assert_allclose(lin[:, 0, 1], -lin[:, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(lin[:, 0, 0], lin[:, 1, 1], atol=1e-12)
+    centre = np.array([80.0, 45.0])
+    np.testing.assert_allclose(lin @ centre + m[:, :, 2], np.tile(centre, (200, 1)), atol=1e-9)
+
+
+def test_visible_includes_the_last_pixel_row_and_column():
+    """visible() includes the last pixel column and row; beyond (or inside margin) is out."""
+    cam = Camera(px_per_m=10.0, width=100, height=50)
+    px = np.array([[99.0, 49.0], [0.0, 0.0], [99.5, 10.0], [10.0, 49.5], [-0.5, 10.0]])
+    np.testing.assert_array_equal(cam.visible(px), [True, True, False, False, False])
+    np.testing.assert_array_equal(
+        cam.visible(np.array([[97.0, 47.0], [97.5, 20.0], [2.0, 2.0], [1.5, 2.0]]), margin=2.0),
+        [True, False, True, False],
+    )

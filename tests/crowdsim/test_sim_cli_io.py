@@ -207,3 +207,27 @@ def test_bench_bad_flags_are_user_errors():
         text=True,
     )
     assert proc.returncode == 2 and "--densities must lie in (0, 6]" in proc.stderr
+
+
+def test_csv_frames_are_shifted_to_start_at_row_zero(tmp_path):
+    """A CSV whose first frame is 5 loads with that frame as row 0 and no empty leading rows."""
+    path = tmp_path / "late.csv"
+    path.write_text("frame,id,x,y\n5,7,1.0,2.0\n6,7,1.5,2.0\n7,3,4.0,4.0\n")
+    traj = Trajectories.from_csv(path, fps=25.0)
+    assert traj.positions.shape == (3, 2, 2) and traj.ids.tolist() == [3, 7]
+    expect = np.full((3, 2, 2), np.nan)
+    expect[0, 1] = [1.0, 2.0]
+    expect[1, 1] = [1.5, 2.0]
+    expect[2, 0] = [4.0, 4.0]
+    np.testing.assert_array_equal(traj.positions, expect)
+    assert traj.dt == 1 / 25.0
+
+
+def test_velocities_are_backward_differences_in_metres_per_second():
+    """velocities() divides the step by dt and is NaN at entry rows and where absent."""
+    pos = np.full((3, 1, 2), np.nan)
+    pos[1, 0] = [0.0, 0.0]
+    pos[2, 0] = [0.1, -0.2]
+    vel = Trajectories(pos, np.array([0]), dt=0.04).velocities()
+    assert np.isnan(vel[:2]).all()
+    np.testing.assert_allclose(vel[2, 0], [2.5, -5.0])

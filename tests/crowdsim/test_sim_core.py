@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from crowdsim.params import SocialForceParams
-from crowdsim.scenarios import SCENARIOS, make_scenario
+from crowdsim.scenarios import SCENARIOS, _thin_to_min_distance, make_scenario, weidmann_speed
 from crowdsim.simulation import Simulation
 from crowdsim.validation import max_overlap
 
@@ -253,3 +253,24 @@ def test_stepping_does_not_leak_the_pymunk_rows():
     sim.run(150)
     grown = _resident_mb() - before
     assert grown < 12.0, grown
+
+
+def test_counterflow_sources_split_the_inflow_by_right_fraction():
+    """Counterflow sources split the Weidmann inflow by right_fraction and 1 - it."""
+    sc = make_scenario("counterflow", n_agents=10, density=1.0, width=4.0, right_fraction=0.25)
+    setup = sc.build(np.random.default_rng(0))
+    flow = 1.0 * float(weidmann_speed(1.0)) * 4.0
+    left, right = setup.sources
+    assert (left.route, right.route) == (0, 1)
+    assert left.rate == pytest.approx(0.25 * flow)
+    assert right.rate == pytest.approx(0.75 * flow)
+    assert right.heading == (-1.0, 0.0)
+
+
+def test_thinning_keeps_the_earlier_candidate_of_each_close_pair():
+    """Greedy dart throwing keeps candidates in order and drops the later point of a close pair."""
+    cand = np.array([[0.0, 0.0], [0.8, 0.0], [1.6, 0.0], [5.0, 0.0]])
+    np.testing.assert_array_equal(
+        _thin_to_min_distance(cand, 1.0, 10), [[0.0, 0.0], [1.6, 0.0], [5.0, 0.0]]
+    )
+    np.testing.assert_array_equal(_thin_to_min_distance(cand, 1.0, 2), [[0.0, 0.0], [1.6, 0.0]])

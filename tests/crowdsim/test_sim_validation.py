@@ -143,3 +143,24 @@ def test_large_crowd_builds_and_steps():
     sim = Simulation(make_scenario("commuters", n_agents=10_000, density=2.0), seed=0, record=False)
     sim.run(2)
     assert sim.state.n >= 9_900 and np.isfinite(sim.state.pos).all()
+
+
+def test_lane_order_parameter_squares_a_mixed_neighbourhood():
+    """Lane order squares (n_same - n_opp) / n: a mixed neighbourhood gives 1/9, not 1/3."""
+    pos = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    sign = np.array([1, 1, 1, -1])
+    assert lane_order_parameter(pos, sign) == pytest.approx((3 * (1 / 9) + 1.0) / 4)
+
+
+def test_lane_order_neighbours_lie_strictly_inside_the_window_and_band():
+    """Lane-order neighbours lie strictly inside window (x) and band (y)."""
+    assert math.isnan(lane_order_parameter(np.array([[0.0, 0.0], [5.0, 0.0]]), np.array([1, 1])))
+    assert math.isnan(lane_order_parameter(np.array([[0.0, 0.0], [5.004, 0.0]]), np.array([1, 1])))
+    assert math.isnan(lane_order_parameter(np.array([[0.0, 0.0], [0.0, 0.3]]), np.array([1, 1])))
+    assert lane_order_parameter(np.array([[0.0, 0.0], [4.99, 0.29]]), np.array([1, 1])) == 1.0
+
+
+def test_fundamental_diagram_global_density_is_agents_per_area():
+    """FDPoint.global_density is n / (period * width), the corridor's target density."""
+    (p,) = fundamental_diagram([1.0], length=10.0, width=4.0, warmup_s=0.2, measure_s=1.0)
+    assert p.global_density == pytest.approx(1.0, rel=0.05)

@@ -252,3 +252,30 @@ def test_shared_policy_recipe_runs():
         ppo_kwargs={"batch_size": 32, "n_epochs": 1},
     )
     assert len(curve) >= 1 and np.isfinite(curve).all()
+
+
+def test_progress_reward_is_unwrapped_across_the_periodic_seam():
+    """Crossing a periodic seam is rewarded as true progress, not minus a period."""
+    env = crowd_v0.parallel_env(n_agents=1, scenario_params=SPARSE)
+    env.reset_arrays(0)
+    sim = env.sim
+    period = sim.world.period
+    sim.set_state(pos=[[period - 0.01, 15.0]], vel=[[1.3, 0.0]])
+    _, rew, term, _ = env.step_arrays(np.array([[1.3, 0.0]]))
+    assert sim.state.pos[0, 0] < 1.0  # it did wrap
+    expected = (sim.state.pos[0, 0] + period - (period - 0.01)) / sim.params.dt
+    assert rew[0] == pytest.approx(expected, rel=1e-9) and rew[0] == pytest.approx(1.3, rel=1e-6)
+    assert not term[0]
+
+
+def test_reward_charges_the_overlap_with_a_wall():
+    """collision_weight * (r - clearance) is taken off an agent pressed into a wall."""
+    env = crowd_v0.parallel_env(n_agents=1, scenario_params=SPARSE, collision_weight=10.0)
+    env.reset_arrays(0)
+    sim = env.sim
+    sim.set_state(pos=[[sim.world.period / 2, 0.1]], vel=[[0.0, 0.0]])
+    _, rew, _, _ = env.step_arrays(np.array([[0.0, 0.0]]))
+    half = float(sim.world.walls[0, 4])
+    overlap = float(sim.state.radius[0]) - (float(sim.state.pos[0, 1]) - half)
+    assert overlap > 0.05  # still pressed into the wall after the step
+    assert rew[0] == pytest.approx(-10.0 * overlap, rel=1e-9)

@@ -4,6 +4,8 @@ a damaged entry is moved aside and rendered again, never trusted."""
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
 import subprocess
 import sys
@@ -12,11 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import envs.episodes as episodes
 from envs.episodes import (
     DAMAGED_DIR,
     EpisodeCache,
     ScenarioDistribution,
     ScenarioEpisodes,
+    _Cache,
     episode_key,
     make_episodes,
     spec_sequence,
@@ -239,3 +243,50 @@ def test_train_cache_flags_are_checked(tmp_path, monkeypatch, capsys, argv, need
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and needle in err and "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_episode_key_changes_with_the_code_digest(monkeypatch):
+    """The key is sha256 of (format, version, spec digest, code digest): other code, another key."""
+    spec = ScenarioEpisodes(TINY).spec(0)
+    key = episode_key(spec)
+    doc = ["crowdsim-episode", 1, spec.digest(), episodes.code_digest()]
+    assert key == hashlib.sha256(json.dumps(doc).encode()).hexdigest()[:40]
+    monkeypatch.setattr(episodes, "code_digest", lambda: "0" * 64)
+    assert episode_key(spec) != key
+
+
+def test_in_memory_episode_cache_evicts_the_least_recently_used():
+    """_Cache is an LRU: a hit refreshes an entry, so the next insertion evicts the other one."""
+    built: list[str] = []
+    cache = _Cache(2)
+
+    def get(key):
+        return cache.get(key, lambda: built.append(key) or key.upper())
+
+    assert [get("a"), get("b"), get("a"), get("c")] == ["A", "B", "A", "C"]
+    assert built == ["a", "b", "c"]
+    get("a")  # still there
+    assert built == ["a", "b", "c"]
+    get("b")  # evicted by c
+    assert built == ["a", "b", "c", "b"]
+
+
+def test_an_entry_with_an_empty_frame_is_damaged(tmp_path):
+    """A zero-length frame (with consistent checksums) is a damaged entry, not loaded."""
+    spec = ScenarioEpisodes(TINY).spec(1)
+    root = tmp_path / "cache"
+    EpisodeCache(root).sequence(spec)
+    entry = EpisodeCache(root).entry(spec)
+    with np.load(entry / "truth.npz") as z:
+        truth = {k: z[k].copy() for k in z.files}
+    truth["offsets"][1] = truth["offsets"][0]  # frame 0 has no bytes
+    buf = io.BytesIO()
+    np.savez(buf, **truth)
+    (entry / "truth.npz").write_bytes(buf.getvalue())
+    meta = json.loads((entry / "episode.json").read_text())
+    meta["sha256"]["truth.npz"] = hashlib.sha256(buf.getvalue()).hexdigest()
+    (entry / "episode.json").write_text(json.dumps(meta))
+    logs: list[str] = []
+    cache = EpisodeCache(root, log=logs.append)
+    assert cache.load(spec) is None
+    assert cache.damaged == 1 and "inconsistent" in logs[0]

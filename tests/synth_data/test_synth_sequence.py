@@ -8,7 +8,12 @@ import cv2
 import numpy as np
 import pytest
 
-from synth_data.births import births_from_ground_truth, births_from_points, read_points_csv
+from synth_data.births import (
+    DetectionBirths,
+    births_from_ground_truth,
+    births_from_points,
+    read_points_csv,
+)
 from synth_data.generate import generate
 from synth_data.mot import MotSequence, read_sequence
 from synth_data.scene import Scene
@@ -262,3 +267,27 @@ def test_mot_folder_is_a_source_with_births_and_init(tmp_path):
     mem = load_crowd(tmp_path / "out" / "tiny", max_frames=2)
     assert mem.length == 2 and mem.gt_points()[1].shape == (2, len(ids), 2)
     np.testing.assert_array_equal(next(mem.frames()), next(seq.frames()))
+
+
+def test_ground_truth_births_skip_ids_that_are_never_present():
+    """An id absent from every frame is neither an initial target nor a birth."""
+    pts = np.full((3, 3, 2), np.nan)
+    pts[:, 0] = [[1.0, 1.0], [2.0, 1.0], [3.0, 1.0]]
+    pts[2, 2] = [9.0, 9.0]
+    (init_ids, init_pts), births = births_from_ground_truth(np.array([4, 5, 6]), pts)
+    assert init_ids.tolist() == [4]
+    np.testing.assert_array_equal(init_pts, [[1.0, 1.0]])
+    assert list(births) == [2]
+    assert births[2][0].tolist() == [6]
+    np.testing.assert_array_equal(births[2][1], [[9.0, 9.0]])
+
+
+def test_detection_births_do_not_duplicate_a_scheduled_birth():
+    """A head detected where a scheduled birth appears this frame is that birth, not a newcomer."""
+    found = lambda frame: (np.array([[10.0, 10.0], [40.0, 12.0]]), np.ones(2))  # noqa: E731
+    scheduled = {2: (np.array([5]), np.array([[41.0, 12.0]]))}
+    births = DetectionBirths(found, every=2, radius=6.0, first_id=100, scheduled=scheduled)
+    frame = np.zeros((32, 64, 3), np.uint8)
+    ids, pts = births(2, frame, np.array([1]), np.array([[11.0, 9.0]]))
+    assert ids.tolist() == [5] and births.born == 0
+    np.testing.assert_array_equal(pts, [[41.0, 12.0]])

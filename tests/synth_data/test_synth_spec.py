@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from synth_data.spec import load_spec
+from synth_data.spec import load_spec, spec_from_dict
 from synth_data.suites import suite_specs
 
 GOOD = """
@@ -257,3 +257,26 @@ def load_spec_text(text):
 
     with tempfile.TemporaryDirectory() as d:
         return load_spec(write(Path(d), text))
+
+
+def _spec(**over):
+    data = {"name": "tiny", "seed": 0, "frames": 5, "scenario": {"name": "crossing", "n_agents": 4}}
+    data.update(over)
+    return spec_from_dict(data, "t.toml")
+
+
+def test_spec_fps_range_includes_its_upper_end():
+    """fps must be in (0, 1000]: 1000 is accepted, just above and 0 are refused."""
+    assert _spec(fps=1000.0).fps == 1000.0
+    for bad in (1000.5, 0.0):
+        with pytest.raises(ValueError, match=r"t.toml: fps must be in \(0, 1000\]"):
+            _spec(fps=bad)
+
+
+def test_spec_camera_margin_range_includes_both_ends():
+    """camera.margin_m must be in [0, 1000]: both ends are accepted, values outside refused."""
+    assert _spec(camera={"margin_m": 0.0}).camera["margin_m"] == 0.0
+    assert _spec(camera={"margin_m": 1000.0}).camera["margin_m"] == 1000.0
+    for bad in (-0.5, 1000.5):
+        with pytest.raises(ValueError, match=r"camera.margin_m must be in \[0, 1000\]"):
+            _spec(camera={"margin_m": bad})

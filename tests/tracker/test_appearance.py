@@ -328,3 +328,18 @@ def test_kcf_numpy_passes_in_chunks_are_one_calls(kernel, monkeypatch):
     resp = scipy.fft.irfft2(m.alphaf * m._kernel_f(m.xf, zf), s=(w, w), axes=(-2, -1))
     c, r = w // 2, m.radius
     np.testing.assert_array_equal(got, resp[:, c - r : c + r + 1, c - r : c + r + 1])
+
+
+def test_kcf_updates_at_exactly_the_threshold():
+    """A confidence equal to update_threshold refreshes the KCF model; one just below does not."""
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 256, (48, 48, 3), dtype=np.uint8)
+    b = rng.integers(0, 256, (48, 48, 3), dtype=np.uint8)
+    centers = np.array([[24, 24], [20, 26]])
+    m = KCFAppearance(8, 3, update_threshold=0.6)
+    m.add(a, centers)
+    xf0, alphaf0 = m.xf.copy(), m.alphaf.copy()
+    m.update(b, centers, np.array([0.6, np.nextafter(0.6, 0.0)]))
+    assert not np.array_equal(m.xf[0], xf0[0]) and not np.array_equal(m.alphaf[0], alphaf0[0])
+    np.testing.assert_array_equal(m.xf[1], xf0[1])
+    np.testing.assert_array_equal(m.alphaf[1], alphaf0[1])

@@ -193,3 +193,15 @@ def test_every_parameter_takes_effect_mid_sequence():
 def test_bad_params_name_field_and_value(field, value):
     with pytest.raises(ValueError, match=rf"MeanShiftParams\.{field} .*got {value!r}"):
         MeanShiftParams(**{field: value})
+
+
+def test_meanshift_refreshes_its_histogram_after_exactly_update_every_frames():
+    """update_every=2 rebuilds the template on exactly the 2nd frame and restarts its age."""
+    grey = np.full((48, 48, 3), 100, np.uint8)
+    white = np.full((48, 48, 3), 200, np.uint8)
+    tr = MeanShiftTracker(MeanShiftParams(update_every=2, update_threshold=0.0, max_lost=0))
+    tr.init(grey, np.array([1]), np.array([[24.0, 24.0]]), 8)
+    tr.step(white)
+    assert tr.age.tolist() == [1] and (tr.templates == 100).all()
+    tr.step(white)
+    assert tr.age.tolist() == [0] and (tr.templates == 200).all()

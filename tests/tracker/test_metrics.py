@@ -326,3 +326,22 @@ def test_majority_map_ties_go_to_the_earlier_person_and_the_earlier_track():
     one = np.array([[[0.0, 0.0]], [[0.0, 0.0]]])
     two = np.array([[[1.0, 0.0], [2.0, 0.0]], [[1.0, 0.0], [2.0, 0.0]]])
     assert mapped_positions([7], one, [0, 1], two).tolist() == [[[1.0, 0.0]], [[1.0, 0.0]]]
+
+
+def test_mot_rows_take_the_centre_of_non_square_boxes():
+    """A MOT row's point is its box centre: (x + w / 2, y + h / 2), h not w for y."""
+    rows = np.array(
+        [[1, 7, 6.0, 16.0, 8.0, 12.0, 1, -1, -1, -1], [2, 7, 7.0, 10.0, 4.0, 2.0, 1, -1, -1, -1]]
+    )
+    ids, pos = mot_rows_to_tracks(rows)
+    assert ids.tolist() == [7]
+    np.testing.assert_array_equal(pos[:, 0], [[10.0, 22.0], [9.0, 11.0]])
+
+
+def test_mot_rows_reject_frame_zero():
+    """MOT frames are 1-based: a frame-0 row is refused, not read as the last frame."""
+    rows = np.array(
+        [[0, 1, 0.0, 0.0, 8.0, 8.0, 1, -1, -1, -1], [2, 1, 0.0, 0.0, 8.0, 8.0, 1, -1, -1, -1]]
+    )
+    with pytest.raises(ValueError, match=r"frame 0 is outside the sequence \(1..2\)"):
+        mot_rows_to_tracks(rows)

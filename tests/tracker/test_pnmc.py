@@ -539,3 +539,37 @@ def test_cluster_order_keys_by_hand():
     assert set(want) == set(QUEEN_ORDERS)
     for order, key in want.items():
         np.testing.assert_allclose(cluster_order_key(mass, volume, order), key, rtol=1e-15)
+
+
+def _sliding_texture(n_frames: int, min_ncc: float = 0.5) -> InstantaneousFlow:
+    """A random texture moving +1 px in x per frame, pushed into a 3-frame flow."""
+    base = np.random.default_rng(0).integers(0, 256, (60, 60, 3), dtype=np.uint8)
+    flow = InstantaneousFlow(patch=4, spacing=4, frames=3, search=2, min_ncc=min_ncc)
+    for t in range(n_frames):
+        flow.push(np.ascontiguousarray(np.roll(base, t, axis=1)))
+    return flow
+
+
+def test_flow_disc_includes_patches_exactly_at_the_radius():
+    """near() takes every grid patch whose centre is within radius px, the boundary included."""
+    positions, velocities = _sliding_texture(3).near(np.array([30.0, 30.0]), 4.0)
+    assert len(positions) == 5
+    np.testing.assert_array_equal(velocities, np.tile([1.0, 0.0], (5, 1)))
+
+
+def test_flow_positions_are_in_the_frame_before_the_newest():
+    """near() gives patch positions in the frame before the newest, not the newest."""
+    positions, velocities = _sliding_texture(3).near(np.array([30.0, 30.0]), 5.0)
+    expect = np.array([[30, 26], [26, 30], [30, 30], [34, 30], [30, 34]], np.float64) + [1.0, 0.0]
+    np.testing.assert_array_equal(positions, expect)
+    np.testing.assert_array_equal(velocities, np.tile([1.0, 0.0], (5, 1)))
+
+
+def test_flow_keeps_tracks_whose_worst_ncc_equals_min_ncc():
+    """A track whose worst NCC equals min_ncc is still valid (>=, not >)."""
+    probe = _sliding_texture(3, min_ncc=0.0)
+    assert len(probe.near(np.array([30.0, 30.0]), 5.0)[0]) == 5
+    worst = min(float(score[done].min()) for done, _, score in probe.pairs)
+    assert worst > 0.9
+    positions, _ = _sliding_texture(3, min_ncc=worst).near(np.array([30.0, 30.0]), 5.0)
+    assert len(positions) == 5

@@ -734,3 +734,17 @@ def test_a_correlation_exactly_at_the_threshold_links_the_pair():
     t = np.arange(4.0)[:, None]
     history = np.stack([np.hstack([5 * t, 0 * t]), np.hstack([10 + 3 * t, 4 * t])], axis=1)
     assert coherent_groups(history, radius=100.0, threshold=0.6).tolist() == [0, 0]
+
+
+def test_speedup_extrema_need_every_neighbour_higher_including_the_right_one():
+    """A cell with a lower right neighbour is no local minimum; true minima rank first."""
+    cost = (10.0 + np.arange(25, dtype=np.float64)).reshape(1, 5, 5)
+    cost[0, 1, 1] = 3.0  # cell 6: its right neighbour (cell 7) is lower
+    cost[0, 1, 2] = 2.0  # cell 7: a local minimum
+    cost[0, 3, 3] = 4.0  # cell 18: a local minimum
+    app = -cost.astype(np.float32)
+    rng = np.random.default_rng(0)
+    s = speedup_candidates(np.array([[20, 20]]), 2, cost, app, rng, n_extrema=3, n_samples=0)
+    assert s.k == 3
+    assert s.cell[0].tolist() == [7, 18, 6]
+    np.testing.assert_array_equal(s.positions[0], [[20, 19], [21, 21], [19, 19]])

@@ -131,3 +131,15 @@ def test_plant_and_recover_accuracy_floor(name, crowd):
     assert np.isfinite(res.positions[np.isfinite(res.positions)]).all()
     assert curve[5] >= FLOOR[name]["acc@5"], (name, curve[5])
     assert curve[15] >= FLOOR[name]["acc@15"], (name, curve[15])
+
+
+def test_ncc_match_centre_stays_inside_the_image():
+    """NCC tracker keeps a match centre inside the image even if the best match is beyond."""
+    f0 = np.random.default_rng(1).integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    f0[:, 63] = f0[:, 62]  # with the replicated border, the shifted patch matches exactly at x = 64
+    f1 = np.ascontiguousarray(np.roll(f0, 1, axis=1))
+    tr = NCCTracker()
+    tr.init(f0, np.array([1]), np.array([[63.0, 32.0]]), 8)
+    ids, pts = tr.step(f1)
+    assert ids.tolist() == [1]
+    assert 0 <= pts[0, 0] <= 63
