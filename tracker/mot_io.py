@@ -53,7 +53,12 @@ def mot_rows_to_tracks(
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(f"{source}: row {i + 1}: id {raw_ids[i]:g} is not an integer within int64")
-    frames = rows[:, 0].astype(np.int64)
+    raw_frames = rows[:, 0]
+    bad = (raw_frames != np.round(raw_frames)) | (np.abs(raw_frames) >= 2.0**62)
+    if bad.any():  # frame 1.5 is no frame: truncating it would move a row
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{source}: row {i + 1}: frame {raw_frames[i]:g} is not a whole number")
+    frames = raw_frames.astype(np.int64)
     ids_all = raw_ids.astype(np.int64)
     t_len = int(frames.max()) if length is None else int(length)
     if frames.min() < 1 or frames.max() > t_len:

@@ -345,3 +345,11 @@ def test_mot_rows_reject_frame_zero():
     )
     with pytest.raises(ValueError, match=r"frame 0 is outside the sequence \(1..2\)"):
         mot_rows_to_tracks(rows)
+
+
+def test_mot_rows_refuse_a_fractional_or_missing_frame():
+    """Frame 1.5 is refused by name, not truncated to frame 1; so is a NaN frame."""
+    for frame in (1.5, np.nan):
+        rows = np.array([[frame, 1, 0.0, 0.0, 8.0, 8.0, 1, -1, -1, -1]])
+        with pytest.raises(ValueError, match=r"row 1: frame .* is not a whole number"):
+            mot_rows_to_tracks(rows)
