@@ -290,3 +290,20 @@ def test_an_entry_with_an_empty_frame_is_damaged(tmp_path):
     cache = EpisodeCache(root, log=logs.append)
     assert cache.load(spec) is None
     assert cache.damaged == 1 and "inconsistent" in logs[0]
+
+
+def test_the_code_digest_covers_the_numba_scipy_and_pyav_versions(monkeypatch):
+    """Another numba (force kernels), SciPy (spawn trees) or PyAV (libx264's H.264 bytes)
+    makes other frames, so it must make another key."""
+    from importlib import metadata
+
+    real = metadata.version
+    digest = episodes.code_digest.__wrapped__
+    before = digest()
+    for dist in ("numba", "scipy", "av"):
+        monkeypatch.setattr(
+            metadata, "version", lambda name, d=dist: "0.0.0-other" if name == d else real(name)
+        )
+        assert digest() != before, dist
+    monkeypatch.setattr(metadata, "version", real)
+    assert digest() == before
