@@ -507,8 +507,11 @@ DAMAGED_DIR = "damaged"
 @functools.cache
 def code_digest() -> str:
     """SHA-256 of what makes an episode's frames: the source of ``crowdsim``'s modules and of
-    ``synth_data``, and the versions of numpy, OpenCV (its JPEG) and pymunk. An entry made by
-    other code is another key, so an upgrade never reads a stale episode."""
+    ``synth_data``, and the versions of numpy, OpenCV (its JPEG), pymunk, numba (the force
+    kernels), SciPy (the spawn's k-d trees) and PyAV (its libx264 makes the H.264 bytes). An
+    entry made by other code is another key, so an upgrade never reads a stale episode."""
+    from importlib import metadata
+
     import cv2
     import pymunk
 
@@ -522,6 +525,12 @@ def code_digest() -> str:
             h.update(f"{pkg.__name__}/{p.name}\0".encode())
             h.update(p.read_bytes())
     h.update(f"numpy {np.__version__} cv2 {cv2.__version__} pymunk {pymunk.version}".encode())
+    for dist in ("numba", "scipy", "av"):
+        try:
+            version = metadata.version(dist)
+        except metadata.PackageNotFoundError:  # PyAV is needed only to encode H.264
+            version = "none"
+        h.update(f" {dist} {version}".encode())
     return h.hexdigest()
 
 
