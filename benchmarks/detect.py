@@ -92,18 +92,8 @@ def main() -> int:
             f"{r['method']:<14} {r['threads']:>7} {r['ms_per_frame']:>9.1f} {r['fps']:>9.1f} "
             f"{r['f1@5px']:>7.3f}"
         )
-    ratios = {
-        str(n): round(
-            next(r for r in rows if r["threads"] == n and r["method"] == "head detector")[
-                "ms_per_frame"
-            ]
-            / next(r for r in rows if r["threads"] == n and r["method"] == "LoG baseline")[
-                "ms_per_frame"
-            ],
-            2,
-        )
-        for n in threads
-    }
+    ms = {(r["method"], r["threads"]): r["ms_per_frame"] for r in rows}
+    ratios = {str(n): round(ms["head detector", n] / ms["LoG baseline", n], 2) for n in threads}
     print(f"head detector / LoG time per frame: {ratios} (by threads)")
     report = {
         "benchmark": "detect",

@@ -1034,9 +1034,9 @@ def make_episodes(
     """One source from the CLI's ``--suite NAME | --scenarios DIST [--only] [--frames]
     [--episode-cache DIR --pool N]``.
 
-    ``seed`` selects the scenario stream (or, for a built-in suite, the ``reseed`` offset),
+    ``seed`` selects the scenario stream (or, for a suite of specs, the ``reseed`` offset),
     so that tuning and held-out scoring draw disjoint sequences. ``episode_cache``: episodes
-    of specs (scenario pools, built-in suites) are read from that :class:`EpisodeCache`
+    of specs (scenario pools, suites of specs) are read from that :class:`EpisodeCache`
     folder, rendered and stored there on first use; ``pool`` (scenario distributions only,
     required with a cache): the number of distinct episodes drawn and reused.
     """
@@ -1048,8 +1048,9 @@ def make_episodes(
     if suite is not None:
         from synth_data.suites import is_spec_suite
 
-        reseed = seed if is_spec_suite(suite) else 0
-        if seed and not is_spec_suite(suite):
+        specs = is_spec_suite(suite)
+        reseed = seed if specs else 0
+        if seed and not specs:
             raise ValueError(
                 f"{suite}: a folder of sequences cannot be re-seeded for held-out "
                 "scoring; give held-out sequences with --only or another folder"

@@ -47,19 +47,19 @@ def mot_rows_to_tracks(
     rows = np.asarray(rows, dtype=np.float64)
     if rows.size == 0:
         return np.zeros(0, np.int64), np.full((length or 0, 0, 2), np.nan)
-    raw_ids = rows[:, 1]
-    # ids are whole numbers within int64: truncating 2.5 or wrapping 1e30 would merge people
-    bad = (raw_ids != np.round(raw_ids)) | (np.abs(raw_ids) >= 2.0**63)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"{source}: row {i + 1}: id {raw_ids[i]:g} is not an integer within int64")
-    raw_frames = rows[:, 0]
-    bad = (raw_frames != np.round(raw_frames)) | (np.abs(raw_frames) >= 2.0**62)
-    if bad.any():  # frame 1.5 is no frame: truncating it would move a row
-        i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"{source}: row {i + 1}: frame {raw_frames[i]:g} is not a whole number")
-    frames = raw_frames.astype(np.int64)
-    ids_all = raw_ids.astype(np.int64)
+    # ids and frames are whole numbers within int64: truncating id 2.5 or wrapping 1e30 would
+    # merge people, truncating frame 1.5 would move a row
+    for col, what, limit, says in (
+        (1, "id", 2.0**63, "is not an integer within int64"),
+        (0, "frame", 2.0**62, "is not a whole number"),
+    ):
+        raw = rows[:, col]
+        bad = (raw != np.round(raw)) | (np.abs(raw) >= limit)  # NaN too
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"{source}: row {i + 1}: {what} {raw[i]:g} {says}")
+    frames = rows[:, 0].astype(np.int64)
+    ids_all = rows[:, 1].astype(np.int64)
     t_len = int(frames.max()) if length is None else int(length)
     if frames.min() < 1 or frames.max() > t_len:
         bad = frames[(frames < 1) | (frames > t_len)][0]

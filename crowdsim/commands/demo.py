@@ -24,11 +24,11 @@ from pathlib import Path
 DEMO_FRAMES = 100
 """Frames of the demo sequence (``frames`` of :data:`DEMO_SPEC`)."""
 
-DEMO_SPEC = """\
+DEMO_SPEC = f"""\
 # crowdsim demo sequence: a short, dense marathon (embedded in crowdsim/commands/demo.py)
 name = "marathon_demo"
 seed = 7
-frames = 100
+frames = {DEMO_FRAMES}
 fps = 25.0
 warmup_steps = 50
 description = "crowdsim demo: dense marathon runners on a course with a bend"
