@@ -146,6 +146,22 @@ def test_track_bad_inputs(tmp_path, seq, capsys):
     assert not out.exists()
 
 
+def test_detector_flags_no_detector_uses_are_said_to_be_unused(tmp_path, seq, capsys):
+    """A folder tracked from its own rows runs no head detector: the detector's flags are
+    still checked (a missing weights file is refused) and the run says they went unused."""
+    out = tmp_path / "r.txt"
+    base = ["track", str(seq), "--tracker", "ncc", "--no-progress", "--out", str(out)]
+    assert main([*base, "--detector-weights", str(tmp_path / "none.pt")]) == 2
+    assert "--detector-weights" in _error_line(capsys, "track") and not out.exists()
+    weights = tmp_path / "w.pt"
+    weights.write_bytes(b"never read")
+    assert main([*base, "--detector-weights", str(weights), "--detector-threshold", "0.4"]) == 0
+    note = capsys.readouterr().err.splitlines()[0]
+    assert note.startswith("note: --detector-weights and --detector-threshold unused")
+    assert main([*base, "--overwrite"]) == 0
+    assert "unused" not in capsys.readouterr().err
+
+
 def test_evaluate_bad_inputs(tmp_path, seq, scene, capsys):
     res = tmp_path / "r.txt"
     res.write_text("1,1,10,10,8,8,1,-1,-1,-1\n1,1,oops,10,8,8,1,-1,-1,-1\n")

@@ -337,10 +337,23 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--detect-every must be >= 1, got {args.detect_every}")
     feed_detector = args.detections == "detector" or (args.detections is None and not is_folder)
     uses_detector = use_detector or args.births == "detect" or feed_detector
-    if not uses_detector and args.detector_threshold is not None:  # checked even when unused
+    given = {
+        "--detector-weights": args.detector_weights,
+        "--detector-threshold": args.detector_threshold,
+    }
+    unused = [flag for flag, value in given.items() if value is not None]
+    if not uses_detector and unused:  # checked even when unused, and said so
         from crowdsim.commands.detect import detector_params
 
         detector_params(None, args.detector_threshold, "--detector-threshold")
+        weights = args.detector_weights
+        if weights is not None and not Path(weights).is_file():
+            raise ValueError(f"--detector-weights {weights}: no such file")
+        print(
+            f"note: {' and '.join(unused)} unused: no head detector runs here (it runs with "
+            "--init detect, --births detect, --detections detector, or a video as INPUT)",
+            file=sys.stderr,
+        )
     detector = _detector(args) if uses_detector else None
     src = open_sequence(args.input, init=None if use_detector else args.init)
     if is_folder:

@@ -688,6 +688,11 @@ case(
     f"{T} --out {{w}}/r.txt --detector-threshold 1.5",
     "--detector-threshold must be a finite number in (0, 1), got 1.5",
 )
+case(
+    "track-detector-weights-unused-missing",
+    f"{T} --out {{w}}/r.txt --detector-weights {{w}}/none.pt",
+    "--detector-weights&&none.pt: no such file",
+)
 # a read-only folder is refused before any frame is tracked, naming the flag
 case("track-out-readonly", f"{T} --out {{ro}}/r.txt", "--out&&is not writable", needs="ro")
 case(
