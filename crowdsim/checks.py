@@ -92,6 +92,26 @@ def require_cpus(flag: str, values: Any, lo: int = 1) -> None:
         raise ValueError(f"{flag} must be in [{lo}, {cpus}] (os.cpu_count()), got {bad[0]}")
 
 
+MAX_RAY_WORKERS: int = 256
+"""Most concurrent Ray tasks one command starts (a cluster's cores are not known here)."""
+
+
+def require_workers(flag: str, workers: Any, backend: str = "local") -> int:
+    """``workers`` as an int: local processes within the cores (:func:`require_cpus`: more
+    only queue for them, each holding its own interpreter's memory), Ray tasks in ``[1,``
+    :data:`MAX_RAY_WORKERS` ``]``; a ``ValueError`` naming ``flag`` else.
+
+    >>> require_workers("--workers", 10**6, "ray")
+    Traceback (most recent call last):
+    ...
+    ValueError: --workers must be an integer in [1, 256], got 1000000
+    """
+    require_number("", flag, workers, lo=1, hi=MAX_RAY_WORKERS, integer=True)
+    if backend == "local":
+        require_cpus(flag, workers)
+    return int(workers)
+
+
 def require_choice(owner: str, name: str, value: Any, choices: tuple[Any, ...]) -> None:
     """Raise ``ValueError`` unless ``value`` is one of ``choices``."""
     if value not in choices:

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from crowdsim.checks import require_choice, require_number
+from crowdsim.checks import require_choice, require_number, require_workers
 from crowdsim.optional import DependencyNotInstalled, require
 from envs.episodes import EpisodeSource, ScenarioDistribution, SuiteEpisodes, make_episodes
 from envs.heldout import HELDOUT_SEED, check_heldout_out, evaluate_heldout, write_heldout
@@ -37,8 +37,6 @@ from envs.outputs import check_outputs, write_outputs
 from envs.param_space import ParamSpace, require_tunable
 
 STUDY_FILE = "study.db"
-MAX_WORKERS = 256
-"""Most local optimisation processes (or concurrent Ray trials) one run starts."""
 DEFAULT_STUDY_NAME = "crowdsim-tune"
 SAMPLERS: tuple[str, ...] = ("tpe", "cmaes")
 BACKENDS: tuple[str, ...] = ("local", "ray")
@@ -794,10 +792,10 @@ def tune(
     if not isinstance(objective, Objective):
         raise ValueError(f"tune needs an envs.tuners.Objective, got {type(objective).__name__}")
     require_number("", "--trials", trials, lo=1, integer=True)
-    require_number("", "--workers", workers, lo=1, hi=MAX_WORKERS, integer=True)
+    require_choice("", "--backend", backend, BACKENDS)
+    require_workers("--workers", workers, backend)
     require_number("", "--heldout", heldout, lo=0, integer=True)
     require_number("", "--seed", seed, lo=0, hi=2**32 - 1, integer=True)
-    require_choice("", "--backend", backend, BACKENDS)
     require_choice("", "--sampler", sampler, SAMPLERS)
     require_choice("", "heldout_metrics", heldout_metrics, ("full", "accuracy"))
     require("optuna", "rl", "crowdsim tune")

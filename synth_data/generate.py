@@ -47,6 +47,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from crowdsim.checks import require_workers
 from crowdsim.jobs import (
     Interrupted,
     Job,
@@ -167,10 +168,7 @@ def generate(
 
     if backend not in ("local", "ray"):
         raise ValueError(f"--backend must be local or ray, got {backend!r}")
-    if isinstance(workers, bool) or not isinstance(workers, int):
-        raise ValueError(f"--workers must be an integer, got {workers!r}")
-    if workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {workers}")
+    require_workers("--workers", workers, backend)
     if backend == "ray":
         from crowdsim.optional import require
 

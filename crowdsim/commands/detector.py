@@ -113,13 +113,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _workers(value: int | None) -> int:
     import os
 
-    from crowdsim.checks import require_number
+    from crowdsim.checks import require_workers
 
-    cores = os.cpu_count() or 1
     if value is None:
-        return cores
-    require_number("", "--workers", value, lo=1, hi=cores, integer=True)
-    return int(value)
+        return os.cpu_count() or 1
+    return require_workers("--workers", value)
 
 
 def run_train(args: argparse.Namespace) -> int:

@@ -331,7 +331,7 @@ def run_table(
         ``{name: write(temporary path)}``; they are recorded in :data:`OUTPUTS_FILE` with the
         table's.
     """
-    from crowdsim.checks import require_number
+    from crowdsim.checks import require_number, require_workers
     from crowdsim.jobs import Job, run_jobs
     from synth_data.generate import generate
     from synth_data.suites import suite_specs
@@ -339,7 +339,7 @@ def run_table(
 
     if frames is not None:
         require_number("", "--frames", frames, lo=2, integer=True)
-    require_number("", "--workers", workers, lo=1, integer=True)
+    require_workers("--workers", workers, backend)
     if address is not None and backend != "ray":
         raise ValueError(f"--address needs --backend ray, got --address {address!r}")
     for row in rows:

@@ -809,7 +809,17 @@ case(
 case(
     "gen-workers-0",
     "generate --spec {spec} --out {w}/out --workers 0",
-    "--workers must be >= 1, got 0",
+    "--workers must be an integer in [1, 256], got 0",
+)
+case(
+    "gen-workers-above-cores",
+    "generate --spec {spec} --out {w}/out --workers 4097",
+    "--workers must be an integer in [1, 256], got 4097",
+)
+case(
+    "gen-workers-local-above-cores",
+    "generate --spec {spec} --out {w}/out --workers 256",
+    "--workers must be in [1, &&(os.cpu_count()), got 256",
 )
 case(
     "gen-only-without-suite",

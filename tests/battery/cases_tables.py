@@ -280,7 +280,14 @@ case(
     setup=lambda w, env: (w / "o" / "cells.json").mkdir(parents=True),
 )
 case("tables-comp-frames-1", f"{CMP} --frames 1", "--frames must be an integer >= 2, got 1")
-case("tables-comp-workers-0", f"{CMP} --workers 0", "--workers must be an integer >= 1, got 0")
+case(
+    "tables-comp-workers-0", f"{CMP} --workers 0", "--workers must be an integer in [1, 256], got 0"
+)
+case(
+    "tables-comp-workers-above-cores",
+    f"{CMP} --workers 256",
+    "--workers must be in [1, &&(os.cpu_count()), got 256",
+)
 case("tables-comp-only-unknown", f"{CMP} --only seq10", "no sequence 'seq10' in suite 'ucf9'")
 case(
     "tables-comp-suite-empty",

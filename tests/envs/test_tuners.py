@@ -190,6 +190,7 @@ def test_journal_storage_and_cmaes(tmp_path):
     assert storage_url(str(journal), tmp_path) == f"journal:{journal.resolve()}"
 
 
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="two local workers need two cores")
 def test_two_local_workers_share_the_study(tmp_path):
     res = tune(
         objective(),
