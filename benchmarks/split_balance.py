@@ -27,6 +27,7 @@ import argparse
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 CHILD = r"""
 import json, sys, time
@@ -87,6 +88,7 @@ def plot(rows: list[dict], path: str) -> None:
 
 
 def main() -> int:
+    from crowdsim.atomic import OVERWRITE_HELP, record_written, require_replaceable
     from crowdsim.checks import require_cpus
     from crowdsim.decomposition import BALANCE_EVERY
     from crowdsim.scenarios import SCENARIOS
@@ -106,11 +108,16 @@ def main() -> int:
     ap.add_argument("--steps", type=int, default=100, help="timed steps (100)")
     ap.add_argument(
         "--png",
-        default="benchmarks/out/split_balance.png",
+        default=str(Path(__file__).resolve().parent / "out" / "split_balance.png"),
         metavar="FILE",
-        help="bars of steps/s, fixed against re-cut (default benchmarks/out/split_balance.png)",
+        help="bars of steps/s, fixed or re-cut (default: out/split_balance.png beside this script)",
     )
+    ap.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     args = ap.parse_args()
+    try:
+        require_replaceable("--png", args.png, args.overwrite)
+    except ValueError as exc:
+        ap.error(str(exc))
     try:
         require_cpus("--workers", args.workers, lo=2)
     except ValueError as exc:
@@ -166,6 +173,7 @@ def main() -> int:
         )
     try:
         plot(rows, args.png)
+        record_written(args.png)
         print(f"-> {args.png}")
     except OSError as exc:  # an unwritable folder costs the picture, not the figures above
         print(f"could not write {args.png}: {exc.strerror or exc}")

@@ -30,6 +30,7 @@ import json
 import multiprocessing as mp
 import os
 import time
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -173,6 +174,7 @@ def plot(rows: list[dict], path: str) -> None:
 
 
 def main() -> int:
+    from crowdsim.atomic import OVERWRITE_HELP, record_written, require_replaceable
     from crowdsim.checks import require_cpus
     from crowdsim.scenarios import MAX_AGENTS
 
@@ -192,11 +194,16 @@ def main() -> int:
     ap.add_argument("--no-probes", action="store_true", help="skip the machine probes")
     ap.add_argument(
         "--png",
-        default="benchmarks/out/split_profile.png",
+        default=str(Path(__file__).resolve().parent / "out" / "split_profile.png"),
         metavar="FILE",
-        help="stacked bars of each worker count's step (default benchmarks/out/split_profile.png)",
+        help="stacked bars of each step (default: out/split_profile.png beside this script)",
     )
+    ap.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     args = ap.parse_args()
+    try:
+        require_replaceable("--png", args.png, args.overwrite)
+    except ValueError as exc:
+        ap.error(str(exc))
     try:
         require_cpus("--workers", args.workers)
     except ValueError as exc:
@@ -257,6 +264,7 @@ def main() -> int:
         )
     try:
         plot(rows, args.png)
+        record_written(args.png)
         print(f"-> {args.png}")
     except OSError as exc:  # an unwritable folder costs the picture, not the figures above
         print(f"could not write {args.png}: {exc.strerror or exc}")

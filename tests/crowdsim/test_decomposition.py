@@ -275,11 +275,16 @@ def test_crowded_strip_is_recut_deterministically_and_keeps_every_agent_once():
         (["--workers", "1"], "--workers must be in [2, "),
         (["--scenarios", "nowhere"], "--scenarios: unknown 'nowhere'"),
         (["--steps", "0"], "--agents, --warmup and --steps must be >= 1"),
+        (["--png", "{mine}"], "--png {mine}: the file exists and crowdsim cannot prove it wrote"),
     ],
 )
-def test_split_balance_benchmark_names_bad_flags(run_benchmark, args, message):
-    out = run_benchmark("split_balance.py", *args)
+def test_split_balance_benchmark_names_bad_flags(run_benchmark, tmp_path, args, message):
+    mine = tmp_path / "mine.png"
+    mine.write_bytes(b"a picture of the user's")
+    out = run_benchmark("split_balance.py", *(a.format(mine=mine) for a in args))
+    message = message.format(mine=mine)
     assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr
+    assert mine.read_bytes() == b"a picture of the user's"
 
 
 def _resident_mb(pid: int) -> float:
