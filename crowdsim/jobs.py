@@ -150,19 +150,36 @@ def _empty(section: str) -> dict[str, Any]:
 
 
 def read_manifest(path: str | os.PathLike[str], section: str = "jobs") -> dict[str, Any]:
-    """The manifest at ``path`` (an empty one when missing or unreadable), unlocked.
+    """The manifest at ``path`` (an empty one when there is none), unlocked.
 
     Returns ``{"format": 1, section: {key: result, ...}, ...}``; other top-level keys of the
-    file are kept.
+    file are kept. A file at ``path`` that is not such a manifest (not JSON, another tool's
+    JSON, a folder) was not written by crowdsim, whose manifests are written whole
+    (:func:`locked_manifest`): a ``ValueError`` refuses it instead of reading it as empty and
+    replacing it.
     """
+    path = Path(path)
     try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, ValueError):
+        text = path.read_text()
+    except FileNotFoundError:
         return _empty(section)
-    if not isinstance(data, dict):
-        return _empty(section)
-    if not isinstance(data.get(section), dict):
-        data[section] = {}
+    except (OSError, ValueError) as exc:  # a folder, unreadable, not text
+        raise ValueError(f"{path}: cannot be read as crowdsim's manifest ({exc})") from None
+    try:
+        data = json.loads(text)
+    except ValueError:
+        data = None
+    if not (
+        isinstance(data, dict)
+        and data.get("format") == MANIFEST_FORMAT
+        and isinstance(data.get(section, {}), dict)
+    ):
+        raise ValueError(
+            f"{path}: not a crowdsim manifest (its {section!r} table of format "
+            f"{MANIFEST_FORMAT}); refusing to replace it: move it away or choose another "
+            "output folder"
+        )
+    data.setdefault(section, {})
     return data
 
 
@@ -202,7 +219,6 @@ def locked_manifest(
     with manifest_lock(path):
         data = read_manifest(path, section)
         yield data
-        data["format"] = data.get("format", MANIFEST_FORMAT)
         data[section] = dict(sorted(data[section].items()))
         write_text_atomic(path, json.dumps(data, indent=1) + "\n")
 

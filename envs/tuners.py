@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from crowdsim.checks import require_choice, require_number, require_workers
+from crowdsim.jobs import read_manifest
 from crowdsim.optional import DependencyNotInstalled, require
 from envs.episodes import EpisodeSource, ScenarioDistribution, SuiteEpisodes, make_episodes
 from envs.heldout import HELDOUT_SEED, check_heldout_out, evaluate_heldout, write_heldout
@@ -37,6 +38,8 @@ from envs.outputs import check_outputs, write_outputs
 from envs.param_space import ParamSpace, require_tunable
 
 STUDY_FILE = "study.db"
+JOBS_MANIFEST = "tune_jobs.json"
+"""The jobs runner's record of the finished workers (:mod:`crowdsim.jobs`), in ``--out``."""
 DEFAULT_STUDY_NAME = "crowdsim-tune"
 SAMPLERS: tuple[str, ...] = ("tpe", "cmaes")
 BACKENDS: tuple[str, ...] = ("local", "ray")
@@ -569,7 +572,7 @@ def _run_local(
     unfinished ones unrecorded and a rerun starts them again on the same study."""
     from optuna.trial import TrialState
 
-    from crowdsim.jobs import Job, read_manifest, run_jobs
+    from crowdsim.jobs import Job, run_jobs
 
     study = open_study(url, name, objective, sampler, seed, trials)
     if workers > 1:
@@ -584,7 +587,7 @@ def _run_local(
     left = trials - len(complete_trials(study))
     if left <= 0:
         return
-    manifest = out / "tune_jobs.json"
+    manifest = out / JOBS_MANIFEST
     keys = [f"{name}/to-{trials}/worker-{i + 1}-of-{workers}" for i in range(workers)]
     done = read_manifest(manifest)["jobs"]
     todo = [i for i, key in enumerate(keys) if key not in done]
@@ -698,6 +701,7 @@ def check_tune_out(out: Path, heldout: bool) -> None:
     (or, with held-out scoring, a ``heldout.*``) that ``crowdsim tune`` cannot prove it
     wrote: a user's own files are never replaced (:mod:`envs.outputs`). Reads only."""
     check_outputs(out, TUNE_FILES[0], TUNE_FILES[1:], _is_tune_record, "crowdsim tune")
+    read_manifest(out / JOBS_MANIFEST)  # the workers' record: another tool's file is refused
     if heldout:
         check_heldout_out(out)
 

@@ -110,7 +110,8 @@ def build_sequence(
 
 # ---------------------------------------------------------------------------- manifest
 def read_manifest_of(out: str | os.PathLike[str]) -> dict[str, Any]:
-    """The manifest of the folder ``out`` (an empty one when missing or unreadable)."""
+    """The manifest of the folder ``out`` (an empty one when there is none; a file there that
+    is not crowdsim's manifest is refused, :func:`crowdsim.jobs.read_manifest`)."""
     return read_manifest(Path(out) / MANIFEST, MANIFEST_SECTION)
 
 
@@ -180,6 +181,7 @@ def generate(
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out must be a folder, got the file {str(out)!r}")
+    read_manifest_of(out)  # a manifest.json that is not crowdsim's: refused before any work
     fresh = (
         not out.exists(),
         not (out / MANIFEST).exists(),
@@ -207,7 +209,7 @@ def _undo_empty_start(out: Path, made_out: bool, made_manifest: bool, made_lock:
             lock_path(out / MANIFEST).unlink(missing_ok=True)
         if made_out:
             out.rmdir()  # only when empty
-    except OSError:
+    except (OSError, ValueError):  # ValueError: not crowdsim's manifest, never touched
         pass
 
 

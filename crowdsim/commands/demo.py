@@ -134,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     from crowdsim.scenarios import make_scenario
     from crowdsim.simulation import Simulation
     from envs.outputs import check_outputs
-    from synth_data.generate import generate
+    from synth_data.generate import generate, read_manifest_of
     from synth_data.spec import parse_spec_text, spec_from_dict
 
     if args.frames is not None and not 2 <= args.frames <= DEMO_FRAMES:
@@ -146,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
     # before any work: a folder that cannot be made or written, and a file of one of the
     # demo's names that an earlier demo did not write, are refused
     check_outputs(out, RECORD, demo_files(), _ours, "crowdsim demo", earlier=_earlier_summary)
+    read_manifest_of(out / "sequences")  # and a manifest.json there that is not crowdsim's
     out.mkdir(parents=True, exist_ok=True)
     progress = not args.no_progress
     t_start = time.perf_counter()

@@ -80,6 +80,12 @@ tune_case("trials-0", "--trials 0", "--trials must be an integer >= 1, got 0")
 tune_case("workers-0", "--workers 0", "--workers must be an integer in [1, 256], got 0")
 tune_case("workers-huge", "--workers 100000", "--workers&&got 100000")
 tune_case("workers-local-above-cores", "--workers 256", "--workers must be in [1, &&got 256")
+tune_case(
+    "foreign-jobs-manifest",
+    "",
+    "tune_jobs.json: not a crowdsim manifest&&refusing to replace it",
+    files=(*D, ("o/tune_jobs.json", "user data\n")),
+)
 tune_case("seed-neg", "--seed -1", "--seed&&got -1")
 tune_case("threshold-neg", "--threshold -1", "--threshold must be&&got -1.0")
 tune_case("train-episodes-0", "--train-episodes 0", "--train-episodes&&got 0")

@@ -110,6 +110,27 @@ case(
     setup=_generated_then_user_file,
 )
 
+# --- a manifest.json or tune_jobs.json that crowdsim did not write is never replaced ------
+GEN_NEW = "generate --spec {w}/s.toml --out {w}/out --workers 1 --no-progress"
+FOREIGN = "not a crowdsim manifest&&refusing to replace it"
+for cid, content in (
+    ("own-generate-foreign-manifest-text", "my own notes on this data\n"),
+    ("own-generate-foreign-manifest-json", '{"project": "mine", "owner": "me"}'),
+    ("own-generate-foreign-manifest-format", '{"format": 7, "sequences": {}}'),
+):
+    case(
+        cid,
+        GEN_NEW,
+        "out/manifest.json: " + FOREIGN,
+        files=(("s.toml", SPEC), ("out/manifest.json", content)),
+    )
+case(
+    "own-demo-foreign-sequences-manifest",
+    "demo --no-progress --out {w}/d",
+    "sequences/manifest.json: " + FOREIGN,
+    files=(("d/sequences/manifest.json", "mine\n"),),
+)
+
 # --- points CSV and track ----------------------------------------------------------------
 T = "track {seq} --tracker ncc --no-progress --out {w}/r.txt --init {w}/i.csv"
 for cid, content, needle in (

@@ -279,6 +279,12 @@ case(
     "cells.json: is a folder, not a cells file",
     setup=lambda w, env: (w / "o" / "cells.json").mkdir(parents=True),
 )
+case(
+    "tables-comp-foreign-sequences-manifest",
+    CMP,
+    "sequences/manifest.json: not a crowdsim manifest&&refusing to replace it",
+    files=(("o/sequences/manifest.json", '{"project": "mine"}'),),
+)
 case("tables-comp-frames-1", f"{CMP} --frames 1", "--frames must be an integer >= 2, got 1")
 case(
     "tables-comp-workers-0", f"{CMP} --workers 0", "--workers must be an integer in [1, 256], got 0"

@@ -257,3 +257,37 @@ def test_a_signal_that_lands_inside_the_unraisable_hook_is_not_lost(monkeypatch)
             while time.monotonic() < deadline:  # the signal comes again, from the watcher
                 time.sleep(0.001)
     assert caught.value.signal_name == "SIGINT"
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        "user data\n",
+        '{"project": "mine"}',
+        '{"format": 7, "jobs": {}}',
+        '{"format": 1, "jobs": []}',
+    ],
+)
+def test_a_manifest_crowdsim_did_not_write_is_refused_never_replaced(tmp_path, helpers, content):
+    """crowdsim writes its manifests whole (format 1, a table of the section): any other file
+    at the path is a user's or another tool's, refused before a job runs, and kept."""
+    from crowdsim.jobs import locked_manifest
+
+    path = tmp_path / "m.json"
+    path.write_text(content)
+    with pytest.raises(ValueError, match="m.json: not a crowdsim manifest"):
+        read_manifest(path)
+    with pytest.raises(ValueError, match="refusing to replace it"):
+        run_jobs([Job("a", helpers.square, (3,))], path, workers=1, progress=False)
+    with pytest.raises(ValueError, match="m.json"), locked_manifest(path) as m:
+        m["jobs"]["a"] = 1
+    assert path.read_text() == content
+    (tmp_path / "d.json").mkdir()
+    with pytest.raises(ValueError, match="d.json: cannot be read as crowdsim's manifest"):
+        read_manifest(tmp_path / "d.json")
+    # another section of a crowdsim manifest is crowdsim's: read as empty, kept on write
+    path.write_text('{"format": 1, "sequences": {"s": 1}}')
+    with locked_manifest(path) as m:
+        m["jobs"]["a"] = 1
+    assert read_manifest(path, "sequences")["sequences"] == {"s": 1}
+    assert read_manifest(path)["jobs"] == {"a": 1}
