@@ -88,7 +88,7 @@ def plot(rows: list[dict], path: str) -> None:
 
 
 def main() -> int:
-    from crowdsim.atomic import OVERWRITE_HELP, record_written, require_replaceable
+    from crowdsim.atomic import OVERWRITE_HELP, recorded, require_replaceable
     from crowdsim.checks import require_cpus
     from crowdsim.decomposition import BALANCE_EVERY
     from crowdsim.scenarios import SCENARIOS
@@ -172,8 +172,8 @@ def main() -> int:
             f"{f['critical_ms']:>6.1f} / {c['critical_ms']:.1f}"
         )
     try:
-        plot(rows, args.png)
-        record_written(args.png)
+        with recorded(args.png):
+            plot(rows, args.png)
         print(f"-> {args.png}")
     except OSError as exc:  # an unwritable folder costs the picture, not the figures above
         print(f"could not write {args.png}: {exc.strerror or exc}")

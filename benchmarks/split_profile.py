@@ -174,7 +174,7 @@ def plot(rows: list[dict], path: str) -> None:
 
 
 def main() -> int:
-    from crowdsim.atomic import OVERWRITE_HELP, record_written, require_replaceable
+    from crowdsim.atomic import OVERWRITE_HELP, recorded, require_replaceable
     from crowdsim.checks import require_cpus
     from crowdsim.scenarios import MAX_AGENTS
 
@@ -263,8 +263,8 @@ def main() -> int:
             + ", ".join(f"N={w} {v:.2f}x" for w, v in by.items())
         )
     try:
-        plot(rows, args.png)
-        record_written(args.png)
+        with recorded(args.png):
+            plot(rows, args.png)
         print(f"-> {args.png}")
     except OSError as exc:  # an unwritable folder costs the picture, not the figures above
         print(f"could not write {args.png}: {exc.strerror or exc}")

@@ -86,7 +86,10 @@ def atomic_path(path: str | os.PathLike[str], suffix: str | None = None) -> Iter
 
 
 def _retarget(exc: OSError, tmp: Path | None, path: Path) -> OSError:
-    """``exc`` naming the user's ``path`` instead of our hidden temporary file (or nothing)."""
+    """``exc`` naming the user's ``path`` instead of our hidden temporary file (or nothing).
+    An error of our own (no errno: its message names the file already) is left alone."""
+    if exc.errno is None:
+        return exc
     if exc.filename is not None and (tmp is None or os.fspath(exc.filename) != str(tmp)):
         if tmp is not None or Path(os.fspath(exc.filename)).parent != path.parent:
             return exc
@@ -101,6 +104,27 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return Path(path)
+
+
+def require_whole_video(path: str | os.PathLike[str], frames: int, shown: object = None) -> None:
+    """Read back a video OpenCV's ``cv2.VideoWriter`` has just released at ``path``: it must
+    open and hold ``frames`` frames, or an ``OSError`` names ``shown`` (default ``path``).
+
+    The writer reports no I/O error: on a full disk it leaves a few KB without the MP4's
+    index and returns as if all went well, so without this check a broken video would be
+    renamed into place. Reading the index back costs about a millisecond."""
+    import cv2
+
+    cap = cv2.VideoCapture(os.fspath(path))
+    try:
+        found = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+    finally:
+        cap.release()
+    if found != frames:
+        raise OSError(
+            f"{shown if shown is not None else path}: the video was not written whole (it "
+            f"reads back with {found} of {frames} frames); is the disk full?"
+        )
 
 
 def sha256_file(path: str | os.PathLike[str]) -> str:
@@ -185,3 +209,62 @@ def record_written(*paths: str | os.PathLike[str]) -> None:
                 "a rerun will ask for --overwrite",
                 file=sys.stderr,
             )
+
+
+def _stamp(path: Path) -> tuple[int, int, int] | None:
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns, st.st_size
+
+
+@contextmanager
+def recorded(*paths: str | os.PathLike[str]) -> Iterator[None]:
+    """Write (some of) the files ``paths`` in the block; at its end, however it ends, note
+    the ones it wrote (:func:`record_written`): each path whose file changed (a new inode,
+    size or time; the atomic writers rename a new file into place) or appeared.
+
+    So a Ctrl-C, SIGTERM or error after one output was renamed into place (before the next
+    was written) never leaves a file crowdsim wrote but cannot prove it wrote; the outputs
+    were checked with :func:`require_replaceable` before the work, so whatever changed there
+    is this run's. The notes are taken with the signals held (:func:`signals_held`)."""
+    files = [Path(p) for p in paths]
+    before = [_stamp(p) for p in files]
+    try:
+        yield
+    finally:
+        changed = [p for p, b in zip(files, before, strict=True) if _stamp(p) not in (None, b)]
+        if changed:
+            with signals_held():
+                record_written(*changed)
+
+
+@contextmanager
+def signals_held() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back until the block ends, then deliver them.
+
+    Python runs signal handlers in the main thread only (elsewhere nothing can interrupt the
+    block), and a signal mask would hold them in this thread alone (another thread, such as
+    a progress bar's, would take the signal): so the handlers themselves are swapped for one
+    that notes the signal, which is sent again, to the handler it was meant for, at the end.
+    SIGKILL cannot be held."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    for s, handler in before.items():
+        if handler is not None:  # None: not installed from Python, left alone
+            signal.signal(s, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        for s, handler in before.items():
+            if handler is not None:
+                signal.signal(s, handler)
+        if caught:
+            os.kill(os.getpid(), caught[0])

@@ -163,8 +163,10 @@ def read_manifest(path: str | os.PathLike[str], section: str = "jobs") -> dict[s
         text = path.read_text()
     except FileNotFoundError:
         return _empty(section)
-    except (OSError, ValueError) as exc:  # a folder, unreadable, not text
-        raise ValueError(f"{path}: cannot be read as crowdsim's manifest ({exc})") from None
+    except IsADirectoryError:
+        raise ValueError(f"{path}: is a folder, not crowdsim's manifest") from None
+    except UnicodeDecodeError:  # not text: not crowdsim's (below)
+        text = ""
     try:
         data = json.loads(text)
     except ValueError:

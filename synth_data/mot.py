@@ -325,6 +325,22 @@ def verify_sequence(seq_dir: str | os.PathLike[str]) -> dict[str, str] | None:
         return None
 
 
+TMP_MARKER = ".crowdsim-tmp-owner.json"
+"""Marker file written first inside every temporary folder of :mod:`synth_data.writer`;
+proves the folder is ours to delete (it is removed once the folder is published)."""
+
+
+def read_tmp_marker(folder: str | os.PathLike[str]) -> dict[str, Any] | None:
+    """The marker of a temporary folder, or None when it has none (not ours) or it is bad."""
+    try:
+        data = json.loads((Path(folder) / TMP_MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or not isinstance(data.get("pid"), int):
+        return None
+    return data
+
+
 def not_ours(folder: str | os.PathLike[str]) -> str | None:
     """Why crowdsim cannot prove it wrote everything in ``folder``; ``None`` when it can.
 
@@ -333,7 +349,9 @@ def not_ours(folder: str | os.PathLike[str]) -> str | None:
     ``manifest.json`` (a JSON object with a ``sequences`` table, as ``crowdsim generate``
     writes it), the manifest's lock file and such sequence folders. Otherwise the answer names
     the first file that is not (a file a user added to ``gt/`` or ``img1/``, a changed file, a
-    hidden file beside the sequences, a folder with no listing). What ``--overwrite`` checks
+    hidden file beside the sequences, a folder with no listing); crowdsim's own
+    :data:`TMP_MARKER`, left by a writer killed just after it published the folder, counts as
+    crowdsim's. What ``--overwrite`` checks
     before it replaces a folder, so that replacing it deletes nothing but crowdsim's own
     output.
     """
@@ -369,6 +387,8 @@ def not_ours(folder: str | os.PathLike[str]) -> str | None:
         rel = path.relative_to(folder).as_posix()
         if path.is_dir() and not path.is_symlink() and (rel in folders or any(path.iterdir())):
             continue  # a folder of the user's is named by the first file in it
+        if rel == TMP_MARKER and read_tmp_marker(folder) is not None:
+            continue  # the marker of a writer killed just after it published the folder
         if rel not in listed:
             return f"{path} was not written by crowdsim"
     return None

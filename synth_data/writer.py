@@ -34,11 +34,14 @@ from typing import Any
 
 import numpy as np
 
+from crowdsim.atomic import signals_held
 from synth_data.mot import (
     CHECKSUMS_FILE,
+    TMP_MARKER,
     gt_rows,
     mot_ids,
     not_ours,
+    read_tmp_marker,
     sha256_file,
     write_agents_csv,
     write_mot,
@@ -49,8 +52,6 @@ TMP_PREFIX = ".crowdsim-tmp-"
 """Name prefix of the folders a write in progress uses (then ``<name>-<pid>-<token>``)."""
 OLD_PREFIX = ".crowdsim-old-"
 """Name prefix of a replaced sequence while ``--overwrite`` swaps in the new one."""
-TMP_MARKER = ".crowdsim-tmp-owner.json"
-"""Marker file written first inside every temporary folder; proves it is ours to delete."""
 
 
 def package_versions() -> dict[str, str]:
@@ -102,17 +103,6 @@ def make_tmp_dir(out_dir: str | os.PathLike[str]) -> Path:
     return tmp
 
 
-def read_tmp_marker(folder: str | os.PathLike[str]) -> dict[str, Any] | None:
-    """The marker of a temporary folder, or None when it has none (not ours) or it is bad."""
-    try:
-        data = json.loads((Path(folder) / TMP_MARKER).read_text())
-    except (OSError, ValueError):
-        return None
-    if not isinstance(data, dict) or not isinstance(data.get("pid"), int):
-        return None
-    return data
-
-
 def _pid_alive(pid: int, since: float | None = None) -> bool:
     """Whether process ``pid`` runs (a zombie does not; on Linux, a process started after
     ``since`` (epoch seconds) is another one that reuses the pid)."""
@@ -148,8 +138,11 @@ def clean_stale_tmp(parent: str | os.PathLike[str]) -> list[Path]:
 
     A folder is deleted only when its name starts with :data:`TMP_PREFIX`, it holds a
     readable :data:`TMP_MARKER` written on this host, and the marker's process is no longer
-    running. Anything else (live writers, other hosts on a shared file system, user folders)
-    is left alone. Returns the deleted folders.
+    running. A sequence a dead ``--overwrite`` had renamed aside (:data:`OLD_PREFIX`, still
+    provably crowdsim's) gets its name back when nothing took it (killed between the two
+    renames of :func:`publish_tmp_dir`), and is deleted otherwise. Anything else (live
+    writers, other hosts on a shared file system, user folders) is left alone. Returns the
+    deleted folders.
     """
     import socket
 
@@ -173,7 +166,36 @@ def clean_stale_tmp(parent: str | os.PathLike[str]) -> list[Path]:
         shutil.rmtree(p, ignore_errors=True)
         if not p.exists():
             removed.append(p)
+    for p in _stale_old(parent):
+        back = parent / p.name[len(OLD_PREFIX) :].rsplit("-", 2)[0]
+        if not (back.exists() or back.is_symlink()):  # killed between the two renames
+            os.replace(p, back)  # the name gets back the sequence it had
+        else:
+            shutil.rmtree(p, ignore_errors=True)
+            if not p.exists():
+                removed.append(p)
     return removed
+
+
+def _stale_old(parent: Path) -> list[Path]:
+    """The replaced sequences (:data:`OLD_PREFIX` ``<name>-<pid>-<8 hex>``) under ``parent``
+    whose writer has died, and which are still provably crowdsim's."""
+    import re
+
+    pattern = re.compile(re.escape(OLD_PREFIX) + r".+-(\d+)-[0-9a-f]{8}")
+    try:
+        candidates = sorted(parent.glob(f"{OLD_PREFIX}*"))
+    except OSError:
+        return []
+    out = []
+    for p in candidates:
+        match = pattern.fullmatch(p.name)
+        if match is None or not p.is_dir() or p.is_symlink():
+            continue
+        if _pid_alive(int(match.group(1))) or not_ours(p) is not None:
+            continue
+        out.append(p)
+    return out
 
 
 def require_ours(out_dir: Path) -> None:
@@ -193,6 +215,7 @@ def publish_tmp_dir(tmp: Path, out_dir: Path, overwrite: bool = False) -> None:
     aside (:data:`OLD_PREFIX`) before the new one takes its name, so the name never points at a
     half-made folder.
     """
+    old = None
     if out_dir.exists() or out_dir.is_symlink():
         if not overwrite:
             raise FileExistsError(f"{out_dir} already exists; pass --overwrite to replace it")
@@ -200,12 +223,21 @@ def publish_tmp_dir(tmp: Path, out_dir: Path, overwrite: bool = False) -> None:
         import secrets
 
         old = out_dir.parent / f"{OLD_PREFIX}{out_dir.name}-{os.getpid()}-{secrets.token_hex(4)}"
-        os.replace(out_dir, old)
-        os.replace(tmp, out_dir)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.replace(tmp, out_dir)
-    (out_dir / TMP_MARKER).unlink(missing_ok=True)
+    # Ctrl-C or SIGTERM waits until the name holds a whole sequence (SIGKILL cannot be held:
+    # clean_stale_tmp puts back what it leaves)
+    with signals_held():
+        if old is not None:
+            os.replace(out_dir, old)
+            try:
+                os.replace(tmp, out_dir)
+            except BaseException:
+                os.replace(old, out_dir)  # the name keeps the sequence it had
+                raise
+        else:
+            os.replace(tmp, out_dir)
+        (out_dir / TMP_MARKER).unlink(missing_ok=True)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)  # a kill here: clean_stale_tmp removes the rest
 
 
 def write_sequence(
@@ -341,10 +373,27 @@ def write_sequence(
         (tmp / CHECKSUMS_FILE).write_text(json.dumps(checksums, indent=0) + "\n")
         _fsync_dir(tmp)
         publish_tmp_dir(tmp, out_dir, overwrite)
-    except BaseException:
+    except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError):
+            raise _named_in(exc, tmp, out_dir) from None
         raise
     return {"name": name, "frames": n_frames, "files": checksums, "bytes": total}
+
+
+def _named_in(exc: OSError, tmp: Path, out_dir: Path) -> OSError:
+    """``exc`` naming the file's place in ``out_dir`` instead of in the hidden (and by now
+    removed) temporary folder ``tmp``."""
+    inside = str(tmp)
+    if exc.errno is None:  # our own message: it names the file in its text
+        return type(exc)(str(exc).replace(inside, str(out_dir)))
+    name = os.fsdecode(exc.filename) if isinstance(exc.filename, (str, bytes)) else None
+    if name is None or not (name == inside or name.startswith(inside + os.sep)):
+        return exc
+    try:
+        return type(exc)(exc.errno, exc.strerror, str(out_dir) + name[len(inside) :])
+    except TypeError:  # pragma: no cover - an OSError subclass with its own constructor
+        return exc
 
 
 def _render_frames(
@@ -402,7 +451,10 @@ def _mp4v_frames(path: Path, frames: Iterable[np.ndarray], fps: float) -> Iterat
     """Yield ``frames`` unchanged while writing them to an OpenCV ``mp4v`` file at ``path``."""
     import cv2
 
+    from crowdsim.atomic import require_whole_video
+
     writer = None
+    n = 0
     try:
         for frame in frames:
             if writer is None:
@@ -413,10 +465,13 @@ def _mp4v_frames(path: Path, frames: Iterable[np.ndarray], fps: float) -> Iterat
                 if not writer.isOpened():
                     raise RuntimeError("OpenCV cannot write mp4v video on this machine")
             writer.write(frame)
+            n += 1
             yield frame
     finally:
         if writer is not None:
             writer.release()
+    if writer is not None:  # every frame written (not stopped by an error): read it back
+        require_whole_video(path, n)
 
 
 def _fsync_dir(path: Path) -> None:

@@ -53,3 +53,29 @@ def run_benchmark():
         return subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
 
     return run
+
+
+class _DroppingVideoWriter:
+    """What ``cv2.VideoWriter`` does on a full disk: it opens, and ``write()`` and
+    ``release()`` report nothing while the frames never reach the file."""
+
+    def __init__(self, path, *args):
+        with open(path, "wb") as fh:
+            fh.write(b"\0" * 4096)
+
+    def isOpened(self):
+        return True
+
+    def write(self, img):
+        pass
+
+    def release(self):
+        pass
+
+
+@pytest.fixture()
+def dropping_video_writer(monkeypatch):
+    """``cv2.VideoWriter`` replaced by one that silently drops every frame (a full disk)."""
+    import cv2
+
+    monkeypatch.setattr(cv2, "VideoWriter", _DroppingVideoWriter)

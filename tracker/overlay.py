@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from crowdsim.atomic import atomic_path
+from crowdsim.atomic import atomic_path, require_whole_video
 
 GREEN = (0, 255, 0)
 YELLOW = (0, 255, 255)
@@ -95,4 +95,5 @@ def write_overlay(
                 writer.release()
         if writer is None:
             raise ValueError(f"{path}: no frames to write")
+        require_whole_video(tmp, t + 1, path)
     return path

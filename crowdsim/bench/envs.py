@@ -466,8 +466,8 @@ def run(args: argparse.Namespace) -> int:
     text = json.dumps(report)
     print(text)
     if args.json_out:
-        from crowdsim.atomic import record_written, write_text_atomic
+        from crowdsim.atomic import recorded, write_text_atomic
 
-        write_text_atomic(args.json_out, text + "\n")
-        record_written(args.json_out)
+        with recorded(args.json_out):
+            write_text_atomic(args.json_out, text + "\n")
     return 0

@@ -223,7 +223,7 @@ def _plot(path: str, label: str, runs: dict, f_ref: float) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from crowdsim.atomic import record_written, require_replaceable
+    from crowdsim.atomic import recorded, require_replaceable
     from crowdsim.checks import require_apart, require_number, require_output_dir
 
     if args.repeats < 1:
@@ -250,8 +250,8 @@ def run(args: argparse.Namespace) -> int:
     if args.save_npz:
         from tracker.bqp.qp import save_many
 
-        save_many(args.save_npz, [qp for _, qp in problems])
-        record_written(args.save_npz)
+        with recorded(args.save_npz):
+            save_many(args.save_npz, [qp for _, qp in problems])
     build_s = time.perf_counter() - t0
     # Compile (or load from cache) the numba kernels outside the timings.
     solve(problems[0][1], params=FWParams(max_iter=1))
@@ -434,8 +434,8 @@ def run(args: argparse.Namespace) -> int:
             f_ref = min(f_ref, ref_row["objective"])
         os.makedirs(args.out, exist_ok=True)
         plot_path = os.path.join(args.out, PLOT)
-        _plot(plot_path, label, rec, f_ref - 1e-9)
-        record_written(plot_path)
+        with recorded(plot_path):
+            _plot(plot_path, label, rec, f_ref - 1e-9)
         print(f"\nconvergence plot: {plot_path}")
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else None

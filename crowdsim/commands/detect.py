@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from crowdsim.atomic import record_written, require_replaceable, write_text_atomic
+    from crowdsim.atomic import recorded, require_replaceable, write_text_atomic
     from crowdsim.checks import require_apart
     from crowdsim.progress import progress_bar
     from synth_data.sequence import open_sequence
@@ -96,8 +96,8 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     if done == 0:
         raise ValueError(f"{args.input}: no frames to detect in")
-    write_text_atomic(out, buf.getvalue())
-    record_written(out)
+    with recorded(out):
+        write_text_atomic(out, buf.getvalue())
     print(
         f"{next_id - 1} heads in {done} frame(s) of {src.width}x{src.height}, "
         f"{done / max(seconds, 1e-9):.1f} frames/s -> {out}",

@@ -102,7 +102,7 @@ def check_args(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from crowdsim.atomic import record_written
+    from crowdsim.atomic import recorded
     from synth_data.mot import verify_frames
     from tracker.metrics import evaluate, format_table, plot_accuracy
 
@@ -121,8 +121,8 @@ def run(args: argparse.Namespace) -> int:
     )
     name = Path(args.results).stem
     if args.plot:
-        plot_accuracy({name: [c["acc"] for c in report["curve"]]}, args.plot, title=seq.name)
-        record_written(args.plot)
+        with recorded(args.plot):
+            plot_accuracy({name: [c["acc"] for c in report["curve"]]}, args.plot, title=seq.name)
     if args.json:
         print(json.dumps({"sequence": seq.name, "results": str(args.results), **report}))
         return 0

@@ -192,6 +192,10 @@ def run(args: argparse.Namespace) -> int:
     if not out.name or out.name in (".", ".."):
         raise ValueError(f"--out must name a folder, got {args.out!r}")
     require_output_dir("--out", out)
+    # first the leftovers of killed renders: a sequence a killed --overwrite had moved aside
+    # takes its name back before the name is checked
+    for p in clean_stale_tmp(out.parent):
+        print(f"crowdsim render: removed {p}, left by a render that was killed", file=sys.stderr)
     check_output(out, path, args.overwrite)
     traj = load_trajectories(path, args.fps)
     appearance = AppearanceParams(template_px=args.template_px)
@@ -220,8 +224,6 @@ def run(args: argparse.Namespace) -> int:
         )
     meta = {"source": str(path), "seed": args.seed, "fps": traj.fps}
     out.parent.mkdir(parents=True, exist_ok=True)
-    for p in clean_stale_tmp(out.parent):
-        print(f"crowdsim render: removed {p}, left by a render that was killed", file=sys.stderr)
     try:
         with progress_bar(total=traj.n_steps, unit="frame", desc="rendering") as bar:
             entry = write_sequence(

@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
     import time
 
-    from crowdsim.atomic import record_written
+    from crowdsim.atomic import recorded
     from crowdsim.decomposition import WorkerFailed
     from crowdsim.params import SocialForceParams
     from crowdsim.scenarios import make_scenario
@@ -191,19 +191,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"crowdsim simulate: error: {exc}; nothing written", file=sys.stderr)
         return 2
     assert traj is not None
-    if args.out is not None:
-        traj.save(args.out)
-        record_written(args.out)
-    if args.plot is not None:
-        from crowdsim.plotting import plot_trajectories
+    outputs = [p for p in (args.out, args.plot) if p is not None]
+    with recorded(*outputs):  # a Ctrl-C between the two still notes the first
+        if args.out is not None:
+            traj.save(args.out)
+        if args.plot is not None:
+            from crowdsim.plotting import plot_trajectories
 
-        plot_trajectories(
-            traj,
-            sim.world.walls,
-            args.plot,
-            title=f"{scenario.name}: {traj.n_agents} agents, seed {args.seed}",
-        )
-        record_written(args.plot)
+            plot_trajectories(
+                traj,
+                sim.world.walls,
+                args.plot,
+                title=f"{scenario.name}: {traj.n_agents} agents, seed {args.seed}",
+            )
     print(summary_table(sim, traj, args.steps, wall, args.out, args.plot))
     return 0
 

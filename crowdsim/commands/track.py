@@ -299,7 +299,7 @@ def _detected_start(
 def run(args: argparse.Namespace) -> int:
     from functools import partial
 
-    from crowdsim.atomic import record_written
+    from crowdsim.atomic import atomic_path, recorded
     from envs.episodes import verify_folder
     from synth_data.mot import write_mot
     from synth_data.sequence import open_sequence
@@ -380,8 +380,22 @@ def run(args: argparse.Namespace) -> int:
     result = run.result
     if births is not None:
         print(f"head detector: {births.born} people born while tracking", file=sys.stderr)
-    write_mot(out, tracks_to_mot_rows(result.ids, result.positions, size))
-    record_written(out)
+    # the results are renamed into place once the video is written too: a video that fails
+    # (a full disk) leaves neither, and the run ends with its one line
+    with recorded(out, *([args.video] if args.video else [])), atomic_path(out) as tmp:
+        write_mot(tmp, tracks_to_mot_rows(result.ids, result.positions, size))
+        if args.video:
+            from tracker.overlay import write_overlay
+
+            gt_pts = src.gt_points()[1] if is_folder else None
+            write_overlay(
+                args.video,
+                itertools.islice(src.frames(), result.n_frames),
+                size,
+                tracks=result.positions,
+                ground_truth=gt_pts,
+                fps=getattr(src, "frame_rate", 25.0),
+            )
     stages = ", ".join(f"{k} {v:.1f} ms" for k, v in run.stage_ms.items())
     print(
         f"{run.tracker}: {result.n_frames} frames, {len(result.ids)} targets, "
@@ -389,18 +403,6 @@ def run(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     if args.video:
-        from tracker.overlay import write_overlay
-
-        gt_pts = src.gt_points()[1] if is_folder else None
-        write_overlay(
-            args.video,
-            itertools.islice(src.frames(), result.n_frames),
-            size,
-            tracks=result.positions,
-            ground_truth=gt_pts,
-            fps=getattr(src, "frame_rate", 25.0),
-        )
-        record_written(args.video)
         print(f"overlay -> {args.video}", file=sys.stderr)
     if args.evaluate:
         print(format_table({run.tracker: run.report}))

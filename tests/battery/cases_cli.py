@@ -684,6 +684,12 @@ case(
     "track-out-full-disk", f"{T} --out {{full}}/r.txt", "no space left on the device", needs="full"
 )
 case(
+    "track-video-full-disk",
+    f"{T} --out {{w}}/r.txt --video {{full}}/v.mp4",
+    "v.mp4: OpenCV cannot write an MP4 video here",
+    needs="full",
+)
+case(
     "track-detector-threshold-unused",
     f"{T} --out {{w}}/r.txt --detector-threshold 1.5",
     "--detector-threshold must be a finite number in (0, 1), got 1.5",

@@ -55,3 +55,64 @@ def test_a_ledger_that_cannot_be_written_costs_only_the_proof(tmp_path, capsys, 
     assert a.read_text() == "one" and not (tmp_path / LEDGER).exists()
     with pytest.raises(ValueError, match="pass --overwrite"):  # the next run asks
         require_replaceable("--out", a)
+
+
+def test_recorded_notes_what_the_block_wrote_however_it_ends(tmp_path):
+    """A failure after the first of two outputs still notes the first; an untouched file
+    (the user's, or not written this time) is not noted."""
+    from crowdsim.atomic import recorded
+
+    a, b, c = tmp_path / "a.txt", tmp_path / "b.txt", tmp_path / "c.txt"
+    c.write_text("mine")
+    with pytest.raises(OSError), recorded(a, b, c):
+        write_text_atomic(a, "one")
+        raise OSError(28, "No space left on device", str(b))
+    assert set(json.loads((tmp_path / LEDGER).read_text())["files"]) == {"a.txt"}
+    assert require_replaceable("--out", a) == a
+    with pytest.raises(ValueError, match="c.txt: the file exists"):
+        require_replaceable("--out", c)
+
+
+def test_ctrl_c_right_after_an_output_is_renamed_in_still_lets_a_rerun_replace_it(
+    tmp_path, monkeypatch
+):
+    import os
+
+    from crowdsim import atomic
+    from crowdsim.cli import main
+
+    out = tmp_path / "t.npz"
+    argv = ["simulate", "counterflow", "--agents", "5", "--steps", "2", "--no-progress"]
+    real = os.replace
+
+    def replace_then_ctrl_c(src, dst):
+        real(src, dst)
+        if os.fspath(dst) == str(out):
+            raise KeyboardInterrupt  # after the rename, before the ledger
+
+    monkeypatch.setattr(atomic.os, "replace", replace_then_ctrl_c)
+    assert main([*argv, "--out", str(out)]) != 0
+    monkeypatch.setattr(atomic.os, "replace", real)
+    assert main([*argv, "--out", str(out)]) == 0  # crowdsim's own file: replaced, no flag
+
+
+def test_bench_fd_failing_after_its_first_picture_lets_the_rerun_replace_it(tmp_path, monkeypatch):
+    from crowdsim import plotting
+    from crowdsim.cli import main
+
+    real = plotting.save_figure
+    calls = []
+
+    def second_fails(fig, path, *args, **kwargs):
+        calls.append(path)
+        if len(calls) == 2:  # lanes.png: the disk is full
+            raise OSError(28, "No space left on device", str(path))
+        return real(fig, path, *args, **kwargs)
+
+    argv = ["bench", "fd", "--densities", "1", "--length", "6", "--width", "3", "--warmup"]
+    argv += ["0.2", "--measure", "0.2", "--lane-seconds", "0.2", "--out", str(tmp_path / "b")]
+    monkeypatch.setattr(plotting, "save_figure", second_fails)
+    assert main(argv) == 2
+    assert (tmp_path / "b" / "fd.png").is_file()
+    monkeypatch.setattr(plotting, "save_figure", real)
+    assert main(argv) == 0

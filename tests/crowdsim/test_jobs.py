@@ -274,16 +274,16 @@ def test_a_manifest_crowdsim_did_not_write_is_refused_never_replaced(tmp_path, h
     from crowdsim.jobs import locked_manifest
 
     path = tmp_path / "m.json"
-    path.write_text(content)
+    (path.write_bytes if isinstance(content, bytes) else path.write_text)(content)
     with pytest.raises(ValueError, match="m.json: not a crowdsim manifest"):
         read_manifest(path)
     with pytest.raises(ValueError, match="refusing to replace it"):
         run_jobs([Job("a", helpers.square, (3,))], path, workers=1, progress=False)
     with pytest.raises(ValueError, match="m.json"), locked_manifest(path) as m:
         m["jobs"]["a"] = 1
-    assert path.read_text() == content
+    assert (path.read_bytes() if isinstance(content, bytes) else path.read_text()) == content
     (tmp_path / "d.json").mkdir()
-    with pytest.raises(ValueError, match="d.json: cannot be read as crowdsim's manifest"):
+    with pytest.raises(ValueError, match="d.json: is a folder, not crowdsim's manifest"):
         read_manifest(tmp_path / "d.json")
     # another section of a crowdsim manifest is crowdsim's: read as empty, kept on write
     path.write_text('{"format": 1, "sequences": {"s": 1}}')

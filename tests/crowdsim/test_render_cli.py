@@ -48,6 +48,21 @@ def test_render_csv_with_defaults_fits_the_extent(tmp_path):
     assert seq.frame(1).shape == (seq.height, seq.width, 3)
 
 
+def test_render_video_that_does_not_reach_the_disk_whole_publishes_nothing(
+    tmp_path, capsys, dropping_video_writer
+):
+    """``--video`` (mp4v through OpenCV) on a disk that fills: the writer says nothing, the
+    video is read back, and the run ends with one line and no sequence."""
+    csv = _traj().to_csv(tmp_path / "walk.csv")
+    out = tmp_path / "seq"
+    argv = ["render", "--trajectories", str(csv), "--fps", "10", "--video", "--out", str(out)]
+    assert _main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the video was not written whole" in err[0], err
+    assert ".crowdsim-tmp" not in err[0] and str(out) in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.csv"]
+
+
 def test_render_npz_with_size_and_scale(tmp_path):
     npz = _traj().save(tmp_path / "walk.npz")
     out = tmp_path / "seq"
@@ -250,3 +265,97 @@ def test_generate_overwrite_keeps_a_user_file_inside_a_sequence(tmp_path, capsys
     assert main([*gen, "--overwrite"]) == 2
     assert "notes.txt was not written by crowdsim" in capsys.readouterr().err
     assert (out / "s" / "gt" / "notes.txt").read_text() == "mine"
+
+
+def _render_argv(tmp_path, *extra):
+    csv = _traj().to_csv(tmp_path / "walk.csv")
+    return ["render", "--trajectories", str(csv), "--fps", "10", "--size", "64x48", *extra]
+
+
+def test_ctrl_c_while_overwrite_swaps_the_folders_waits_for_a_whole_sequence(tmp_path, monkeypatch):
+    """SIGINT arriving between the two renames of ``--overwrite`` (old aside, new in) is held
+    until the name holds the new sequence; a failing second rename puts the old one back."""
+    import os
+    import shutil
+    import signal
+
+    from synth_data import writer
+    from synth_data.mot import not_ours
+
+    seq = tmp_path / "seq"
+    assert _main(_render_argv(tmp_path, "--out", str(seq))) == 0
+    real = os.replace
+
+    def replace_then_ctrl_c(src, dst):
+        real(src, dst)
+        if os.path.basename(dst).startswith(writer.OLD_PREFIX):
+            os.kill(os.getpid(), signal.SIGINT)  # a real Ctrl-C, right after the first rename
+
+    def new_copy():  # a whole new sequence in a temporary folder, as write_sequence makes it
+        tmp = writer.make_tmp_dir(seq)
+        shutil.copytree(seq, tmp, dirs_exist_ok=True)
+        return tmp
+
+    monkeypatch.setattr(writer.os, "replace", replace_then_ctrl_c)
+    handler = signal.signal(signal.SIGINT, signal.default_int_handler)  # pytest-xdist ignores it
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            writer.publish_tmp_dir(new_copy(), seq, overwrite=True)
+    finally:
+        signal.signal(signal.SIGINT, handler)
+    assert not_ours(seq) is None and not (seq / writer.TMP_MARKER).exists()
+
+    def second_fails(src, dst):
+        if os.path.basename(src).startswith(writer.TMP_PREFIX):
+            raise OSError(28, "No space left on device", dst)
+        real(src, dst)
+
+    before = sorted(p.relative_to(seq) for p in seq.rglob("*"))
+    monkeypatch.setattr(writer.os, "replace", second_fails)
+    with pytest.raises(OSError):
+        writer.publish_tmp_dir(new_copy(), seq, overwrite=True)
+    assert sorted(p.relative_to(seq) for p in seq.rglob("*")) == before
+    assert not_ours(seq) is None
+
+
+def test_a_sequence_a_killed_overwrite_moved_aside_gets_its_name_back(tmp_path, capsys):
+    """SIGKILL (which cannot be held) between the two renames leaves the old sequence under a
+    hidden name: the next render puts it back; one killed after the swap leaves it beside
+    the new one, and the next render deletes it. A look-alike of the user's is kept."""
+    import shutil
+
+    from synth_data.writer import OLD_PREFIX
+
+    seq = tmp_path / "seq"
+    assert _main(_render_argv(tmp_path, "--out", str(seq))) == 0
+    gt = (seq / "gt" / "gt.txt").read_text()
+    hidden = tmp_path / f"{OLD_PREFIX}seq-{_dead_pid()}-0badf00d"
+    seq.rename(hidden)
+    mine = tmp_path / f"{OLD_PREFIX}notes-{_dead_pid()}-12345678"  # no checksums: the user's
+    mine.mkdir()
+    (mine / "a.txt").write_text("mine")
+    assert _main(_render_argv(tmp_path, "--out", str(seq))) == 2  # the old one is back
+    assert "already exists" in capsys.readouterr().err
+    assert (seq / "gt" / "gt.txt").read_text() == gt and not hidden.exists()
+    shutil.copytree(seq, hidden)
+    assert _main(_render_argv(tmp_path, "--out", str(seq), "--overwrite")) == 0
+    assert not hidden.exists() and (mine / "a.txt").read_text() == "mine"
+
+
+def test_a_marker_a_killed_render_left_in_its_published_sequence_is_crowdsims(tmp_path):
+    import json
+    import socket
+
+    from synth_data.mot import not_ours
+    from synth_data.writer import TMP_MARKER
+
+    seq = tmp_path / "seq"
+    assert _main(_render_argv(tmp_path, "--out", str(seq))) == 0
+    marker = {"pid": _dead_pid(), "host": socket.gethostname(), "target": "seq", "created": 0}
+    (seq / TMP_MARKER).write_text(json.dumps(marker) + "\n")
+    assert not_ours(seq) is None
+    (seq / TMP_MARKER).write_text("my notes\n")  # not a marker: a file of the user's
+    assert "was not written by crowdsim" in not_ours(seq)
+    (seq / TMP_MARKER).write_text(json.dumps(marker) + "\n")
+    assert _main(_render_argv(tmp_path, "--out", str(seq), "--overwrite")) == 0
+    assert not (seq / TMP_MARKER).exists()
