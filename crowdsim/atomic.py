@@ -211,6 +211,47 @@ def record_written(*paths: str | os.PathLike[str]) -> None:
             )
 
 
+@contextmanager
+def output_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Make the folder ``path`` (and its parents) for the block's outputs; when the block
+    fails and leaves the folder it made empty, remove it again (a failed run leaves nothing
+    behind; a folder that was there, or holds a file, is kept)."""
+    path = Path(path)
+    made = [p for p in (path, *path.parents) if not (p.exists() or p.is_symlink())]
+    path.mkdir(parents=True, exist_ok=True)
+    try:
+        yield path
+    except BaseException:
+        for p in made:  # the deepest first; stops at the first that is not empty
+            try:
+                p.rmdir()
+            except OSError:
+                break
+        raise
+
+
+@contextmanager
+def new_study_files(url: str | None) -> Iterator[None]:
+    """Open or create an Optuna study in the block: when it fails (a full disk while the
+    tables are made), the SQLite files of ``url`` (``sqlite:///path``: the database and its
+    journals) that were not there before are removed, so a half-made database of this run
+    is never left to be refused as foreign by the next. Other storages are left alone."""
+    files: list[Path] = []
+    if url is not None and url.startswith("sqlite:///"):
+        db = url[len("sqlite:///") :]
+        files = [Path(db + end) for end in ("", "-journal", "-wal", "-shm")]
+    new = [p for p in files if not os.path.lexists(p)]
+    try:
+        yield
+    except BaseException:
+        for p in new:
+            try:
+                p.unlink()
+            except OSError:
+                pass
+        raise
+
+
 def _stamp(path: Path) -> tuple[int, int, int] | None:
     try:
         st = path.stat()
@@ -268,3 +309,64 @@ def signals_held() -> Iterator[None]:
                 signal.signal(s, handler)
         if caught:
             os.kill(os.getpid(), caught[0])
+
+
+def _first_file_ancestor(path: Path) -> Path | None:
+    """The nearest of ``path`` and its ancestors that exists and is not a folder, if any."""
+    for p in (path, *path.parents):
+        try:
+            if p.exists() or p.is_symlink():
+                return None if p.is_dir() else p
+        except OSError:  # pragma: no cover - unreadable ancestor
+            return None
+    return None
+
+
+_CAUSES: dict[int, str] = {
+    errno.ENOSPC: "no space left on the device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.EROFS: "read-only file system",
+    errno.ENOENT: "no such file or folder",
+    errno.EISDIR: "is a folder, not a file",
+    errno.ENAMETOOLONG: "file name too long",
+    errno.ELOOP: "too many levels of symbolic links",
+    errno.EMFILE: "too many open files",
+    errno.EFBIG: "file too large",
+    errno.EIO: "input/output error",
+}
+
+
+def describe_os_error(exc: OSError) -> str:
+    """One line naming the path and the cause of a failed file operation.
+
+    ``NotADirectoryError`` and ``FileExistsError`` on a path under a regular file read
+    ``"<path>: <parent> is a file, not a folder"``; errors raised by our own code with a full
+    message (no errno) are passed through.
+    """
+    if exc.errno is None or exc.filename is None or isinstance(exc.filename, int):
+        text = exc.strerror if exc.errno is not None and exc.strerror else str(exc)
+        return (
+            text
+            if exc.filename is None or isinstance(exc.filename, int)
+            else f"{os.fsdecode(exc.filename)}: {text}"
+        )
+    name = os.fsdecode(exc.filename)
+    path = Path(name)
+    code = exc.errno
+    if code in (errno.ENOTDIR, errno.EEXIST):
+        blocker = _first_file_ancestor(path)
+        if blocker is not None and blocker != path:
+            return f"{name}: {blocker} is a file, not a folder"
+        if blocker == path:
+            return f"{name}: is a file, not a folder"
+        if code == errno.EEXIST:
+            return f"{name}: already exists"
+        return f"{name}: not a folder"
+    if code == errno.EXDEV and exc.filename2 is not None:
+        return f"{name}: cannot move to {os.fsdecode(exc.filename2)} (another file system)"
+    cause = _CAUSES.get(code) or (exc.strerror or str(exc)).lower()
+    if code in (errno.EACCES, errno.EPERM, errno.EROFS) and not path.exists():
+        cause += f" (cannot create files in {path.parent})"
+    return f"{name}: {cause}"

@@ -15,14 +15,13 @@ line ``crowdsim <command>: interrupted by SIGINT|SIGTERM[; what was removed or k
 from __future__ import annotations
 
 import argparse
-import errno
 import os
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 from types import ModuleType
 
 from crowdsim import __version__
+from crowdsim.atomic import describe_os_error
 from crowdsim.commands import (
     ablation,
     bench,
@@ -83,67 +82,6 @@ def build_parser() -> argparse.ArgumentParser:
     for command in COMMANDS:
         command.register(sub)
     return parser
-
-
-def _first_file_ancestor(path: Path) -> Path | None:
-    """The nearest of ``path`` and its ancestors that exists and is not a folder, if any."""
-    for p in (path, *path.parents):
-        try:
-            if p.exists() or p.is_symlink():
-                return None if p.is_dir() else p
-        except OSError:  # pragma: no cover - unreadable ancestor
-            return None
-    return None
-
-
-_CAUSES: dict[int, str] = {
-    errno.ENOSPC: "no space left on the device",
-    errno.EDQUOT: "disk quota exceeded",
-    errno.EACCES: "permission denied",
-    errno.EPERM: "operation not permitted",
-    errno.EROFS: "read-only file system",
-    errno.ENOENT: "no such file or folder",
-    errno.EISDIR: "is a folder, not a file",
-    errno.ENAMETOOLONG: "file name too long",
-    errno.ELOOP: "too many levels of symbolic links",
-    errno.EMFILE: "too many open files",
-    errno.EFBIG: "file too large",
-    errno.EIO: "input/output error",
-}
-
-
-def describe_os_error(exc: OSError) -> str:
-    """One line naming the path and the cause of a failed file operation.
-
-    ``NotADirectoryError`` and ``FileExistsError`` on a path under a regular file read
-    ``"<path>: <parent> is a file, not a folder"``; errors raised by our own code with a full
-    message (no errno) are passed through.
-    """
-    if exc.errno is None or exc.filename is None or isinstance(exc.filename, int):
-        text = exc.strerror if exc.errno is not None and exc.strerror else str(exc)
-        return (
-            text
-            if exc.filename is None or isinstance(exc.filename, int)
-            else f"{os.fsdecode(exc.filename)}: {text}"
-        )
-    name = os.fsdecode(exc.filename)
-    path = Path(name)
-    code = exc.errno
-    if code in (errno.ENOTDIR, errno.EEXIST):
-        blocker = _first_file_ancestor(path)
-        if blocker is not None and blocker != path:
-            return f"{name}: {blocker} is a file, not a folder"
-        if blocker == path:
-            return f"{name}: is a file, not a folder"
-        if code == errno.EEXIST:
-            return f"{name}: already exists"
-        return f"{name}: not a folder"
-    if code == errno.EXDEV and exc.filename2 is not None:
-        return f"{name}: cannot move to {os.fsdecode(exc.filename2)} (another file system)"
-    cause = _CAUSES.get(code) or (exc.strerror or str(exc)).lower()
-    if code in (errno.EACCES, errno.EPERM, errno.EROFS) and not path.exists():
-        cause += f" (cannot create files in {path.parent})"
-    return f"{name}: {cause}"
 
 
 KEEP_FREED: dict[str, int] = {

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from crowdsim.atomic import new_study_files
 from crowdsim.checks import require_choice, require_number, require_workers
 from crowdsim.jobs import read_manifest
 from crowdsim.optional import DependencyNotInstalled, require
@@ -366,55 +367,56 @@ def open_study(
     import optuna
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    storage = open_storage(url)
-    space = objective.space()
-    signature = {"space": space.signature(), "objective": objective.describe()}
-    try:
-        study = optuna.create_study(
-            storage=storage,
-            study_name=name,
-            direction="maximize",
-            sampler=_make_sampler(sampler, space, seed, trials),
-            load_if_exists=True,
-        )
-    except (ValueError, DependencyNotInstalled):
-        raise
-    except Exception as exc:  # storage errors (SQLAlchemy, journal) on a foreign file
-        raise ValueError(
-            f"cannot open study {name!r} in {url}: {type(exc).__name__}: "
-            f"{str(exc).splitlines()[0] if str(exc) else ''}"
-        ) from None
-    if study.direction != optuna.study.StudyDirection.MAXIMIZE:
-        raise ValueError(
-            f"study {name!r} in {url} minimises; it is not a crowdsim tuning "
-            "study (choose another --study-name)"
-        )
-    old = study.user_attrs.get("crowdsim")
-    if old is None:
-        if study.trials:
+    with new_study_files(url):  # a half-made database of this run is not left behind
+        storage = open_storage(url)
+        space = objective.space()
+        signature = {"space": space.signature(), "objective": objective.describe()}
+        try:
+            study = optuna.create_study(
+                storage=storage,
+                study_name=name,
+                direction="maximize",
+                sampler=_make_sampler(sampler, space, seed, trials),
+                load_if_exists=True,
+            )
+        except (ValueError, DependencyNotInstalled):
+            raise
+        except Exception as exc:  # storage errors (SQLAlchemy, journal) on a foreign file
             raise ValueError(
-                f"study {name!r} in {url} was not made by crowdsim tune; choose "
-                "another --study-name or --out"
+                f"cannot open study {name!r} in {url}: {type(exc).__name__}: "
+                f"{str(exc).splitlines()[0] if str(exc) else ''}"
+            ) from None
+        if study.direction != optuna.study.StudyDirection.MAXIMIZE:
+            raise ValueError(
+                f"study {name!r} in {url} minimises; it is not a crowdsim tuning "
+                "study (choose another --study-name)"
             )
-        study.set_user_attr("crowdsim", json.loads(json.dumps(signature)))
-        if enqueue_defaults:
-            study.enqueue_trial(
-                dict(zip(space.names, space.default.tolist(), strict=True)),
-                user_attrs={"defaults": True},
+        old = study.user_attrs.get("crowdsim")
+        if old is None:
+            if study.trials:
+                raise ValueError(
+                    f"study {name!r} in {url} was not made by crowdsim tune; choose "
+                    "another --study-name or --out"
+                )
+            study.set_user_attr("crowdsim", json.loads(json.dumps(signature)))
+            if enqueue_defaults:
+                study.enqueue_trial(
+                    dict(zip(space.names, space.default.tolist(), strict=True)),
+                    user_attrs={"defaults": True},
+                )
+        elif old != json.loads(json.dumps(signature)):
+            changed = [
+                k
+                for k in signature["objective"]
+                if old.get("objective", {}).get(k) != signature["objective"][k]
+            ]
+            if old.get("space") != signature["space"]:
+                changed.insert(0, "parameter space")
+            raise ValueError(
+                f"study {name!r} in {url} was made for another objective (differs in "
+                f"{', '.join(map(str, changed))}); resume with the same flags, or "
+                "choose another --out or --study-name"
             )
-    elif old != json.loads(json.dumps(signature)):
-        changed = [
-            k
-            for k in signature["objective"]
-            if old.get("objective", {}).get(k) != signature["objective"][k]
-        ]
-        if old.get("space") != signature["space"]:
-            changed.insert(0, "parameter space")
-        raise ValueError(
-            f"study {name!r} in {url} was made for another objective (differs in "
-            f"{', '.join(map(str, changed))}); resume with the same flags, or "
-            "choose another --out or --study-name"
-        )
     return study
 
 

@@ -47,7 +47,10 @@ def main(name: str, argv: list[str] | None = None) -> int:
     try:
         return int(mod.run(args) or 0)
     except (ValueError, OSError) as exc:
-        print(f"crowdsim bench {name}: error: {exc}", file=sys.stderr)
+        from crowdsim.atomic import describe_os_error
+
+        text = describe_os_error(exc) if isinstance(exc, OSError) else str(exc)
+        print(f"crowdsim bench {name}: error: {text}", file=sys.stderr)
         return 2
 
 

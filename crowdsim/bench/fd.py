@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     for path in outputs:
         require_replaceable("--out", path, args.overwrite)
 
-    from crowdsim.atomic import recorded, write_text_atomic
+    from crowdsim.atomic import output_folder, recorded, write_text_atomic
     from crowdsim.validation import fundamental_diagram, lane_formation
 
     points = fundamental_diagram(
@@ -114,8 +114,7 @@ def run(args: argparse.Namespace) -> int:
             "final_random_mix": sum(lanes["random_mix"][-n_late:]) / n_late,
         },
     }
-    args.out.mkdir(parents=True, exist_ok=True)
-    with recorded(*outputs):  # a failure after fd.png still notes fd.png
+    with output_folder(args.out), recorded(*outputs):  # a failure after fd.png notes fd.png
         _plot(report, args.out)
         write_text_atomic(args.out / "fd.json", json.dumps(report) + "\n")
 

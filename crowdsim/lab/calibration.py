@@ -72,7 +72,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from crowdsim.atomic import write_text_atomic
+from crowdsim.atomic import new_study_files, write_text_atomic
 from crowdsim.knobs import apply_knobs, knob_values, scaled
 from tracker.bqp.ablation import ablation_rows
 
@@ -244,26 +244,27 @@ def calibrate_spec(
         check_study_file(Path(storage[len("sqlite:///") :]))
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     name = study_name(spec, anchor)
-    try:
-        study = optuna.create_study(
-            study_name=name, storage=storage, direction="minimize", load_if_exists=True
-        )
-    except Exception as exc:  # SQLAlchemy / Optuna errors of a damaged file
-        raise ValueError(
-            f"cannot open study {name!r} in {storage}: {type(exc).__name__}: "
-            f"{(str(exc).splitlines() or [''])[0]}"
-        ) from None
-    mark = {"sequence": spec.name, "digest": spec.digest(), "anchor": anchor}
-    old = study.user_attrs.get(STUDY_ATTR)
-    if old is None:
-        if study.trials:
-            raise ValueError(
-                f"study {name!r} in {storage} was not made by crowdsim calibrate; choose "
-                "another --study or --out"
+    with new_study_files(storage):  # a half-made database of this run is not left behind
+        try:
+            study = optuna.create_study(
+                study_name=name, storage=storage, direction="minimize", load_if_exists=True
             )
-        study.set_user_attr(STUDY_ATTR, mark)
-    elif old != mark:
-        raise ValueError(f"study {name!r} in {storage} was made for another spec ({old})")
+        except Exception as exc:  # SQLAlchemy / Optuna errors of a damaged file
+            raise ValueError(
+                f"cannot open study {name!r} in {storage}: {type(exc).__name__}: "
+                f"{(str(exc).splitlines() or [''])[0]}"
+            ) from None
+        mark = {"sequence": spec.name, "digest": spec.digest(), "anchor": anchor}
+        old = study.user_attrs.get(STUDY_ATTR)
+        if old is None:
+            if study.trials:
+                raise ValueError(
+                    f"study {name!r} in {storage} was not made by crowdsim calibrate; choose "
+                    "another --study or --out"
+                )
+            study.set_user_attr(STUDY_ATTR, mark)
+        elif old != mark:
+            raise ValueError(f"study {name!r} in {storage} was made for another spec ({old})")
 
     def points() -> list[tuple[float, float]]:
         return [

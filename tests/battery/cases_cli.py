@@ -975,6 +975,13 @@ BENCH = (
 )
 for cid, argv, needle in BENCH:
     case(cid, f"bench {argv}", needle)
+case(  # the one wording of every command, not Python's "[Errno 28] ..."
+    "bench-fd-full-disk",
+    "bench fd --densities 1 --length 6 --width 3 --warmup 0.2 --measure 0.2 --lane-seconds 0.2 "
+    "--out {full}/b",
+    "fd.png: no space left on the device",
+    needs="full",
+)
 
 # --- global -----------------------------------------------------------------------------
 case("cli-unknown-command", "frobnicate", "'frobnicate'")

@@ -116,3 +116,20 @@ def test_bench_fd_failing_after_its_first_picture_lets_the_rerun_replace_it(tmp_
     assert (tmp_path / "b" / "fd.png").is_file()
     monkeypatch.setattr(plotting, "save_figure", real)
     assert main(argv) == 0
+
+
+def test_a_study_database_this_run_half_made_is_removed_an_earlier_one_kept(tmp_path):
+    from crowdsim.atomic import new_study_files
+
+    db = tmp_path / "study.db"
+    with pytest.raises(OSError), new_study_files(f"sqlite:///{db}"):
+        db.write_bytes(b"SQLite format 3\0 half made")
+        (tmp_path / "study.db-journal").write_bytes(b"...")
+        raise OSError(28, "database or disk is full")
+    assert list(tmp_path.iterdir()) == []
+    db.write_bytes(b"an earlier study")  # there before the run: never removed
+    with pytest.raises(ValueError), new_study_files(f"sqlite:///{db}"):
+        raise ValueError("made for another objective")
+    assert db.read_bytes() == b"an earlier study"
+    with new_study_files("postgresql://host/db"):  # no files of its own to look after
+        pass

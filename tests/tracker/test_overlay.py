@@ -31,7 +31,7 @@ def test_a_whole_video_reads_back_with_every_frame(tmp_path):
 def test_a_writer_that_drops_frames_silently_is_caught(tmp_path, dropping_video_writer):
     with pytest.raises(OSError) as caught:
         overlay.write_overlay(tmp_path / "v.mp4", _noise(3, 32, 32), 8, fps=25.0)
-    from crowdsim.cli import describe_os_error
+    from crowdsim.atomic import describe_os_error
 
     assert describe_os_error(caught.value) == (
         f"{tmp_path / 'v.mp4'}: the video was not written whole (it reads back with 0 of 3 "
