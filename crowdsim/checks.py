@@ -77,6 +77,26 @@ def whole_numbers(values: Any) -> bool:
     return v.dtype.kind == "f" and bool(np.isfinite(v).all() and (v == np.round(v)).all())
 
 
+def path_arg(text: str) -> Path:
+    """``type=`` of an argparse flag that names a file or folder: the ``Path``, refusing an
+    empty one (``--out ''`` would quietly mean the working folder)."""
+    import argparse
+
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"must name a file or folder, got {text!r}")
+    return Path(text)
+
+
+def checked_seed(seed: Any) -> int | None:
+    """A ``reset`` seed as gymnasium takes it (a Python int, or ``None``): any whole number
+    >= 0, numpy's included; a ``ValueError`` naming ``seed`` otherwise (gymnasium's own
+    error would not, and it refuses numpy integers)."""
+    if seed is None:
+        return None
+    require_number("reset", "seed", seed, lo=0, integer=True)
+    return int(seed)
+
+
 def require_cpus(flag: str, values: Any, lo: int = 1) -> None:
     """Raise ``ValueError("<flag> must be in [lo, cpus] (os.cpu_count()), got <first bad>")``
     unless every count of ``values`` (an int or a sequence of them) is within the cores.

@@ -17,7 +17,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
-from crowdsim.checks import require_number, whole_numbers
+from crowdsim.checks import checked_seed, require_number, whole_numbers
 from crowdsim.forces import WallGrid, k_nearest, nearest_wall
 from crowdsim.params import SocialForceParams
 from crowdsim.scenarios import MAX_AGENTS, Scenario, make_scenario
@@ -199,6 +199,11 @@ class CrowdParallelEnv(ParallelEnv):
                 raise ValueError("scenario_params only apply to a scenario given by name")
             self.scenario = scenario
         else:
+            if scenario_params is not None and not isinstance(scenario_params, Mapping):
+                raise ValueError(
+                    f"scenario_params must be a mapping of the scenario's fields, got "
+                    f"{scenario_params!r}"
+                )
             self.scenario = make_scenario(
                 scenario, **{"n_agents": p.n_agents, **dict(scenario_params or {})}
             )
@@ -262,7 +267,7 @@ class CrowdParallelEnv(ParallelEnv):
         return self._act_space
 
     def _check_agent(self, agent: str) -> None:
-        if agent not in self._agent_set:
+        if not isinstance(agent, str) or agent not in self._agent_set:
             raise ValueError(
                 f"unknown agent {agent!r}; agents are named 'ped_<id>' with "
                 f"ids below max_agents = {self.max_agents}"
@@ -316,6 +321,7 @@ class CrowdParallelEnv(ParallelEnv):
         ``seed`` seeds everything (the first reset without one draws fresh entropy; later
         ones continue the env's generator).
         """
+        seed = checked_seed(seed)
         if seed is not None or self.np_random is None:
             self.np_random, _ = seeding.np_random(seed)
         sim_seed, self._render_seed = (int(v) for v in self.np_random.integers(0, _SEED_BOUND, 2))
@@ -366,8 +372,15 @@ class CrowdParallelEnv(ParallelEnv):
         vmax = self.params.vmax
         clipped = np.clip(a, -vmax, vmax)
         self.n_clipped += int(np.count_nonzero((clipped != a).any(axis=1)))
-        controlled = ids if act is None else ids[np.asarray(act, dtype=bool)]
-        command = clipped if act is None else clipped[np.asarray(act, dtype=bool)]
+        if act is None:
+            controlled, command = ids, clipped
+        else:
+            mask = np.asarray(act)
+            if mask.dtype != np.bool_ or mask.shape != (n,):
+                raise ValueError(
+                    f"act must be a boolean ({n},) mask, got {mask.dtype} of shape {mask.shape}"
+                )
+            controlled, command = ids[mask], clipped[mask]
         before = sim.state.pos[sim.index_of(ids)]
         goal = self._goal
         sim.step(desired_velocity=command, controlled=controlled)
@@ -397,6 +410,8 @@ class CrowdParallelEnv(ParallelEnv):
     def reset(
         self, seed: int | None = None, options: dict | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"reset: options must be a dict or None, got {options!r}")
         obs = self.reset_arrays(seed)
         return dict(zip(self.agents, obs, strict=True)), {a: {} for a in self.agents}
 
@@ -585,6 +600,8 @@ def shared_policy_vec_env(env: CrowdParallelEnv, seed: int | None = None) -> Any
     from crowdsim.optional import require
 
     VecEnv = require("stable_baselines3.common.vec_env", "rl", "the shared-policy recipe").VecEnv
+    if not isinstance(env, CrowdParallelEnv):
+        raise ValueError(f"env must be a CrowdParallelEnv, got {type(env).__name__}")
 
     slot_ids = np.array([int(a.split("_", 1)[1]) for a in env.possible_agents], np.int64)
 
@@ -679,6 +696,10 @@ def train_shared_policy(
     """
     from crowdsim.optional import require
 
+    require_number("train_shared_policy", "total_timesteps", total_timesteps, lo=1, integer=True)
+    for name, given in (("env_kwargs", env_kwargs), ("ppo_kwargs", ppo_kwargs)):
+        if given is not None and not isinstance(given, Mapping):
+            raise ValueError(f"train_shared_policy.{name} must be a mapping, got {given!r}")
     require("torch", "rl", "the shared-policy recipe")
     PPO = require("stable_baselines3", "rl", "the shared-policy recipe").PPO
     from stable_baselines3.common.callbacks import BaseCallback
@@ -710,7 +731,10 @@ def train_shared_policy(
         "verbose": 0,
         **dict(ppo_kwargs or {}),
     }
-    model = PPO("MlpPolicy", venv, **options)
+    try:
+        model = PPO("MlpPolicy", venv, **options)
+    except TypeError as exc:  # a keyword PPO does not take
+        raise ValueError(f"train_shared_policy.ppo_kwargs: {exc}") from None
     if not options["verbose"]:
         from stable_baselines3.common.logger import Logger
 

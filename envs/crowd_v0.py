@@ -27,13 +27,39 @@ def parallel_env(**kwargs: Any) -> CrowdParallelEnv:
     return CrowdParallelEnv(**kwargs)
 
 
+class _Checked(wrappers.BaseWrapper):
+    """An AEC face of the crowd that checks what each call passes, at that call: an action
+    of the wrong shape or not finite is refused by the ``step`` that gives it (naming the
+    agent), never buffered until the cycle's last agent (``parallel_to_aec`` steps the crowd
+    only then, and a bad action left in its buffer would fail every step after); and
+    ``observe`` of an unknown agent names it (a ``ValueError``, not a ``KeyError``)."""
+
+    def __init__(self, aec: AECEnv, crowd: CrowdParallelEnv) -> None:
+        super().__init__(aec)
+        self._crowd = crowd
+
+    def step(self, action: Any) -> None:
+        agent = self.agent_selection
+        if action is not None or not (self.terminations[agent] or self.truncations[agent]):
+            self._crowd._check_action(agent, action)
+        super().step(action)
+
+    def observe(self, agent: str) -> Any:
+        self._crowd._check_agent(agent)
+        return super().observe(agent)
+
+
 def raw_env(**kwargs: Any) -> AECEnv:
-    """The AEC face without the usual wrappers (``parallel_to_aec`` of the parallel env)."""
-    return parallel_to_aec(parallel_env(**kwargs))
+    """The AEC face without the usual wrappers (``parallel_to_aec`` of the parallel env), with
+    the crowd's checks at the call that passes a bad value."""
+    crowd = parallel_env(**kwargs)
+    return _Checked(parallel_to_aec(crowd), crowd)
 
 
 def env(**kwargs: Any) -> AECEnv:
-    """The AEC environment with the usual wrappers: out-of-bounds actions clipped (with a
-    warning), call order enforced."""
-    aec = wrappers.ClipOutOfBoundsWrapper(raw_env(**kwargs))
-    return wrappers.OrderEnforcingWrapper(aec)
+    """The AEC environment with the usual wrappers: call order enforced, finite
+    out-of-bounds actions clipped (with a warning); an action of the wrong shape or not
+    finite is refused by name first, never clipped."""
+    crowd = parallel_env(**kwargs)
+    aec = wrappers.ClipOutOfBoundsWrapper(_Checked(parallel_to_aec(crowd), crowd))
+    return wrappers.OrderEnforcingWrapper(_Checked(aec, crowd))

@@ -804,8 +804,9 @@ class EpisodeSource(ABC):
         return self.store.fill(self.cached_specs(), workers=workers, progress=progress)
 
     def episode(self, index: int) -> Any:
-        """Episode ``index`` (deterministic; the same sequence on every call)."""
-        require_number(type(self).__name__, "index", index, lo=0, integer=True)
+        """Episode ``index`` (deterministic; the same sequence on every call), ``0 <= index <
+        len(self)``: a suite's sequences, a pool's episodes, or a distribution's stream."""
+        require_number(type(self).__name__, "index", index, lo=0, hi=len(self) - 1, integer=True)
         return self._cache.get(int(index), lambda: self._build(int(index)))
 
     def sample(self, rng: np.random.Generator) -> Any:

@@ -366,16 +366,18 @@ class ParamSpace:
     def clip(self, action: Any) -> tuple[np.ndarray, int]:
         """``(clipped action (d,) float64, number of coordinates that were outside [-1, 1])``.
 
-        NaN coordinates are refused (``ValueError``): clipping cannot give them a meaning.
+        An action of another shape, not real numbers, or with NaN or infinite coordinates is
+        refused (``ValueError``): clipping cannot give those a meaning.
         """
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != (self.dim,):
+        raw = np.asarray(action) if not isinstance(action, (dict, str, bytes)) else None
+        if raw is None or raw.dtype.kind not in "biuf" or raw.shape != (self.dim,):
+            what = f"shape {raw.shape} of {raw.dtype}" if raw is not None else repr(action)
             raise ValueError(
-                f"action must have {self.dim} entries ({', '.join(self.names)}), "
-                f"got shape {np.shape(action)}"
+                f"action must be {self.dim} real numbers ({', '.join(self.names)}), got {what}"
             )
-        if np.isnan(a).any():
-            raise ValueError(f"action has NaN entries: {a.tolist()}")
+        a = raw.astype(np.float64)
+        if not np.isfinite(a).all():
+            raise ValueError(f"action must be finite, got {a.tolist()}")
         out = (a < -1.0) | (a > 1.0)
         return np.clip(a, -1.0, 1.0), int(out.sum())
 

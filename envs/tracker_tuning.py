@@ -25,7 +25,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from crowdsim.checks import require_number
+from crowdsim.checks import checked_seed, require_number
 from envs.episodes import EpisodeSource, ScenarioDistribution, make_episodes
 from envs.param_space import ParamSpace, require_tunable
 from tracker.base import Tracker
@@ -33,6 +33,8 @@ from tracker.metrics import point_errors
 
 ENV_ID = "crowdsim/TrackerTuning-v0"
 BANDIT_ENV_ID = "crowdsim/TrackerTuningBandit-v0"
+MAX_EMPTY_DRAWS: int = 100
+"""Most draws in a row of episodes with nobody in view before ``reset`` gives up."""
 
 OBS_FIELDS: tuple[tuple[str, float, float, str], ...] = (
     ("targets_log10", 0.0, 6.0, "log10(1 + active targets)"),
@@ -350,7 +352,14 @@ class TrackerTuningEnv(gym.Env):
         self.tracker_name = tracker
         from tracker.registry import get
 
-        base = get(tracker).make_params() if start_params is None else start_params
+        base = get(tracker).make_params()
+        if start_params is not None:
+            if type(start_params) is not type(base):
+                raise ValueError(
+                    f"start_params must be the {tracker!r} tracker's {type(base).__name__}, "
+                    f"got {type(start_params).__name__}"
+                )
+            base = start_params
         if not isinstance(extended, (bool, np.bool_)):
             raise ValueError(f"extended must be True or False, got {extended!r}")
         self.space = ParamSpace(extended=extended, base=base)
@@ -367,11 +376,25 @@ class TrackerTuningEnv(gym.Env):
 
     # ------------------------------------------------------------------ episode
     def _pick(self, options: dict | None) -> Any:
+        """The episode ``options["episode"]`` names, or a random one with someone in view:
+        a distribution's camera can frame nobody (a few people, a wide hall), and such a
+        draw is drawn again, as the held-out scoring skips it, up to
+        :data:`MAX_EMPTY_DRAWS` times in a row."""
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"reset: options must be a dict or None, got {options!r}")
         if options and "episode" in options:
             k = options["episode"]
-            require_number("reset", "options['episode']", k, lo=0, integer=True)
+            n = len(self.episodes)
+            require_number("reset", "options['episode']", k, lo=0, hi=n - 1, integer=True)
             return self.episodes.episode(int(k))
-        return self.episodes.sample(self.np_random)
+        for _ in range(MAX_EMPTY_DRAWS):
+            seq = self.episodes.sample(self.np_random)
+            if len(seq.gt_points()[0]):
+                return seq
+        raise ValueError(
+            f"reset: {MAX_EMPTY_DRAWS} episodes in a row had nobody in view; give the "
+            "scenarios more people or a higher density, or a smaller view"
+        )
 
     def _start(self, seq: Any) -> np.ndarray:
         gt_ids, gt_pts = seq.gt_points()
@@ -382,6 +405,9 @@ class TrackerTuningEnv(gym.Env):
         first = next(frames)
         gt_ids = np.asarray(gt_ids, np.int64)
         order = np.argsort(gt_ids)
+        # the tracker first: a reset that fails leaves the env as it was, never half-made
+        trk = make_tuned_tracker(self.tracker_name, self.space.to_params(self.start_action))
+        trk.init(first, ids0, pts0, int(seq.template_size))
         self._gt_sorted = gt_ids[order]
         self._gt_order = order
         tracks = np.full((seq.length, len(gt_ids), 2), np.nan)
@@ -395,8 +421,7 @@ class TrackerTuningEnv(gym.Env):
             frame=first,
         )
         self._action = self.start_action.copy()
-        self._trk = make_tuned_tracker(self.tracker_name, self.space.to_params(self._action))
-        self._trk.init(first, ids0, pts0, int(seq.template_size))
+        self._trk = trk
         self._seen = StepStats(self._trk)
         self._record(0, self._trk.ids, self._trk.points)
         self._clipped_total = 0
@@ -442,7 +467,7 @@ class TrackerTuningEnv(gym.Env):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
+        super().reset(seed=checked_seed(seed))
         seq = self._pick(options)
         obs = self._start(seq)
         return obs, self._info(0.0, 0, 0, 0)

@@ -198,12 +198,14 @@ def train(
         with zipfile.ZipFile(tmp, "a") as zf:
             zf.writestr(POLICY_META, json.dumps(_policy_meta(algo, env_kwargs, space)))
 
+    trained = int(model.num_timesteps)  # PPO runs whole rollouts: up to one more than asked
     doc = {
         "algo": algo,
         "envs": n_envs,
-        "steps": steps,
+        "steps": trained,
+        "steps_asked": steps,
         "wall_s": wall,
-        "steps_per_s": steps / wall if wall > 0 else None,
+        "steps_per_s": trained / wall if wall > 0 else None,
         "episodes": curve,
         "episode_cache": filled,
     }

@@ -172,7 +172,8 @@ class Scorer:
 
         self.objective = objective
         src = objective.episodes(cache=objective.train_episodes)
-        self.n = objective.n_train(src)
+        self.indices = _peopled(src, objective.n_train(src))
+        self.n = len(self.indices)
         self.env = TrackerTuningBanditEnv(
             episodes=src,
             threshold_px=objective.threshold_px,
@@ -185,11 +186,29 @@ class Scorer:
         """``(mean accuracy %, per-episode accuracies %)`` of the tuned ``values``."""
         action = self.space.to_action(values)
         accs = []
-        for i in range(self.n):
+        for i in self.indices:
             self.env.reset(options={"episode": i})
             _, reward, *_ = self.env.step(action)
             accs.append(100.0 * reward)
         return float(np.mean(accs)), accs
+
+
+def _peopled(src: EpisodeSource, n: int) -> list[int]:
+    """The first ``n`` episodes of ``src`` with someone in view (a distribution's camera
+    can frame nobody; the held-out scoring skips such episodes too)."""
+    from envs.tracker_tuning import MAX_EMPTY_DRAWS
+
+    found: list[int] = []
+    for i in range(min(len(src), MAX_EMPTY_DRAWS * n)):
+        if len(src.episode(i).gt_points()[0]):
+            found.append(i)
+            if len(found) == n:
+                return found
+    raise ValueError(
+        f"only {len(found)} of the first {min(len(src), MAX_EMPTY_DRAWS * n)} training "
+        f"episodes have someone in view, fewer than --train-episodes {n}; give the "
+        "scenarios more people or a higher density"
+    )
 
 
 _SCORERS: dict[str, Scorer] = {}

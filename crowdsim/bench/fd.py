@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from crowdsim.atomic import OVERWRITE_HELP
+from crowdsim.checks import path_arg
 
 OUTPUTS = ("fd.png", "lanes.png", "fd.json")
 
@@ -39,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--out",
-        type=Path,
+        type=path_arg,
         default=Path("benchmarks/out"),
         help="folder for fd.png, lanes.png and fd.json",
     )

@@ -21,6 +21,8 @@ import argparse
 import json
 from pathlib import Path
 
+from crowdsim.checks import path_arg
+
 DEMO_FRAMES = 100
 """Frames of the demo sequence (``frames`` of :data:`DEMO_SPEC`)."""
 
@@ -82,7 +84,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--out",
-        type=Path,
+        type=path_arg,
         default=Path("demo_out"),
         metavar="DIR",
         help="output folder (default ./demo_out)",

@@ -100,6 +100,11 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_defaults:
         param_sets["defaults"] = objective.space().base
     for label, path in _labelled(args.params, "tuned", "--params").items():
+        if label in param_sets:  # the reference row every other is compared with
+            raise ValueError(
+                f"--params {label}={path}: the label {label!r} names the paper defaults' row; "
+                "choose another label (or pass --no-defaults)"
+            )
         name, params = load_params(path)
         if name != args.tracker:
             raise ValueError(
@@ -108,9 +113,10 @@ def run(args: argparse.Namespace) -> int:
             )
         param_sets[label] = params
     policy_files = _labelled(args.policy, "policy", "--policy")
-    clash = set(param_sets) & set(policy_files)
+    clash = sorted(set(param_sets) & set(policy_files))
     if clash:
-        raise ValueError(f"--policy: label {sorted(clash)[0]!r} is also a --params label")
+        what = "the paper defaults' row" if clash[0] == "defaults" else "a --params label"
+        raise ValueError(f"--policy: the label {clash[0]!r} is {what}; choose another label")
     policies = {}
     for label, path in policy_files.items():
         name = policy_meta(path)["env_kwargs"].get("tracker", "bqp")

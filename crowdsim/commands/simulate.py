@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 import math
-from pathlib import Path
 from typing import Any
+
+from crowdsim.checks import path_arg
 
 DESCRIPTION = """Simulate a crowd scenario and write its trajectories.
 
@@ -76,14 +77,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, metavar="K", help="random seed (default 0)")
     p.add_argument(
         "--out",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="FILE.npz",
         help="trajectory file to write (atomically); omit to only print the table",
     )
     p.add_argument(
         "--plot",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="FILE.png",
         help="also draw the trajectories over the walls as a PNG",

@@ -28,6 +28,11 @@ from crowdsim.commands._table_args import (
     episode_cache_kwargs,
 )
 
+SCENE_EPISODES = 40
+"""``--algo scene``'s training episodes by default."""
+SCENE_CANDIDATES = 17
+"""``--algo scene``'s candidate settings by default (as ``crowdsim headroom``)."""
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -54,16 +59,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--episodes",
         type=int,
-        default=40,
+        default=None,
         metavar="N",
-        help="--algo scene: training episodes, each tracked with every candidate (40)",
+        help=f"--algo scene: training episodes, each tracked with every candidate "
+        f"({SCENE_EPISODES})",
     )
     p.add_argument(
         "--candidates",
         type=int,
-        default=17,
+        default=None,
         metavar="M",
-        help="--algo scene: the defaults and M-1 Sobol settings, as crowdsim headroom (17)",
+        help=f"--algo scene: the defaults and M-1 Sobol settings, as crowdsim headroom "
+        f"({SCENE_CANDIDATES})",
     )
     p.add_argument(
         "--steps",
@@ -119,8 +126,16 @@ def run(args: argparse.Namespace) -> int:
     if args.frames is not None:
         require_number("", "--frames", args.frames, lo=2, integer=True)
     if args.algo == "scene":  # checked here, where the flags are, before any work
+        if args.episodes is None:
+            args.episodes = SCENE_EPISODES
+        if args.candidates is None:
+            args.candidates = SCENE_CANDIDATES
         require_number("", "--candidates", args.candidates, lo=1, hi=1024, integer=True)
         require_number("", "--episodes", args.episodes, lo=1, integer=True)
+    else:
+        for flag in ("--episodes", "--candidates"):
+            if getattr(args, flag[2:]) is not None:
+                raise ValueError(f"{flag} is for --algo scene (ppo / sac learn from --steps)")
     kwargs = {"k_frames": args.k, "threshold_px": args.threshold, "extended": args.extended}
     if args.tracker != "bqp":  # policies of the default tracker keep their metadata as before
         kwargs["tracker"] = args.tracker

@@ -987,3 +987,11 @@ case(  # the one wording of every command, not Python's "[Errno 28] ..."
 case("cli-unknown-command", "frobnicate", "'frobnicate'")
 case("cli-no-command", [], "COMMAND")
 case("cli-unknown-flag", f"{SIM} --frobnicate", "--frobnicate")
+
+case("cli-track-out-empty", ["track", "{seq}", "--out", ""], "--out must name a file or folder")
+case("cli-demo-out-empty", ["demo", "--out", ""], "--out: must name a file or folder, got ''")
+case(
+    "cli-simulate-plot-blank",
+    ["simulate", "marathon", "--plot", " "],
+    "--plot: must name a file or folder, got ' '",
+)

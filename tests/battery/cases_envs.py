@@ -183,6 +183,18 @@ tune_case(
     files=(*D, ("j.log", '{"op_code": 0}\n{broken\n{"op_code": 1}\n')),
 )
 case("envs-tune-out-is-file", "tune --scenarios all --trials 1 --out {afile}", "afile")
+case(  # the reference row every other row is compared with cannot be replaced by a file
+    "envs-heldout-params-named-defaults",
+    "heldout --scenarios {w}/d.json --seeds 1 --params defaults={w}/p.json --out {w}/o",
+    "--params defaults=&&names the paper defaults' row",
+    files=(*D, ("p.json", '{"zeta": 0.5}')),
+)
+case(
+    "envs-heldout-policy-named-defaults",
+    "heldout --scenarios {w}/d.json --seeds 1 --policy defaults={w}/m.zip --out {w}/o",
+    "--policy: the label 'defaults' is the paper defaults' row",
+    files=(*D, ("m.zip", b"PK")),
+)
 tune_case(
     "users-history",
     "",
@@ -527,8 +539,12 @@ def _stepped(action):
     return call
 
 
-api_case("envs-api-step-shape", _stepped(np.zeros(4)), "action must have 5 entries")
-api_case("envs-api-step-nan", _stepped(np.full(5, np.nan)), "action has NaN entries")
+api_case("envs-api-step-shape", _stepped(np.zeros(4)), "action must be 5 real numbers")
+api_case("envs-api-step-column", _stepped(np.zeros((5, 1))), "got shape (5, 1) of float64")
+api_case("envs-api-step-complex", _stepped(np.zeros(5) + 1j), "of complex128")
+api_case("envs-api-step-dict", _stepped({"zeta": 1.0}), "got {{'zeta': 1.0}}")
+api_case("envs-api-step-nan", _stepped(np.full(5, np.nan)), "action must be finite")
+api_case("envs-api-step-inf", _stepped(np.r_[np.inf, np.zeros(4)]), "action must be finite")
 
 
 def _step_before_reset(w: Path, env: Env) -> object:
@@ -699,6 +715,107 @@ api_case(
 api_case("envs-api-crowd-not-dict", _crowd([[0.0, 0.0]]), "actions must be a dict")
 
 
+def _aec(face: str, call_on):
+    """An AEC face of the crowd after ``reset``, given to ``call_on``."""
+
+    def call(w: Path, env: Env) -> object:
+        from envs import crowd_v0
+
+        aec = getattr(crowd_v0, face)(n_agents=4, max_cycles=3)
+        aec.reset(seed=0)
+        return call_on(aec)
+
+    return call
+
+
+for face in ("raw_env", "env"):
+    api_case(
+        f"envs-api-aec-{face}-observe-unknown",
+        _aec(face, lambda aec: aec.observe("ped_99")),
+        "unknown agent 'ped_99'",
+    )
+    api_case(  # refused by the step that gives it, not at the cycle's end
+        f"envs-api-aec-{face}-nan-action",
+        _aec(face, lambda aec: aec.step([np.nan, 0.0])),
+        "action of 'ped_0' must be finite",
+    )
+    api_case(  # never clipped into range
+        f"envs-api-aec-{face}-inf-action",
+        _aec(face, lambda aec: aec.step(np.array([np.inf, 0.0], np.float32))),
+        "action of 'ped_0' must be finite",
+    )
+    api_case(
+        f"envs-api-aec-{face}-wrong-shape",
+        _aec(face, lambda aec: aec.step([0.0, 0.0, 0.0])),
+        "action of 'ped_0' must have shape (2,)",
+    )
+
+
+def _arrays(act):
+    def call(w: Path, env: Env) -> object:
+        from envs.crowd import CrowdParallelEnv
+
+        e = CrowdParallelEnv(n_agents=6)
+        e.reset_arrays(0)
+        n = len(e.agent_ids)
+        return e.step_arrays(np.zeros((n, 2)), act(n))
+
+    return call
+
+
+api_case("envs-api-arrays-act-long", _arrays(lambda n: np.ones(n + 3, bool)), "act must be a")
+api_case("envs-api-arrays-act-2d", _arrays(lambda n: np.ones((n, 2), bool)), "act must be a")
+api_case("envs-api-arrays-act-float", _arrays(lambda n: np.full(n, 0.5)), "got float64 of shape")
+
+
+def _reset(make, **kw):
+    def call(w: Path, env: Env) -> object:
+        return make().reset(**kw)
+
+    return call
+
+
+def _crowd_made():
+    from envs.crowd import CrowdParallelEnv
+
+    return CrowdParallelEnv(n_agents=4)
+
+
+def _tuning_made(**kw):
+    def make():
+        from envs.tracker_tuning import TrackerTuningEnv
+
+        return TrackerTuningEnv(**{"scenarios": {**TINY, "frames": 4}, **kw})
+
+    return make
+
+
+api_case("envs-api-crowd-seed-neg", _reset(_crowd_made, seed=-1), "reset.seed&&got -1")
+api_case("envs-api-crowd-seed-bool", _reset(_crowd_made, seed=True), "reset.seed&&got True")
+api_case("envs-api-crowd-options", _reset(_crowd_made, options="x"), "options must be a dict")
+api_case("envs-api-tuning-seed-frac", _reset(_tuning_made(), seed=1.5), "reset.seed&&got 1.5")
+api_case("envs-api-tuning-options", _reset(_tuning_made(), options=[1]), "options must be a")
+api_case(
+    "envs-api-tuning-episode-beyond-pool",
+    _reset(_tuning_made(pool=2), options={"episode": 5}),
+    "options['episode'] must be an integer in [0, 1], got 5",
+)
+
+
+def _other_trackers_params(w: Path, env: Env) -> object:
+    from envs.tracker_tuning import TrackerTuningEnv
+    from tracker.registry import get
+
+    return TrackerTuningEnv(scenarios=TINY, start_params=get("pnmc").make_params())
+
+
+api_case(
+    "envs-api-tuning-start-params-other-tracker",
+    _other_trackers_params,
+    "start_params must be the 'bqp' tracker's BQPParams, got PNMCParams",
+)
+
+
 def _crowd_env(**kw):
     def call(w: Path, env: Env) -> object:
         from envs.crowd import CrowdParallelEnv
@@ -723,3 +840,26 @@ def _policy_controlled(w: Path, env: Env) -> object:
 
 
 api_case("envs-api-policy-controlled-k", _policy_controlled, "k_frames&&got 0")
+
+
+# --- an empty path would mean the working folder: refused, naming the flag ----------------
+for command, extra in (
+    ("heldout", ["--scenarios", "{w}/d.json", "--seeds", "1"]),
+    ("tune", ["--scenarios", "{w}/d.json", "--trials", "1"]),
+    ("train", ["--algo", "ppo", "--scenarios", "{w}/d.json", "--steps", "8"]),
+    ("headroom", ["--scenarios", "{w}/d.json", "--seeds", "1"]),
+):
+    case(
+        f"envs-{command}-out-empty",
+        [command, *extra, "--out", ""],
+        "--out must name a file or folder, got ''",
+        files=D,
+    )
+
+for flag in ("--episodes", "--candidates"):
+    case(  # --algo scene's flags: never ignored in silence
+        f"envs-train-ppo{flag}",
+        ["train", "--algo", "ppo", "--scenarios", "{w}/d.json", flag, "3", "--out", "{w}/o"],
+        f"{flag} is for --algo scene",
+        files=D,
+    )

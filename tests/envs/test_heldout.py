@@ -169,7 +169,10 @@ def test_heldout_command_scores_a_params_file_and_refuses_bad_input(tmp_path, ca
     refused(["--seeds", "0", "--out", str(out)], "--seeds must be >= 1, got 0")
     refused(["--params", "a=", "--out", str(out)], "expected [LABEL=]FILE, got 'a='")
     refused(["--params", f"x={params}", f"x={params}", "--out", str(out)], "label 'x' given twice")
-    refused(["--params", str(params), "--policy", "tuned=m.zip", "--out", str(out)], "also a")
+    refused(
+        ["--params", str(params), "--policy", "tuned=m.zip", "--out", str(out)], "is a --params"
+    )
+    refused(["--params", f"defaults={params}", "--out", str(out)], "names the paper defaults' row")
     ncc = tmp_path / "ncc.json"
     ncc.write_text(json.dumps({"tracker": "ncc", "params": {}}))
     refused(["--params", str(ncc), "--out", str(out)], "parameters of the 'ncc' tracker")

@@ -43,10 +43,14 @@ def test_clipping_counts_and_refuses_nan_and_wrong_shape():
     a, n = space.clip([1.5, -2, 0.3, 1.0, -1.0])
     assert n == 2 and a.tolist() == [1.0, -1.0, 0.3, 1.0, -1.0]
     assert space.to_params([9, 9, 9, 9, 9]) == space.to_params(np.ones(5))
-    with pytest.raises(ValueError, match="NaN"):
+    with pytest.raises(ValueError, match=r"must be finite, got \[nan"):
         space.clip([np.nan, 0, 0, 0, 0])
-    with pytest.raises(ValueError, match="5 entries"):
+    with pytest.raises(ValueError, match=r"must be finite, got \[inf"):  # never clipped to 1
+        space.clip([np.inf, 0, 0, 0, 0])
+    with pytest.raises(ValueError, match="5 real numbers"):
         space.clip(np.zeros(3))
+    with pytest.raises(ValueError, match=r"got shape \(1, 5\)"):  # no reshaping
+        space.clip(np.zeros((1, 5)))
 
 
 def test_values_outside_a_range_map_to_its_end():

@@ -275,6 +275,9 @@ def test_train_ppo_saves_a_policy_that_tracks(tmp_path):
         log=lambda m: None,
     )
     assert len(doc["episodes"]) >= 3  # 3 steps per 12-frame episode
+    # PPO runs whole rollouts (n_steps 4 here): 12 asked, 12 trained; the record says both
+    assert doc["steps_asked"] == 12 and doc["steps"] == 12
+    assert doc["episodes"][-1]["steps"] <= doc["steps"]
     assert all(0 <= e["reward_per_step"] <= 100 for e in doc["episodes"])
     assert (tmp_path / "learning_curve.png").stat().st_size > 0
     assert set(Path(tempfile.gettempdir()).glob("SB3-*")) == sb3_dirs  # no logger litter
