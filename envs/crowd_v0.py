@@ -39,9 +39,8 @@ class _Checked(wrappers.BaseWrapper):
         self._crowd = crowd
 
     def step(self, action: Any) -> None:
-        agent = self.agent_selection
-        if action is not None or not (self.terminations[agent] or self.truncations[agent]):
-            self._crowd._check_action(agent, action)
+        if action is not None:  # None: the agent follows the social force (or is done)
+            self._crowd._check_action(self.agent_selection, action)
         super().step(action)
 
     def observe(self, agent: str) -> Any:

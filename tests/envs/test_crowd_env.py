@@ -279,3 +279,25 @@ def test_reward_charges_the_overlap_with_a_wall():
     overlap = float(sim.state.radius[0]) - (float(sim.state.pos[0, 1]) - half)
     assert overlap > 0.05  # still pressed into the wall after the step
     assert rew[0] == pytest.approx(-10.0 * overlap, rel=1e-9)
+
+
+@pytest.mark.parametrize("face", ["raw_env", "env"])
+def test_the_aec_faces_pass_api_test_and_check_each_call(face):
+    """PettingZoo's AEC ``api_test`` on both faces; a bad action is refused by the step that
+    gives it (the env stays usable), ``None`` lets an agent follow the social force."""
+    from pettingzoo.test import api_test
+
+    make = getattr(crowd_v0, face)
+    api_test(make(n_agents=4, max_cycles=5), num_cycles=5)
+    aec = make(n_agents=4, max_cycles=3)
+    aec.reset(seed=0)
+    with pytest.raises(ValueError, match="action of 'ped_0' must be finite"):
+        aec.step(np.array([np.nan, 0.0], np.float32))
+    assert aec.agent_selection == "ped_0"  # not buffered: ped_0 still has its turn
+    aec.step(np.array([0.5, 0.0], np.float32))
+    aec.step(None)
+    with pytest.raises(ValueError, match="unknown agent 'ped_9'"):
+        aec.observe("ped_9")
+    aec.step(np.zeros(2, np.float32))
+    aec.step(np.zeros(2, np.float32))  # the cycle's last agent: the crowd steps
+    assert set(aec.agents) == {f"ped_{i}" for i in range(4)} and aec.agent_selection == "ped_0"
