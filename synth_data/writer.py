@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from crowdsim.atomic import signals_held
+from crowdsim.atomic import require_whole_video, signals_held
 from synth_data.mot import (
     CHECKSUMS_FILE,
     TMP_MARKER,
@@ -169,7 +169,10 @@ def clean_stale_tmp(parent: str | os.PathLike[str]) -> list[Path]:
     for p in _stale_old(parent):
         back = parent / p.name[len(OLD_PREFIX) :].rsplit("-", 2)[0]
         if not (back.exists() or back.is_symlink()):  # killed between the two renames
-            os.replace(p, back)  # the name gets back the sequence it had
+            try:
+                os.replace(p, back)  # the name gets back the sequence it had
+            except OSError:  # a read-only folder, say: left as it is
+                pass
         else:
             shutil.rmtree(p, ignore_errors=True)
             if not p.exists():
@@ -450,8 +453,6 @@ def _write_frames(
 def _mp4v_frames(path: Path, frames: Iterable[np.ndarray], fps: float) -> Iterator[np.ndarray]:
     """Yield ``frames`` unchanged while writing them to an OpenCV ``mp4v`` file at ``path``."""
     import cv2
-
-    from crowdsim.atomic import require_whole_video
 
     writer = None
     n = 0
