@@ -236,3 +236,22 @@ path
                 f"{flag} {path} would overwrite or sit inside the input {name} {given}; "
                 "choose another path"
             )
+
+
+PATH_FLAGS: tuple[str, ...] = (
+    "out", "plot", "video", "json_out", "save_npz", "init", "params", "policy", "study",
+    "episode_cache", "weights", "detector_weights", "from_npz", "sequence", "suite",
+)  # fmt: skip
+"""Flags that name a file or folder: an empty one (``--out ''``) would quietly mean the
+working folder, so it is refused, naming the flag."""
+
+
+def refuse_empty_paths(args: Any) -> None:
+    """Refuse (``ValueError`` naming the flag) an empty value of any of :data:`PATH_FLAGS`
+    in parsed arguments ``args``; the ``crowdsim`` command and ``crowdsim bench`` call it
+    before running a command."""
+    for dest in PATH_FLAGS:
+        value = getattr(args, dest, None)
+        if isinstance(value, str) and not value.strip():
+            flag = "--" + dest.replace("_", "-")
+            raise ValueError(f"{flag} must name a file or folder, got {value!r}")

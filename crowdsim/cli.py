@@ -22,6 +22,7 @@ from types import ModuleType
 
 from crowdsim import __version__
 from crowdsim.atomic import describe_os_error
+from crowdsim.checks import refuse_empty_paths
 from crowdsim.commands import (
     ablation,
     bench,
@@ -151,7 +152,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = " ".join(filter(None, (args.command, getattr(args, "verb", None))))
     prefix = f"crowdsim {command}: error:"
     try:
-        _refuse_empty_paths(args)
+        refuse_empty_paths(args)
         with interruptible():
             return int(args.func(args) or 0)
     except KeyboardInterrupt as exc:  # Interrupted too: SIGINT or SIGTERM, one line
@@ -171,22 +172,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except MemoryError:
         print(f"{prefix} out of memory; ask for fewer frames, agents or pixels", file=sys.stderr)
         return 2
-
-
-PATH_FLAGS: tuple[str, ...] = (
-    "out", "plot", "video", "json_out", "save_npz", "init", "params", "policy", "study",
-    "episode_cache", "weights", "detector_weights",
-)  # fmt: skip
-"""Flags that name a file or folder: an empty one (``--out ''``) would quietly mean the
-working folder, so it is refused, naming the flag."""
-
-
-def _refuse_empty_paths(args: argparse.Namespace) -> None:
-    for dest in PATH_FLAGS:
-        value = getattr(args, dest, None)
-        if isinstance(value, str) and not value.strip():
-            flag = "--" + dest.replace("_", "-")
-            raise ValueError(f"{flag} must name a file or folder, got {value!r}")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -45,6 +45,9 @@ def main(name: str, argv: list[str] | None = None) -> int:
     parser, mod = bench_parser(name)
     args = parser.parse_args(argv)
     try:
+        from crowdsim.checks import refuse_empty_paths
+
+        refuse_empty_paths(args)
         return int(mod.run(args) or 0)
     except (ValueError, OSError) as exc:
         from crowdsim.atomic import describe_os_error

@@ -995,3 +995,9 @@ case(
     ["simulate", "marathon", "--plot", " "],
     "--plot: must name a file or folder, got ' '",
 )
+case(
+    "cli-bench-save-npz-empty",
+    ["bench", "solver", "--save-npz", ""],
+    "--save-npz must name a file or folder, got ''",
+)
+case("cli-compare-suite-empty", ["compare", "--suite", "", "--out", "{w}/o"], "--suite must name")
