@@ -99,6 +99,17 @@ def _retarget(exc: OSError, tmp: Path | None, path: Path) -> OSError:
         return exc
 
 
+def holds_only_leftovers(folder: str | os.PathLike[str]) -> bool:
+    """Whether ``folder`` holds nothing but files named as :func:`atomic_path`'s temporary
+    files are (``.<stem>.<8 random characters><suffix>``): what a command killed mid-write
+    leaves. Such a folder counts as empty when a command asks for a new one; the files are
+    never deleted (their name proves nothing)."""
+    import re
+
+    leftover = re.compile(r"\..+\.[a-z0-9_]{8}(\.[^.]+)?")
+    return all(p.is_file() and leftover.fullmatch(p.name) for p in Path(folder).iterdir())
+
+
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> Path:
     """Write ``text`` to ``path`` atomically; returns the path."""
     with atomic_path(path) as tmp:
@@ -125,6 +136,21 @@ def require_whole_video(path: str | os.PathLike[str], frames: int, shown: object
             f"{shown if shown is not None else path}: the video was not written whole (it "
             f"reads back with {found} of {frames} frames); is the disk full?"
         )
+
+
+def torch_save(obj: object, path: str | os.PathLike[str], shown: object = None) -> None:
+    """``torch.save(obj, path)``, its write failures as an ``OSError`` naming ``shown``
+    (default ``path``): torch reports a full disk as a ``RuntimeError`` of its zip writer."""
+    import torch
+
+    try:
+        torch.save(obj, path)
+    except RuntimeError as exc:
+        first = (str(exc).splitlines() or ["write failed"])[0]
+        raise OSError(
+            f"{shown if shown is not None else path}: could not be written ({first}); "
+            "is the disk full?"
+        ) from None
 
 
 def sha256_file(path: str | os.PathLike[str]) -> str:

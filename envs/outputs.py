@@ -38,7 +38,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
-from crowdsim.atomic import atomic_path, sha256_file, write_text_atomic
+from crowdsim.atomic import atomic_path, sha256_file, signals_held, write_text_atomic
 from crowdsim.checks import require_output_dir
 
 
@@ -106,6 +106,26 @@ def check_outputs(
             raise _refuse(p, what, flag)
 
 
+def claim_folder(
+    out: str | os.PathLike[str], record: str, doc: Mapping[str, Any], owned: Sequence[str]
+) -> None:
+    """Before a long run's first result: write ``record`` (``doc`` plus the digests of the
+    ``owned`` outputs already there) when ``out`` has none.
+
+    :func:`check_outputs` has just vouched for those outputs (a folder a release from before
+    the record wrote, recognised by ``earlier``); from now on the record does. Without it, a
+    run stopped between its first result (``cells.json``, which ``earlier`` looks for) and
+    its record would leave a folder that looks like one from before the record, and the
+    next run would replace a user's own ``table.md`` unchecked."""
+    out = Path(out)
+    path = out / record
+    if path.exists():
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    files = {name: sha256_file(out / name) for name in owned if (out / name).is_file()}
+    write_text_atomic(path, json.dumps({**doc, "files": files}, indent=2) + "\n")
+
+
 def _still_listed(path: Path, outputs: Mapping[str, object]) -> dict[str, str]:
     """The earlier record's files that this run does not rewrite and that are still there as
     listed (a run over fewer sequences keeps vouching for the curves of the others)."""
@@ -136,12 +156,15 @@ def write_outputs(
     out.mkdir(parents=True, exist_ok=True)
     previous = {name: sha256_file(out / name) for name in outputs if (out / name).is_file()}
     files = _still_listed(out / record, outputs)
-    with ExitStack() as stack:
+    with ExitStack() as held, ExitStack() as stack:
         for name, write in outputs.items():
             tmp = stack.enter_context(atomic_path(out / name))
             write(tmp)
             files[name] = sha256_file(tmp)
         full = {**doc, "files": files, "previous_files": previous}
+        # from the record to the last rename, a Ctrl-C or SIGTERM waits: the record is
+        # never left without the outputs it lists
+        held.enter_context(signals_held())
         write_text_atomic(out / record, json.dumps(full, indent=2) + "\n")
     # leaving the stack renamed every output into place (the record already lists them)
     return {name: out / name for name in (*outputs, record)}

@@ -72,7 +72,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from crowdsim.atomic import new_study_files, write_text_atomic
+from crowdsim.atomic import holds_only_leftovers, new_study_files, write_text_atomic
 from crowdsim.knobs import apply_knobs, knob_values, scaled
 from tracker.bqp.ablation import ablation_rows
 
@@ -513,7 +513,7 @@ class OutputFolder:
         if self.path.exists() and not self.path.is_dir():
             raise ValueError(f"--out {self.path}: is a file, not a folder")
         if not path.exists():
-            if self.path.is_dir() and any(self.path.iterdir()):
+            if self.path.is_dir() and not holds_only_leftovers(self.path):
                 raise ValueError(
                     f"--out {self.path}: not empty and not written by crowdsim calibrate (no "
                     f"{RECORD_FILE}); choose a new folder"

@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from crowdsim.atomic import holds_only_leftovers
 from crowdsim.checks import require_number
 
 EVAL_SEED = 20261126
@@ -359,7 +360,7 @@ def _check_out(out: Path, config: TrainConfig) -> dict | None:
                 f"({earlier.get('config')}); give the same settings to resume, or a new folder"
             )
         return earlier
-    if out.is_dir() and any(out.iterdir()):
+    if out.is_dir() and not holds_only_leftovers(out):
         raise ValueError(
             f"--out {out} is a folder that this program did not make (no {MARKER}); "
             "give a new or empty folder"
@@ -422,10 +423,10 @@ def train(
         log(f"resuming {out} at step {start} of {config.iterations}")
 
     def checkpoint(it: int) -> None:
-        from crowdsim.atomic import atomic_path
+        from crowdsim.atomic import atomic_path, torch_save
 
         with atomic_path(ckpt) as tmp:
-            torch.save(
+            torch_save(
                 {
                     "net": net.state_dict(),
                     "opt": opt.state_dict(),
@@ -433,6 +434,7 @@ def train(
                     "history": torch.tensor(history, dtype=torch.float64).reshape(-1, 4),
                 },
                 tmp,
+                ckpt,
             )
         plot_losses(history, out / "loss.png")
 

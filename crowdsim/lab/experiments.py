@@ -373,7 +373,8 @@ def run_table(
         )
     read_cells(out / CELLS_FILE)  # an edited or foreign cells.json fails before any work
     curve_names = [f"curves/{s.name}.png" for s in specs]
-    check_table_outputs(out, ["table.md", "table.csv", *curve_names, *more_outputs])
+    owned = ["table.md", "table.csv", *curve_names, *more_outputs]
+    check_table_outputs(out, owned)
     seq_root = out / "sequences"
     try:
         generate(
@@ -392,6 +393,9 @@ def run_table(
             "another --out"
         ) from None
     log(f"{title}: {len(rows)} rows x {len(specs)} sequences of {suite} -> {out}")
+    from envs.outputs import claim_folder
+
+    claim_folder(out, OUTPUTS_FILE, {"written_by": _WRITER, "title": title}, owned)
     jobs = [
         Job(
             keys[(s.name, r.label)],

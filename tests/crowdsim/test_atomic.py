@@ -133,3 +133,40 @@ def test_a_study_database_this_run_half_made_is_removed_an_earlier_one_kept(tmp_
     assert db.read_bytes() == b"an earlier study"
     with new_study_files("postgresql://host/db"):  # no files of its own to look after
         pass
+
+
+def test_torch_reports_a_full_disk_as_a_runtime_error_we_name_the_file(tmp_path, monkeypatch):
+    torch = pytest.importorskip("torch", reason="the head detector's weights need torch")
+    from crowdsim.atomic import atomic_path, describe_os_error, torch_save
+
+    def full(obj, path):
+        with open(path, "wb") as fh:
+            fh.write(b"PK half")
+        raise RuntimeError("[enforce fail at inline_container.cc:595] . PytorchStreamWriter "
+                           "failed writing file data/0: file write failed")  # fmt: skip
+
+    monkeypatch.setattr(torch, "save", full)
+    out = tmp_path / "w.pt"
+    with pytest.raises(OSError) as caught, atomic_path(out) as tmp:
+        torch_save({"a": 1}, tmp, out)
+    assert describe_os_error(caught.value).startswith(f"{out}: could not be written (")
+    assert "is the disk full?" in str(caught.value) and list(tmp_path.iterdir()) == []
+
+
+def test_a_folder_holding_only_a_killed_writes_temporary_files_counts_as_empty(tmp_path):
+    """``calibrate`` and ``detector train`` want a new or empty folder; a kill at their first
+    rename left a hidden temporary file there, and every rerun was refused."""
+    from crowdsim.atomic import atomic_path, holds_only_leftovers
+    from crowdsim.lab.detector import TrainConfig, _check_out
+
+    with pytest.raises(KeyboardInterrupt), atomic_path(tmp_path / "calibrate.json") as tmp:
+        tmp.write_text("{")
+        raise KeyboardInterrupt
+    leftover = tmp_path / ".calibrate.k3j_9x2a.json"  # as a SIGKILL leaves it (no cleanup)
+    leftover.write_text("{")
+    assert holds_only_leftovers(tmp_path) and _check_out(tmp_path, TrainConfig()) is None
+    assert leftover.exists()  # never deleted: its name proves nothing
+    (tmp_path / "notes.txt").write_text("mine")
+    assert not holds_only_leftovers(tmp_path)
+    with pytest.raises(ValueError, match="did not make"):
+        _check_out(tmp_path, TrainConfig())

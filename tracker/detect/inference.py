@@ -78,10 +78,10 @@ class DetectorParams:
 
 def save_weights(path: str | os.PathLike[str], net: Any, arch: Architecture, meta: dict) -> Path:
     """Write a weights file atomically (temporary file, then rename)."""
-    from crowdsim.atomic import atomic_path
+    from crowdsim.atomic import atomic_path, torch_save
     from crowdsim.optional import require
 
-    torch = require("torch", "detect", "the head detector")
+    require("torch", "detect", "the head detector")
     blob = {
         "format": FORMAT,
         "version": VERSION,
@@ -90,7 +90,7 @@ def save_weights(path: str | os.PathLike[str], net: Any, arch: Architecture, met
         "meta": meta,
     }
     with atomic_path(path) as tmp:
-        torch.save(blob, tmp)
+        torch_save(blob, tmp, path)
     return Path(path)
 
 

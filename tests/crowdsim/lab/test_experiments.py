@@ -370,6 +370,33 @@ def test_a_rerun_replaces_its_own_tables_and_never_a_users_file(tmp_path, monkey
     assert (out / "table.md").read_text() == first
 
 
+def test_a_run_stopped_before_its_record_does_not_look_like_a_folder_from_before_it(
+    tmp_path, monkeypatch
+):
+    """A run stopped (Ctrl-C, a kill, a full disk) after its cells but before its tables
+    leaves a record listing nothing: a user's table.md put there afterwards is refused, not
+    replaced as if a release from before the record had written it."""
+    import envs.outputs
+
+    monkeypatch.setattr(experiments, "run_cell", _fake_cell)
+    out, quiet = tmp_path / "t", {"progress": False, "log": lambda m: None}
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(envs.outputs, "write_outputs", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        run_table(ROWS, [tiny("a")], out, **quiet)
+    assert (out / experiments.CELLS_FILE).is_file()
+    assert json.loads((out / experiments.OUTPUTS_FILE).read_text())["files"] == {}
+    monkeypatch.undo()
+    monkeypatch.setattr(experiments, "run_cell", _fake_cell)
+    (out / "table.md").write_text("my notes\n")
+    with pytest.raises(ValueError, match=r"table.md exists and was not written by a "):
+        run_table(ROWS, [tiny("a")], out, **quiet)
+    assert (out / "table.md").read_text() == "my notes\n"
+
+
 def test_a_run_over_fewer_sequences_keeps_vouching_for_the_others_curves(tmp_path, monkeypatch):
     def cell(seq_dir, tracker, overrides, frames, detections=None):
         return _fake_cell(seq_dir, tracker, overrides, frames) | {"curve": [50.0] * 26}
