@@ -73,6 +73,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="processes rendering the data (cores)",
     )
+    t.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace head_points.pt, head_points.json and loss.png in --out even when "
+        "crowdsim cannot prove it wrote them (a user's, or ones edited since)",
+    )
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
     t.set_defaults(func=run_train)
 
@@ -143,6 +149,7 @@ def run_train(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         command=command,
         log=lambda m: print(m, file=sys.stderr),
+        overwrite=args.overwrite,
     )
     print(
         f"trained {config.iterations} steps in {rec['train_seconds']:.0f} s (data "

@@ -52,6 +52,9 @@ KINDS = ("default", "hard", "ucf9")
 TEMPLATES = tuple(range(8, 17))
 """Head sizes of the generated sequences, px (the papers' sequences: 8-16)."""
 MARKER = ".crowdsim-detector.json"
+TRAIN_OUTPUTS: tuple[str, ...] = ("head_points.pt", "head_points.json", "loss.png")
+"""What :func:`train` writes into its folder (besides the marker and, while running, the
+checkpoint); their digests go into the folder's ledger."""
 """The file that marks a training folder as this program's (and holds its settings)."""
 
 
@@ -376,14 +379,18 @@ def train(
     progress: bool = True,
     command: str = "",
     log: Callable[[str], None] = print,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Train the detector into folder ``out``; resumes from its checkpoint when there is one.
 
     Writes ``head_points.pt`` (weights), ``head_points.json`` (the command, the data, the
     settings, the losses), ``loss.png`` and, while running, ``checkpoint.pt``. Returns the
-    JSON record.
+    JSON record. Their digests go into the folder's ledger (:mod:`crowdsim.atomic`): a file
+    of those names that this program cannot prove it wrote (a user's, or one edited since)
+    is refused before any work unless ``overwrite`` (a folder from before the ledger, with
+    this program's marker and no ledger, vouches for its own).
     """
-    from crowdsim.atomic import write_text_atomic
+    from crowdsim.atomic import LEDGER, recorded, require_replaceable, write_text_atomic
     from crowdsim.optional import require
     from crowdsim.progress import progress_bar
     from tracker.detect.inference import save_weights
@@ -393,6 +400,10 @@ def train(
     config = config or TrainConfig()
     out = Path(out)
     _check_out(out, config)
+    outputs = [out / name for name in TRAIN_OUTPUTS]
+    if not ((out / MARKER).is_file() and not (out / LEDGER).exists()):
+        for path in outputs:
+            require_replaceable("--out", path, overwrite)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / MARKER, json.dumps({"config": asdict(config)}, indent=1))
 
@@ -436,7 +447,8 @@ def train(
                 tmp,
                 ckpt,
             )
-        plot_losses(history, out / "loss.png")
+        with recorded(out / "loss.png"):
+            plot_losses(history, out / "loss.png")
 
     net.train()
     t1 = time.perf_counter()
@@ -482,9 +494,10 @@ def train(
         "torch": str(torch.__version__),
         "threads": int(torch.get_num_threads()),
     }
-    save_weights(out / "head_points.pt", net, arch, record)
-    write_text_atomic(out / "head_points.json", json.dumps(record, indent=1) + "\n")
-    plot_losses(history, out / "loss.png")
+    with recorded(*outputs):
+        save_weights(out / "head_points.pt", net, arch, record)
+        write_text_atomic(out / "head_points.json", json.dumps(record, indent=1) + "\n")
+        plot_losses(history, out / "loss.png")
     if ckpt.is_file():
         ckpt.unlink()  # this run made it; the weights replace it
     return record

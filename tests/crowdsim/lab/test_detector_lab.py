@@ -93,6 +93,27 @@ def test_a_foreign_folder_or_other_settings_are_refused(tmp_path):
         lab.train(run, TINY, progress=False, log=lambda m: None)
 
 
+def test_a_rerun_replaces_its_own_outputs_but_not_a_users_edit(tmp_path):
+    """The outputs' digests are in the folder's ledger: a rerun with the same settings
+    replaces them; an edited ``head_points.json`` is refused before any work unless
+    ``overwrite``; a folder from before the ledger vouches for its own."""
+    from crowdsim.atomic import LEDGER
+
+    run = tmp_path / "run"
+    lab.train(run, TINY, progress=False, log=lambda m: None)
+    lab.train(run, TINY, progress=False, log=lambda m: None)  # its own: replaced
+    (run / "head_points.json").write_text('{"my": "notes"}')
+    with pytest.raises(ValueError, match="head_points.json: the file exists and crowdsim"):
+        lab.train(run, TINY, progress=False, log=lambda m: None)
+    assert (run / "head_points.json").read_text() == '{"my": "notes"}'
+    lab.train(run, TINY, progress=False, log=lambda m: None, overwrite=True)
+    assert json.loads((run / "head_points.json").read_text())["config"]["iterations"] == 6
+    (run / LEDGER).unlink()  # as a release before the ledger left it
+    (run / "loss.png").write_bytes(b"edited")
+    lab.train(run, TINY, progress=False, log=lambda m: None)
+    assert (run / "loss.png").read_bytes() != b"edited" and (run / LEDGER).is_file()
+
+
 def test_relabel_gives_matched_heads_the_truths_ids():
     gt_ids = np.array([4, 9, 12])
     gt = np.array([[10.0, 10.0], [30.0, 10.0], [np.nan, np.nan]])
