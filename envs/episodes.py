@@ -772,6 +772,13 @@ def _store_one(root: str, spec: Any) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- sources
+def shows_someone(seq: Any) -> bool:
+    """Whether the sequence ``seq`` has ground truth to score against: a distribution's
+    camera can frame nobody (a few people in a wide hall), and such an episode is skipped
+    by held-out scoring, tuning and the tuning env's draws alike."""
+    return len(seq.gt_points()[0]) > 0
+
+
 class EpisodeSource(ABC):
     """Where episodes come from: ``sample(rng)`` (random) or ``episode(i)`` (fixed list)."""
 

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from crowdsim.checks import require_number
-from envs.episodes import make_episodes
+from envs.episodes import make_episodes, shows_someone
 
 HELDOUT_SEED = 1
 """First held-out stream (scenario distributions) or re-seed offset (built-in suites); tuning
@@ -72,7 +72,7 @@ def heldout_episodes(
         if counts.get(family, seeds) >= seeds:
             continue
         seq = src.episode(i)
-        if len(seq.gt_points()[0]) == 0:
+        if not shows_someone(seq):
             if skipped is not None:
                 skipped.append(spec.name)
             continue

@@ -26,7 +26,7 @@ import numpy as np
 from gymnasium import spaces
 
 from crowdsim.checks import checked_seed, require_number
-from envs.episodes import EpisodeSource, ScenarioDistribution, make_episodes
+from envs.episodes import EpisodeSource, ScenarioDistribution, make_episodes, shows_someone
 from envs.param_space import ParamSpace, require_tunable
 from tracker.base import Tracker
 from tracker.metrics import point_errors
@@ -389,7 +389,7 @@ class TrackerTuningEnv(gym.Env):
             return self.episodes.episode(int(k))
         for _ in range(MAX_EMPTY_DRAWS):
             seq = self.episodes.sample(self.np_random)
-            if len(seq.gt_points()[0]):
+            if shows_someone(seq):
                 return seq
         raise ValueError(
             f"reset: {MAX_EMPTY_DRAWS} episodes in a row had nobody in view; give the "

@@ -16,7 +16,6 @@ install.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import os
@@ -29,11 +28,17 @@ from typing import Any
 
 import numpy as np
 
-from crowdsim.atomic import new_study_files
+from crowdsim.atomic import new_study_files, output_folder
 from crowdsim.checks import require_choice, require_number, require_workers
 from crowdsim.jobs import read_manifest
 from crowdsim.optional import DependencyNotInstalled, require
-from envs.episodes import EpisodeSource, ScenarioDistribution, SuiteEpisodes, make_episodes
+from envs.episodes import (
+    EpisodeSource,
+    ScenarioDistribution,
+    SuiteEpisodes,
+    make_episodes,
+    shows_someone,
+)
 from envs.heldout import HELDOUT_SEED, check_heldout_out, evaluate_heldout, write_heldout
 from envs.outputs import check_outputs, write_outputs
 from envs.param_space import ParamSpace, require_tunable
@@ -199,13 +204,14 @@ def _peopled(src: EpisodeSource, n: int) -> list[int]:
     from envs.tracker_tuning import MAX_EMPTY_DRAWS
 
     found: list[int] = []
-    for i in range(min(len(src), MAX_EMPTY_DRAWS * n)):
-        if len(src.episode(i).gt_points()[0]):
+    tried = min(len(src), MAX_EMPTY_DRAWS * n)
+    for i in range(tried):
+        if shows_someone(src.episode(i)):
             found.append(i)
             if len(found) == n:
                 return found
     raise ValueError(
-        f"only {len(found)} of the first {min(len(src), MAX_EMPTY_DRAWS * n)} training "
+        f"only {len(found)} of the first {tried} training "
         f"episodes have someone in view, fewer than --train-episodes {n}; give the "
         "scenarios more people or a higher density"
     )
@@ -842,9 +848,8 @@ def tune(
         objective.episodes(heldout=True)  # a suite folder needs --heldout-only: say it now
     check_storage(url)  # a foreign study file is refused before anything is created
     check_tune_out(out, heldout > 0)
-    created = not out.exists()
-    out.mkdir(parents=True, exist_ok=True)
-    try:
+    # a run refused or stopped before writing anything leaves no folder of its own
+    with output_folder(out):
         return _tune_locked(
             objective,
             out,
@@ -863,11 +868,6 @@ def tune(
             progress=progress,
             log=log,
         )
-    except BaseException:
-        if created:  # a run refused or stopped before writing anything leaves no folder
-            with contextlib.suppress(OSError):
-                out.rmdir()  # only an empty folder: nothing of this run is lost
-        raise
 
 
 def _tune_locked(

@@ -52,10 +52,10 @@ KINDS = ("default", "hard", "ucf9")
 TEMPLATES = tuple(range(8, 17))
 """Head sizes of the generated sequences, px (the papers' sequences: 8-16)."""
 MARKER = ".crowdsim-detector.json"
+"""The file that marks a training folder as this program's (and holds its settings)."""
 TRAIN_OUTPUTS: tuple[str, ...] = ("head_points.pt", "head_points.json", "loss.png")
 """What :func:`train` writes into its folder (besides the marker and, while running, the
 checkpoint); their digests go into the folder's ledger."""
-"""The file that marks a training folder as this program's (and holds its settings)."""
 
 
 @dataclass(frozen=True, kw_only=True)
