@@ -17,7 +17,7 @@ can be timed before and after a change::
 table and one JSON object; ``tracks_sha1`` identifies the tracks (equal across thread counts)
 and, for BQP, ``fw_steps`` is the solver's mean block steps a frame.
 PNMC before and after its compiled propagation: ``--tracker pnmc`` with commit a0f25ad as
-"before" (``--repeats 2 --sequence stress-10k``; figures in the project README). The
+"before" (``--repeats 2 --sequence stress-10k``; figures in ``docs/tracker-speed.md``). The
 mean-shift baseline before and after its compiled search: ``--tracker meanshift --threads 2``
 with commit b88d583 as "before".
 """

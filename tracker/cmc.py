@@ -84,7 +84,7 @@ class CMCParams:
         for the similarity, 0.173 for the shift, 0.178 for ``"auto"``; on ``ucf9-drone``,
         where the view also turns and zooms, 0.125, 0.202 and 0.124. ``"auto"`` errs least
         on both, but BQP tracked no better with it (within one run's noise, 10 sequences of
-        the two suites; the project README), so the similarity stays the default. ECC
+        the two suites; ``docs/camera-motion.md``), so the similarity stays the default. ECC
         fits a Euclidean transform for ``"similarity"`` and ``"auto"`` (its closest model:
         no zoom) and a shift for ``"translation"``.
     downscale : int
