@@ -42,7 +42,7 @@ from crowdsim.commands import (
     train,
     tune,
 )
-from crowdsim.jobs import EXIT_CODES, interruptible
+from crowdsim.jobs import EXIT_CODES, interrupt_in, interruptible
 
 COMMANDS: tuple[ModuleType, ...] = (
     simulate,
@@ -155,9 +155,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         refuse_empty_paths(args)
         with interruptible():
             return int(args.func(args) or 0)
-    except KeyboardInterrupt as exc:  # Interrupted too: SIGINT or SIGTERM, one line
-        name = getattr(exc, "signal_name", "SIGINT")
-        detail = getattr(exc, "detail", "")
+    except (KeyboardInterrupt, SystemError) as exc:  # Interrupted too: SIGINT or SIGTERM
+        stopped = interrupt_in(exc)  # a SystemError: one that a C extension wrapped
+        if stopped is None:
+            raise
+        name = getattr(stopped, "signal_name", "SIGINT")
+        detail = getattr(stopped, "detail", "")
         print(
             f"crowdsim {command}: interrupted by {name}" + (f"; {detail}" if detail else ""),
             file=sys.stderr,

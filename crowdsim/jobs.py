@@ -331,6 +331,46 @@ class _Progress:
         self.bar.close()
 
 
+def _in_compiled_callback(frame: Any) -> bool:
+    """Whether ``frame`` is numba's unpickling callback, which compiled code calls."""
+    code = getattr(frame, "f_code", None)
+    return (
+        code is not None
+        and code.co_name == "_numba_unpickle"
+        and Path(code.co_filename).parts[-3:] == ("numba", "core", "serialize.py")
+    )
+
+
+def interrupt_in(exc: BaseException) -> KeyboardInterrupt | None:
+    """The interrupt that ``exc`` stands for: ``exc`` itself, or for a ``SystemError`` the
+    interrupt in its chain of causes (a C extension that called back into Python when the
+    signal's handler raised reports ``returned a result with an exception set``, the
+    interrupt as its cause); else ``None``.
+
+    >>> interrupt_in(Interrupted("SIGTERM")).signal_name
+    'SIGTERM'
+    >>> try:
+    ...     raise SystemError("returned a result with an exception set") from Interrupted("SIGINT")
+    ... except SystemError as exc:
+    ...     interrupt_in(exc).signal_name
+    'SIGINT'
+    >>> interrupt_in(SystemError("other")) is None
+    True
+    """
+    if isinstance(exc, KeyboardInterrupt):
+        return exc
+    if not isinstance(exc, SystemError):
+        return None
+    seen: set[int] = set()
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return link
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return None
+
+
 @contextmanager
 def interruptible() -> Iterator[None]:
     """While inside (in the main thread), SIGINT and SIGTERM raise :class:`Interrupted`.
@@ -346,6 +386,13 @@ def interruptible() -> Iterator[None]:
     signal again a few milliseconds later, so it is raised once the callback has returned.
     A signal that lands inside that hook (the re-sent one, on a loaded machine) is not raised
     there, where it would be swallowed once more, but handed to the watcher the same way.
+
+    Compiled numba code calls back into Python too (``numba.core.serialize._numba_unpickle``
+    fetches its constants), and a signal that arrived while a kernel ran is delivered there,
+    at the first Python line since: raised there, it would come out of the kernel as
+    ``SystemError: ... returned a result with an exception set``. Such a signal goes to the
+    watcher the same way and is raised once the kernel has returned. Any other such wrapping
+    is undone where the interrupt is reported (:func:`interrupt_in`).
     """
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -365,7 +412,7 @@ def interruptible() -> Iterator[None]:
 
     def handler(signum: int, frame: Any) -> None:
         name = signal.Signals(signum).name
-        if in_hook(frame):
+        if in_hook(frame) or _in_compiled_callback(frame):
             resend.append(name)
             wake.set()
             return
@@ -510,6 +557,9 @@ def _failure(
 ) -> BaseException:
     if isinstance(exc, passthrough):
         return exc
+    stopped = interrupt_in(exc)  # a signal that came out of a compiled kernel wrapped
+    if stopped is not None:
+        return stopped
     return JobError(job.key, f"{job.key}: {type(exc).__name__}: {exc}")
 
 

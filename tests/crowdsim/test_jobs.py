@@ -259,6 +259,63 @@ def test_a_signal_that_lands_inside_the_unraisable_hook_is_not_lost(monkeypatch)
     assert caught.value.signal_name == "SIGINT"
 
 
+@pytest.mark.skipif(not hasattr(signal, "SIGTERM") or os.name != "posix", reason="POSIX signals")
+def test_a_signal_delivered_in_a_compiled_kernels_callback_is_raised_after_the_kernel():
+    """A signal that arrives while a numba kernel runs is handled at the first Python line
+    since, which can be numba's unpickling callback inside the kernel: raised there it came
+    out as "SystemError: CPUDispatcher(...) returned a result with an exception set" (a
+    Ctrl-C of `crowdsim track`, 4 times in 7). The handler, shown that frame, raises nothing
+    and the signal comes again once the kernel has returned."""
+    from types import SimpleNamespace
+
+    from numba.core.serialize import _numba_unpickle
+
+    in_kernel = SimpleNamespace(f_code=_numba_unpickle.__code__, f_back=None)
+    with pytest.raises(Interrupted) as caught:
+        with jobs_mod.interruptible():
+            try:
+                signal.getsignal(signal.SIGTERM)(signal.SIGTERM, in_kernel)
+            except Interrupted:
+                pytest.fail("raised inside the kernel's callback")
+            deadline = time.monotonic() + 5
+            while time.monotonic() < deadline:  # the signal comes again, from the watcher
+                time.sleep(0.001)
+    assert caught.value.signal_name == "SIGTERM"
+
+
+def test_an_interrupt_a_c_extension_wrapped_still_ends_the_command_in_one_line(monkeypatch, capsys):
+    """Any other C callback that wraps the interrupt as a SystemError's cause: the command
+    still stops with the interrupt's one line and exit code, never a traceback or exit 1."""
+    import crowdsim.cli as cli
+
+    def wrapped(args):
+        raise SystemError("returned a result with an exception set") from Interrupted("SIGTERM")
+
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    args = parser.parse_args(["bench", "sim"])
+    monkeypatch.setattr(parser, "parse_args", lambda argv=None: args)
+    monkeypatch.setattr(args, "func", wrapped)
+    assert cli.main([]) == 143
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "crowdsim bench: interrupted by SIGTERM"
+    ]
+    args.func = lambda a: (_ for _ in ()).throw(SystemError("a real one"))
+    with pytest.raises(SystemError, match="a real one"):
+        cli.main([])
+
+
+def test_a_wrapped_interrupt_stops_inline_jobs_instead_of_failing_one(tmp_path):
+    """run_jobs in this process: a job whose kernel handed the interrupt back as a
+    SystemError stops the run as interrupted, not as that job's failure (exit 1)."""
+
+    def job():
+        raise SystemError("returned a result with an exception set") from Interrupted("SIGINT")
+
+    with pytest.raises(Interrupted):
+        run_jobs([Job("a", job)], tmp_path / "manifest.json", progress=False)
+
+
 @pytest.mark.parametrize(
     "content",
     [
