@@ -80,10 +80,30 @@ def table_run_kwargs(args: argparse.Namespace) -> dict:
     }
 
 
-def run_table_command(args: argparse.Namespace, rows, title: str, paper_table: str) -> int:
-    """Run :func:`crowdsim.lab.experiments.run_table` from the flags; print the table."""
-    from crowdsim.lab.experiments import run_table
+def add_set_argument(p: argparse.ArgumentParser) -> None:
+    """``--set NAME=VALUE`` of ``compare`` and ``ablation``: a tracker parameter for every row
+    whose tracker has it (:func:`crowdsim.lab.experiments.with_params`)."""
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="NAME=VALUE",
+        help="tracker parameter for every row whose tracker has it, e.g. --set fw_variant=block "
+        "(repeatable; a parameter a row sets itself is refused)",
+    )
 
+
+def run_table_command(args: argparse.Namespace, rows, title: str, paper_table: str) -> int:
+    """Run :func:`crowdsim.lab.experiments.run_table` from the flags; print the table.
+
+    With ``--set`` (:func:`add_set_argument`), every row whose tracker has the parameter runs
+    with it, and the title names the settings."""
+    from crowdsim.commands.simulate import parse_assignments
+    from crowdsim.lab.experiments import run_table, with_params
+
+    settings = parse_assignments(getattr(args, "set", None), "--set")
+    if settings:
+        rows = with_params(rows, settings)
+        title += " with " + ", ".join(f"{k}={v}" for k, v in settings.items())
     kwargs = table_run_kwargs(args)  # flags checked before any work
     text = run_table(rows, args.suite, args.out, title=title, paper_table=paper_table, **kwargs)
     print(text)

@@ -1,19 +1,24 @@
 """``crowdsim ablation``: paper 1's Table 3, the BQP tracker's terms switched on one by one.
 
-``crowdsim ablation --suite NAME|DIR [--only SEQ ...] [--frames N] [--workers N] [--backend
-local|ray [--address ADDR]] --out DIR``
+``crowdsim ablation --suite NAME|DIR [--only SEQ ...] [--set NAME=VALUE ...] [--frames N]
+[--workers N] [--backend local|ray [--address ADDR]] --out DIR``
 
 Rows: B, B+Mo, B+Mo+SP, B+Mo+Gr, B+Mo+Gr+NMo and the full objective, each with NCC and with
 KCF appearance (:mod:`tracker.bqp.ablation`); the paper's Table 3 figures (``ablation@15`` of
 the suite's ``paper.json``) beside ours. ``--suite``, resuming and the checked cells as in
-``crowdsim compare``.
+``crowdsim compare``; ``--set`` gives every row a BQP parameter the rows do not set
+themselves (``--set fw_variant=block``).
 """
 
 from __future__ import annotations
 
 import argparse
 
-from crowdsim.commands._table_args import add_table_arguments, run_table_command
+from crowdsim.commands._table_args import (
+    add_set_argument,
+    add_table_arguments,
+    run_table_command,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,6 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__.splitlines()[0].replace("``", ""),
     )
     add_table_arguments(p)
+    add_set_argument(p)
     p.set_defaults(func=run)
 
 

@@ -1,7 +1,7 @@
 """``crowdsim compare``: every tracker on a suite, the papers' figures beside ours.
 
-``crowdsim compare --suite NAME|DIR [--only SEQ ...] [--trackers NAME ...] [--cmc] [--frames N]
-[--workers N] [--backend local|ray [--address ADDR]] --out DIR``
+``crowdsim compare --suite NAME|DIR [--only SEQ ...] [--trackers NAME ...] [--cmc]
+[--set NAME=VALUE ...] [--frames N] [--workers N] [--backend local|ray [--address ADDR]] --out DIR``
 
 ``--suite`` is a built-in suite (ucf9, ucf9-shake, ucf9-drone, galleria, stress) or a suite
 folder of spec files, such as the one ``crowdsim calibrate --out`` writes (its ``paper.json``
@@ -9,9 +9,10 @@ gives the papers' column).
 Rows: NCC, mean-shift, PNMC, BQP (KCF), BQP (NCC appearance), ByteTrack and OC-SORT at
 detector miss rates 0.1 and 0.3; with ``--cmc``, each detection-free tracker also with
 camera-motion compensation (``<row> + CMC``); ``--trackers`` keeps only the rows of those
-registered trackers. Per sequence: acc@15, acc@5, MOTA, IDF1,
-HOTA, frames/s. Writes ``table.md``, ``table.csv`` and accuracy-versus-threshold PNGs and
-prints the table.
+registered trackers; ``--set NAME=VALUE`` gives every row whose tracker has that parameter
+its value (``--set fw_variant=block``: both BQP rows with the block solver). Per sequence:
+acc@15, acc@5, MOTA, IDF1, HOTA, frames/s. Writes ``table.md``, ``table.csv`` and
+accuracy-versus-threshold PNGs and prints the table.
 Resumable: a rerun with the same ``--out`` skips finished cells, each checked against the
 checksum stored with it in ``cells.json`` (an edited cell is refused, naming it; see
 :mod:`crowdsim.lab.experiments`). A sequence folder in ``DIR/sequences`` made from another
@@ -24,7 +25,11 @@ from __future__ import annotations
 
 import argparse
 
-from crowdsim.commands._table_args import add_table_arguments, run_table_command
+from crowdsim.commands._table_args import (
+    add_set_argument,
+    add_table_arguments,
+    run_table_command,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,6 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__.splitlines()[0].replace("``", ""),
     )
     add_table_arguments(p)
+    add_set_argument(p)
     p.add_argument(
         "--cmc",
         action="store_true",

@@ -89,6 +89,38 @@ METRICS: tuple[tuple[str, str, str], ...] = (
 """``(key, heading, unit)`` of every table section."""
 
 
+def with_params(
+    rows: Sequence[Row], params: dict[str, Any], flag: str = "--set"
+) -> tuple[Row, ...]:
+    """``rows`` with ``params`` added to the overrides of every row whose tracker has them:
+    ``compare --set fw_variant=block`` runs both BQP rows with the block solver and leaves the
+    other rows alone. A name no row's tracker has, or one a row sets itself (the table's
+    design: the ablation's term weights, a ``+ CMC`` row's ``cmc``), is refused by name. A
+    cell's key holds every parameter, so cells run with other settings are never reused.
+
+    >>> rows = with_params(COMPARE_ROWS, {"fw_variant": "block"})
+    >>> sorted({r.label for r in rows if r.overrides.get("fw_variant") == "block"})
+    ['BQP (KCF)', 'BQP (NCC)']
+    """
+    from tracker.registry import get
+
+    def has(row: Row, name: str) -> bool:
+        return name in get(row.tracker).field_names()
+
+    for name in params:
+        having = [r for r in rows if has(r, name)]
+        if not having:
+            trackers = ", ".join(sorted({r.tracker for r in rows}))
+            raise ValueError(f"{flag} {name}: no row's tracker has that parameter ({trackers})")
+        own = [r.label for r in having if name in r.overrides]
+        if own:
+            raise ValueError(f"{flag} {name}: row {own[0]!r} sets {name} itself")
+    return tuple(
+        replace(r, overrides={**r.overrides, **{k: v for k, v in params.items() if has(r, k)}})
+        for r in rows
+    )
+
+
 def with_cmc(rows: Sequence[Row]) -> tuple[Row, ...]:
     """``rows``, each followed by the same row with camera-motion compensation on
     (``<label> + CMC``, ``cmc=True``) where its tracker has the parameter (the detection-free

@@ -354,6 +354,21 @@ case(
     "--trackers: no compare row runs 'nosuch'&&bqp",
 )
 case(
+    "tables-compare-set-unknown",
+    "compare --set nosuch=1 --out {w}/o",
+    "--set nosuch: no row's tracker has that parameter&&bqp",
+)
+case(
+    "tables-compare-set-no-value",
+    "compare --set fw_variant --out {w}/o",
+    "--set expects NAME=VALUE, got 'fw_variant'",
+)
+case(
+    "tables-ablation-set-own-term",
+    "ablation --set zeta=0.5 --out {w}/o",
+    "--set zeta: row 'B (NCC)' sets zeta itself",
+)
+case(
     "tables-diff-groups-unknown",
     "difficulty --groups shake wobble --out {w}/o",
     "--groups: unknown group 'wobble'&&shake",

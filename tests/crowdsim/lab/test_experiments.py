@@ -506,6 +506,29 @@ def test_with_cmc_adds_a_compensated_row_for_each_detection_free_tracker():
     assert rows[rows.index(COMPARE_ROWS[0]) + 1] == added[0]  # each beside its own row
 
 
+def test_with_params_sets_a_parameter_on_the_rows_whose_tracker_has_it():
+    """compare/ablation --set: the rows whose tracker has the field get it, the others stay
+    as they were; a field no row has, or one a row sets itself, is refused by name."""
+    from crowdsim.lab.experiments import COMPARE_ROWS, ablation_rows, with_cmc, with_params
+
+    rows = with_params(COMPARE_ROWS, {"fw_variant": "block", "fw_eps": 0.02})
+    for old, new in zip(COMPARE_ROWS, rows, strict=True):
+        if old.tracker in ("bqp", "bqp-ncc"):
+            assert new.overrides == {**old.overrides, "fw_variant": "block", "fw_eps": 0.02}
+        else:
+            assert new == old
+    assert experiments.cell_key("s", rows[3], None) != experiments.cell_key(
+        "s", COMPARE_ROWS[3], None
+    )  # never resumed from a cell run without the setting
+    assert with_params(COMPARE_ROWS, {}) == tuple(COMPARE_ROWS)
+    with pytest.raises(ValueError, match="--set nosuch: no row's tracker has that parameter"):
+        with_params(COMPARE_ROWS, {"nosuch": 1})
+    with pytest.raises(ValueError, match="--set zeta: row 'B .NCC.' sets zeta itself"):
+        with_params(ablation_rows(), {"zeta": 0.5})
+    with pytest.raises(ValueError, match="--set cmc: row 'NCC [+] CMC' sets cmc itself"):
+        with_params(with_cmc(COMPARE_ROWS), {"cmc": True})
+
+
 def test_compare_trackers_and_cmc_run_only_those_rows(tmp_path, capsys):
     from crowdsim.cli import main
 
@@ -524,3 +547,8 @@ def test_compare_trackers_and_cmc_run_only_those_rows(tmp_path, capsys):
     assert rows == {"NCC", "NCC + CMC"}
     cells = json.loads((out / "cells.json").read_text())["cells"]
     assert len(cells) == 2
+    # --set: the same rows with the setting, new cells, the title names it
+    assert main([*argv, "--set", "search_factor=1.5", "--out", str(out)]) == 0
+    assert (out / "table.md").read_text().startswith("# compare on ")
+    assert "with search_factor=1.5" in (out / "table.md").read_text().splitlines()[0]
+    assert len(json.loads((out / "cells.json").read_text())["cells"]) == 4
