@@ -110,6 +110,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="also track every ucf9 sequence from the detector and from the ground truth",
     )
     e.add_argument("--tracker", default="bqp", metavar="NAME", help="tracker of --tracking (bqp)")
+    e.add_argument(
+        "--tracking-frames",
+        type=int,
+        default=None,
+        metavar="N",
+        help="track only the first N frames of each sequence with --tracking (default: all)",
+    )
     e.add_argument("--workers", type=int, default=None, metavar="N", help="render processes")
     e.add_argument("--out", required=True, metavar="DIR", help="output folder")
     e.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -168,6 +175,12 @@ def run_eval(args: argparse.Namespace) -> int:
     check_eval_out(args.out)  # before any work
     get(args.tracker)  # an unknown name lists the valid ones, with or without --tracking
     detector_params(args.weights, args.threshold, "--threshold")
+    if args.tracking_frames is not None:
+        if not args.tracking:
+            raise ValueError("--tracking-frames needs --tracking")
+        from crowdsim.checks import require_number
+
+        require_number("", "--tracking-frames", args.tracking_frames, lo=2, integer=True)
     rep = evaluate(
         weights=args.weights,
         threshold=args.threshold,
@@ -182,7 +195,11 @@ def run_eval(args: argparse.Namespace) -> int:
         from crowdsim.lab.detector import tracking_table
 
         rep["tracking"] = tracking_table(
-            tracker=args.tracker, weights=args.weights, progress=not args.no_progress
+            tracker=args.tracker,
+            weights=args.weights,
+            threshold=args.threshold,
+            frames=args.tracking_frames,
+            progress=not args.no_progress,
         )
     md = write_eval(args.out, rep)
     print(md)

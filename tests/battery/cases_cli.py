@@ -884,6 +884,16 @@ case("detector-train-iterations-0", "detector train --out {w}/d --iterations 0",
 case("detector-eval-threshold-2", "detector eval --threshold 2 --out {w}/e", "--threshold must be")
 case("detector-eval-tracker", "detector eval --tracker nosuch --out {w}/e", "tracker 'nosuch'")
 case(
+    "detector-eval-tracking-frames-alone",
+    "detector eval --tracking-frames 20 --out {w}/e",
+    "--tracking-frames needs --tracking",
+)
+case(
+    "detector-eval-tracking-frames-1",
+    "detector eval --tracking --tracking-frames 1 --out {w}/e",
+    "--tracking-frames must be",
+)
+case(
     "detector-eval-out-is-file",
     "detector eval --out {afile}",
     "afile: is a file, not a folder",

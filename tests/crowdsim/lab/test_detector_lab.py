@@ -121,3 +121,23 @@ def test_relabel_gives_matched_heads_the_truths_ids():
         np.array([[31.0, 11.0], [80.0, 80.0], [12, 10]]), gt_ids, gt
     )
     assert ids.tolist() == [9, 14, 4] and matched.tolist() == [4, 9]
+
+
+def test_the_tracking_table_tracks_with_the_threshold_and_frames_it_is_given(monkeypatch):
+    """detector eval --tracking --threshold T --tracking-frames N: every sequence is tracked
+    with the detector at T and cut to N frames (T had been dropped: the tracking part always
+    ran at the default threshold, whole sequences)."""
+    calls = []
+
+    def fake(spec, **kw):
+        calls.append((spec.name, kw))
+        scores = {"acc@15": 90.0, "acc@5": 80.0}
+        return {"sequence": spec.name, "ground truth": scores, "detections": scores}
+
+    monkeypatch.setattr(lab, "track_from_detections", fake)
+    tab = lab.tracking_table(tracker="ncc", threshold=0.55, frames=12, progress=False)
+    assert [name for name, _ in calls] == [f"seq{i}" for i in range(1, 10)]
+    assert all(
+        kw["threshold"] == 0.55 and kw["frames"] == 12 and kw["tracker"] == "ncc" for _, kw in calls
+    )
+    assert tab["frames"] == 12 and tab["gap_acc15"] == 0.0
