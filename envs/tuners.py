@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from crowdsim.atomic import new_study_files, output_folder
+from crowdsim.atomic import new_study_files, output_folder, sha256_file
 from crowdsim.checks import require_choice, require_number, require_workers
 from crowdsim.jobs import read_manifest
 from crowdsim.optional import DependencyNotInstalled, require
@@ -39,8 +39,14 @@ from envs.episodes import (
     make_episodes,
     shows_someone,
 )
-from envs.heldout import HELDOUT_SEED, check_heldout_out, evaluate_heldout, write_heldout
-from envs.outputs import check_outputs, write_outputs
+from envs.heldout import (
+    HELDOUT_FILES,
+    HELDOUT_SEED,
+    check_heldout_out,
+    evaluate_heldout,
+    write_heldout,
+)
+from envs.outputs import check_outputs, read_record, write_outputs
 from envs.param_space import ParamSpace, require_tunable
 
 STUDY_FILE = "study.db"
@@ -723,6 +729,24 @@ def _is_tune_record(doc: Any) -> bool:
     return isinstance(doc, dict) and {"params", "space", "study", "trials"} <= set(doc)
 
 
+def _remove_stale_heldout(out: Path, log: Callable[[str], None]) -> None:
+    """Remove the held-out scores an earlier tune run wrote into ``out`` (listed with their
+    digests in its ``best_params.json``) when this run scores none: left beside the new
+    parameters, they would read as this run's. A file changed since, or one this program
+    cannot prove it wrote, is left alone."""
+    listed = (read_record(out / TUNE_FILES[0], _is_tune_record) or {}).get("heldout_files")
+    if not isinstance(listed, dict):
+        return
+    removed = []
+    for name in HELDOUT_FILES:
+        path = out / name
+        if listed.get(name) and path.is_file() and sha256_file(path) == listed[name]:
+            path.unlink()
+            removed.append(name)
+    if removed:
+        log(f"removed the earlier run's held-out scores ({', '.join(removed)}): none this run")
+
+
 def check_tune_out(out: Path, heldout: bool) -> None:
     """Refuse a folder holding a ``best_params.json``, ``history.png`` or ``importance.png``
     (or, with held-out scoring, a ``heldout.*``) that ``crowdsim tune`` cannot prove it
@@ -932,6 +956,8 @@ def _tune_locked(
                 progress=progress,
             )
             files.update(write_heldout(result.heldout, out))
+        else:
+            _remove_stale_heldout(out, log)
         doc = {
             "format": 1,
             "tracker": objective.tracker,
@@ -947,6 +973,10 @@ def _tune_locked(
             "importances": importances,
             "study": {"storage": url, "name": study_name},
             "heldout": result.heldout.get("summary", {}),
+            # what this run's held-out scoring wrote: a later run without it removes them
+            "heldout_files": {
+                name: sha256_file(out / name) for name in HELDOUT_FILES if result.heldout
+            },
         }
         written = write_outputs(
             out,

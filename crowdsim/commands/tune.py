@@ -12,8 +12,9 @@ resumes it: ``--trials`` is the total of finished trials wanted. Writes ``DIR/be
 (for ``crowdsim track --params``), ``DIR/history.png``, ``DIR/importance.png`` and
 ``DIR/heldout.json`` / ``.md`` / ``.png``: the best parameters against the paper defaults on
 ``--heldout`` held-out seeds per sequence or scenario family (never tuned on; ``crowdsim
-heldout`` scores a trained policy beside them). Files of those names in DIR that it cannot
-prove it wrote are refused, never replaced. See :mod:`envs.tuners`.
+heldout`` scores a trained policy beside them; a rerun with ``--heldout 0`` removes the ones an
+earlier run wrote, so that they never read as the new parameters' scores). Files of those
+names in DIR that it cannot prove it wrote are refused, never replaced. See :mod:`envs.tuners`.
 """
 
 from __future__ import annotations

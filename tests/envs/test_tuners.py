@@ -121,6 +121,33 @@ def test_tune_any_tunable_tracker_from_the_cli(tmp_path, tracker):
                  "--metrics", "accuracy", "--out", str(held)]) == 0  # fmt: skip
 
 
+def test_a_rerun_without_heldout_scoring_removes_the_earlier_runs_scores(tmp_path, capsys):
+    """tune --heldout 1, then the same folder with --heldout 0: the first run's heldout.*
+    would read as the new parameters' scores, so the rerun removes the ones it wrote; a file
+    the user edited since is kept."""
+    from crowdsim.cli import main
+
+    spec = tmp_path / "d.json"
+    spec.write_text(json.dumps(dict(TINY)))
+    out = tmp_path / "t"
+    args = ["tune", "--scenarios", str(spec), "--frames", "8", "--train-episodes", "1",
+            "--no-progress", "--out", str(out)]  # fmt: skip
+    assert main([*args, "--trials", "2", "--heldout", "1"]) == 0
+    assert all((out / n).is_file() for n in ("heldout.json", "heldout.md", "heldout.png"))
+    listed = json.loads((out / "best_params.json").read_text())["heldout_files"]
+    assert sorted(listed) == ["heldout.json", "heldout.md", "heldout.png"]
+    (out / "heldout.md").write_text("my notes on the held-out run\n")
+    capsys.readouterr()
+    assert main([*args, "--trials", "3", "--heldout", "0"]) == 0
+    assert not (out / "heldout.json").exists() and not (out / "heldout.png").exists()
+    assert (out / "heldout.md").read_text() == "my notes on the held-out run\n"
+    assert "removed the earlier run's held-out scores (heldout.json, heldout.png)" in (
+        capsys.readouterr().err
+    )
+    doc = json.loads((out / "best_params.json").read_text())
+    assert doc["heldout"] == {} and doc["heldout_files"] == {}
+
+
 def test_killed_run_resumes_without_losing_finished_trials(tmp_path):
     out = tmp_path / "k"
     spec = tmp_path / "tiny.json"
