@@ -85,18 +85,20 @@ class TrackerEntry:
         """
         cls = self.params_class()
         if params is None:
-            return self.tracker_class()(self.make_params(**overrides))
-        if isinstance(params, Mapping):
-            return self.tracker_class()(self.make_params(**{**params, **overrides}))
-        if not isinstance(params, cls):
+            params = self.make_params(**overrides)
+        elif isinstance(params, Mapping):
+            params = self.make_params(**{**params, **overrides})
+        elif not isinstance(params, cls):
             raise ValueError(
                 f"tracker {self.name!r} takes params as a {cls.__name__} or a mapping of its "
                 f"fields, got {type(params).__name__}"
             )
-        if overrides:
+        elif overrides:
             self.make_params(**overrides)  # unknown fields are refused by name
             params = replace(params, **overrides)
-        return self.tracker_class()(params)
+        trk = self.tracker_class()(params)
+        trk.name = self.name  # a variant's own name (bqp-ncc), in reports and messages
+        return trk
 
 
 def _entry(name: str, target: str, params: str, summary: str, **overrides: Any) -> TrackerEntry:
