@@ -85,6 +85,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _command_parser(
+    parser: argparse.ArgumentParser, args: argparse.Namespace
+) -> argparse.ArgumentParser:
+    """The (sub-)sub-parser of the command ``args`` holds (``detector train``), or ``parser``."""
+    for name in (args.command, getattr(args, "verb", None)):
+        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        if name is None or not subs or name not in subs[0].choices:
+            break
+        parser = subs[0].choices[name]
+    return parser
+
+
 KEEP_FREED: dict[str, int] = {
     "MALLOC_MMAP_THRESHOLD_": 128 << 20,
     "MALLOC_TRIM_THRESHOLD_": 256 << 20,
@@ -148,7 +160,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     process_settings()
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # argparse's top-level message would not name the command
+        _command_parser(parser, args).error(f"unrecognized arguments: {' '.join(extra)}")
     command = " ".join(filter(None, (args.command, getattr(args, "verb", None))))
     prefix = f"crowdsim {command}: error:"
     try:

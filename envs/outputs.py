@@ -26,7 +26,7 @@ killed at any point leaves every file in the folder provably ours, and none half
 ...     check_outputs(out, "r.json", ("t.md",), ours, "a demo")
 ... except ValueError as exc:
 ...     print(str(exc).replace(str(out), "OUT").split(";")[0])
---out: OUT/t.md exists and was not written by a demo
+--out: OUT/t.md exists and was not written by a demo, or was changed since
 """
 
 from __future__ import annotations
@@ -44,7 +44,8 @@ from crowdsim.checks import require_output_dir
 
 def _refuse(path: Path, what: str, flag: str) -> ValueError:
     return ValueError(
-        f"{flag}: {path} exists and was not written by {what}; refusing to replace it "
+        f"{flag}: {path} exists and was not written by {what}, or was changed since; "
+        "refusing to replace it "
         f"(move it away or choose another {flag})"
     )
 

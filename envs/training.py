@@ -221,7 +221,7 @@ def train(
     )
     log(
         f"{algo}: {steps} steps in {wall:.0f} s ({steps / max(wall, 1e-9):.2f} steps/s), "
-        f"{len(curve)} episodes -> {out / 'model.zip'}"
+        f"{len(curve)} episode{'s' if len(curve) != 1 else ''} -> {out / 'model.zip'}"
     )
     return doc
 

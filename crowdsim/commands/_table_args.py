@@ -32,9 +32,10 @@ def add_jobs_arguments(p: argparse.ArgumentParser, workers_help: str, workers: i
     )
 
 
-def add_table_arguments(p: argparse.ArgumentParser) -> None:
+def add_table_arguments(p: argparse.ArgumentParser, writes: str = "") -> None:
     """``--suite NAME|DIR``, ``--only``, ``--frames``, the jobs flags, ``--out``,
-    ``--no-progress`` of ``compare``, ``ablation`` and ``difficulty``."""
+    ``--no-progress`` of ``compare``, ``ablation`` and ``difficulty`` (``writes``: what the
+    command writes into ``--out`` beside the tables, for its help)."""
     p.add_argument(
         "--suite",
         default="ucf9",
@@ -55,7 +56,7 @@ def add_table_arguments(p: argparse.ArgumentParser) -> None:
         required=True,
         metavar="DIR",
         help="output folder: sequences/, cells.json (resume), table.md, table.csv, "
-        "curves/*.png and outputs.json (their digests: a rerun replaces only those)",
+        f"curves/*.png{writes} and outputs.json (their digests: a rerun replaces only those)",
     )
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
 

@@ -22,6 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "benchmark",
         metavar="NAME",
+        nargs="?",  # missing: named below, not "required: NAME, ARGS" (ARGS are optional)
         choices=sorted(BENCHMARKS),
         help="benchmark to run: " + ", ".join(BENCHMARKS),
     )
@@ -32,4 +33,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.benchmark is None:
+        raise ValueError(f"name a benchmark: {', '.join(BENCHMARKS)}")
     return main(args.benchmark, args.bench_args)

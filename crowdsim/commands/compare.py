@@ -50,7 +50,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--trackers",
         nargs="+",
         metavar="NAME",
-        help="only the rows of these registered trackers (default: every row; e.g. bqp pnmc)",
+        help="only the rows that run these trackers: ncc, meanshift, pnmc, bqp, bqp-ncc, "
+        "bytetrack, ocsort (default: every row)",
     )
     p.set_defaults(func=run)
 

@@ -33,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="attribute a calibrated suite's difficulty to its knob groups, per tracker",
         description=__doc__.splitlines()[0].replace("``", ""),
     )
-    add_table_arguments(p)
+    add_table_arguments(p, writes=", attribution.md, attribution.json")
     p.add_argument(
         "--trackers",
         nargs="+",

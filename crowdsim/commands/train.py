@@ -163,8 +163,8 @@ def run(args: argparse.Namespace) -> int:
         first = sum(e["reward_per_step"] for e in eps[:k]) / k
         last = sum(e["reward_per_step"] for e in eps[-k:]) / k
         print(
-            f"{len(eps)} episodes; mean step reward {first:.2f} % (first {k}) -> "
-            f"{last:.2f} % (last {k})"
+            f"{len(eps)} episode{'s' if len(eps) != 1 else ''}; mean step reward "
+            f"{first:.2f} % (first {k}) -> {last:.2f} % (last {k})"
         )
     print(f"-> {args.out}/model.zip, learning_curve.png")
     return 0

@@ -900,6 +900,13 @@ case(
 )
 case("train-candidates-0", "train --algo scene --candidates 0 --out {w}/o", "--candidates must be")
 
+case("bench-no-name", "bench", "crowdsim bench: error: name a benchmark: sim, fd")
+case(
+    "cli-unknown-flag-names-the-command",
+    "detector train --bogus 1 --out {w}/d",
+    "crowdsim detector train: error: unrecognized arguments: --bogus 1",
+)
+
 # --- bench: every number checked, and every output path, before any run --------------------
 BENCH = (
     (
