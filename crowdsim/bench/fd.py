@@ -42,7 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out",
         type=path_arg,
         default=Path("benchmarks/out"),
-        help="folder for fd.png, lanes.png and fd.json",
+        help="folder for fd.png, lanes.png and fd.json (default: benchmarks/out, under the "
+        "working folder)",
     )
     parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 

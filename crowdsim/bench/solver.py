@@ -128,7 +128,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out",
         default=os.path.join("benchmarks", "out"),
-        help="folder of the convergence plot (default: %(default)s)",
+        help="folder of the convergence plot (default: %(default)s, under the working folder)",
     )
     parser.add_argument("--no-plot", action="store_true", help="skip the PNG")
     parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
