@@ -294,7 +294,7 @@ def test_an_interrupt_a_c_extension_wrapped_still_ends_the_command_in_one_line(m
     parser = cli.build_parser()
     monkeypatch.setattr(cli, "build_parser", lambda: parser)
     args = parser.parse_args(["bench", "sim"])
-    monkeypatch.setattr(parser, "parse_args", lambda argv=None: args)
+    monkeypatch.setattr(parser, "parse_known_args", lambda argv=None: (args, []))
     monkeypatch.setattr(args, "func", wrapped)
     assert cli.main([]) == 143
     assert capsys.readouterr().err.strip().splitlines() == [
