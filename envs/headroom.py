@@ -118,8 +118,7 @@ def measure_headroom(
     """(a), (b), (c) per family and overall on ``seeds`` held-out sequences per family of
     ``objective`` (an :class:`envs.tuners.Objective`: suite or scenarios, tracker, frames,
     threshold). See the module docstring."""
-    from tqdm.auto import tqdm
-
+    from crowdsim.progress import progress_bar
     from envs.heldout import heldout_count, heldout_episodes
 
     require_number("headroom", "seeds", seeds, lo=1, integer=True)
@@ -127,8 +126,8 @@ def measure_headroom(
     actions = candidate_actions(space, candidates, seed)
     per_seq: list[dict[str, Any]] = []
     skipped: list[str] = []
-    bar = tqdm(
-        total=heldout_count(objective, seeds), desc="headroom", unit="seq", disable=not progress
+    bar = progress_bar(
+        total=heldout_count(objective, seeds), desc="headroom", unit="seq", enabled=progress
     )
     for family, seq, _ in heldout_episodes(objective, seeds, skipped):
         r = sequence_headroom(
