@@ -129,6 +129,20 @@ class Tracker(ABC):
     Subclasses implement :meth:`_init`, :meth:`_step`, :meth:`_add` and :meth:`_remove`; the
     base class checks inputs, handles births and terminations and keeps ``ids``/``points``.
 
+    What a tracker of your own needs besides those four, to pass
+    :func:`tracker.testing.check_tracker_contract` (``tracker/baselines/ncc.py`` is a short
+    example of all of it):
+
+    * a constructor ``__init__(self, params=None)`` that calls ``super().__init__()`` and
+      sets ``self.params`` (an instance of :attr:`params_class`, defaults when ``None``);
+    * ``max_lost`` and ``lost_ratio`` fields in the params: the base class ends a track after
+      ``max_lost`` frames whose confidence stays below ``lost_ratio`` times the target's usual
+      one, which is how tracks of people who vanish in view end;
+    * ``self.confidence`` (``(n,)``) set by :meth:`_step` for the targets it moved;
+    * :meth:`_predicted` with a motion model when the tracker has one: a track ends when its
+      predicted point leaves the image (the default predicts no motion, so a target at the
+      edge that walks out is ended by its confidence instead).
+
     Attributes
     ----------
     ids : (n,) int64
@@ -265,7 +279,7 @@ class Tracker(ABC):
             if self.compensator is not None:
                 self._compensate(frame)
             if len(self.ids):
-                self.points = self._step(frame)
+                self.points = self._stepped(frame)
                 self._terminate()
             if births is not None and len(b_ids):
                 self._add_targets(frame, b_ids, b_pts)
@@ -413,6 +427,19 @@ class Tracker(ABC):
     def _predicted(self) -> np.ndarray:
         """``(n, 2)`` next-frame prediction used to decide that a target leaves the image."""
         return self.points
+
+    def _stepped(self, frame: np.ndarray) -> np.ndarray:
+        """:meth:`_step`'s positions, checked: ``(n, 2)`` real numbers, as float64."""
+        new = self._step(frame)
+        n = len(self.ids)
+        got = np.asarray(new) if new is not None else None
+        if got is None or got.shape != (n, 2) or got.dtype.kind not in "iuf":
+            what = "None" if got is None else f"{got.dtype} {got.shape}"
+            raise ValueError(
+                f"{type(self).__name__}._step returned {what}; expected ({n}, 2) positions of "
+                "the active targets, pixels"
+            )
+        return got.astype(np.float64, copy=False)
 
     # ------------------------------------------------------------------ camera motion
     def _start_compensator(self) -> None:

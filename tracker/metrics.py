@@ -52,9 +52,41 @@ SIMILARITY_SCALE: float = 15.0
 """``T_sim`` (px) of the point similarity ``max(0, 1 - d / T_sim)`` fed to TrackEval."""
 
 
+def checked_ids(name: str, ids: Any) -> np.ndarray:
+    """``ids`` as ``(N,)`` int64: a 1-D array of distinct whole numbers within int64, else a
+    ``ValueError`` naming ``name`` and the first bad value (truncating id 1.7 to 1, or
+    wrapping 1e30, would merge two people's tracks and change every score).
+
+    >>> checked_ids("tr_ids", [1, 2.0]).tolist()
+    [1, 2]
+    >>> checked_ids("tr_ids", [1.2, 1.7])
+    Traceback (most recent call last):
+    ...
+    ValueError: tr_ids: 1.2 is not a whole number within int64
+    """
+    raw = np.asarray(ids)
+    if raw.size == 0:
+        return np.zeros(0, np.int64)
+    if raw.ndim != 1 or raw.dtype.kind not in "iuf":
+        raise ValueError(f"{name} must be a 1-D array of integers, got {raw.dtype} {raw.shape}")
+    if raw.dtype.kind in "uf":
+        values = raw.astype(np.float64)
+        bad = ~np.isfinite(values) | (values != np.round(values)) | (np.abs(values) >= 2.0**63)
+        if raw.dtype.kind == "u":
+            bad = raw > np.iinfo(np.int64).max
+        if bad.any():
+            v = raw[np.flatnonzero(bad)[0]]
+            raise ValueError(f"{name}: {v.item()!r} is not a whole number within int64")
+    out = raw.astype(np.int64)
+    values, counts = np.unique(out, return_counts=True)
+    if (counts > 1).any():  # one column of points per id: a twice-listed id is two tracks
+        raise ValueError(f"{name}: id {values[counts > 1][0].item()!r} appears more than once")
+    return out
+
+
 def _align(gt_ids, gt_points, tr_ids, tr_points, strict: bool):
-    gt_ids = np.asarray(gt_ids, dtype=np.int64)
-    tr_ids = np.asarray(tr_ids, dtype=np.int64)
+    gt_ids = checked_ids("gt_ids", gt_ids)
+    tr_ids = checked_ids("tr_ids", tr_ids)
     gt_points = np.asarray(gt_points, dtype=np.float64)
     tr_points = np.asarray(tr_points, dtype=np.float64)
     if gt_points.ndim != 3 or gt_points.shape[1:] != (len(gt_ids), 2):
@@ -188,6 +220,10 @@ def mapped_positions(
     return out
 
 
+def _real(values: Any) -> bool:
+    return np.asarray(values).dtype.kind in "iuf"
+
+
 def accuracy_curve(
     gt_ids,
     gt_points,
@@ -210,6 +246,10 @@ def accuracy_curve(
     >>> accuracy_curve([1, 2], gt, [1, 2], tr, thresholds=[0, 5]).tolist()
     [50.0, 100.0]
     """
+    gt_ids, tr_ids = checked_ids("gt_ids", gt_ids), checked_ids("tr_ids", tr_ids)
+    th = np.asarray(thresholds, dtype=np.float64) if _real(thresholds) else None
+    if th is None or th.ndim != 1 or not np.isfinite(th).all():
+        raise ValueError(f"thresholds must be a 1-D array of finite px, got {thresholds!r}")
     mode = resolve_id_mapping(gt_ids, tr_ids, id_mapping, gt_points, tr_points, radius)
     if mode == "majority":
         tr_points = mapped_positions(gt_ids, gt_points, tr_ids, tr_points, radius)
@@ -217,7 +257,6 @@ def accuracy_curve(
     # "auto" decided on the ids themselves: unknown ones are unmatched, never refused
     err = point_errors(gt_ids, gt_points, tr_ids, tr_points, strict and id_mapping == "same")
     e = err[~np.isnan(err)]
-    th = np.asarray(thresholds, dtype=np.float64)
     if e.size == 0:
         return np.zeros(len(th))
     e = np.sort(e)
@@ -303,9 +342,10 @@ def resolve_id_mapping(
     'majority'
     """
     require_choice("", "id_mapping", id_mapping, ID_MAPPINGS)
+    gt_ids, tr_ids = checked_ids("gt_ids", gt_ids), checked_ids("tr_ids", tr_ids)
     if id_mapping != "auto":
         return id_mapping
-    known = np.isin(np.asarray(tr_ids), np.asarray(gt_ids))
+    known = np.isin(tr_ids, gt_ids)
     if known.all() or not known.any():
         return "same" if known.all() else "majority"
     if gt_points is None or tr_points is None:
@@ -352,10 +392,7 @@ def evaluate(
     only concerns acc@T (module docstring); ``strict`` refuses track ids unknown to the ground
     truth when ``id_mapping="same"`` is asked for (``"auto"`` scores them as unmatched).
     """
-    for name, ids in (("gt_ids", gt_ids), ("tr_ids", tr_ids)):
-        values, counts = np.unique(np.asarray(ids), return_counts=True)
-        if (counts > 1).any():  # one column of points per id: a twice-listed id is two tracks
-            raise ValueError(f"{name}: id {values[counts > 1][0].item()!r} appears more than once")
+    gt_ids, tr_ids = checked_ids("gt_ids", gt_ids), checked_ids("tr_ids", tr_ids)
     mode = resolve_id_mapping(gt_ids, tr_ids, id_mapping, gt_points, tr_points, similarity_scale)
     if id_mapping == "same" and strict:
         _align(gt_ids, gt_points, tr_ids, tr_points, True)  # unknown ids refused
@@ -370,7 +407,7 @@ def evaluate(
     out["gt_ids"] = int(len(gt_ids))
     out["similarity_px"] = float(similarity_scale)
     out["id_mapping"] = mode
-    unknown = ~np.isin(np.asarray(tr_ids), np.asarray(gt_ids))
+    unknown = ~np.isin(tr_ids, gt_ids)
     out["unknown_ids"] = int(unknown.sum()) if mode == "same" else 0
     return out
 

@@ -353,3 +353,34 @@ def test_mot_rows_refuse_a_fractional_or_missing_frame():
         rows = np.array([[frame, 1, 0.0, 0.0, 8.0, 8.0, 1, -1, -1, -1]])
         with pytest.raises(ValueError, match=r"row 1: frame .* is not a whole number"):
             mot_rows_to_tracks(rows)
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda gt: evaluate([1, 2], gt, [1.2, 1.7], gt), "tr_ids: 1.2 is not a whole number"),
+        (
+            lambda gt: accuracy_curve([1, 2], gt, [1, 1], gt, thresholds=[0]),
+            "tr_ids: id 1 appears more than once",
+        ),
+        (lambda gt: evaluate([np.nan, 2], gt, [1, 2], gt), "gt_ids: nan is not a whole number"),
+        (lambda gt: evaluate([1, 2], gt, [1e30, 2], gt), "tr_ids: 1e+30 is not a whole number"),
+        (
+            lambda gt: accuracy_curve([1, 2], gt, [1, 2], gt, thresholds=[np.nan, 5]),
+            "thresholds must be a 1-D array of finite px",
+        ),
+        (
+            lambda gt: accuracy_curve([1, 2], gt, [1, 2], gt, thresholds="5"),
+            "thresholds must be a 1-D array of finite px",
+        ),
+    ],
+)
+def test_ids_that_are_not_distinct_whole_numbers_are_refused_by_name(call, message):
+    """Two tracks with ids 1.2 and 1.7 had both become track 1 after the duplicate check,
+    and scored 100 %: ids are refused, never truncated or wrapped."""
+    import re
+
+    gt = np.array([[[10.0, 10.0], [50.0, 50.0]]] * 3)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        call(gt)
+    assert evaluate([1, 2], gt, [1.0, 2.0], gt)["acc@5"] == 100.0  # whole floats are ids

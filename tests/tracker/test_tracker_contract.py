@@ -102,14 +102,86 @@ class _Forgets(NCCTracker):
         pass
 
 
+class _OneColumn(NCCTracker):
+    """A planted bug: _step returns (n, 1)."""
+
+    def _step(self, frame):
+        return super()._step(frame)[:, :1]
+
+
+class _NoBirths(NCCTracker):
+    """A planted bug: drops every birth after the start (the born target's check fails on a
+    single target's track, which the check itself once failed to unpack)."""
+
+    def step(self, frame, births=None):
+        return super().step(frame, None)
+
+
 @pytest.mark.parametrize(
     ("cls", "match"),
-    [(_Frozen, "exact positions"), (_Forgets, "set_params")],
+    [
+        (_Frozen, "exact positions"),
+        (_Forgets, "set_params"),
+        (
+            _OneColumn,
+            "exact positions on a hand-built scene: ValueError: _OneColumn._step returned",
+        ),
+        (_NoBirths, "leaving targets end, births start: births: ids"),
+    ],
 )
 def test_the_shipped_contract_catches_a_broken_tracker(cls, match):
     # what an outside author sees: one call, an error naming the broken part of the contract
     with pytest.raises(AssertionError, match=match):
         check_tracker_contract(lambda params=None: cls(params))
+
+
+def test_a_step_that_returns_no_positions_is_refused_by_name_and_ints_become_floats():
+    frame = np.zeros((40, 40, 3), np.uint8)
+    frame[::4] = 200
+    bad = _OneColumn()
+    bad.init(frame, [1, 2], np.array([[10.0, 10.0], [30.0, 20.0]]), 8)
+    with pytest.raises(
+        ValueError, match=r"_OneColumn._step returned float64 \(2, 1\); expected \(2, 2\)"
+    ):
+        bad.step(frame)
+
+    class Rounds(NCCTracker):
+        def _step(self, frame):
+            return np.rint(super()._step(frame)).astype(np.int64)
+
+    good = Rounds()
+    good.init(frame, [1, 2], np.array([[10.0, 10.0], [30.0, 20.0]]), 8)
+    _, points = good.step(frame)
+    assert points.dtype == np.float64
+
+
+def test_the_contract_names_what_a_tracker_without_parameters_lacks():
+    """A tracker with no parameters (params_class None, as the base class allows): the
+    params and bad-input checks pass, and the vanishing check says what it needs instead of
+    an AttributeError on params.max_lost."""
+    from tracker.base import Tracker
+    from tracker.testing import _check_bad_input, _check_params, _check_vanishing
+
+    class Still(Tracker):
+        def __init__(self, params=None):
+            super().__init__()
+
+        def _init(self, frame):
+            pass
+
+        def _add(self, frame, points):
+            pass
+
+        def _remove(self, keep):
+            pass
+
+        def _step(self, frame):
+            return self.points
+
+    _check_params(Still)
+    _check_bad_input(Still)
+    with pytest.raises(AssertionError, match="give the params max_lost and lost_ratio"):
+        _check_vanishing(Still)
 
 
 @pytest.fixture(scope="module")
