@@ -77,6 +77,38 @@ def whole_numbers(values: Any) -> bool:
     return v.dtype.kind == "f" and bool(np.isfinite(v).all() and (v == np.round(v)).all())
 
 
+def checked_ids(name: str, ids: Any) -> np.ndarray:
+    """``ids`` as ``(N,)`` int64: a 1-D array of distinct whole numbers within int64, else a
+    ``ValueError`` naming ``name`` and the first bad value (truncating id 1.7 to 1, or
+    wrapping 1e30, would merge two people's tracks and change every score).
+
+    >>> checked_ids("tr_ids", [1, 2.0]).tolist()
+    [1, 2]
+    >>> checked_ids("tr_ids", [1.2, 1.7])
+    Traceback (most recent call last):
+    ...
+    ValueError: tr_ids: 1.2 is not a whole number within int64
+    """
+    raw = np.asarray(ids)
+    if raw.size == 0:
+        return np.zeros(0, np.int64)
+    if raw.ndim != 1 or raw.dtype.kind not in "iuf":
+        raise ValueError(f"{name} must be a 1-D array of integers, got {raw.dtype} {raw.shape}")
+    if raw.dtype.kind in "uf":
+        values = raw.astype(np.float64)
+        bad = ~np.isfinite(values) | (values != np.round(values)) | (np.abs(values) >= 2.0**63)
+        if raw.dtype.kind == "u":
+            bad = raw > np.iinfo(np.int64).max
+        if bad.any():
+            v = raw[np.flatnonzero(bad)[0]]
+            raise ValueError(f"{name}: {v.item()!r} is not a whole number within int64")
+    out = raw.astype(np.int64)
+    values, counts = np.unique(out, return_counts=True)
+    if (counts > 1).any():  # one column of points per id: a twice-listed id is two tracks
+        raise ValueError(f"{name}: id {values[counts > 1][0].item()!r} appears more than once")
+    return out
+
+
 def path_arg(text: str) -> Path:
     """``type=`` of an argparse flag that names a file or folder: the ``Path``, refusing an
     empty one (``--out ''`` would quietly mean the working folder)."""

@@ -105,14 +105,20 @@ def as_points(ids, points, what: str = "targets") -> tuple[np.ndarray, np.ndarra
     ids = np.asarray(ids)
     points = np.asarray(points, dtype=np.float64)
     if ids.size == 0:
+        if points.size:  # points without ids would be dropped in silence
+            raise ValueError(f"{what}: {len(points)} points but no ids")
         return np.zeros(0, np.int64), np.zeros((0, 2))
     if ids.ndim != 1 or not np.issubdtype(ids.dtype, np.integer):
         if ids.ndim == 1 and np.issubdtype(ids.dtype, np.floating) and whole_numbers(ids):
+            if (np.abs(ids) >= 2.0**63).any():  # would wrap to another id
+                raise ValueError(f"{what}: id {ids[np.abs(ids) >= 2.0**63][0]:g} is beyond int64")
             ids = ids.astype(np.int64)
         else:
             raise ValueError(
                 f"{what}: ids must be a 1-D integer array, got {ids.dtype} {ids.shape}"
             )
+    if ids.dtype.kind == "u" and (ids > np.iinfo(np.int64).max).any():
+        raise ValueError(f"{what}: id {ids[ids > np.iinfo(np.int64).max][0]} is beyond int64")
     if points.shape != (len(ids), 2):
         raise ValueError(f"{what}: points must have shape ({len(ids)}, 2), got {points.shape}")
     if not np.isfinite(points).all():
@@ -121,6 +127,28 @@ def as_points(ids, points, what: str = "targets") -> tuple[np.ndarray, np.ndarra
     if (counts > 1).any():
         raise ValueError(f"{what}: duplicate ids {uniq[counts > 1][:5].tolist()}")
     return ids.astype(np.int64), points
+
+
+def _checked_births(births: Any, n_frames: int | None) -> dict[int, Births]:
+    """``births`` as ``{frame: (ids, points)}``, each checked: frames whole numbers from 0
+    (below ``n_frames`` when given), values pairs of ids and points (:func:`as_points`)."""
+    if births is None:
+        return {}
+    if not isinstance(births, Mapping):
+        raise ValueError(
+            f"births must be a mapping frame -> (ids, points) or a callable, got "
+            f"{type(births).__name__}"
+        )
+    out: dict[int, Births] = {}
+    for t, b in births.items():
+        if isinstance(t, bool) or not isinstance(t, (int, np.integer)) or t < 0:
+            raise ValueError(f"births: frame {t!r} is not a frame index (0, 1, 2, ...)")
+        if n_frames is not None and t >= n_frames:
+            raise ValueError(f"births: frame {t} is beyond the sequence's {n_frames} frames")
+        if not (isinstance(b, (tuple, list)) and len(b) == 2):
+            raise ValueError(f"births at frame {t}: expected (ids, points), got {b!r:.60}")
+        out[int(t)] = as_points(*b, what=f"births at frame {t}")
+    return out
 
 
 class Tracker(ABC):
@@ -319,7 +347,7 @@ class Tracker(ABC):
             Show a tqdm progress bar with frames/s.
         """
         live = births if callable(births) else None
-        births = {} if live is not None else dict(births or {})
+        births = {} if live is not None else _checked_births(births, n_frames)
         rows: list[tuple[np.ndarray, np.ndarray]] = []
         it = iter(frames)
         bar = None
@@ -351,6 +379,11 @@ class Tracker(ABC):
                     bar.set_postfix(fps=f"{t / total:.1f}", targets=len(self.ids))
         if bar is not None:
             bar.close()
+        late = sorted(t for t in births if t >= len(rows))
+        if late:  # never reached: the sequence was shorter than its births say
+            raise ValueError(
+                f"births at frames {late[:5]} are beyond the sequence's {len(rows)} frames"
+            )
         result = self._assemble(rows)
         result.timings = dict(self.timings)
         return result

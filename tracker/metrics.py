@@ -43,45 +43,13 @@ from typing import Any
 
 import numpy as np
 
-from crowdsim.checks import require_choice
+from crowdsim.checks import checked_ids, require_choice
 from crowdsim.plotting import new_figure, save_figure
 
 THRESHOLDS: np.ndarray = np.arange(26)
 """Pixel thresholds ``T = 0 .. 25`` of the papers' accuracy curve."""
 SIMILARITY_SCALE: float = 15.0
 """``T_sim`` (px) of the point similarity ``max(0, 1 - d / T_sim)`` fed to TrackEval."""
-
-
-def checked_ids(name: str, ids: Any) -> np.ndarray:
-    """``ids`` as ``(N,)`` int64: a 1-D array of distinct whole numbers within int64, else a
-    ``ValueError`` naming ``name`` and the first bad value (truncating id 1.7 to 1, or
-    wrapping 1e30, would merge two people's tracks and change every score).
-
-    >>> checked_ids("tr_ids", [1, 2.0]).tolist()
-    [1, 2]
-    >>> checked_ids("tr_ids", [1.2, 1.7])
-    Traceback (most recent call last):
-    ...
-    ValueError: tr_ids: 1.2 is not a whole number within int64
-    """
-    raw = np.asarray(ids)
-    if raw.size == 0:
-        return np.zeros(0, np.int64)
-    if raw.ndim != 1 or raw.dtype.kind not in "iuf":
-        raise ValueError(f"{name} must be a 1-D array of integers, got {raw.dtype} {raw.shape}")
-    if raw.dtype.kind in "uf":
-        values = raw.astype(np.float64)
-        bad = ~np.isfinite(values) | (values != np.round(values)) | (np.abs(values) >= 2.0**63)
-        if raw.dtype.kind == "u":
-            bad = raw > np.iinfo(np.int64).max
-        if bad.any():
-            v = raw[np.flatnonzero(bad)[0]]
-            raise ValueError(f"{name}: {v.item()!r} is not a whole number within int64")
-    out = raw.astype(np.int64)
-    values, counts = np.unique(out, return_counts=True)
-    if (counts > 1).any():  # one column of points per id: a twice-listed id is two tracks
-        raise ValueError(f"{name}: id {values[counts > 1][0].item()!r} appears more than once")
-    return out
 
 
 def _align(gt_ids, gt_points, tr_ids, tr_points, strict: bool):

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from crowdsim.checks import checked_ids, require_number
+
 
 def tracks_to_mot_rows(ids: np.ndarray, positions: np.ndarray, template_size: int) -> np.ndarray:
     """``(K, 10)`` MOT result rows for the finite points of ``positions`` ``(T, N, 2)``.
@@ -21,7 +23,8 @@ def tracks_to_mot_rows(ids: np.ndarray, positions: np.ndarray, template_size: in
     [[1.0, 7.0, 6.0, 16.0, 8.0, 8.0, 1.0, -1.0, -1.0, -1.0]]
     """
     positions = np.asarray(positions, dtype=np.float64)
-    ids = np.asarray(ids, dtype=np.int64)
+    ids = checked_ids("ids", ids)
+    require_number("tracks_to_mot_rows", "template_size", template_size, lo=0, lo_open=True)
     if positions.ndim != 3 or positions.shape[1:] != (len(ids), 2):
         raise ValueError(f"positions must have shape (T, {len(ids)}, 2), got {positions.shape}")
     t, n = np.nonzero(np.isfinite(positions).all(-1))
@@ -44,9 +47,23 @@ def mot_rows_to_tracks(
     ``T = length`` when given (rows beyond it are an error), else the last frame.
     Duplicate ``(frame, id)`` rows are an error.
     """
+    if length is not None:
+        require_number(source, "length", length, lo=0, integer=True)
     rows = np.asarray(rows, dtype=np.float64)
     if rows.size == 0:
         return np.zeros(0, np.int64), np.full((length or 0, 0, 2), np.nan)
+    if rows.ndim != 2 or rows.shape[1] < 6:
+        raise ValueError(
+            f"{source}: MOT rows need at least 6 columns (frame, id, bb_left, bb_top, bb_width, "
+            f"bb_height), got shape {rows.shape}"
+        )
+    boxes = rows[:, 2:6]
+    bad = ~np.isfinite(boxes).all(1) | (boxes[:, 2] <= 0) | (boxes[:, 3] <= 0)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(
+            f"{source}: row {i + 1}: box {boxes[i].tolist()} is not a finite box of positive size"
+        )
     # ids and frames are whole numbers within int64: truncating id 2.5 or wrapping 1e30 would
     # merge people, truncating frame 1.5 would move a row
     for col, what, limit, says in (

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
@@ -147,9 +147,15 @@ def run_tracker(
         require_number("run_tracker", "template_size", template_size, lo=2, integer=True)
     if metrics not in ("full", "accuracy", "none"):
         raise ValueError(f"metrics must be 'full', 'accuracy' or 'none', got {metrics!r}")
-    if start is not None and not (isinstance(start, tuple) and len(start) == 2):
+    if start is not None and not (
+        isinstance(start, tuple)
+        and len(start) == 2
+        and isinstance(start[0], (tuple, list))
+        and len(start[0]) == 2
+        and isinstance(start[1], Mapping)
+    ):
         raise ValueError(
-            f"start must be ((ids0, points0), {{frame: (ids, points)}}), got {type(start).__name__}"
+            f"start must be ((ids0, points0), {{frame: (ids, points)}}), got {start!r:.80}"
         )
     trk = make_tracker(tracker, params)
     if prepare is not None:

@@ -384,3 +384,38 @@ def test_ids_that_are_not_distinct_whole_numbers_are_refused_by_name(call, messa
     with pytest.raises(ValueError, match=re.escape(message)):
         call(gt)
     assert evaluate([1, 2], gt, [1.0, 2.0], gt)["acc@5"] == 100.0  # whole floats are ids
+
+
+def test_mot_rows_that_are_not_boxes_are_refused_by_name():
+    """Fewer than 6 columns, a 1-D row, a NaN or empty box, a negative or fractional length:
+    one message naming the row or the argument (an IndexError, a half-NaN point, or a
+    silently truncated length before)."""
+    import re
+
+    good = tracks_to_mot_rows(np.array([7]), np.array([[[10.0, 20.0]]]), 8)
+    for rows, length, message in [
+        (good[:, :5], None, "MOT rows need at least 6 columns"),
+        (good[0], None, "MOT rows need at least 6 columns"),
+        (np.r_[good[0, :4], np.nan, 8.0][None], None, "row 1: box [6.0, 16.0, nan, 8.0]"),
+        (np.r_[good[0, :4], 0.0, 8.0][None], None, "is not a finite box of positive size"),
+        (good, -1, "length must be"),
+        (good, 3.5, "length must be"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(message)):
+            mot_rows_to_tracks(rows, length)
+    for ids, size, message in [
+        ([1.5], 8, "ids: 1.5 is not a whole number"),
+        ([7], 0, "template_size must be"),
+        ([7], float("nan"), "template_size must be"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(message)):
+            tracks_to_mot_rows(np.array(ids), np.array([[[10.0, 20.0]]]), size)
+
+
+def test_a_target_id_beyond_int64_is_refused_not_wrapped():
+    from tracker.registry import make_tracker
+
+    frame = np.zeros((20, 20, 3), np.uint8)
+    for ids in ([1e30], np.array([2**63 + 5], np.uint64)):
+        with pytest.raises(ValueError, match="beyond int64"):
+            make_tracker("ncc").init(frame, ids, np.array([[5.0, 5.0]]), 8)

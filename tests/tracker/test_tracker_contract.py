@@ -215,3 +215,50 @@ def test_ncc_match_centre_stays_inside_the_image():
     ids, pts = tr.step(f1)
     assert ids.tolist() == [1]
     assert 0 <= pts[0, 0] <= 63
+
+
+@pytest.mark.parametrize(
+    ("births", "message"),
+    [
+        ({"3": ([5], [[30.0, 30.0]])}, "births: frame '3' is not a frame index"),
+        ({-1: ([5], [[30.0, 30.0]])}, "births: frame -1 is not a frame index"),
+        ({9: ([5], [[30.0, 30.0]])}, "births: frame 9 is beyond the sequence's 6 frames"),
+        ({3: [5]}, "births at frame 3: expected (ids, points)"),
+        ({3: ([], [[30.0, 30.0]])}, "births at frame 3: 1 points but no ids"),
+        ([5], "births must be a mapping frame -> (ids, points) or a callable, got list"),
+    ],
+)
+def test_births_the_tracker_would_drop_are_refused_before_tracking(births, message):
+    """A births key as text, negative or past the last frame, or a malformed value: each had
+    been dropped in silence (or failed deep inside with a TypeError)."""
+    import re
+
+    from tracker.testing import make_scene
+
+    sc = make_scene([[20, 20], [60, 40]], [[1, 0], [0, 1]], n_frames=6)
+    tr = NCCTracker()
+    with pytest.raises(ValueError, match=re.escape(message)):
+        tr.track(sc.frames, sc.ids, sc.points[0], sc.template_size, births=births, n_frames=6)
+    with pytest.raises(ValueError, match=re.escape("births at frames [9] are beyond the")):
+        tr.track(sc.frames, sc.ids, sc.points[0], sc.template_size, births={9: ([5], [[1, 1]])})
+
+
+def test_run_tracker_refuses_a_start_without_its_births_mapping():
+    from tracker.runner import run_tracker
+    from tracker.testing import make_scene
+
+    sc = make_scene([[20, 20]], [[1, 0]], n_frames=4)
+
+    class Source:
+        length, template_size = 4, sc.template_size
+
+        def frames(self):
+            return iter(sc.frames)
+
+        def births(self):
+            return (sc.ids, sc.points[0]), {}
+
+    with pytest.raises(ValueError, match="start must be"):
+        run_tracker("ncc", Source(), metrics="none", start=((sc.ids, sc.points[0]), None))
+    res = run_tracker("ncc", Source(), metrics="none", start=((sc.ids, sc.points[0]), {}))
+    assert res.result.positions.shape == (4, 1, 2)
