@@ -364,6 +364,8 @@ class CrowdParallelEnv(ParallelEnv):
         sim = self._require_sim()
         ids = self._ids
         n = len(ids)
+        if np.asarray(actions).dtype.kind not in "biuf":
+            raise ValueError(f"actions must be (n, 2) numbers, got {actions!r:.60}")
         a = np.asarray(actions, dtype=np.float64)
         if a.shape != (n, 2):
             raise ValueError(f"actions must have shape ({n}, 2), got {a.shape}")

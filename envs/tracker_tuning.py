@@ -283,6 +283,7 @@ class TrackerTuningEnv(gym.Env):
     * ``scenarios`` -- a :class:`envs.episodes.ScenarioDistribution`, a mapping of its
       fields, or a string (``"all"``, ``"marathon,crossing"``, a JSON/TOML file); default the
       full distribution (40-100 people, 100 frames, frames up to 640x480);
+      :func:`envs.episodes.tiny_scenarios` is the smallest (quick experiments and tests);
     * ``suite``, ``only``, ``frames`` -- episodes from a suite instead (built-in name or a
       folder of MOT sequences); ``frames`` also truncates scenario sequences;
     * ``episodes`` -- a ready :class:`envs.episodes.EpisodeSource` (overrides the above);

@@ -31,7 +31,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from crowdsim.checks import require_number
+from crowdsim.checks import checked_ids, require_number
 from synth_data.births import Births, births_from_ground_truth, births_from_init
 
 
@@ -86,7 +86,9 @@ class VideoSequence:
     path : path
         Any video OpenCV reads.
     init : path, optional
-        Points CSV (see the module docstring); needed by :meth:`births`.
+        Points CSV, needed by :meth:`births`: a header ``frame,id,x,y`` (1-based frames,
+        pixel centres of the heads; frame 1 must list someone) or ``id,x,y`` (all in frame 1),
+        read by :func:`synth_data.births.read_points_csv`.
     template_size : int, optional
         Head size in pixels (default :data:`synth_data.mot.DEFAULT_TEMPLATE_SIZE`).
     """
@@ -123,8 +125,11 @@ class VideoSequence:
         self.frame_rate = fps if math.isfinite(fps) and fps > 0 else 25.0
         self.height, self.width = (int(v) for v in first.shape[:2])
         self.length = count
-        self.template_size = int(template_size or DEFAULT_TEMPLATE_SIZE)
-        require_number(str(path), "template_size", self.template_size, lo=2, integer=True)
+        if template_size is None:
+            template_size = DEFAULT_TEMPLATE_SIZE
+        # checked as given: 0, 2.7 or "12" are refused, never turned into another size
+        require_number(str(path), "template_size", template_size, lo=2, integer=True)
+        self.template_size = int(template_size)
 
     def __repr__(self) -> str:
         return f"VideoSequence({str(self.path)!r}, {self.length} frames {self.width}x{self.height})"
@@ -199,14 +204,22 @@ class InMemorySequence:
     ) -> None:
         owner = f"InMemorySequence {name!r}"
         require_number(owner, "frame_rate", frame_rate, lo=0, lo_open=True)
-        for key, value in (("width", width), ("height", height), ("template_size", template_size)):
+        for key, value in (("width", width), ("height", height)):
             require_number(owner, key, value, lo=1, integer=True)
+        require_number(owner, "template_size", template_size, lo=2, integer=True)
         if (frames is None) == (render is None):
             raise ValueError(f"{owner}: give exactly one of frames and render")
         if frames is not None:
             if length is not None and length != len(frames):
                 raise ValueError(f"{owner}: length {length} != {len(frames)} frames")
             length = len(frames)
+            for t, f in enumerate(frames):  # what every tracker reads: BGR uint8 of this size
+                shape, dtype = getattr(f, "shape", None), getattr(f, "dtype", None)
+                if shape != (height, width, 3) or dtype != np.uint8:
+                    raise ValueError(
+                        f"{owner}: frame {t} must be ({height}, {width}, 3) uint8, got "
+                        f"{dtype} {shape}"
+                    )
         elif length is None:
             raise ValueError(f"{owner}: a render function needs the length")
         require_number(owner, "length", length, lo=0, integer=True)
@@ -214,11 +227,15 @@ class InMemorySequence:
             raise ValueError(f"{owner}: give both ids and points, or neither")
         if ids is None:
             ids, points = _no_gt(int(length))
-        ids = np.asarray(ids, dtype=np.int64)
+        ids = checked_ids(f"{owner}: ids", ids)  # 1.5 is not person 1, twice-listed is two
         points = np.asarray(points, dtype=np.float64)
         if points.shape != (length, len(ids), 2):
             raise ValueError(
                 f"{owner}: points must have shape ({length}, {len(ids)}, 2), got {points.shape}"
+            )
+        if init is not None and not (isinstance(init, (tuple, list)) and len(init) == 2):
+            raise ValueError(
+                f"{owner}: init must be (ids, points) of the first frame, got {init!r:.60}"
             )
         self.name = str(name)
         self.frame_rate = float(frame_rate)
@@ -232,9 +249,9 @@ class InMemorySequence:
         self._output = output
 
     def __repr__(self) -> str:
-        kind = "frames" if self._frames is not None else "rendered"
+        kind = "in memory" if self._frames is not None else "rendered on demand"
         return (
-            f"InMemorySequence({self.name!r}, {self.length} {kind} frames "
+            f"InMemorySequence({self.name!r}, {self.length} frames {kind}, "
             f"{self.width}x{self.height}, {len(self._ids)} people)"
         )
 
@@ -285,7 +302,8 @@ class InMemorySequence:
                 f"{type(spec).__name__}"
             )
         if frames is not None:
-            spec = spec.truncated(frames)
+            require_number("InMemorySequence.from_spec", "frames", frames, lo=1, integer=True)
+            spec = spec.truncated(int(frames))
         output = (
             partial(camera, fps=spec.fps, encoding=spec.appearance.encoding)
             if camera_output

@@ -95,9 +95,11 @@ class TrackResult:
 
     @property
     def fps(self) -> float:
-        """Frames per second of the tracking loop (frame decoding excluded)."""
+        """Frames per second of the tracking loop: the frames after the first (the
+        initialisation) over the seconds their steps took, frame decoding excluded, as
+        :attr:`tracker.runner.TrackRun.fps`; 0 when no frame was tracked."""
         total = self.timings.get("total", 0.0)
-        return self.n_frames / total if total > 0 else float("inf")
+        return (self.n_frames - 1) / total if self.n_frames > 1 and total > 0 else 0.0
 
 
 def as_points(ids, points, what: str = "targets") -> tuple[np.ndarray, np.ndarray]:

@@ -57,7 +57,7 @@ class TrackRun:
         ground truth or with ``metrics="none"``.
     fps : float
         Frames per second of the tracking loop (frame decoding excluded; frame 0, the
-        initialisation, is not counted).
+        initialisation, is not counted; 0 for a one-frame run: :attr:`TrackResult.fps`).
     stage_ms : dict[str, float]
         Milliseconds per frame of each stage the tracker times.
     wall_s : float
@@ -182,7 +182,7 @@ def run_tracker(
         tracker=trk.name,
         result=res,
         wall_s=wall,
-        fps=steps / max(res.timings.get("total", 0.0), 1e-9),
+        fps=res.fps,
         stage_ms={k: 1000.0 * v / steps for k, v in res.timings.items() if k != "total"},
     )
     if metrics == "none":

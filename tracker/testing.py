@@ -475,16 +475,29 @@ def _check_empty_frames(factory: Callable[..., Any]) -> None:
     flat = [np.full((60, 80, 3), 100, np.uint8)] * 5
     res = factory().track(flat, [1, 2], np.array([[20.0, 20.0], [60.0, 40.0]]), 8)
     if not np.isfinite(res.positions).all():
-        raise AssertionError("a textureless frame gave a NaN point")
+        t, j = np.argwhere(~np.isfinite(res.positions).all(-1))[0]
+        raise AssertionError(
+            f"on textureless frames target {j} is gone at frame {t} (its track ended, or it "
+            f"gave a NaN point; last at {res.positions[max(t - 1, 0), j].tolist()})"
+        )
     if np.abs(res.positions - res.positions[0]).max() > 4 * 5:
         raise AssertionError("on textureless frames a point wandered beyond its search range")
 
 
 def _check_border(factory: Callable[..., Any]) -> None:
     sc = make_scene([[3, 3], [124, 50]], [[2, 0], [0, 2]], n_frames=8, shape=(96, 128))
-    res = _track_scene(factory(), sc)
-    if not np.isfinite(res.positions).all() or np.abs(res.positions - sc.points).max() > 2:
-        raise AssertionError("targets at the image border are lost or misplaced")
+    tr = factory()
+    res = _track_scene(tr, sc)
+    tol = max(2.0, float(getattr(type(tr), "position_tolerance_px", 0.0)))
+    off = np.abs(res.positions - sc.points).max(-1)  # NaN where lost
+    bad = ~(off <= tol)
+    if bad.any():
+        t, j = np.argwhere(bad)[0]
+        raise AssertionError(
+            f"targets at the image border: frame {t}, target {j} at "
+            f"{res.positions[t, j].tolist()}, expected {sc.points[t, j].tolist()} "
+            f"(lost, or further than {tol:g} px)"
+        )
 
 
 def _check_leaving_and_births(factory: Callable[..., Any]) -> None:

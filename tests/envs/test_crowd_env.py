@@ -196,6 +196,8 @@ def test_bad_arguments_are_refused():
     env.reset_arrays(0)
     with pytest.raises(ValueError, match="shape"):
         env.step_arrays(np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="actions must be .n, 2. numbers, got 'abc'"):
+        env.step_arrays("abc")
 
 
 def test_step_refuses_actions_it_cannot_apply_naming_the_agent():

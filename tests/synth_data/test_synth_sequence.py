@@ -291,3 +291,45 @@ def test_detection_births_do_not_duplicate_a_scheduled_birth():
     ids, pts = births(2, frame, np.array([1]), np.array([[11.0, 9.0]]))
     assert ids.tolist() == [5] and births.born == 0
     np.testing.assert_array_equal(pts, [[41.0, 12.0]])
+
+
+def test_an_in_memory_sequence_refuses_what_no_tracker_could_read():
+    """Float frames, frames of another size, ids 1.5 or listed twice, a 1 px template and an
+    init that is not (ids, points): refused by name where they had been kept (and truncated,
+    or failed later inside the runner)."""
+    import re
+
+    frame = np.zeros((8, 10, 3), np.uint8)
+    base = dict(name="s", frame_rate=25.0, width=10, height=8, template_size=4)
+    for kw, message in [
+        ({"frames": [frame.astype(np.float32)]}, "frame 0 must be (8, 10, 3) uint8"),
+        ({"frames": [frame[:, :9]]}, "frame 0 must be (8, 10, 3) uint8"),
+        ({"frames": [frame], "ids": [1.5], "points": [[[1.0, 1.0]]]}, "ids: 1.5 is not a whole"),
+        ({"frames": [frame], "ids": [3, 3], "points": np.ones((1, 2, 2))}, "id 3 appears more"),
+        ({"frames": [frame], "template_size": 1}, "template_size must be"),
+        ({"frames": [frame], "init": 5}, "init must be (ids, points) of the first frame"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(message)):
+            InMemorySequence(**{**base, **kw})
+    assert "1 frames in memory" in repr(InMemorySequence(**base, frames=[frame]))
+
+
+def test_a_video_template_size_is_checked_as_given(tmp_path, crowd):
+    video = tmp_path / "clip.mp4"
+    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 20.0, (96, 64))
+    if not vw.isOpened():
+        pytest.skip("this OpenCV build cannot write mp4v")
+    for f in crowd.frames():
+        vw.write(f)
+    vw.release()
+    for size in (0, 2.7, "12"):
+        with pytest.raises(ValueError, match="template_size must be"):
+            VideoSequence(video, template_size=size)
+    assert VideoSequence(video, template_size=16.0).template_size == 16
+
+
+@pytest.mark.parametrize("frames", [3.7, "3", -1])
+def test_from_spec_frames_are_checked_as_given(frames):
+    spec = {"name": "a", "seed": 1, "frames": 5, "scenario": {"name": "crossing", "n_agents": 6}}
+    with pytest.raises(ValueError, match="InMemorySequence.from_spec.frames must be"):
+        InMemorySequence.from_spec(spec, frames=frames)

@@ -262,3 +262,6 @@ def test_run_tracker_refuses_a_start_without_its_births_mapping():
         run_tracker("ncc", Source(), metrics="none", start=((sc.ids, sc.points[0]), None))
     res = run_tracker("ncc", Source(), metrics="none", start=((sc.ids, sc.points[0]), {}))
     assert res.result.positions.shape == (4, 1, 2)
+    assert res.fps == res.result.fps > 0
+    one = run_tracker("ncc", Source(), metrics="none", frames=1)  # nothing tracked: no rate
+    assert one.fps == one.result.fps == 0.0
