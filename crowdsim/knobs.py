@@ -399,6 +399,16 @@ def _toml(value: Any) -> str:
     return repr(value)
 
 
+def _static_text(k: Knob) -> str:
+    """The harshest value real footage from a fixed camera has, in words: ``up to`` a
+    ceiling, ``down to`` a floor (JPEG quality, bit rate: lower is harsher), ``none`` for 0."""
+    easy = k.easy if k.easy is not None else k.default
+    lower_is_harsher = k.hard is not None and k.hard < easy
+    if k.static == 0 and not lower_is_harsher:
+        return "none (0)"
+    return f"{'down to' if lower_is_harsher else 'up to'} {k.static:g}"
+
+
 def reference(section: str | None = None) -> str:
     """The knobs as plain text (the spec docs): per knob ``section.name = default``, its range,
     its place on the difficulty scale, then its meaning, wrapped at 88 columns."""
@@ -410,7 +420,7 @@ def reference(section: str | None = None) -> str:
         out.append(head)
         doc = k.doc
         if k.static is not None:
-            doc += f" Realistic for a fixed camera: up to {k.static:g} ({k.source})."
+            doc += f" Realistic for a fixed camera: {_static_text(k)} ({k.source})."
         out.extend(textwrap.wrap(doc, 88, initial_indent="    ", subsequent_indent="    "))
     return "\n".join(out)
 

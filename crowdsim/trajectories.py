@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -225,14 +226,25 @@ class Trajectories:
         return path
 
     @classmethod
-    def from_csv(cls, path: str | os.PathLike[str], fps: float) -> Trajectories:
+    def from_csv(
+        cls, path: str | os.PathLike[str], fps: float, frame_step: int | None = None
+    ) -> Trajectories:
         """Read ``frame,id,x,y`` rows (metres; a header line is optional).
 
-        Frames may start anywhere; they are shifted so the first frame is row 0. Frames and
-        ids must be whole numbers within int64 (``3`` or ``3.0``, never ``2.5``), coordinates
-        finite with ``|x|, |y| <=`` :data:`MAX_COORD_M`, exactly four columns per row and one
-        row per ``(frame, id)``. The dense ``(T, N, 2)`` array must fit in
+        Columns are separated by commas, semicolons, tabs or spaces (public data sets use
+        each); a UTF-8 byte-order mark and quoted header names are read. Frames may start
+        anywhere; they are shifted so the first frame is row 0. Frames and ids must be whole
+        numbers within int64 (``3`` or ``3.0``, never ``2.5``), coordinates finite with
+        ``|x|, |y| <=`` :data:`MAX_COORD_M`, exactly four columns per row and one row per
+        ``(frame, id)``. The dense ``(T, N, 2)`` array must fit in
         :data:`MAX_TRAJECTORY_BYTES`. Errors name the file, the line and the offending value.
+
+        ``frame_step``: annotations every ``k``-th frame (ETH/UCY number their frames 0, 10,
+        20, ...) become consecutive rows when ``k`` is given (every frame, less the first,
+        must be a multiple of it away). Without it, frames that all step by more than one are
+        refused, naming the step: rendered as they are, every person would show in one frame
+        of ``k`` and vanish in the others. ``meta`` records ``first_frame`` and
+        ``frame_step``, so each row maps back to the file's frame number.
         """
         path = Path(path)
         if not (np.isfinite(fps) and fps > 0):
@@ -246,13 +258,13 @@ class Trajectories:
         xy_l: list[tuple[float, float]] = []
         lines_l: list[int] = []
         try:
-            fh = open(path, encoding="utf-8")
+            fh = open(path, encoding="utf-8-sig")  # a spreadsheet's byte-order mark is fine
             with fh:
                 for lineno, line in enumerate(fh, 1):
                     line = line.strip()
                     if not line or line.startswith("#"):
                         continue
-                    parts = [p.strip() for p in line.replace(";", ",").split(",")]
+                    parts = [p.strip().strip("\"'") for p in _CSV_SEPARATORS.split(line)]
                     if not frames_l and not _is_number(parts[0]):
                         if [p.lower() for p in parts] != list(CSV_COLUMNS):
                             raise ValueError(
@@ -287,6 +299,26 @@ class Trajectories:
             MAX_TRAJECTORY_BYTES,
         )
         frames -= t0
+        step = int(np.gcd.reduce(frames)) if frames.any() else 1
+        if frame_step is None and step > 1:
+            raise ValueError(
+                f"{path}: every frame number steps by {step} (frames {t0}, {t0 + step}, "
+                f"...): the people would show in one rendered frame of {step}; give "
+                f"--frame-step {step} to take the annotated frames as consecutive ones, or "
+                "--frame-step 1 to keep the gaps"
+            )
+        if frame_step is not None:
+            if not (isinstance(frame_step, (int, np.integer)) and frame_step >= 1):
+                raise ValueError(f"frame_step must be a whole number >= 1, got {frame_step!r}")
+            off = np.flatnonzero(frames % frame_step)
+            if len(off):
+                i = int(off[0])
+                raise ValueError(
+                    f"{path}:{lines_l[i]}: frame {frames_l[i]} is not a multiple of "
+                    f"--frame-step {frame_step} away from the first frame {t0}"
+                )
+            frames //= frame_step
+            n_rows = int(frames.max()) + 1
         key = frames * len(ids) + col
         order = np.argsort(key, kind="stable")
         dup = np.nonzero(np.diff(key[order]) == 0)[0]
@@ -298,7 +330,13 @@ class Trajectories:
             )
         positions = np.full((n_rows, len(ids), 2), np.nan)
         positions[frames, col] = np.array(xy_l, dtype=np.float64)
-        return cls(positions=positions, ids=ids, dt=1.0 / fps, meta={"source": str(path)})
+        meta = {"source": str(path), "first_frame": t0, "frame_step": int(frame_step or 1)}
+        return cls(positions=positions, ids=ids, dt=1.0 / fps, meta=meta)
+
+
+_CSV_SEPARATORS = re.compile(r"\s*[,;\t]\s*|\s+")
+"""Column separators of a trajectory CSV: a comma, semicolon or tab (with spaces around),
+or spaces alone."""
 
 
 def check_positions(positions: np.ndarray, where: str) -> None:

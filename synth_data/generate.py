@@ -177,7 +177,8 @@ def generate(
     names = [s.name for s in specs]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise ValueError(f"two specs share the sequence name {dup[0]!r}")
+        files = [s.source or "(in memory)" for s in specs if s.name == dup[0]]
+        raise ValueError(f"two specs share the sequence name {dup[0]!r}: {' and '.join(files[:2])}")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out must be a folder, got the file {str(out)!r}")

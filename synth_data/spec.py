@@ -2,7 +2,7 @@
 
 A spec describes one sequence. Example (TOML)::
 
-    name = "seq3"            # folder name: letters, digits, '-', '_'
+    name = "seq3"            # folder name: letters, digits, '.', '-', '_' (not manifest.json)
     seed = 3                 # seeds simulation and rendering
     frames = 144             # frames written (one simulation step per frame)
     fps = 25.0               # frame rate; simulation dt = 1 / fps
@@ -56,6 +56,7 @@ The rendering knobs (``[appearance]`` and the camera motion: shake and drone pro
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -73,6 +74,8 @@ from crowdsim.knobs import knobs, reference
 __doc__ = (__doc__ or "") + "\n".join("    " + line for line in reference().splitlines()) + "\n"
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+RESERVED_NAMES: tuple[str, ...] = ("manifest.json", "tune_jobs.json")
+"""Sequence names taken by files beside the sequences (the jobs runner's manifests)."""
 
 TOP_FIELDS: dict[str, tuple[type | tuple[type, ...], bool]] = {
     "name": (str, True),
@@ -236,6 +239,11 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
         raise ValueError(
             f"{where}: name must be letters, digits, '.', '-' or '_' (a folder name), got {name!r}"
         )
+    if name.lower() in RESERVED_NAMES:
+        raise ValueError(
+            f"{where}: name {name!r} is the name of a file the sequences' folder holds "
+            f"({', '.join(RESERVED_NAMES)}); choose another"
+        )
     if data["seed"] < 0:
         raise ValueError(f"{where}: seed must be >= 0, got {data['seed']!r}")
     if not (1 <= data["frames"] <= MAX_FRAMES):
@@ -341,6 +349,13 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
         output[key] = value
     if not (output["images"] or output["video"]):
         raise ValueError(f"{where}: output.images and output.video cannot both be false")
+    if output["video"] or appearance.video_kbps > 0:  # video codecs take even sizes only
+        for key in ("width", "height", "max_width", "max_height"):
+            if key in camera and int(camera[key]) % 2:
+                raise ValueError(
+                    f"{where}: camera.{key} must be even for a video (output.video or "
+                    f"appearance.video_kbps), got {camera[key]}"
+                )
 
     for key, value in sections["calibration"].items():
         if not isinstance(value, (int, float, str, bool, list)):
@@ -348,6 +363,11 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
                 f"{where}: calibration.{key} must be a number, string or list, got {value!r}"
             )
     events = parse_events(data.get("events"), where, n_frames=int(data["frames"]))
+    if any(e.kind == "surge" for e in events) and not _has_inflow(scenario):
+        raise ValueError(
+            f"{where}: events: a surge multiplies the inflow, and scenario "
+            f"{scenario['name']!r} with these parameters has none"
+        )
     return SequenceSpec(
         name=name,
         seed=int(data["seed"]),
@@ -363,6 +383,19 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
         description=data.get("description", ""),
         source=source,
     )
+
+
+def _has_inflow(scenario: dict[str, Any]) -> bool:
+    """Whether the scenario (already validated) has sources: its set-up with one agent."""
+    from dataclasses import replace as with_fields
+
+    import numpy as np
+
+    from crowdsim.scenarios import make_scenario
+
+    params = {k: v for k, v in scenario.items() if k != "name"}
+    one = with_fields(make_scenario(scenario["name"], **params), n_agents=1)
+    return bool(one.build(np.random.default_rng(0)).sources)
 
 
 def _validate_scenario(where: str, scenario: dict[str, Any]) -> None:
@@ -389,9 +422,45 @@ def parse_spec_text(text: str, fmt: str, source: str) -> Any:
     import yaml
 
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_unique_key_loader())  # noqa: S506 - a SafeLoader
     except yaml.YAMLError as exc:
-        raise ValueError(f"{source}: invalid YAML: {str(exc).splitlines()[0]}") from None
+        raise ValueError(f"{source}: invalid YAML: {_yaml_problem(exc)}") from None
+
+
+def _yaml_problem(exc: Any) -> str:
+    """PyYAML's error as one line: what it found and where (``line 5, column 1``)."""
+    problem = getattr(exc, "problem", None)
+    mark = getattr(exc, "problem_mark", None)
+    if problem is None:
+        return " ".join(str(exc).split())
+    where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+    context = getattr(exc, "context", None)
+    return f"{context + ': ' if context else ''}{problem}{where}"
+
+
+@functools.cache
+def _unique_key_loader() -> type:
+    """A ``yaml.SafeLoader`` that refuses a key given twice in one mapping (PyYAML keeps the
+    last one in silence: ``name: a`` then ``name: b`` made sequence ``b``)."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    def mapping(loader: Any, node: Any, deep: bool = False) -> dict[Any, Any]:
+        seen = set()
+        for key_node, _ in node.value:
+            key = loader.construct_object(key_node, deep=deep)
+            if key in seen:
+                mark = key_node.start_mark
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} is given twice", mark
+                )
+            seen.add(key)
+        return loader.construct_mapping(node, deep=deep)
+
+    Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
+    return Loader
 
 
 def load_spec(path: str | os.PathLike[str]) -> SequenceSpec:

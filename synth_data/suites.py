@@ -20,9 +20,10 @@ Their spec files live in ``synth_data/suites/<suite>/<sequence>.toml``.
 
 Suite folders
     Wherever a suite is named (``--suite`` of ``generate``, ``compare``, ``ablation``,
-    ``difficulty`` and ``calibrate``), a folder path works as well: every ``*.toml`` file in
-    it is one sequence spec; ``paper.json`` beside them, when present, holds the papers'
-    figures the tables print (the format of ``ucf9/paper.json``). ``crowdsim calibrate
+    ``difficulty`` and ``calibrate``), a folder path works as well: every spec file in it
+    (:data:`SPEC_PATTERNS`: ``*.toml``, ``*.yaml``, ``*.yml``) is one sequence spec;
+    ``paper.json`` beside them, when present, holds the papers' figures the tables print (the
+    format of ``ucf9/paper.json``). ``crowdsim calibrate
     --out DIR`` writes such a folder. A built-in name wins over a folder of the same name in
     the working directory: write ``./ucf9`` for the folder.
 """
@@ -38,6 +39,9 @@ from pathlib import Path
 from typing import Any
 
 from synth_data.spec import SequenceSpec, load_spec
+
+SPEC_PATTERNS: tuple[str, ...] = ("*.toml", "*.yaml", "*.yml")
+"""The spec files of a suite folder (:func:`synth_data.spec.load_spec` reads each kind)."""
 
 SUITE_NAMES: tuple[str, ...] = ("ucf9", "ucf9-shake", "ucf9-drone", "galleria", "stress")
 PAPER_FILE = "paper.json"
@@ -92,7 +96,7 @@ def is_spec_suite(suite: object) -> bool:
         return (
             path.is_dir()
             and not (path / "seqinfo.ini").is_file()
-            and any(f.is_file() for f in path.glob("*.toml"))
+            and any(f.is_file() for pattern in SPEC_PATTERNS for f in path.glob(pattern))
         )
     except OSError:
         return False
@@ -108,14 +112,17 @@ def _natural_key(path: Path) -> list[object]:
 
 
 def suite_files(suite: str | os.PathLike[str]) -> list[Path]:
-    """The suite's spec files (``*.toml``) in natural order; at least one.
+    """The suite's spec files (:data:`SPEC_PATTERNS`) in natural order; at least one.
 
     >>> [p.name for p in suite_files("stress")]
     ['stress-1k.toml', 'stress-10k.toml', 'stress-50k.toml']
     """
     folder = suite_dir(suite)
     try:
-        files = sorted((p for p in folder.glob("*.toml") if p.is_file()), key=_natural_key)
+        files = sorted(
+            (p for pattern in SPEC_PATTERNS for p in folder.glob(pattern) if p.is_file()),
+            key=_natural_key,
+        )
     except OSError as exc:
         raise ValueError(f"--suite {suite}: cannot list the folder ({exc.strerror})") from None
     if not files:
@@ -124,7 +131,8 @@ def suite_files(suite: str | os.PathLike[str]) -> list[Path]:
             if any((p / "seqinfo.ini").is_file() for p in folder.iterdir() if p.is_dir())
             else ""
         )
-        raise ValueError(f"--suite {suite}: no spec files (*.toml) in {folder}{hint}")
+        kinds = ", ".join(SPEC_PATTERNS)
+        raise ValueError(f"--suite {suite}: no spec files ({kinds}) in {folder}{hint}")
     return files
 
 

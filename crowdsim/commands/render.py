@@ -72,6 +72,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="frame rate of the trajectories, (0, 1000] (required for CSV; .npz knows its dt)",
     )
     p.add_argument(
+        "--frame-step",
+        type=int,
+        default=None,
+        metavar="K",
+        help="CSV frames annotated every K-th frame (ETH/UCY: 10) become consecutive frames; "
+        "frames that all step by more than 1 are refused without it (--frame-step 1 keeps "
+        "the gaps)",
+    )
+    p.add_argument(
         "--px-per-m", type=float, default=None, metavar="S", help="scale, px/m, in [0.001, 10000]"
     )
     p.add_argument(
@@ -152,7 +161,7 @@ def estimate_bytes(width: int, height: int, n_frames: int, n_agents: int) -> int
 
 
 # ---------------------------------------------------------------------------- command
-def load_trajectories(path: Path, fps: float | None):
+def load_trajectories(path: Path, fps: float | None, frame_step: int | None = None):
     from crowdsim.trajectories import Trajectories
 
     if path.suffix == ".npz":
@@ -168,7 +177,7 @@ def load_trajectories(path: Path, fps: float | None):
     elif path.suffix == ".csv":
         if fps is None:
             raise ValueError("--fps is required for CSV trajectories")
-        traj = Trajectories.from_csv(path, fps=fps)
+        traj = Trajectories.from_csv(path, fps=fps, frame_step=frame_step)
     else:
         raise ValueError(f"--trajectories must be a .csv or .npz file, got {str(path)!r}")
     if traj.n_steps == 0 or not traj.present.any():
@@ -184,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
     from crowdsim.checks import require_memory, require_output_dir
     from crowdsim.progress import progress_bar
     from crowdsim.render import default_px_per_m
+    from synth_data.mot import mot_ids
     from synth_data.writer import clean_stale_tmp, write_sequence
 
     _check_flags(args)
@@ -197,7 +207,11 @@ def run(args: argparse.Namespace) -> int:
     for p in clean_stale_tmp(out.parent):
         print(f"crowdsim render: removed {p}, left by a render that was killed", file=sys.stderr)
     check_output(out, path, args.overwrite)
-    traj = load_trajectories(path, args.fps)
+    if args.frame_step is not None and (args.frame_step < 1 or path.suffix != ".csv"):
+        raise ValueError(
+            f"--frame-step must be >= 1 and goes with a CSV, got {args.frame_step} for {path.name}"
+        )
+    traj = load_trajectories(path, args.fps, args.frame_step)
     appearance = AppearanceParams(template_px=args.template_px)
     scale = args.px_per_m
     if scale is None and args.size is None:
@@ -223,6 +237,12 @@ def run(args: argparse.Namespace) -> int:
             "enlarge --size"
         )
     meta = {"source": str(path), "seed": args.seed, "fps": traj.fps}
+    if "first_frame" in traj.meta:  # a CSV: where each MOT frame and id came from
+        meta["csv_frame_of_mot_frame_1"] = traj.meta["first_frame"]
+        meta["csv_frame_step"] = traj.meta["frame_step"]
+        meta["csv_id_of_mot_id"] = {
+            str(int(m)): int(i) for m, i in zip(mot_ids(traj.ids), traj.ids, strict=True)
+        }
     out.parent.mkdir(parents=True, exist_ok=True)
     try:
         with progress_bar(total=traj.n_steps, unit="frame", desc="rendering") as bar:

@@ -359,3 +359,27 @@ def test_a_marker_a_killed_render_left_in_its_published_sequence_is_crowdsims(tm
     (seq / TMP_MARKER).write_text(json.dumps(marker) + "\n")
     assert _main(_render_argv(tmp_path, "--out", str(seq), "--overwrite")) == 0
     assert not (seq / TMP_MARKER).exists()
+
+
+def test_a_public_data_set_csv_reads_and_maps_back(tmp_path, capsys):
+    """ETH/UCY-style: a byte-order mark, quoted names, tabs, frames every 10th, a negative id.
+    Without --frame-step the stride is refused by name (people would blink in one frame of
+    10); with it the frames are consecutive, and meta.json maps MOT frames and ids back to
+    the file's."""
+    import json
+
+    csv = tmp_path / "eth.csv"
+    rows = "0\t-3\t1.0\t1.0\n10\t-3\t1.5\t1.0\n10\t5\t3.0\t2.0\n20\t5\t3.2\t2.0\n20\t-3\t2.0\t1.0\n"
+    csv.write_bytes(b"\xef\xbb\xbf" + ('"frame"\t"id"\t"x"\t"y"\n' + rows).encode())
+    out = tmp_path / "seq"
+    argv = ["render", "--trajectories", str(csv), "--fps", "2.5", "--out", str(out)]
+    assert _main(argv) == 2
+    assert "every frame number steps by 10" in capsys.readouterr().err and not out.exists()
+    assert _main([*argv, "--frame-step", "10"]) == 0
+    ids, pts = read_sequence(out).gt_points()
+    assert pts.shape == (3, 2, 2) and np.isfinite(pts[:, 0]).all()  # id -3 in all 3 frames
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["csv_frame_of_mot_frame_1"] == 0 and meta["csv_frame_step"] == 10
+    assert meta["csv_id_of_mot_id"] == {"1": -3, "2": 5}
+    assert _main([*argv, "--frame-step", "3", "--overwrite"]) == 2
+    assert "frame 10 is not a multiple of --frame-step 3" in capsys.readouterr().err

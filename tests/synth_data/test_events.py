@@ -116,8 +116,10 @@ def test_surge_brings_more_people(plain):
     sc = scene({"kind": "surge", "start": 1, "magnitude": 10.0})
     assert sc.traj.positions.shape[1] > sc0.traj.positions.shape[1]
     crossing = {**BASE, "scenario": {"name": "crossing", "n_agents": 20}}
-    with pytest.raises(ValueError, match="surge needs a scenario with inflow; crossing has none"):
-        Scene.from_spec(spec_from_dict({**crossing, "events": [window("surge", 3.0)]}))
+    # refused when the spec is read, naming it, before any sequence is made
+    with pytest.raises(ValueError, match="spec: events: a surge multiplies the inflow, and "
+                       "scenario 'crossing' with these parameters has none"):  # fmt: skip
+        spec_from_dict({**crossing, "events": [window("surge", 3.0)]}, "spec")
 
 
 def test_spec_round_trip_and_digest():

@@ -280,3 +280,54 @@ def test_spec_camera_margin_range_includes_both_ends():
     for bad in (-0.5, 1000.5):
         with pytest.raises(ValueError, match=r"camera.margin_m must be in \[0, 1000\]"):
             _spec(camera={"margin_m": bad})
+
+
+def test_a_suite_folder_reads_yaml_specs_too(tmp_path):
+    """A folder with .toml, .yaml and .yml specs: all three are sequences (the .yaml one had
+    been skipped in silence, and a folder of YAML alone had 'no spec files')."""
+    from synth_data.suites import is_spec_suite, suite_specs
+
+    body = "seed: 1\nframes: 5\nscenario:\n  name: crossing\n  n_agents: 6\n"
+    (tmp_path / "a.toml").write_text(
+        'name = "a"\nseed = 1\nframes = 5\n[scenario]\nname = "crossing"\nn_agents = 6\n'
+    )
+    (tmp_path / "b.yaml").write_text("name: b\n" + body)
+    (tmp_path / "c.yml").write_text("name: c\n" + body)
+    assert [s.name for s in suite_specs(tmp_path)] == ["a", "b", "c"]
+    (tmp_path / "a.toml").unlink()
+    assert is_spec_suite(tmp_path) and len(suite_specs(tmp_path)) == 2
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (
+            "name: t\nseed: 1\nframes: 5\nname: u\nscenario:\n  name: crossing\n",
+            "invalid YAML: key 'name' is given twice (line 4, column 1)",
+        ),
+        (
+            "name: t\nseed: 1\nframes: 5\nscenario:\n\tname: crossing\n",
+            "found character '\\t' that cannot start any token (line 5, column 1)",
+        ),
+        (
+            "name: manifest.json\nseed: 1\nframes: 5\nscenario:\n  name: crossing\n",
+            "name 'manifest.json' is the name of a file the sequences' folder holds",
+        ),
+        (
+            "name: v\nseed: 1\nframes: 5\nscenario:\n  name: crossing\n"
+            "camera:\n  width: 201\n  height: 150\noutput:\n  video: true\n",
+            "camera.width must be even for a video (output.video or appearance.video_kbps), "
+            "got 201",
+        ),
+        (
+            "name: v\nseed: 1\nframes: 5\nscenario:\n  name: crossing\n"
+            "camera:\n  max_height: 81\nappearance:\n  video_kbps: 300.0\n",
+            "camera.max_height must be even for a video",
+        ),
+    ],
+)
+def test_spec_mistakes_a_dataset_author_makes_are_named_when_read(tmp_path, text, message):
+    path = tmp_path / "s.yaml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=re.escape(f"{path}: ") + ".*" + re.escape(message)):
+        load_spec(path)
