@@ -108,7 +108,7 @@ case("tables-cal-suite-file", f"{CAL} --suite {{afile}}", "afile: is a file, not
 case(
     "tables-cal-suite-empty",
     f"{CAL} --suite {{w}}/e",
-    "no spec files (*.toml) in",
+    "no spec files (*.toml, *.yaml, *.yml) in",
     setup=lambda w, env: (w / "e").mkdir(),
 )
 case(
@@ -298,7 +298,7 @@ case("tables-comp-only-unknown", f"{CMP} --only seq10", "no sequence 'seq10' in 
 case(
     "tables-comp-suite-empty",
     "compare --suite {w}/e --out {w}/o",
-    "no spec files (*.toml)",
+    "no spec files (*.toml, *.yaml, *.yml)",
     setup=lambda w, env: (w / "e").mkdir(),
 )
 case(
@@ -335,7 +335,7 @@ case(
 case(
     "tables-gen-suite-of-sequences",
     "generate --suite {w}/m --out {w}/o",
-    "no spec files (*.toml)&&a folder of MOT sequences is for tune and heldout",
+    "no spec files (*.toml, *.yaml, *.yml)&&a folder of MOT sequences is for tune and heldout",
     setup=_mot_folder,
 )
 case(

@@ -297,7 +297,9 @@ def test_suite_folders_are_named_clearly(tmp_path):
     empty = tmp_path / "empty"
     (empty / "seqA").mkdir(parents=True)
     (empty / "seqA" / "seqinfo.ini").write_text("[Sequence]\n")
-    with pytest.raises(ValueError, match=r"no spec files \(\*.toml\).*tune and heldout"):
+    with pytest.raises(
+        ValueError, match=r"no spec files \(\*.toml, \*.yaml, \*.yml\).*tune and heldout"
+    ):
         suite_specs(empty)
     assert suite_dir("ucf9").name == "ucf9"  # a built-in name wins
 
