@@ -729,22 +729,19 @@ def _is_tune_record(doc: Any) -> bool:
     return isinstance(doc, dict) and {"params", "space", "study", "trials"} <= set(doc)
 
 
-def _remove_stale_heldout(out: Path, log: Callable[[str], None]) -> None:
-    """Remove the held-out scores an earlier tune run wrote into ``out`` (listed with their
-    digests in its ``best_params.json``) when this run scores none: left beside the new
-    parameters, they would read as this run's. A file changed since, or one this program
-    cannot prove it wrote, is left alone."""
+def _stale_heldout(out: Path) -> list[Path]:
+    """The held-out scores an earlier tune run wrote into ``out`` (listed with their digests
+    in its ``best_params.json``) and still there unchanged. A run that scores none removes
+    them once its own record is written: left beside the new parameters, they would read as
+    this run's. A file changed since, or one this program cannot prove it wrote, is kept."""
     listed = (read_record(out / TUNE_FILES[0], _is_tune_record) or {}).get("heldout_files")
     if not isinstance(listed, dict):
-        return
-    removed = []
-    for name in HELDOUT_FILES:
-        path = out / name
-        if listed.get(name) and path.is_file() and sha256_file(path) == listed[name]:
-            path.unlink()
-            removed.append(name)
-    if removed:
-        log(f"removed the earlier run's held-out scores ({', '.join(removed)}): none this run")
+        return []
+    return [
+        out / name
+        for name in HELDOUT_FILES
+        if listed.get(name) and (out / name).is_file() and sha256_file(out / name) == listed[name]
+    ]
 
 
 def check_tune_out(out: Path, heldout: bool) -> None:
@@ -956,8 +953,7 @@ def _tune_locked(
                 progress=progress,
             )
             files.update(write_heldout(result.heldout, out))
-        else:
-            _remove_stale_heldout(out, log)
+        stale = [] if result.heldout else _stale_heldout(out)
         doc = {
             "format": 1,
             "tracker": objective.tracker,
@@ -990,4 +986,9 @@ def _tune_locked(
         files["history"] = str(written["history.png"])
         files["importance"] = str(written["importance.png"])
         files["best_params"] = str(written["best_params.json"])
+        for path in stale:  # after the new record: it never lists scores that are gone
+            path.unlink(missing_ok=True)
+        if stale:
+            names = ", ".join(p.name for p in stale)
+            log(f"removed the earlier run's held-out scores ({names}): none this run")
     return result
