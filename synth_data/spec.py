@@ -267,7 +267,7 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
     if "name" not in scenario:
         raise ValueError(f"{where}: missing required field 'scenario.name'")
     _check_type(where, "scenario.name", scenario["name"], str)
-    _validate_scenario(where, scenario)
+    built = _validate_scenario(where, scenario)
 
     camera = sections["camera"]
     for key, value in camera.items():
@@ -363,7 +363,7 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
                 f"{where}: calibration.{key} must be a number, string or list, got {value!r}"
             )
     events = parse_events(data.get("events"), where, n_frames=int(data["frames"]))
-    if any(e.kind == "surge" for e in events) and not _has_inflow(scenario):
+    if any(e.kind == "surge" for e in events) and not _has_inflow(built):
         raise ValueError(
             f"{where}: events: a surge multiplies the inflow, and scenario "
             f"{scenario['name']!r} with these parameters has none"
@@ -385,25 +385,25 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
     )
 
 
-def _has_inflow(scenario: dict[str, Any]) -> bool:
-    """Whether the scenario (already validated) has sources: its set-up with one agent."""
+def _has_inflow(scenario: Any) -> bool:
+    """Whether ``scenario`` (a validated :class:`crowdsim.scenarios.Scenario`) has sources:
+    its set-up with one agent."""
     from dataclasses import replace as with_fields
 
     import numpy as np
 
-    from crowdsim.scenarios import make_scenario
-
-    params = {k: v for k, v in scenario.items() if k != "name"}
-    one = with_fields(make_scenario(scenario["name"], **params), n_agents=1)
+    one = with_fields(scenario, n_agents=1)
     return bool(one.build(np.random.default_rng(0)).sources)
 
 
-def _validate_scenario(where: str, scenario: dict[str, Any]) -> None:
+def _validate_scenario(where: str, scenario: dict[str, Any]) -> Any:
+    """The scenario of a spec's ``[scenario]`` table, built (its checks run); errors name
+    ``where``."""
     from crowdsim.scenarios import make_scenario
 
     params = {k: v for k, v in scenario.items() if k != "name"}
     try:
-        make_scenario(scenario["name"], **params)
+        return make_scenario(scenario["name"], **params)
     except (ValueError, TypeError) as exc:
         raise ValueError(f"{where}: scenario: {exc}") from None
 

@@ -213,7 +213,9 @@ def crowd():
     return synthetic_crowd(6, 5, seed=1, template_px=8, size=(96, 64))
 
 
-def test_video_sequence_and_open_sequence(tmp_path, crowd):
+@pytest.fixture
+def clip(tmp_path, crowd):
+    """``crowd``'s frames as ``tmp_path/clip.mp4`` (mp4v, 20 frames/s)."""
     video = tmp_path / "clip.mp4"
     vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 20.0, (96, 64))
     if not vw.isOpened():
@@ -221,6 +223,11 @@ def test_video_sequence_and_open_sequence(tmp_path, crowd):
     for f in crowd.frames():
         vw.write(f)
     vw.release()
+    return video
+
+
+def test_video_sequence_and_open_sequence(tmp_path, clip):
+    video = clip
     pts = tmp_path / "init.csv"
     pts.write_text("frame,id,x,y\n1,3,10,12\n1,4,30,40\n4,9,50,60\n")
     seq = open_sequence(video, init=pts)
@@ -314,18 +321,11 @@ def test_an_in_memory_sequence_refuses_what_no_tracker_could_read():
     assert "1 frames in memory" in repr(InMemorySequence(**base, frames=[frame]))
 
 
-def test_a_video_template_size_is_checked_as_given(tmp_path, crowd):
-    video = tmp_path / "clip.mp4"
-    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 20.0, (96, 64))
-    if not vw.isOpened():
-        pytest.skip("this OpenCV build cannot write mp4v")
-    for f in crowd.frames():
-        vw.write(f)
-    vw.release()
+def test_a_video_template_size_is_checked_as_given(clip):
     for size in (0, 2.7, "12"):
         with pytest.raises(ValueError, match="template_size must be"):
-            VideoSequence(video, template_size=size)
-    assert VideoSequence(video, template_size=16.0).template_size == 16
+            VideoSequence(clip, template_size=size)
+    assert VideoSequence(clip, template_size=16.0).template_size == 16
 
 
 @pytest.mark.parametrize("frames", [3.7, "3", -1])
