@@ -278,6 +278,38 @@ def new_study_files(url: str | None) -> Iterator[None]:
         raise
 
 
+def _study_failure(exc: BaseException) -> str | None:
+    """The deepest message of a study storage's failure (Optuna's ``StorageInternalError``
+    over SQLAlchemy over ``sqlite3``: "database or disk is full"), or ``None`` when ``exc``
+    is not one."""
+    chain: list[BaseException] = []
+    e: BaseException | None = exc
+    while e is not None and e not in chain:
+        chain.append(e)
+        e = e.__cause__ or e.__context__
+    kinds = {(type(x).__module__.split(".")[0], type(x).__name__) for x in chain}
+    if not any(mod in ("sqlalchemy", "sqlite3") or name == "StorageInternalError"
+               for mod, name in kinds):  # fmt: skip
+        return None
+    deepest = chain[-1]
+    return (str(getattr(deepest, "orig", None) or deepest).splitlines() or [""])[0]
+
+
+@contextmanager
+def study_storage(url: str | None) -> Iterator[None]:
+    """Run trials on an Optuna study in the block: a storage that fails mid-run (a full disk,
+    a database locked or gone) ends as one :class:`OSError` naming the storage and the cause,
+    not as Optuna's and SQLAlchemy's traceback. The study keeps the trials it finished."""
+    try:
+        yield
+    except Exception as exc:  # noqa: BLE001 - only storage failures are turned into OSError
+        cause = _study_failure(exc)
+        if cause is None:
+            raise
+        where = url[len("sqlite:///") :] if url and url.startswith("sqlite:///") else url
+        raise OSError(f"{where}: the study storage failed: {cause}") from None
+
+
 def _stamp(path: Path) -> tuple[int, int, int] | None:
     try:
         st = path.stat()

@@ -238,11 +238,18 @@ class Camera:
             return out
         if self.jitter_px > 0.0:
             out += self._ar1(n_frames, self.jitter_px, [self.seed, 0x4A17])
-        for i, ev in enumerate(self.shake_events):
+        for i, ev in zip(self._burst_keys(), self.shake_events, strict=True):
             if ev.magnitude > 0.0:
                 burst = self._ar1(n_frames, ev.magnitude, [self.seed, 0x5B0057, i])
                 out += burst * ev.mask(n_frames)[:, None]
         return out
+
+    def _burst_keys(self) -> list[int]:
+        """Each shake burst's seed key: its place in the spec's events list
+        (:attr:`Event.index`), so a burst stays the same when ``--frames`` drops events that
+        start after the cut; bursts built by hand without distinct places take their order."""
+        keys = [ev.index for ev in self.shake_events]
+        return keys if len(set(keys)) == len(keys) else list(range(len(keys)))
 
     def _ar1(self, n_frames: int, sigma: float, seed: list[int]) -> np.ndarray:
         """``(n_frames, 2)`` seeded AR(1) offsets of stationary deviation ``sigma`` and

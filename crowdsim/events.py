@@ -72,7 +72,8 @@ class Event:
     magnitude : float
         Its strength, in the kind's unit and range (:data:`EVENT_KINDS`).
     index : int
-        Position in the spec's list (only for error messages; not compared).
+        Position in the spec's list (for error messages and a shake burst's seed; not
+        compared)
     """
 
     kind: str

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from crowdsim.atomic import new_study_files, output_folder, sha256_file
+from crowdsim.atomic import new_study_files, output_folder, sha256_file, study_storage
 from crowdsim.checks import require_choice, require_number, require_workers
 from crowdsim.jobs import read_manifest
 from crowdsim.optional import DependencyNotInstalled, require
@@ -575,13 +575,14 @@ def _worker(
 
     if share is not None and share <= 0:
         return 0
-    study.optimize(
-        _objective_fn(objective, objective.space()),
-        n_trials=share,
-        callbacks=[MaxTrialsCallback(trials, states=(TrialState.COMPLETE,)), tick],
-        gc_after_trial=False,
-        show_progress_bar=False,
-    )
+    with study_storage(url):  # a full disk mid-run: one line, not SQLAlchemy's traceback
+        study.optimize(
+            _objective_fn(objective, objective.space()),
+            n_trials=share,
+            callbacks=[MaxTrialsCallback(trials, states=(TrialState.COMPLETE,)), tick],
+            gc_after_trial=False,
+            show_progress_bar=False,
+        )
     return ran
 
 
@@ -616,7 +617,8 @@ def _run_local(
         while len(complete_trials(study)) < trials and study.get_trials(
             deepcopy=False, states=(TrialState.WAITING,)
         ):
-            study.optimize(fn, n_trials=1, gc_after_trial=False, show_progress_bar=False)
+            with study_storage(url):
+                study.optimize(fn, n_trials=1, gc_after_trial=False, show_progress_bar=False)
     left = trials - len(complete_trials(study))
     if left <= 0:
         return
@@ -646,6 +648,7 @@ def _run_local(
         progress=progress,
         desc="tune",
         unit="trial",
+        passthrough=(ValueError, OSError),  # a study storage that failed (study_storage)
     )
 
 

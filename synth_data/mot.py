@@ -3,7 +3,8 @@
 Layout of a sequence folder ``SEQ``::
 
     SEQ/seqinfo.ini          [Sequence] name, imDir, frameRate, seqLength, imWidth, imHeight,
-                             imExt, and for crowdsim sequences templateSize and boxType = head
+                             imExt (imDir and imExt only with img1/), and for crowdsim
+                             sequences templateSize and boxType = head
     SEQ/img1/000001.jpg ...  frames (and/or SEQ/video.mp4)
     SEQ/gt/gt.txt            frame,id,bb_left,bb_top,bb_width,bb_height,conf,class,visibility
     SEQ/gt/agents.csv        id,group,prominent,anomaly,appearance (crowdsim sequences only)
@@ -181,20 +182,24 @@ def write_seqinfo(
     height: int,
     template_size: int | None = None,
     box_type: str = "head",
-    im_dir: str = "img1",
+    im_dir: str | None = "img1",
     im_ext: str = ".jpg",
 ) -> Path:
-    """Write ``seq_dir/seqinfo.ini`` in the MOTChallenge format (plus crowdsim keys)."""
-    lines = [
-        "[Sequence]",
-        f"name={name}",
-        f"imDir={im_dir}",
+    """Write ``seq_dir/seqinfo.ini`` in the MOTChallenge format (plus crowdsim keys).
+
+    ``im_dir=None`` (a sequence whose frames are only in ``video.mp4``) leaves out ``imDir``
+    and ``imExt``: there is no image folder for a tool to look in."""
+    lines = ["[Sequence]", f"name={name}"]
+    if im_dir is not None:
+        lines.append(f"imDir={im_dir}")
+    lines += [
         f"frameRate={frame_rate:g}",
         f"seqLength={int(length)}",
         f"imWidth={int(width)}",
         f"imHeight={int(height)}",
-        f"imExt={im_ext}",
     ]
+    if im_dir is not None:
+        lines.append(f"imExt={im_ext}")
     if template_size is not None:
         lines.append(f"templateSize={int(template_size)}")
     lines.append(f"boxType={box_type}")

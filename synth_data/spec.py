@@ -182,12 +182,15 @@ class SequenceSpec:
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
 
     def truncated(self, frames: int | None) -> SequenceSpec:
-        """This spec with at most ``frames`` frames (unchanged for None)."""
+        """This spec with at most ``frames`` frames (unchanged for None), less the events
+        that start after the cut (they act on no frame, and a spec holding them would not
+        load again). The frames kept are those of the whole sequence."""
         if frames is None:
             return self
         if frames < 1:
             raise ValueError(f"--frames must be >= 1, got {frames}")
-        return replace(self, frames=min(self.frames, int(frames)))
+        n = min(self.frames, int(frames))
+        return replace(self, frames=n, events=tuple(e for e in self.events if e.start < n))
 
 
 def _type_name(t: type | tuple[type, ...]) -> str:

@@ -343,6 +343,7 @@ def write_sequence(
             width=camera.width,
             height=camera.height,
             template_size=appearance.template_px,
+            im_dir="img1" if images else None,
         )
         meta_out = dict(meta or {})
         meta_out.setdefault("seed", int(seed))

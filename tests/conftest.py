@@ -79,3 +79,27 @@ def dropping_video_writer(monkeypatch):
     import cv2
 
     monkeypatch.setattr(cv2, "VideoWriter", _DroppingVideoWriter)
+
+
+def _study_disk_full() -> None:
+    import sqlite3
+
+    import optuna
+    import sqlalchemy.exc
+
+    try:
+        try:
+            raise sqlite3.OperationalError("database or disk is full")
+        except sqlite3.OperationalError as low:
+            raise sqlalchemy.exc.OperationalError("UPDATE trials ...", {}, low) from low
+    except sqlalchemy.exc.OperationalError as mid:
+        raise optuna.exceptions.StorageInternalError(
+            "An exception is raised during the commit."
+        ) from mid
+
+
+@pytest.fixture()
+def study_disk_full():
+    """A function raising what an Optuna study's commit raises on a full disk (Optuna's
+    ``StorageInternalError`` over SQLAlchemy over ``sqlite3``), as seen on a filled tmpfs."""
+    return _study_disk_full

@@ -72,7 +72,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from crowdsim.atomic import holds_only_leftovers, new_study_files, write_text_atomic
+from crowdsim.atomic import (
+    holds_only_leftovers,
+    new_study_files,
+    study_storage,
+    write_text_atomic,
+)
 from crowdsim.knobs import apply_knobs, knob_values, scaled
 from tracker.bqp.ablation import ablation_rows
 
@@ -272,7 +277,7 @@ def calibrate_spec(
             for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
         ]
 
-    with tempfile.TemporaryDirectory(prefix="crowdsim-calibrate-") as work:
+    with tempfile.TemporaryDirectory(prefix="crowdsim-calibrate-") as work, study_storage(storage):
         while len(done := points()) < trials:
             if done and min(abs(s - target) for _, s in done) <= TOLERANCE:
                 break

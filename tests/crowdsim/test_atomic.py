@@ -135,6 +135,19 @@ def test_a_study_database_this_run_half_made_is_removed_an_earlier_one_kept(tmp_
         pass
 
 
+def test_a_study_storage_that_fails_mid_run_ends_as_one_os_error(tmp_path, study_disk_full):
+    from crowdsim.atomic import describe_os_error, study_storage
+
+    db = tmp_path / "study.db"
+    with pytest.raises(OSError) as info, study_storage(f"sqlite:///{db}"):
+        study_disk_full()
+    assert (
+        describe_os_error(info.value) == f"{db}: the study storage failed: database or disk is full"
+    )
+    with pytest.raises(KeyError), study_storage(f"sqlite:///{db}"):  # not the storage's
+        raise KeyError("the objective's own bug")
+
+
 def test_torch_reports_a_full_disk_as_a_runtime_error_we_name_the_file(tmp_path, monkeypatch):
     torch = pytest.importorskip("torch", reason="the head detector's weights need torch")
     from crowdsim.atomic import atomic_path, describe_os_error, torch_save

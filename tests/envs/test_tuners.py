@@ -458,3 +458,26 @@ def test_tuned_integer_fields_are_written_and_read_as_integers(tmp_path):
     name, params = load_params(old)
     assert name == "pnmc" and type(params.update_every) is int and params.update_every == 11
     assert params.tau == 0.5
+
+
+def test_a_study_storage_that_fills_mid_run_is_one_os_error(tmp_path, monkeypatch, study_disk_full):
+    """A full disk under the study (Optuna's commit fails) ends as one OSError naming the
+    study file; the finished trials stay in the study."""
+    import optuna
+
+    storage = optuna.storages.RDBStorage
+    real, told = storage.set_trial_state_values, []
+
+    def tell(self, trial_id, state, *args, **kwargs):
+        told.append(state)
+        if told.count(optuna.trial.TrialState.COMPLETE) == 2:  # the second trial's result
+            study_disk_full()
+        return real(self, trial_id, state, *args, **kwargs)
+
+    monkeypatch.setattr(storage, "set_trial_state_values", tell)
+    db = tmp_path / "t" / "study.db"
+    with pytest.raises(
+        OSError, match=f"^{db}: the study storage failed: database or disk is full$"
+    ):
+        tune(objective(), trials=4, out=tmp_path / "t", heldout=0, progress=False)
+    assert [state for _, state, _ in trials_of(tmp_path / "t")] == ["COMPLETE", "RUNNING"]

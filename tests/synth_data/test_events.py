@@ -132,6 +132,20 @@ def test_spec_round_trip_and_digest():
     assert plain_spec.digest() != spec.digest()
 
 
+def test_a_cut_drops_later_events_and_keeps_the_frames_before():
+    late = {"kind": "shake", "start": 30, "frames": 5, "magnitude": 3.0}
+    early = {"kind": "shake", "start": 2, "frames": 20, "magnitude": 3.0}
+    spec = spec_from_dict({**BASE, "events": [late, {"kind": "noise", "start": 25}, early]})
+    cut = spec.truncated(20)
+    assert [(e.kind, e.start) for e in cut.events] == [("shake", 2)]
+    again = spec_from_dict({k: v for k, v in cut.to_dict().items() if k != "calibration"})
+    assert again.events == cut.events  # the cut spec loads again (events inside its frames)
+    # the early burst is the one the whole sequence has, though the late one went before it
+    whole, part = Scene.from_spec(spec).camera, Scene.from_spec(cut).camera
+    np.testing.assert_array_equal(part.jitter(20), whole.jitter(40)[:20])
+    assert np.abs(part.jitter(20)[2:]).max() > 1.0
+
+
 @pytest.mark.parametrize(
     ("event", "message"),
     [

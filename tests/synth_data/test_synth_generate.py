@@ -254,6 +254,9 @@ def test_video_only_output_is_read_back(tmp_path):
     generate([spec], tmp_path / "out", progress=False, log=lambda m: None)
     seq_dir = tmp_path / "out" / "tiny"
     assert (seq_dir / "video.mp4").is_file() and not (seq_dir / "img1").exists()
+    # no image folder, so seqinfo.ini names none (imDir=img1 sent tools looking for one)
+    info = (seq_dir / "seqinfo.ini").read_text()
+    assert "imDir" not in info and "imExt" not in info and "seqLength=6" in info
     seq = read_sequence(seq_dir)
     frames = list(seq.frames())
     assert len(frames) == seq.length == 6

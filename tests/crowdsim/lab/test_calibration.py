@@ -288,6 +288,28 @@ def test_an_interrupted_trial_ends_in_one_line(
     assert len(calls) == 1
 
 
+def test_a_study_storage_that_fills_mid_run_ends_in_one_line(
+    suite, tmp_path, monkeypatch, capfd, scored, study_disk_full
+):
+    real, told = optuna.Study.tell, []
+
+    def tell(self, *args, **kwargs):
+        told.append(1)
+        if len(told) == 2:  # the second trial's result meets a full disk
+            study_disk_full()
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(optuna.Study, "tell", tell)
+    db = tmp_path / "o" / "calibration.db"
+    argv = ["calibrate", "--suite", str(suite), "--only", "a", "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    lines = capfd.readouterr().err.strip().splitlines()
+    assert "Traceback" not in "\n".join(lines), lines
+    assert lines[-1] == (
+        f"crowdsim calibrate: error: {db}: the study storage failed: database or disk is full"
+    )
+
+
 def test_suite_folders_are_named_clearly(tmp_path):
     with pytest.raises(ValueError, match=r"got '.*nowhere' \(no such folder\)"):
         suite_specs(tmp_path / "nowhere")
