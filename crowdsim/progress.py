@@ -4,17 +4,25 @@ On a terminal the bar redraws in place. When the output goes to a file or a pipe
 (``make demo > log``, CI, ``nohup``) it does not write thousands of redraws: a bar that has
 run for :data:`LOG_EVERY_S` seconds writes one line of its state (count, rate, ETA) every
 :data:`LOG_EVERY_S` seconds, and a shorter job writes nothing.
+
+A bar also redraws while nothing advances (every :data:`TICK_S` seconds on a terminal,
+every :data:`LOG_EVERY_S` in a log): a first run compiles its numba kernels for half a
+minute before the first step ends, and a bar frozen at 0 looked like a hang.
 """
 
 from __future__ import annotations
 
 import sys
+import threading
 import time
+import weakref
 from collections.abc import Iterable
 from typing import Any, TextIO
 
 LOG_EVERY_S = 30.0
 """Seconds between the state lines of a bar whose output is not a terminal."""
+TICK_S = 1.0
+"""Seconds after which a bar on a terminal that did not advance redraws (its clock)."""
 
 
 class _StateLines:
@@ -62,7 +70,7 @@ def progress_bar(
     if not enabled:
         return tqdm(iterable, total=total, desc=desc, unit=unit, disable=True)
     if _is_terminal(sys.stderr):
-        return tqdm(
+        bar = tqdm(
             iterable,
             total=total,
             desc=desc,
@@ -71,7 +79,8 @@ def progress_bar(
             mininterval=0.2,
             dynamic_ncols=True,
         )
-    return tqdm(
+        return _keep_ticking(bar, TICK_S)
+    bar = tqdm(
         iterable,
         total=total,
         desc=desc,
@@ -81,3 +90,23 @@ def progress_bar(
         mininterval=LOG_EVERY_S,
         ncols=80,
     )
+    return _keep_ticking(bar, LOG_EVERY_S)
+
+
+def _keep_ticking(bar: Any, every: float) -> Any:
+    """Redraw ``bar`` whenever it has not drawn for ``every`` seconds, until it closes (a
+    daemon thread holding only a weak reference; tqdm's lock keeps the redraws whole)."""
+    ref = weakref.ref(bar)
+
+    def tick() -> None:
+        while True:
+            time.sleep(min(every, 1.0))
+            b = ref()
+            if b is None or b.disable:  # closed (tqdm disables a bar when it closes)
+                return
+            if b._time() - b.last_print_t >= every:
+                b.refresh()
+            del b
+
+    threading.Thread(target=tick, name="progress-tick", daemon=True).start()
+    return bar

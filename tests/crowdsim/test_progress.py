@@ -28,3 +28,42 @@ def test_a_short_bar_or_a_disabled_one_writes_nothing(monkeypatch, capsys):
     with progress.progress_bar(total=3, desc="off", enabled=False) as bar:
         bar.update(3)
     assert capsys.readouterr().err == ""
+
+
+class _Terminal:
+    """A stderr that says it is a terminal and keeps what is written."""
+
+    def __init__(self) -> None:
+        self.text = ""
+
+    def isatty(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        self.text += text
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+
+def test_a_bar_that_does_not_advance_keeps_its_clock_running(monkeypatch, capsys):
+    """A first run compiles its kernels before the first step ends: the bar redraws anyway,
+    on a terminal (its elapsed time) and in a log (a state line), and stops when closed."""
+    term = _Terminal()
+    monkeypatch.setattr(progress.sys, "stderr", term)
+    monkeypatch.setattr(progress, "TICK_S", 0.1)
+    with progress.progress_bar(total=5, desc="track", unit="frame"):
+        time.sleep(1.3)  # nothing advances
+    draws = [d for d in term.text.split("\r") if d.startswith("track:")]
+    assert len(draws) >= 3, draws  # the first draw, then a redraw every 0.1 s
+    assert len({d.split("[")[1][:5] for d in draws}) >= 2  # the clock moved
+    closed = len(term.text)
+    time.sleep(0.3)
+    assert len(term.text) == closed  # no redraw after the close
+    monkeypatch.undo()
+    monkeypatch.setattr(progress, "LOG_EVERY_S", 0.15)
+    with progress.progress_bar(total=5, desc="compile", unit="frame"):
+        time.sleep(1.4)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines and all(line.startswith("compile:   0%") for line in lines), lines
