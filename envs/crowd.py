@@ -362,6 +362,10 @@ class CrowdParallelEnv(ParallelEnv):
         :meth:`observe_arrays` gives the observations of the new live set.
         """
         sim = self._require_sim()
+        if self._cycles >= self.params.max_cycles:  # it had stepped on in silence
+            raise RuntimeError(
+                f"the episode is over (max_cycles={self.params.max_cycles} reached): call reset()"
+            )
         ids = self._ids
         n = len(ids)
         if np.asarray(actions).dtype.kind not in "biuf":
@@ -422,6 +426,9 @@ class CrowdParallelEnv(ParallelEnv):
     ) -> tuple[
         dict[str, np.ndarray], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict]
     ]:
+        self._require_sim()
+        if not self.agents and self._cycles > 0:
+            raise RuntimeError("the episode is over (no agent is left): call reset()")
         names = self.agents
         n = len(names)
         if not isinstance(actions, Mapping):
@@ -596,8 +603,9 @@ def shared_policy_vec_env(env: CrowdParallelEnv, seed: int | None = None) -> Any
     whose pedestrian has left (or not yet arrived) gets zero observations and rewards
     until the episode ends; an agent's own termination or truncation is reported as
     ``done`` with its ``terminal_observation``. When no agent is left the env resets
-    (``seed`` first, then its own generator) and every slot is done. Scenes without
-    inflow (e.g. a periodic corridor) fit this best.
+    (``seed`` first, then its own generator) and every slot is done. ``VecEnv.seed(s)``
+    (``PPO(..., seed=s)`` calls it) seeds the next reset with ``s``, as SB3's vector envs
+    do. Scenes without inflow (e.g. a periodic corridor) fit this best.
     """
     from crowdsim.optional import require
 
@@ -619,8 +627,12 @@ def shared_policy_vec_env(env: CrowdParallelEnv, seed: int | None = None) -> Any
             return out
 
         def reset(self) -> np.ndarray:
-            obs = env.reset_arrays(self._seed)
+            # VecEnv.seed(s) (what PPO(seed=s) calls) seeds the next reset, as SB3's own
+            # vector envs do; the slots share one crowd, so the first slot's seed is its seed
+            seed = self._seeds[0] if self._seeds[0] is not None else self._seed
+            obs = env.reset_arrays(seed)
             self._seed = None
+            self._reset_seeds()
             return self._fill(obs)
 
         def step_async(self, actions: np.ndarray) -> None:

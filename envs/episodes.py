@@ -875,7 +875,9 @@ class ScenarioEpisodes(EpisodeSource):
             return super().sample(rng)
         # drawn straight from the caller's generator (not via an index), so that every
         # choice of a random episode is the environment's np_random
-        return spec_sequence(self.dist.sample_spec(rng, name="episode"))
+        spec = self.dist.sample_spec(rng, name="episode")
+        # named by what was drawn (info["sequence"]): the scenario and the scene's seed
+        return spec_sequence(replace(spec, name=f"{spec.scenario['name']}-{spec.seed}"))
 
     def describe(self) -> dict[str, Any]:
         doc = {"kind": "scenarios", "seed": self.seed, "distribution": self.dist.to_dict()}

@@ -9,7 +9,8 @@ whole sequence (for black-box tuners). ``import envs`` registers both (the one t
 :data:`envs.ENVS`).
 
 The observation (:data:`OBS_FIELDS`) is computed from the base tracker's state (points,
-velocities, the per-target ``confidence`` of each frame) and
+:meth:`~tracker.base.Tracker.motion`: BQP's and PNMC's velocities, the NCC and mean-shift
+baselines' last displacements; the per-target ``confidence`` of each frame) and
 :meth:`tracker.base.Tracker.stats` (BQP's solver iterations and groups) only, never from the
 ground truth, so an adaptive policy runs on real video too (:class:`PolicyControlled` drives
 any source, a video file included). No tracker subclass exists for observation.
@@ -142,8 +143,8 @@ def observe(
     Parameters
     ----------
     trk : Tracker
-        After ``frames`` frames of the last step (its ``points``, ``velocities`` where it has
-        them, and :meth:`~tracker.base.Tracker.stats`).
+        After ``frames`` frames of the last step (its ``points``, its
+        :meth:`~tracker.base.Tracker.motion` and :meth:`~tracker.base.Tracker.stats`).
     action : (d,) float
         The parameters in force, as the ``[-1, 1]`` action.
     progress : float
@@ -168,7 +169,7 @@ def observe(
     if n >= 2:
         d, _ = cKDTree(trk.points).query(trk.points, k=2)
         out[2] = float(np.median(d[:, 1])) / s
-    vel = getattr(trk, "velocities", np.zeros((0, 2)))
+    vel = trk.motion()  # BQP's and PNMC's velocities, the baselines' last displacements
     if len(vel):
         speed = np.sqrt((vel**2).sum(1)) / s
         out[3] = speed.mean()
@@ -237,7 +238,7 @@ class TrackerTuningEnv(gym.Env):
     0   targets_log10         [0, 6]      log10(1 + active targets)
     1   density               [0, 1]      image fraction covered by heads, ``n s^2 / (W H)``
     2   nn_distance           [0, 10]     median nearest-neighbour distance, template sizes
-    3   speed_mean            [0, 5]      mean speed of the tracker's velocities, templates/frame
+    3   speed_mean            [0, 5]      mean speed of the tracker's motion, templates/frame
     4   speed_std             [0, 5]      their standard deviation
     5   flow_order            [0, 1]      ``|mean unit velocity|`` (1: one flow; 0: counterflow)
     6   conf_mean             [-1, 2]     mean appearance confidence of the chosen positions
@@ -383,6 +384,9 @@ class TrackerTuningEnv(gym.Env):
         :data:`MAX_EMPTY_DRAWS` times in a row."""
         if options is not None and not isinstance(options, dict):
             raise ValueError(f"reset: options must be a dict or None, got {options!r}")
+        unknown = sorted(map(str, set(options or {}) - {"episode"}))
+        if unknown:  # a misspelt key had drawn a random episode in silence
+            raise ValueError(f"reset: unknown option(s) {', '.join(unknown)}; valid: episode")
         if options and "episode" in options:
             k = options["episode"]
             n = len(self.episodes)

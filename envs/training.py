@@ -220,7 +220,7 @@ def train(
         },
     )
     log(
-        f"{algo}: {steps} steps in {wall:.0f} s ({steps / max(wall, 1e-9):.2f} steps/s), "
+        f"{algo}: {trained} steps in {wall:.0f} s ({trained / max(wall, 1e-9):.2f} steps/s), "
         f"{len(curve)} episode{'s' if len(curve) != 1 else ''} -> {out / 'model.zip'}"
     )
     return doc

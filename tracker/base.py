@@ -463,6 +463,12 @@ class Tracker(ABC):
         """``(n, 2)`` next-frame prediction used to decide that a target leaves the image."""
         return self.points
 
+    def motion(self) -> np.ndarray:
+        """``(n, 2)`` each active target's motion, px per frame, as the tracker models it:
+        what its prediction adds to the points (:meth:`_predicted`; zeros without a motion
+        model). The tuning environment's speed and flow observations read it."""
+        return np.asarray(self._predicted(), np.float64) - self.points
+
     def _stepped(self, frame: np.ndarray) -> np.ndarray:
         """:meth:`_step`'s positions, checked: ``(n, 2)`` real numbers, as float64."""
         new = self._step(frame)

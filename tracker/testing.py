@@ -520,6 +520,17 @@ def _check_leaving_and_births(factory: Callable[..., Any]) -> None:
         raise AssertionError("a target is tracked before its birth frame")
     _position_check(tr, res.positions[5:, 2], sc.points[5:, 2], "a target born at frame 5")
     _position_check(tr, res.positions[:, 1], sc.points[:, 1], "a target that stays")
+    # motion() (the tuning environment reads it after every step) keeps up with both
+    tr = factory()
+    tr.init(sc.frames[0], sc.ids[:2], sc.points[0, :2], sc.template_size)
+    for t in range(1, len(sc.frames)):
+        tr.step(sc.frames[t], (sc.ids[2:], sc.points[5, 2:]) if t == 5 else None)
+        motion = np.asarray(tr.motion())
+        if motion.shape != tr.points.shape or not np.isfinite(motion).all():
+            raise AssertionError(
+                f"motion() after frame {t} is {motion.dtype} {motion.shape}, expected "
+                f"{tr.points.shape} finite (keep the motion state in step in _add and _remove)"
+            )
 
 
 def _check_vanishing(factory: Callable[..., Any]) -> None:

@@ -256,6 +256,38 @@ def test_shared_policy_recipe_runs():
     assert len(curve) >= 1 and np.isfinite(curve).all()
 
 
+def test_shared_policy_vec_env_takes_sb3s_seed():
+    """VecEnv.seed(s), which PPO(seed=s) calls, seeds the next reset (it was ignored: two
+    trainings with one seed drew two crowds); the seed after it is fresh again."""
+    from envs.crowd import shared_policy_vec_env
+
+    def first(seed):
+        venv = shared_policy_vec_env(crowd_v0.parallel_env(n_agents=6, max_cycles=3))
+        venv.seed(seed)
+        return venv, venv.reset()
+
+    (venv, a), (_, b), (_, c) = first(5), first(5), first(6)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert not np.array_equal(venv.reset(), a)  # a seed is used once
+    seeded = shared_policy_vec_env(crowd_v0.parallel_env(n_agents=6, max_cycles=3), seed=5)
+    np.testing.assert_array_equal(seeded.reset(), a)  # the factory's seed is the same seed
+
+
+def test_a_step_after_the_episode_ended_is_refused():
+    """After max_cycles (no agent left) a step asks for reset() instead of stepping on."""
+    env = sparse_env(3, max_cycles=2)
+    env.reset(seed=0)
+    while env.agents:
+        env.step({a: np.zeros(2) for a in env.agents})
+    with pytest.raises(RuntimeError, match="the episode is over .no agent is left.: call reset"):
+        env.step({})
+    with pytest.raises(RuntimeError, match=r"episode is over \(max_cycles=2 reached\)"):
+        env.step_arrays(np.zeros((0, 2)))
+    env.reset(seed=0)
+    assert len(env.agents) == 3  # a reset starts the next one
+
+
 def test_progress_reward_is_unwrapped_across_the_periodic_seam():
     """Crossing a periodic seam is rewarded as true progress, not minus a period."""
     env = crowd_v0.parallel_env(n_agents=1, scenario_params=SPARSE)

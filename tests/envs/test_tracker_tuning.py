@@ -73,6 +73,11 @@ def test_any_tunable_tracker_makes_a_checked_env(tracker, dim):
     assert env.unwrapped._trk.params == space.to_params(np.ones(dim))
     assert obs[len(OBS_FIELDS) :].tolist() == [1.0] * dim and 0 <= r <= 1
     assert obs[10] == 0 and obs[11] == 0  # no solver and no groups to report
+    # the crowd walks: speed and flow come from the tracker's own motion (Tracker.motion;
+    # PNMC's velocities, NCC's last displacements), which had read 0 beside BQP's
+    assert obs[3] > 0.01 and obs[4] > 0 and obs[5] > 0
+    trk = env.unwrapped._trk
+    assert trk.motion().shape == trk.points.shape
     env.close()
 
 
@@ -235,6 +240,11 @@ def test_bad_arguments():
     env = tiny_env()
     with pytest.raises(gym.error.ResetNeeded):
         env.step(np.zeros(5))
+    with pytest.raises(ValueError, match="unknown option.s. episdoe; valid: episode"):
+        env.reset(options={"episdoe": 1})  # it had drawn a random episode in silence
+    _, info = env.reset(seed=0)
+    scen = info["sequence"].rsplit("-", 1)  # what was drawn: its scenario and scene seed
+    assert scen[0] in TINY["scenarios"] and scen[1].isdigit()
 
 
 def test_make_and_async_vector_env():

@@ -117,14 +117,17 @@ def policy_zip(tmp_path_factory) -> Path:
     from envs.training import train
 
     out = tmp_path_factory.mktemp("policy")
-    train(
+    said: list[str] = []
+    doc = train(
         "ppo",
         out=out,
         steps=4,
         env_kwargs={"scenarios": dict(TINY), "k_frames": 5},
         progress=False,
-        log=lambda m: None,
+        log=said.append,
     )
+    # the line names the steps PPO trained (whole rollouts), as the record does
+    assert said[-1].startswith(f"ppo: {doc['steps']} steps in ") and doc["steps"] >= 4
     return out / "model.zip"
 
 

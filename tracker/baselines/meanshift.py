@@ -268,6 +268,7 @@ class MeanShiftTracker(Tracker):
         self.templates = np.zeros((0, s, s, 3), np.uint8)
         self.hists = np.zeros((0, self.n_bins))
         self.age = np.zeros(0, np.int64)
+        self._last_motion = np.zeros((0, 2))  # each target's last displacement
         self.radius = search_radius(s, self.params.search_factor)
 
     def _apply_params(self, old: MeanShiftParams, changed: frozenset[str]) -> None:
@@ -299,14 +300,16 @@ class MeanShiftTracker(Tracker):
         self.templates = np.concatenate([self.templates, patches])
         self.hists = np.concatenate([self.hists, self._hists(patches)])
         self.age = np.concatenate([self.age, np.zeros(len(points), np.int64)])
+        self._last_motion = np.concatenate([self._last_motion, np.zeros((len(points), 2))])
 
     def _remove(self, keep: np.ndarray) -> None:
         self.templates = self.templates[keep]
         self.hists = self.hists[keep]
         self.age = self.age[keep]
+        self._last_motion = self._last_motion[keep]
 
     def _predicted(self) -> np.ndarray:
-        return self.points + getattr(self, "_last_motion", np.zeros_like(self.points))
+        return self.points + self._last_motion
 
     # ------------------------------------------------------------------ one frame
     def _step(self, frame: np.ndarray) -> np.ndarray:

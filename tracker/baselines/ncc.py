@@ -80,6 +80,7 @@ class NCCTracker(Tracker):
             self.template_size, 1, p.update_threshold, update_every=p.update_every
         )
         self._set_radius()
+        self._last_motion = np.zeros((0, 2))  # each target's last displacement
 
     def _set_radius(self) -> None:
         self.radius = search_radius(self.template_size, self.params.search_factor)
@@ -94,9 +95,11 @@ class NCCTracker(Tracker):
 
     def _add(self, frame: np.ndarray, points: np.ndarray) -> None:
         self.model.add(frame, np.rint(points).astype(np.int64))
+        self._last_motion = np.concatenate([self._last_motion, np.zeros((len(points), 2))])
 
     def _remove(self, keep: np.ndarray) -> None:
         self.model.keep(keep)
+        self._last_motion = self._last_motion[keep]
 
     def _step(self, frame: np.ndarray) -> np.ndarray:
         h, w = self.frame_shape[:2]
@@ -121,4 +124,4 @@ class NCCTracker(Tracker):
 
     def _predicted(self) -> np.ndarray:
         # a target pinned to the border and still pushing outwards has left the image
-        return self.points + getattr(self, "_last_motion", np.zeros_like(self.points))
+        return self.points + self._last_motion

@@ -208,6 +208,9 @@ class BQPTracker(Tracker):
     def _predicted(self) -> np.ndarray:
         return self.points + self.velocities
 
+    def motion(self) -> np.ndarray:
+        return self.velocities.copy()
+
     # ------------------------------------------------------------------ one frame
     def candidates(self, frame: np.ndarray) -> tuple[Candidates, np.ndarray]:
         """Score the search grids and select candidates; returns them and the search centres."""

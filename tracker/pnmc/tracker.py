@@ -429,6 +429,9 @@ class PNMCTracker(Tracker):
     def _predicted(self) -> np.ndarray:
         return self.points + self.velocity
 
+    def motion(self) -> np.ndarray:
+        return self.velocity.copy()
+
     def _compensate(self, frame: np.ndarray) -> None:
         self._flow_at = self.points  # the flow's patches live in the uncompensated frame
         super()._compensate(frame)
