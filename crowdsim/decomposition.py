@@ -55,6 +55,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import threading
 import traceback
 import types
 import weakref
@@ -104,7 +105,8 @@ STATIC_FIELDS = ("radius", "desired_speed", "route", "group", "stop_start", "sto
 """Per-agent attributes that never change during a run: sent once to every worker."""
 
 _TEST_DIE_AT: tuple[int, int] | None = None
-"""Test hook: ``(worker, step)`` makes that worker kill itself (SIGKILL) at that step."""
+"""Test hook: ``(worker, step)`` makes that worker kill itself (SIGKILL) at that step (-2:
+before it reads its start-up data)."""
 
 
 class WorkerFailed(RuntimeError):
@@ -511,31 +513,45 @@ class StripEngine:
         sh.pos[0, :n], sh.vel[0, :n], sh.wp[0, :n], sh.alive[0, :n] = pos, vel, wp, alive
         ctx = mp.get_context("spawn")  # numba's thread pools are not fork-safe
         threads = max(1, (os.cpu_count() or 1) // n_workers)
-        for k in range(n_workers):
-            parent_end, child_end = ctx.Pipe()
-            init = {
-                "index": k,
-                "layout": self.layout,
-                "world": world,
-                "routes": routes,
-                "params": params,
-                "static": static,
-                "shm": sh.name,
-                "cap": sh.cap,
-                "threads": threads,
-                "parent_pid": os.getpid(),
-                "die_at": _TEST_DIE_AT[1] if _TEST_DIE_AT and _TEST_DIE_AT[0] == k else -1,
-            }
-            proc = ctx.Process(
-                target=_worker_main, args=(child_end, init), name=f"crowdsim-strip-{k}"
-            )
-            proc.daemon = True
-            with _bare_main():
-                proc.start()
-            child_end.close()
-            self.procs.append(proc)
-            self.conns.append(parent_end)
+        # The large start-up data (per-agent arrays, the world, the routes: about 48 bytes an
+        # agent) goes over the pipe after start(), from a thread: in start()'s own arguments,
+        # a worker that died before reading it all left the parent blocked in start() for
+        # good, out of reach of START_TIMEOUT_S. SIGINT stays blocked while the workers
+        # start, so they begin with it blocked (they ignore it, then unblock it) and a
+        # Ctrl-C sent to the whole group never shows a worker's import traceback.
+        bulk = {"world": world, "routes": routes, "static": static}
+        senders = []
+        held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            for k in range(n_workers):
+                parent_end, child_end = ctx.Pipe()
+                init = {
+                    "index": k,
+                    "layout": self.layout,
+                    "params": params,
+                    "shm": sh.name,
+                    "cap": sh.cap,
+                    "threads": threads,
+                    "parent_pid": os.getpid(),
+                    "die_at": _TEST_DIE_AT[1] if _TEST_DIE_AT and _TEST_DIE_AT[0] == k else -1,
+                }
+                proc = ctx.Process(
+                    target=_worker_main, args=(child_end, init), name=f"crowdsim-strip-{k}"
+                )
+                proc.daemon = True
+                with _bare_main():
+                    proc.start()
+                child_end.close()
+                self.procs.append(proc)
+                self.conns.append(parent_end)
+                send = threading.Thread(target=_send_quietly, args=(parent_end, bulk), daemon=True)
+                send.start()
+                senders.append(send)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
         self._gather(-1, ("ready",), START_TIMEOUT_S)
+        for send in senders:
+            send.join()
         self.serial = False
         self.reset_timing()
 
@@ -948,14 +964,28 @@ class _Strip:
         self.shared.close()
 
 
+def _send_quietly(conn: Any, message: Any) -> None:
+    """Send ``message`` on ``conn`` (a worker's start-up data, from a thread); a worker that
+    died or was stopped meanwhile is named by :meth:`StripEngine._gather`, not here."""
+    try:
+        conn.send(message)
+    except (OSError, ValueError):
+        pass
+
+
 def _worker_main(conn: Any, init: dict[str, Any]) -> None:
-    """Entry point of a worker process: build the strip, then serve "step" messages."""
+    """Entry point of a worker process: take the start-up data (:class:`StripEngine`), build
+    the strip, then serve "step" messages."""
     from crowdsim.jobs import die_with_parent
 
     die_with_parent(int(init["parent_pid"]))
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked since the start
     strip = None
     try:
+        if init["die_at"] == -2:  # test hook: die before the start-up data is read
+            os.kill(os.getpid(), signal.SIGKILL)
+        init = {**init, **conn.recv()}
         import numba
 
         numba.set_num_threads(int(init["threads"]))

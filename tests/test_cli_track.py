@@ -87,6 +87,33 @@ def test_track_then_evaluate(tmp_path, seq, capsys, tracker):
     assert "accuracy" in capsys.readouterr().out and png.is_file()
 
 
+def test_a_crowd_too_large_for_trackeval_keeps_its_tracks_and_scores_acc_alone(
+    tmp_path, seq, capsys, monkeypatch
+):
+    """TrackEval's dense tables past the memory limit (thousands of people; here a limit
+    of 1 KiB): track --evaluate refuses the score after writing the tracks (they had been
+    lost with an out-of-memory), and evaluate --metrics accuracy scores acc@T alone."""
+    import tracker.metrics as metrics
+
+    monkeypatch.setattr(metrics, "MEMORY_LIMIT_BYTES", 1024)
+    out = tmp_path / "t.txt"
+    argv = ["track", str(seq), "--tracker", "ncc", "--out", str(out), "--evaluate"]
+    assert main([*argv, "--no-progress"]) == 2
+    tracked, line = capsys.readouterr().err.strip().splitlines()
+    assert tracked.startswith("ncc: 10 frames, 4 targets") and line.startswith("crowdsim track:")
+    assert "MOTA, IDF1 and HOTA of 10 frames with 4 people and 4 tracks need about" in line
+    assert "more than the 1.0 KiB limit" in line and line.endswith(f"written to {out})")
+    assert out.is_file()
+    assert main(["evaluate", str(out), str(seq)]) == 2
+    assert "--metrics accuracy" in _error_line(capsys, "evaluate")
+    assert main(["evaluate", str(out), str(seq), "--metrics", "accuracy", "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["acc@5"] == 100.0 and "mota" not in rep
+    assert main(["evaluate", str(out), str(seq), "--metrics", "accuracy"]) == 0
+    table = capsys.readouterr().out
+    assert "100.0%" in table and "CLEAR/IDF1" not in table
+
+
 def test_track_video_with_points_csv(tmp_path, scene, capsys):
     video = tmp_path / "in.mp4"
     h, w = scene.frames[0].shape[:2]

@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from crowdsim.checks import checked_ids, require_choice
+from crowdsim.checks import MEMORY_LIMIT_BYTES, checked_ids, format_bytes, require_choice
 from crowdsim.plotting import new_figure, save_figure
 
 THRESHOLDS: np.ndarray = np.arange(26)
@@ -266,12 +266,39 @@ def trackeval_data(
     return data
 
 
+def trackeval_bytes(gt_points: np.ndarray, tr_points: np.ndarray) -> int:
+    """Bytes TrackEval's CLEAR, Identity and HOTA hold at their peak on ``(T, N_gt, 2)`` and
+    ``(T, N_tr, 2)`` points: the dense float64 similarity table of every frame
+    (:func:`trackeval_data`) and six frames' temporaries, HOTA's 21 and Identity's ids x ids
+    tables (``G R``; ``(G + R)^2`` three times for its assignment)."""
+    gt = np.isfinite(np.asarray(gt_points, np.float64)).all(-1)
+    tr = np.isfinite(np.asarray(tr_points, np.float64)).all(-1)
+    pairs = gt.sum(1).astype(np.float64) * tr.sum(1)
+    g, r = float(gt.any(0).sum()), float(tr.any(0).sum())
+    peak = pairs.max(initial=0.0)
+    return int(8 * (pairs.sum() + 6 * peak + 22 * g * r + 3 * (g + r) ** 2))
+
+
 def trackeval_metrics(
     gt_ids, gt_points, tr_ids, tr_points, similarity_scale: float = SIMILARITY_SCALE
 ) -> dict[str, float]:
-    """CLEAR MOT, IDF1 and HOTA from TrackEval (percentages; IDSW etc. as counts)."""
+    """CLEAR MOT, IDF1 and HOTA from TrackEval (percentages; IDSW etc. as counts).
+
+    TrackEval keeps a dense similarity table per frame and ids x ids tables: a request whose
+    :func:`trackeval_bytes` exceeds :data:`crowdsim.checks.MEMORY_LIMIT_BYTES` (about 3,400
+    people in each of 100 frames) is refused with the estimate before anything is built;
+    :func:`accuracy_curve` (the papers' acc@T) needs no such tables."""
     from trackeval.metrics import CLEAR, HOTA, Identity
 
+    gt_ids, gt_points, tr_ids, tr_points = _align(gt_ids, gt_points, tr_ids, tr_points, False)
+    need = trackeval_bytes(gt_points, tr_points)
+    if need > MEMORY_LIMIT_BYTES:
+        raise ValueError(
+            f"MOTA, IDF1 and HOTA of {len(gt_points)} frames with {len(gt_ids)} people and "
+            f"{len(tr_ids)} tracks need about {format_bytes(need)} of memory in TrackEval, "
+            f"more than the {format_bytes(MEMORY_LIMIT_BYTES)} limit; score the papers' acc@T "
+            "alone (crowdsim evaluate --metrics accuracy), or fewer frames"
+        )
     data = trackeval_data(gt_ids, gt_points, tr_ids, tr_points, similarity_scale)
     quiet = {"PRINT_CONFIG": False}
     clear = CLEAR(quiet).eval_sequence(data)
@@ -346,6 +373,7 @@ def evaluate(
     similarity_scale: float = SIMILARITY_SCALE,
     strict: bool = True,
     id_mapping: str = "auto",
+    trackeval: bool = True,
 ) -> dict[str, Any]:
     """Every metric of one sequence as a JSON-ready dict.
 
@@ -359,6 +387,8 @@ def evaluate(
     MOTA, IDF1 and HOTA are computed for any track ids. ``id_mapping`` (default ``"auto"``)
     only concerns acc@T (module docstring); ``strict`` refuses track ids unknown to the ground
     truth when ``id_mapping="same"`` is asked for (``"auto"`` scores them as unmatched).
+    ``trackeval=False`` leaves out TrackEval's keys (``mota`` ... ``frag``): acc@T alone, for
+    crowds too large for its tables (:func:`trackeval_metrics`).
     """
     gt_ids, tr_ids = checked_ids("gt_ids", gt_ids), checked_ids("tr_ids", tr_ids)
     mode = resolve_id_mapping(gt_ids, tr_ids, id_mapping, gt_points, tr_points, similarity_scale)
@@ -368,7 +398,8 @@ def evaluate(
         gt_ids, gt_points, tr_ids, tr_points, THRESHOLDS, False, mode, similarity_scale
     )
     out: dict[str, Any] = {"acc@5": float(curve[5]), "acc@15": float(curve[15])}
-    out.update(trackeval_metrics(gt_ids, gt_points, tr_ids, tr_points, similarity_scale))
+    if trackeval:
+        out.update(trackeval_metrics(gt_ids, gt_points, tr_ids, tr_points, similarity_scale))
     out["curve"] = [{"T": int(t), "acc": float(a)} for t, a in zip(THRESHOLDS, curve, strict=True)]
     gp = np.asarray(gt_points)
     out["gt_points"] = int(np.isfinite(gp).all(-1).sum())
@@ -381,14 +412,17 @@ def evaluate(
 
 
 def format_table(results: dict[str, dict[str, Any]]) -> str:
-    """Plain-text table, one row per method: acc@5, acc@15, MOTA, IDF1, HOTA, IDSW."""
+    """Plain-text table, one row per method: acc@5, acc@15, MOTA, IDF1, HOTA, IDSW (``-``
+    where a report has no TrackEval metrics)."""
     head = f"{'method':<12}{'acc@5':>8}{'acc@15':>8}{'MOTA':>8}{'IDF1':>8}{'HOTA':>8}{'IDSW':>7}"
     lines = [head, "-" * len(head)]
     for name, r in results.items():
-        lines.append(
-            f"{name:<12}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%{r['mota']:>7.1f}%"
-            f"{r['idf1']:>7.1f}%{r['hota']:>7.1f}%{r['idsw']:>7d}"
-        )
+        row = f"{name:<12}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%"
+        if "mota" in r:
+            row += f"{r['mota']:>7.1f}%{r['idf1']:>7.1f}%{r['hota']:>7.1f}%{r['idsw']:>7d}"
+        else:
+            row += f"{'-':>8}{'-':>8}{'-':>8}{'-':>7}"
+        lines.append(row)
     return "\n".join(lines)
 
 

@@ -185,35 +185,37 @@ def run_tracker(
         fps=res.fps,
         stage_ms={k: 1000.0 * v / steps for k, v in res.timings.items() if k != "total"},
     )
+    run.report = score(res, source, metrics, strict, getattr(trk, "id_mapping", "same"))
+    return run
+
+
+def score(
+    result: TrackResult,
+    source: SequenceLike,
+    metrics: Metrics = "full",
+    strict: bool = False,
+    id_mapping: str = "same",
+) -> dict[str, Any]:
+    """:attr:`TrackRun.report` of ``result`` against ``source``'s ground truth over the frames
+    it tracked (empty without ground truth or with ``metrics="none"``; see
+    :func:`run_tracker`)."""
+    if metrics not in ("full", "accuracy", "none"):
+        raise ValueError(f"metrics must be 'full', 'accuracy' or 'none', got {metrics!r}")
     if metrics == "none":
-        return run
+        return {}
     gt_ids, gt_pts = source.gt_points()
     if len(gt_ids) == 0:
-        return run
-    gt_pts = gt_pts[: res.n_frames]
+        return {}
+    gt_pts = gt_pts[: result.n_frames]
     if metrics == "full":
-        run.report = evaluate(
-            gt_ids,
-            gt_pts,
-            res.ids,
-            res.positions,
-            strict=strict,
-            id_mapping=getattr(trk, "id_mapping", "same"),
+        return evaluate(
+            gt_ids, gt_pts, result.ids, result.positions, strict=strict, id_mapping=id_mapping
         )
-    elif metrics == "accuracy":
-        curve = accuracy_curve(
-            gt_ids,
-            gt_pts,
-            res.ids,
-            res.positions,
-            strict=strict,
-            id_mapping=getattr(trk, "id_mapping", "same"),
-        )
-        run.report = {
-            "acc@5": float(curve[5]),
-            "acc@15": float(curve[15]),
-            "curve": [{"T": t, "acc": float(a)} for t, a in enumerate(curve)],
-        }
-    else:
-        raise ValueError(f"metrics must be 'full', 'accuracy' or 'none', got {metrics!r}")
-    return run
+    curve = accuracy_curve(
+        gt_ids, gt_pts, result.ids, result.positions, strict=strict, id_mapping=id_mapping
+    )
+    return {
+        "acc@5": float(curve[5]),
+        "acc@15": float(curve[15]),
+        "curve": [{"T": t, "acc": float(a)} for t, a in enumerate(curve)],
+    }

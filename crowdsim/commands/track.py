@@ -10,7 +10,8 @@ to a ground-truth person at frame 1 take that person's id, so ``--evaluate`` sco
 every head no track covers.
 Any registered tracker runs (``--tracker``, see :mod:`tracker.registry`); ``--set`` changes
 its parameters. Results are MOT text rows, one head box of the template size centred on each
-tracked point. Tracking and scoring go through :func:`tracker.runner.run_tracker`.
+tracked point. Tracking goes through :func:`tracker.runner.run_tracker`, and ``--evaluate``
+scores with :func:`tracker.runner.score` once the tracks are written.
 """
 
 from __future__ import annotations
@@ -307,7 +308,7 @@ def run(args: argparse.Namespace) -> int:
     from tracker.metrics import format_table
     from tracker.mot_io import tracks_to_mot_rows
     from tracker.registry import make_tracker
-    from tracker.runner import run_tracker
+    from tracker.runner import run_tracker, score
     from tracker.threads import check_threads
 
     if args.threads is not None:
@@ -371,7 +372,7 @@ def run(args: argparse.Namespace) -> int:
         feed,
         frames=args.frames,
         template_size=size,
-        metrics="full" if args.evaluate else "none",
+        metrics="none",  # scored once the tracks are written: a refused score loses nothing
         progress=not args.no_progress,
         prepare=partial(_feed, detector=detector if feed_detector else None),
         start=start,
@@ -405,6 +406,11 @@ def run(args: argparse.Namespace) -> int:
     if args.video:
         print(f"overlay -> {args.video}", file=sys.stderr)
     if args.evaluate:
+        try:
+            mapping = getattr(tracker, "id_mapping", "same")
+            run.report = score(result, feed, "full", id_mapping=mapping)
+        except ValueError as exc:
+            raise ValueError(f"{exc} (the tracks are written to {out})") from None
         print(format_table({run.tracker: run.report}))
         print(json.dumps(run.summary()))
     return 0

@@ -197,6 +197,20 @@ def test_cli_worker_death_one_line_exit_2_no_output(tmp_path, capsys, monkeypatc
 
 
 @needs_two
+def test_a_worker_that_dies_before_its_start_up_data_is_named_not_waited_for(monkeypatch):
+    """More start-up data than a pipe holds (about 48 bytes an agent, 3,000 agents here):
+    a worker that dies before reading it had left the parent blocked in start() for good."""
+    import time
+
+    monkeypatch.setattr(dec, "_TEST_DIE_AT", (1, -2))
+    t0 = time.monotonic()
+    with pytest.raises(WorkerFailed, match=r"^worker 1 \(pid \d+\) died while starting \(killed"):
+        Simulation(make_scenario("counterflow", n_agents=3000), seed=0, workers=2)
+    assert time.monotonic() - t0 < 60
+    assert multiprocessing.active_children() == []
+
+
+@needs_two
 def test_split_changes_no_physics():
     """1 vs 2 workers on a periodic counterflow corridor: the lane order and walking speed
     of the split run stay within the spread between two seeds of the 1-worker run."""

@@ -419,3 +419,25 @@ def test_a_target_id_beyond_int64_is_refused_not_wrapped():
     for ids in ([1e30], np.array([2**63 + 5], np.uint64)):
         with pytest.raises(ValueError, match="beyond int64"):
             make_tracker("ncc").init(frame, ids, np.array([[5.0, 5.0]]), 8)
+
+
+def test_trackeval_tables_are_sized_before_they_are_built():
+    """3,500 people in each of 100 frames: TrackEval's dense tables would need about 12.8
+    GiB; refused with the estimate at once (a stress sequence had run out of memory)."""
+    import time
+
+    from tracker.metrics import trackeval_bytes, trackeval_metrics
+
+    ids = np.arange(3500)
+    pts = np.zeros((100, 3500, 2))
+    assert trackeval_bytes(pts, pts) == 8 * (
+        100 * 3500**2 + 6 * 3500**2 + 22 * 3500**2 + 12 * 3500**2
+    )
+    t0 = time.perf_counter()
+    with pytest.raises(
+        ValueError, match=r"of 100 frames with 3500 people and 3500 tracks need about 12\.8 GiB"
+    ):
+        trackeval_metrics(ids, pts, ids, pts)
+    assert time.perf_counter() - t0 < 5
+    small = trackeval_bytes(pts[:2, :10], pts[:2, :10])  # ids present in no frame count 0
+    assert small == 8 * (2 * 100 + 6 * 100 + 22 * 100 + 3 * 20**2)
