@@ -146,10 +146,11 @@ def process_settings() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one sub-command; returns its exit code.
 
-    Exit codes, the same for every command: 0 done; 1 the work itself failed (a worker died,
-    a job raised: see the command); 2 a user error or a file-system error; 130 stopped by
-    SIGINT (Ctrl-C) and 143 by SIGTERM, after the command's own clean-ups ran (the signals
-    raise :class:`crowdsim.jobs.Interrupted` while a command runs), with one line
+    Exit codes, the same for every command: 0 done; 1 the work itself failed (a job of a job
+    runner raised or its worker died: generate, compare, tune, ...); 2 a user error or a
+    file-system error, and a simulator strip worker that died (simulate writes nothing); 130
+    stopped by SIGINT (Ctrl-C) and 143 by SIGTERM, after the command's own clean-ups ran (the
+    signals raise :class:`crowdsim.jobs.Interrupted` while a command runs), with one line
     ``crowdsim <command>: interrupted by SIGINT; <what was cleaned up or kept>``.
 
     Every expected failure ends as one line ``crowdsim <command>: error: <message>``:

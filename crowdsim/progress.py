@@ -31,13 +31,16 @@ class _StateLines:
     def __init__(self, stream: TextIO, every: float) -> None:
         self.stream = stream
         self.every = every
-        self.start = time.monotonic()
+        self.start = self.last = time.monotonic()
 
     def write(self, text: str) -> None:
         line = text.strip("\r\n ")
-        if line and time.monotonic() - self.start >= self.every:
+        now = time.monotonic()
+        # at most one line per `every` seconds, whatever redraws (a postfix, a tick) ask for
+        if line and now - self.last >= self.every:
             self.stream.write(line + "\n")
             self.stream.flush()
+            self.last = now
 
     def flush(self) -> None:
         self.stream.flush()

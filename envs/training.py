@@ -150,7 +150,7 @@ def train(
                 self.bar.update(self.num_timesteps - self.bar.n)
                 if curve:
                     recent = [c["reward_per_step"] for c in curve[-10:]]
-                    self.bar.set_postfix(acc=f"{np.mean(recent):.1f}%")
+                    self.bar.set_postfix(acc=f"{np.mean(recent):.1f}%", refresh=False)
             return True
 
         def _on_training_end(self) -> None:

@@ -378,7 +378,7 @@ class Tracker(ABC):
                 bar.update(1)
                 total = self.timings.get("total", 0.0)
                 if total > 0:
-                    bar.set_postfix(fps=f"{t / total:.1f}", targets=len(self.ids))
+                    bar.set_postfix(fps=f"{t / total:.1f}", targets=len(self.ids), refresh=False)
         if bar is not None:
             bar.close()
         late = sorted(t for t in births if t >= len(rows))

@@ -156,6 +156,25 @@ def check_args(args: argparse.Namespace) -> None:
         require_replaceable("--plot", args.plot, args.overwrite)
 
 
+def check_inflow_memory(sim, steps: int) -> None:
+    """Refuse, before stepping, a run whose sources would bring more people than the memory
+    holds: the trajectories are dense, one column per person who was ever there, so a
+    station's inflow makes them grow with the square of the steps (``--agents 50 --steps
+    20000`` ends with about 3,400 people and 3.4 GB; :func:`check_args` counts ``--agents``)."""
+    from crowdsim.checks import require_memory
+
+    rate = sum(float(src.rate) for src in sim.sources)  # people a second, all sources
+    if rate <= 0:
+        return
+    arrivals = rate * steps * sim.params.dt
+    people = len(sim.state.ids) + arrivals
+    require_memory(
+        f"--steps {steps} with the scenario's inflow (about {arrivals:,.0f} more people at "
+        f"{rate:.2f} a second, {people:,.0f} in all)",
+        float(BYTES_PER_AGENT_STEP) * (steps + 1) * people,
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     check_args(args)
 
@@ -185,6 +204,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         sim = Simulation(scenario, seed=args.seed, params=params, workers=args.workers)
         with sim:
+            check_inflow_memory(sim, args.steps)
             t0 = time.perf_counter()
             traj = sim.run(args.steps, progress=not args.no_progress)
             wall = time.perf_counter() - t0

@@ -468,7 +468,7 @@ def train(
             history.append([it, float(loss.detach()), focal, off])
             bar.update(1)
             if it % 20 == 0:
-                bar.set_postfix(loss=f"{np.mean([h[1] for h in history[-50:]]):.3f}")
+                bar.set_postfix(loss=f"{np.mean([h[1] for h in history[-50:]]):.3f}", refresh=False)
             if (it + 1) % config.checkpoint_every == 0 and it + 1 < config.iterations:
                 checkpoint(it + 1)
     finally:

@@ -32,6 +32,11 @@ case(
     f"{SIM} --steps 100000000 --agents 100000",
     "--steps 100000000 x --agents 100000 needs about",
 )
+case(
+    "sim-steps-inflow-memory",  # 50 people at the start, but the station's doors bring more
+    "simulate station --agents 50 --steps 100000 --no-progress",
+    "--steps 100000 with the scenario's inflow (about 26,800 more people at 6.70 a second",
+)
 case("sim-steps-float", f"{SIM} --steps 2.5", "'2.5'")
 case("sim-dt-0", f"{SIM} --dt 0", "--dt must be in (0, 0.2] seconds, got 0.0")
 # sizes and speeds far outside any crowd: named before the world's walls fill the memory

@@ -67,3 +67,16 @@ def test_a_bar_that_does_not_advance_keeps_its_clock_running(monkeypatch, capsys
         time.sleep(1.4)
     lines = capsys.readouterr().err.splitlines()
     assert lines and all(line.startswith("compile:   0%") for line in lines), lines
+
+
+def test_a_bar_that_redraws_for_its_postfix_still_writes_one_line_per_period(monkeypatch, capsys):
+    """set_postfix redraws at once (tqdm's mininterval does not apply): in a log that had
+    written a line per frame once the first period was over."""
+    monkeypatch.setattr(progress, "LOG_EVERY_S", 0.2)
+    with progress.progress_bar(total=40, desc="track", unit="frame") as bar:
+        for k in range(40):
+            time.sleep(0.02)
+            bar.set_postfix(targets=k)
+            bar.update(1)
+    lines = capsys.readouterr().err.splitlines()
+    assert 1 <= len(lines) <= 5, lines  # 0.8 s at most one line per 0.2 s
