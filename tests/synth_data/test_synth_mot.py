@@ -176,6 +176,25 @@ def test_mot_round_trip_property(tmp_path_factory, rows):
     np.testing.assert_allclose(back[:, 8], arr[:, 8], atol=6e-5)
 
 
+@pytest.mark.parametrize(
+    "text",
+    [
+        "1,1,10,20,8,8,1,1,1\n2,1,11.5,20,8,8,1,1,0.5\n",  # MOT as written
+        "\ufeff1 3 1.5 2 4 4\n\n2 3 2.5 2 4 4\n",  # a BOM, spaces, a blank line, 6 columns
+        "1,-1,5,5,3,3,-1,-1,-1,7\n",  # MOT17's -1 and an extra column
+        "# a comment\n1,1,10,20,8,8\n",  # comments: the line-by-line reader
+    ],
+)
+def test_the_compiled_reader_reads_what_the_line_reader_reads(tmp_path, monkeypatch, text):
+    import synth_data.mot as mot
+
+    p = tmp_path / "r.txt"
+    p.write_text(text, encoding="utf-8")
+    fast = read_mot_file(p)
+    monkeypatch.setattr(mot, "_read_mot_fast", lambda path, min_columns: None)
+    np.testing.assert_array_equal(fast, read_mot_file(p))
+
+
 # ---------------------------------------------------------------------------- ownership
 def _listed_sequence(seq):
     """A minimal sequence folder whose ``checksums.json`` lists every file in it."""
