@@ -114,6 +114,28 @@ def test_a_crowd_too_large_for_trackeval_keeps_its_tracks_and_scores_acc_alone(
     assert "100.0%" in table and "CLEAR/IDF1" not in table
 
 
+def test_track_evaluate_maps_the_ids_of_a_points_csv_by_the_evidence(tmp_path, seq, scene, capsys):
+    """--init CSV ids are the ground truth's numbers on other people (as a detector's 1..N
+    are): scored by majority, as crowdsim evaluate scores the same file (it had scored them
+    as the people of those numbers: acc@5 0.7 % against evaluate's 93 %)."""
+    pts = tmp_path / "init.csv"
+    rotated = np.roll(scene.ids, 1)
+    pts.write_text(
+        "frame,id,x,y\n"
+        + "".join(
+            f"1,{i},{x:g},{y:g}\n" for i, (x, y) in zip(rotated, scene.points[0], strict=True)
+        )
+    )
+    out = tmp_path / "r.txt"
+    argv = ["track", str(seq), "--tracker", "ncc", "--init", str(pts), "--out", str(out)]
+    assert main([*argv, "--evaluate", "--no-progress"]) == 0
+    tracked = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert main(["evaluate", str(out), str(seq), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["id_mapping"] == "majority" and rep["acc@5"] == 100.0
+    assert tracked["id_mapping"] == "majority" and tracked["acc@5"] == 100.0  # they agree
+
+
 def test_track_video_with_points_csv(tmp_path, scene, capsys):
     video = tmp_path / "in.mp4"
     h, w = scene.frames[0].shape[:2]

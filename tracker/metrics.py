@@ -20,8 +20,9 @@ Which metrics need the track ids to be the ground-truth ids
       a person followed by several tracks in turn takes, in each frame, the position of the
       track with most votes that is present (:func:`mapped_positions`);
     * ``"auto"`` (:func:`evaluate`'s default): ``"same"`` when the track ids are the ground
-      truth's, else ``"majority"`` (:func:`resolve_id_mapping`). They are when every track id
-      is a ground-truth id; when none is, they are not; when some are, the evidence decides:
+      truth's, else ``"majority"`` (:func:`resolve_id_mapping`). When no track id is a
+      ground-truth id, they are not; when some or all are, the evidence decides (a head
+      detector's 1..N and an annotator's 1..N share their numbers by chance):
       the ids are the ground truth's when more than :data:`ID_AGREEMENT` of the frames in
       which a known-id track is within ``similarity_scale`` px of someone find it within
       that distance of the person *of its id* (a point tracker's tracks are; a tracker with
@@ -323,14 +324,17 @@ def resolve_id_mapping(
 ) -> str:
     """``"same"`` or ``"majority"``: ``id_mapping`` with ``"auto"`` decided (module docstring).
 
-    With some track ids known to the ground truth and some not, ``"auto"`` needs the points
-    (``(T, N_gt, 2)`` and ``(T, N_tr, 2)``): the ids are the ground truth's when, in more
-    than :data:`ID_AGREEMENT` of the frames where a known-id track lies within ``radius``
-    px of someone, it lies within ``radius`` px of the person of its own id.
+    With track ids known to the ground truth, ``"auto"`` looks at the points (``(T, N_gt,
+    2)`` and ``(T, N_tr, 2)``): the ids are the ground truth's when, in more than
+    :data:`ID_AGREEMENT` of the frames where a known-id track lies within ``radius`` px of
+    someone, it lies within ``radius`` px of the person of its own id. Without the points,
+    ids that are all known count as the ground truth's; some unknown ones need the points.
 
     >>> resolve_id_mapping([1, 2], [2], "auto"), resolve_id_mapping([1, 2], [3], "auto")
     ('same', 'majority')
     >>> gt = np.array([[[0.0, 0.0], [50.0, 0.0]]] * 3)
+    >>> resolve_id_mapping([1, 2], [2, 1], "auto", gt, gt)  # known numbers, other people
+    'majority'
     >>> resolve_id_mapping([1, 2], [1, 2, -1], "auto", gt, gt[:, [0, 1, 1]])  # a stray id
     'same'
     >>> resolve_id_mapping([1, 2], [0, 1], "auto", gt, gt)  # own ids 0, 1: not the people's
@@ -341,9 +345,13 @@ def resolve_id_mapping(
     if id_mapping != "auto":
         return id_mapping
     known = np.isin(tr_ids, gt_ids)
-    if known.all() or not known.any():
-        return "same" if known.all() else "majority"
+    if not len(tr_ids):  # no track: nothing to map
+        return "same"
+    if not known.any():
+        return "majority"
     if gt_points is None or tr_points is None:
+        if known.all():
+            return "same"
         raise ValueError('id_mapping="auto" with some unknown track ids needs the points')
     gt_ids, gt_points, tr_ids, tr_points = _align(gt_ids, gt_points, tr_ids, tr_points, False)
     own = point_errors(gt_ids, gt_points, tr_ids[known], tr_points[:, known]) <= radius

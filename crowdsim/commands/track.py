@@ -408,6 +408,10 @@ def run(args: argparse.Namespace) -> int:
     if args.evaluate:
         try:
             mapping = getattr(tracker, "id_mapping", "same")
+            if args.init is not None or args.births == "detect":
+                # ids from a detector or a points CSV are not the ground truth's, whatever
+                # their numbers: the evidence decides, as crowdsim evaluate does
+                mapping = "auto"
             run.report = score(result, feed, "full", id_mapping=mapping)
         except ValueError as exc:
             raise ValueError(f"{exc} (the tracks are written to {out})") from None
