@@ -655,6 +655,22 @@ def read_sequence(path: str | os.PathLike[str]) -> MotSequence:
     )
 
 
+def box_type_note(seq: MotSequence) -> str | None:
+    """A warning when ``seq``'s seqinfo.ini gives no ``boxType`` (so its boxes are read as
+    MOTChallenge full-body boxes, the head at :data:`HEAD_IN_BODY` of their height) while its
+    ground-truth boxes are about square, as head boxes are; ``None`` otherwise."""
+    if "boxType" in seq.info or not len(seq.gt):
+        return None
+    ratio = float(np.median(seq.gt[:, 5] / np.maximum(seq.gt[:, 4], 1e-9)))
+    if ratio >= 1.3:
+        return None
+    return (
+        "seqinfo.ini gives no boxType, so the ground-truth boxes are read as MOTChallenge "
+        f"full-body boxes (the head near their top); they are about square (median "
+        f"height/width {ratio:.2f}): add boxType=head if they are head boxes"
+    )
+
+
 def verify_frames(seq: MotSequence) -> None:
     """Refuse a damaged sequence, naming the file.
 

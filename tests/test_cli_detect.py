@@ -64,6 +64,29 @@ def test_detect_writes_the_people_of_frame_one_as_an_init_file(tmp_path, rendere
     assert "frames/s" in capsys.readouterr().err
 
 
+def test_heads_larger_than_the_detector_learnt_are_found_once(tmp_path, rendered):
+    """The frame three times larger (36 px heads, the network learnt 8-16): with
+    --template-size 36 the heads are found on the frame shrunk back to 12 px heads, at
+    the people's places (at full size 54 people gave 156 points, 55 shrunk)."""
+    video, seq = rendered
+    frame = cv2.resize(next(iter(seq.frames())), None, fx=3, fy=3, interpolation=cv2.INTER_CUBIC)
+    big = tmp_path / "big.mp4"
+    vw = cv2.VideoWriter(str(big), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, frame.shape[1::-1])
+    vw.write(frame)
+    vw.release()
+    gt = seq.gt_points()[1][0]
+    gt = gt[np.isfinite(gt).all(1)] * 3 + 1  # pixel centres: 3 x + 1 at 3x
+    found = {}
+    for size in (None, 36):
+        out = tmp_path / f"p{size}.csv"
+        flags = [] if size is None else ["--template-size", str(size)]
+        assert main(["detect", str(big), "--out", str(out), "--no-progress", *flags]) == 0
+        found[size] = read_points_csv(out)[2]
+    assert len(found[None]) > 1.3 * len(gt)  # counted over and over at full size
+    score = score_frame(found[36], gt, 15.0)
+    assert score.f1 >= 0.85, score
+
+
 def test_detect_all_frames_with_scores(tmp_path, rendered):
     video, seq = rendered
     out = tmp_path / "all.csv"

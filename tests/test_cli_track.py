@@ -136,6 +136,43 @@ def test_track_evaluate_maps_the_ids_of_a_points_csv_by_the_evidence(tmp_path, s
     assert tracked["id_mapping"] == "majority" and tracked["acc@5"] == 100.0  # they agree
 
 
+def test_evaluate_says_when_the_scores_would_mislead_and_scores_the_frames_asked(
+    tmp_path, seq, scene, capsys
+):
+    """Results of the first 6 of 10 frames, ground truth on 3 frames, head boxes without
+    boxType: each is named on stderr with the flag that scores it as meant."""
+    from synth_data.mot import read_mot_file, write_mot
+
+    out = tmp_path / "r.txt"
+    argv = ["track", str(seq), "--tracker", "ncc", "--out", str(out), "--frames", "6"]
+    assert main([*argv, "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(out), str(seq), "--json"]) == 0
+    cut = capsys.readouterr()
+    assert "the results end at frame 6 of 10; the people of frames 7-10 count as missed " in cut.err
+    assert json.loads(cut.out)["acc@5"] == 60.0  # 6 of 10 frames
+    assert main(["evaluate", str(out), str(seq), "--json", "--frames", "6"]) == 0
+    first = capsys.readouterr()
+    assert json.loads(first.out)["acc@5"] == 100.0 and "note" not in first.err
+    gt = read_mot_file(seq / "gt" / "gt.txt")
+    write_mot(seq / "gt" / "gt.txt", gt[np.isin(gt[:, 0], [1, 3, 5])])  # three frames annotated
+    info = seq / "seqinfo.ini"
+    info.write_text(info.read_text().replace("boxType=head\n", ""))
+    assert main(["evaluate", str(out), str(seq), "--json", "--frames", "6"]) == 0
+    few = capsys.readouterr().err
+    assert "ground truth on 3 of 6 frames: MOTA, IDF1 and HOTA count every tracked point" in few
+    assert "seqinfo.ini gives no boxType" in few and "median height/width 1.00" in few
+    info.write_text(info.read_text() + "boxType=head\n")
+    assert (
+        main(["evaluate", str(out), str(seq), "--json", "--frames", "6", "--annotated-frames"]) == 0
+    )
+    only = capsys.readouterr()
+    rep = json.loads(only.out)
+    assert rep["acc@5"] == 100.0 and rep["mota"] == pytest.approx(100.0) and "note" not in only.err
+    assert main(["evaluate", str(out), str(seq), "--frames", "11"]) == 2
+    assert "--frames must be in [1, 10]" in _error_line(capsys, "evaluate")
+
+
 def test_track_video_with_points_csv(tmp_path, scene, capsys):
     video = tmp_path / "in.mp4"
     h, w = scene.frames[0].shape[:2]

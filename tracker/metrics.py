@@ -425,9 +425,10 @@ def format_table(results: dict[str, dict[str, Any]]) -> str:
     head = f"{'method':<12}{'acc@5':>8}{'acc@15':>8}{'MOTA':>8}{'IDF1':>8}{'HOTA':>8}{'IDSW':>7}"
     lines = [head, "-" * len(head)]
     for name, r in results.items():
-        row = f"{name:<12}{r['acc@5']:>7.1f}%{r['acc@15']:>7.1f}%"
+        # a space before each figure: a MOTA of -1000 % or less stays apart from acc@15
+        row = f"{name:<12} {r['acc@5']:>6.1f}% {r['acc@15']:>6.1f}%"
         if "mota" in r:
-            row += f"{r['mota']:>7.1f}%{r['idf1']:>7.1f}%{r['hota']:>7.1f}%{r['idsw']:>7d}"
+            row += f" {r['mota']:>6.1f}% {r['idf1']:>6.1f}% {r['hota']:>6.1f}% {r['idsw']:>6d}"
         else:
             row += f"{'-':>8}{'-':>8}{'-':>8}{'-':>7}"
         lines.append(row)

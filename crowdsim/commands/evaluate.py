@@ -43,6 +43,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="full: acc@T and TrackEval's MOTA, IDF1, HOTA (default); accuracy: the papers' "
         "acc@T alone, for crowds too large for TrackEval's dense tables (thousands of people)",
     )
+    p.add_argument(
+        "--frames",
+        type=int,
+        metavar="N",
+        help="score the first N frames only (results of a run cut with track --frames N)",
+    )
+    p.add_argument(
+        "--annotated-frames",
+        action="store_true",
+        help="score only the frames that hold ground truth (a few hand-annotated frames: "
+        "elsewhere every tracked point would count as a false positive)",
+    )
     p.add_argument("--plot", help="write the accuracy-curve PNG here")
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.set_defaults(func=run)
@@ -108,6 +120,46 @@ def check_args(args: argparse.Namespace) -> None:
         require_replaceable("--plot", plot, args.overwrite)
 
 
+def scored_frames(args: argparse.Namespace, seq, gt_pts, pts):
+    """The frames ``--frames`` and ``--annotated-frames`` keep, ``(gt_pts, pts)``; a note on
+    stderr for each way the scores would mislead without them, and for head boxes that the
+    sequence's seqinfo.ini lets be read as body boxes."""
+    import numpy as np
+
+    def note(text: str) -> None:
+        print(f"crowdsim evaluate: note: {text}", file=sys.stderr)
+
+    n = seq.length
+    if args.frames is not None:
+        if not 1 <= args.frames <= n:
+            raise ValueError(
+                f"--frames must be in [1, {n}] (the sequence's frames), got {args.frames}"
+            )
+        gt_pts, pts, n = gt_pts[: args.frames], pts[: args.frames], args.frames
+    tracked = np.flatnonzero(np.isfinite(pts).all(-1).any(1)) if pts.shape[1] else []
+    if args.frames is None and len(tracked) and tracked[-1] + 1 < n:
+        last = int(tracked[-1]) + 1
+        note(
+            f"the results end at frame {last} of {n}; the people of frames {last + 1}-{n} count "
+            f"as missed (--frames {last} scores the first {last})"
+        )
+    annotated = np.isfinite(gt_pts).all(-1).any(1)
+    if args.annotated_frames:
+        gt_pts, pts = gt_pts[annotated], pts[annotated]
+    elif annotated.sum() < n and np.isfinite(pts[~annotated]).any():
+        note(
+            f"ground truth on {int(annotated.sum())} of {n} frames: MOTA, IDF1 and HOTA count "
+            "every tracked point of the others as a false positive (--annotated-frames scores "
+            "the annotated frames alone)"
+        )
+    from synth_data.mot import box_type_note
+
+    square = box_type_note(seq)
+    if square:
+        note(square)
+    return gt_pts, pts
+
+
 def run(args: argparse.Namespace) -> int:
     from crowdsim.atomic import recorded
     from synth_data.mot import verify_frames
@@ -121,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
             f"crowdsim evaluate: note: {args.results} has no result rows; every score is 0",
             file=sys.stderr,
         )
+    gt_pts, pts = scored_frames(args, seq, gt_pts, pts)
     # any result ids: MOTA, IDF1 and HOTA need no correspondence; acc@T uses the ids as they
     # are when they are ground-truth ids (unknown ones unmatched), else a majority mapping
     report = evaluate(

@@ -302,7 +302,7 @@ def run(args: argparse.Namespace) -> int:
 
     from crowdsim.atomic import atomic_path, recorded
     from envs.episodes import verify_folder
-    from synth_data.mot import write_mot
+    from synth_data.mot import box_type_note, write_mot
     from synth_data.sequence import open_sequence
     from tracker.base import MAX_TEMPLATE_PX
     from tracker.metrics import format_table
@@ -359,7 +359,12 @@ def run(args: argparse.Namespace) -> int:
     src = open_sequence(args.input, init=None if use_detector else args.init)
     if is_folder:
         verify_folder(src)  # a damaged, truncated or swapped image is named, not tracked
+        square = box_type_note(src)
+        if square:
+            print(f"crowdsim track: note: {square}", file=sys.stderr)
     size = int(size or src.template_size)
+    if detector is not None:  # heads beyond the sizes it learnt are found on a shrunk frame
+        detector.template_size = float(size)
     start, births = _detected_start(args, src, detector, size, use_detector)
     if args.params or args.policy:
         tracker, feed, what = _tuned(args, src)
@@ -398,9 +403,9 @@ def run(args: argparse.Namespace) -> int:
                 fps=getattr(src, "frame_rate", 25.0),
             )
     stages = ", ".join(f"{k} {v:.1f} ms" for k, v in run.stage_ms.items())
+    speed = f"{run.fps:.1f} frames/s ({stages} per frame)" if stages else "no frame stepped"
     print(
-        f"{run.tracker}: {result.n_frames} frames, {len(result.ids)} targets, "
-        f"{run.fps:.1f} frames/s ({stages} per frame) -> {out}",
+        f"{run.tracker}: {result.n_frames} frames, {len(result.ids)} targets, {speed} -> {out}",
         file=sys.stderr,
     )
     if args.video:
