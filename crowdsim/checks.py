@@ -178,6 +178,12 @@ Requests whose estimate exceeds it are refused *before* allocating, with the est
 message, instead of dying halfway with a ``MemoryError`` or the kernel's OOM killer."""
 
 
+class DataNote(UserWarning):
+    """A warning about the user's data that does not stop the work (a video whose header
+    counts other frames than it holds, ...): library code warns with it, and the ``crowdsim``
+    command prints it as one line ``crowdsim <command>: note: <message>``."""
+
+
 def format_bytes(n: float) -> str:
     """``1536 -> '1.5 KiB'``, ``3 * 2**30 -> '3.0 GiB'`` (binary units).
 

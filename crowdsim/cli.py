@@ -17,7 +17,8 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from types import ModuleType
 
 from crowdsim import __version__
@@ -143,6 +144,29 @@ def process_settings() -> None:
         os.environ.update({k: str(v) for k, v in KEEP_FREED.items()})
 
 
+@contextmanager
+def _notes_as_lines(command: str) -> Iterator[None]:
+    """Print each :class:`crowdsim.checks.DataNote` warning as one line ``crowdsim <command>:
+    note: <message>`` while the command runs (other warnings as Python prints them)."""
+    import warnings
+
+    from crowdsim.checks import DataNote
+
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
+        if issubclass(category, DataNote):
+            print(f"crowdsim {command}: note: {message}", file=sys.stderr)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = shown
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one sub-command; returns its exit code.
 
@@ -168,7 +192,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     prefix = f"crowdsim {command}: error:"
     try:
         refuse_empty_paths(args)
-        with interruptible():
+        with interruptible(), _notes_as_lines(command):
             return int(args.func(args) or 0)
     except (KeyboardInterrupt, SystemError) as exc:  # Interrupted too: SIGINT or SIGTERM
         stopped = interrupt_in(exc)  # a SystemError: one that a C extension wrapped

@@ -78,6 +78,13 @@ def _no_gt(length: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ---------------------------------------------------------------------------- video
+COUNTED_CONTAINERS: frozenset[str] = frozenset(
+    {".mkv", ".webm", ".ts", ".m2ts", ".mts", ".flv", ".mpg", ".mpeg", ".vob", ".ogv"}
+)
+"""Video suffixes whose frame count :class:`VideoSequence` counts by reading the file: their
+headers give none, or one estimated from the duration, wrong for a variable frame rate."""
+
+
 class VideoSequence:
     """Frames of a video file; targets from a points CSV (``init``), no ground truth.
 
@@ -113,7 +120,9 @@ class VideoSequence:
                 raise ValueError(f"{path}: not a readable video file")
             fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
             count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
-            if count <= 0:  # containers without a frame count: count them
+            # containers without a frame count, or whose count is an estimate from the
+            # duration (variable frame rate: a 60-frame .mkv said 37): count them
+            if count <= 0 or path.suffix.lower() in COUNTED_CONTAINERS:
                 count = 1
                 while cap.grab():
                     count += 1
@@ -135,15 +144,35 @@ class VideoSequence:
         return f"VideoSequence({str(self.path)!r}, {self.length} frames {self.width}x{self.height})"
 
     def frames(self) -> Iterator[np.ndarray]:
+        """Every frame in order; a decoder that stops before :attr:`length` (a cut file) or
+        still has frames after it (a header that under-counts) is reported as a
+        :class:`crowdsim.checks.DataNote` warning, never in silence."""
+        import warnings
+
         import cv2
+
+        from crowdsim.checks import DataNote
 
         cap = cv2.VideoCapture(str(self.path))
         try:
-            for _ in range(self.length):
+            for i in range(self.length):
                 ok, img = cap.read()
                 if not ok:
+                    warnings.warn(
+                        f"{self.path}: the decoder gave {i} frames where the header counts "
+                        f"{self.length}; the sequence ends at frame {i}",
+                        DataNote,
+                        stacklevel=2,
+                    )
                     return
                 yield img
+            if cap.grab():
+                warnings.warn(
+                    f"{self.path}: the video holds more frames than the {self.length} its "
+                    "header counts; the later ones are not read",
+                    DataNote,
+                    stacklevel=2,
+                )
         finally:
             cap.release()
 

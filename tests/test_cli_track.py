@@ -173,6 +173,41 @@ def test_evaluate_says_when_the_scores_would_mislead_and_scores_the_frames_asked
     assert "--frames must be in [1, 10]" in _error_line(capsys, "evaluate")
 
 
+def test_a_cut_video_is_tracked_to_its_end_with_a_note(tmp_path, scene, capsys):
+    """The decoder stops before the header's count: one note line, the frames it gave."""
+    whole = tmp_path / "whole.avi"
+    h, w = scene.frames[0].shape[:2]
+    vw = cv2.VideoWriter(str(whole), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (w, h))
+    if not vw.isOpened():
+        pytest.skip("this OpenCV build cannot write MJPG")
+    for f in scene.frames:
+        vw.write(f)
+    vw.release()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(whole.read_bytes()[: int(whole.stat().st_size * 0.6)])
+    pts = tmp_path / "init.csv"
+    pts.write_text(
+        "frame,id,x,y\n"
+        + "".join(
+            f"1,{i},{x:g},{y:g}\n" for i, (x, y) in zip(scene.ids, scene.points[0], strict=True)
+        )
+    )
+    argv = [
+        "track",
+        str(cut),
+        "--tracker",
+        "ncc",
+        "--init",
+        str(pts),
+        "--out",
+        str(tmp_path / "r.txt"),
+    ]
+    assert main([*argv, "--no-progress"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    notes = [e for e in err if e.startswith("crowdsim track: note: ")]
+    assert len(notes) == 1 and "the decoder gave" in notes[0] and "the header counts 10" in notes[0]
+
+
 def test_track_video_with_points_csv(tmp_path, scene, capsys):
     video = tmp_path / "in.mp4"
     h, w = scene.frames[0].shape[:2]

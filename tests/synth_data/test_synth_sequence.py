@@ -321,6 +321,39 @@ def test_an_in_memory_sequence_refuses_what_no_tracker_could_read():
     assert "1 frames in memory" in repr(InMemorySequence(**base, frames=[frame]))
 
 
+def test_a_video_whose_header_miscounts_its_frames_is_said_so(tmp_path, crowd):
+    """A cut file (the header counts 30, the decoder gives fewer) warns as a DataNote; a
+    .mkv is counted by reading it (its header's count is an estimate from the duration)."""
+    import warnings
+
+    from crowdsim.checks import DataNote
+
+    rng = np.random.default_rng(0)
+    frames = [(rng.random((64, 96, 3)) * 255).astype(np.uint8) for _ in range(30)]
+    for name in ("whole.avi", "whole.mkv"):
+        vw = cv2.VideoWriter(str(tmp_path / name), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (96, 64))
+        if not vw.isOpened():
+            pytest.skip(f"this OpenCV build cannot write MJPG into {name}")
+        for f in frames:
+            vw.write(f)
+        vw.release()
+    data = (tmp_path / "whole.avi").read_bytes()
+    (tmp_path / "cut.avi").write_bytes(data[: int(len(data) * 0.6)])
+    seq = VideoSequence(tmp_path / "cut.avi")
+    assert seq.length == 30  # what the header says
+    with pytest.warns(
+        DataNote, match=r"cut\.avi: the decoder gave (\d+) frames where the header counts 30"
+    ):
+        got = len(list(seq.frames()))
+    assert 0 < got < 30
+    mkv = VideoSequence(tmp_path / "whole.mkv")
+    assert mkv.length == 30
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # whole files: no note
+        assert len(list(mkv.frames())) == 30
+        assert len(list(VideoSequence(tmp_path / "whole.avi").frames())) == 30
+
+
 def test_a_video_template_size_is_checked_as_given(clip):
     for size in (0, 2.7, "12"):
         with pytest.raises(ValueError, match="template_size must be"):
