@@ -135,7 +135,9 @@ def births_from_init(
         unknown = sorted(set(ids.tolist()) - set(np.asarray(gt_ids).tolist()))
         if unknown:
             raise ValueError(
-                f"{init}: ids {unknown[:5]} are unknown to the ground truth of {where}"
+                f"{init}: ids {unknown[:5]} are unknown to the ground truth of {where} (a "
+                "sequence with ground truth takes its ids; --init detect gives the detector's "
+                "heads the ids of the people they find)"
             )
     return births_from_points(frames, ids, pts)
 

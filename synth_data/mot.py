@@ -540,7 +540,8 @@ class MotSequence:
         if len(gt_ids) == 0:
             raise ValueError(
                 f"{self.path}: no ground truth to start from; pass --init "
-                "points.csv (rows frame,id,x,y)"
+                "points.csv (rows frame,id,x,y), or --init detect to start from the heads "
+                "the detector finds"
             )
         return births_from_ground_truth(gt_ids, gt_pts)
 

@@ -183,7 +183,8 @@ class VideoSequence:
         if self.init is None:
             raise ValueError(
                 f"{self.path}: a video has no ground truth to start from; give a "
-                "points CSV (--init points.csv with rows frame,id,x,y)"
+                "points CSV (--init points.csv with rows frame,id,x,y), or start from the "
+                "head detector (crowdsim track without --init)"
             )
         return births_from_init(self.init, self.length, where=str(self.path))
 

@@ -70,6 +70,12 @@ def load_results(results: str, seq_dir: str):
     seq = read_sequence(seq_dir)  # a binary seqinfo.ini or gt.txt is named by the reader
     gt_ids, gt_pts = seq.gt_points()
     if len(gt_ids) == 0:
+        if len(seq.gt):  # rows, but none counts: MOT's conf and class columns
+            raise ValueError(
+                f"{seq_dir}: gt/gt.txt has {len(seq.gt)} rows but none with conf > 0 and class "
+                "1 (a pedestrian), the rows that count as ground truth (a results file's "
+                "class -1 and conf -1 are not)"
+            )
         raise ValueError(f"{seq_dir}: the sequence has no ground truth (gt/gt.txt)")
     rows = read_mot_file(results)
     ids, pts = mot_rows_to_tracks(rows, seq.length, source=str(results))

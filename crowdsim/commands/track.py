@@ -189,17 +189,13 @@ def _overrides(args: argparse.Namespace, name: str) -> dict:
     return over
 
 
-def _tuned(args: argparse.Namespace, src: object) -> tuple[object, object, str]:
-    """``(tracker, frame source, description)`` for ``--params`` / ``--policy``.
-
-    The file names its tracker; ``--tracker``, when given, must be the same one (a parameters
-    file of ``ncc`` never silently turns ``--tracker bqp`` into NCC)."""
-    from dataclasses import replace
-
+def _file_tracker(args: argparse.Namespace) -> tuple[str, object]:
+    """``(tracker name, params or None)`` of ``--params`` / ``--policy``, refused when
+    ``--tracker`` names another tracker (checked before the head detector runs)."""
     from envs.param_space import load_params
-    from envs.training import load_policy, policy_description, policy_meta, policy_tracker
-    from tracker.registry import make_tracker
+    from envs.training import policy_meta
 
+    params = None
     if args.params:
         flag, path = "--params", args.params
         name, params = load_params(path)
@@ -211,6 +207,21 @@ def _tuned(args: argparse.Namespace, src: object) -> tuple[object, object, str]:
             f"{flag} {path}: made for the {name!r} tracker, but --tracker is "
             f"{args.tracker!r} (drop --tracker to follow the file, or give --tracker {name})"
         )
+    return name, params
+
+
+def _tuned(args: argparse.Namespace, src: object) -> tuple[object, object, str]:
+    """``(tracker, frame source, description)`` for ``--params`` / ``--policy``.
+
+    The file names its tracker; ``--tracker``, when given, must be the same one (a parameters
+    file of ``ncc`` never silently turns ``--tracker bqp`` into NCC)."""
+    from dataclasses import replace
+
+    from envs.training import load_policy, policy_description, policy_tracker
+    from tracker.registry import make_tracker
+
+    name, params = _file_tracker(args)
+    path = args.params or args.policy
     over = _overrides(args, name)
     followed = "" if args.tracker is not None else " (the tracker the file names)"
     if args.params:
@@ -355,6 +366,8 @@ def run(args: argparse.Namespace) -> int:
             "--init detect, --births detect, --detections detector, or a video as INPUT)",
             file=sys.stderr,
         )
+    if args.params or args.policy:
+        _file_tracker(args)  # a file of another tracker is refused before any detection
     detector = _detector(args) if uses_detector else None
     src = open_sequence(args.input, init=None if use_detector else args.init)
     if is_folder:
