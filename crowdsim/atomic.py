@@ -295,10 +295,15 @@ def _study_failure(exc: BaseException) -> str | None:
     return (str(getattr(deepest, "orig", None) or deepest).splitlines() or [""])[0]
 
 
+class StudyStorageError(OSError):
+    """An Optuna study's storage failed mid-run (:func:`study_storage`)."""
+
+
 @contextmanager
 def study_storage(url: str | None) -> Iterator[None]:
     """Run trials on an Optuna study in the block: a storage that fails mid-run (a full disk,
-    a database locked or gone) ends as one :class:`OSError` naming the storage and the cause,
+    a database locked or gone) ends as one :class:`StudyStorageError` (an ``OSError``) naming
+    the storage and the cause,
     not as Optuna's and SQLAlchemy's traceback. The study keeps the trials it finished."""
     try:
         yield
@@ -307,7 +312,7 @@ def study_storage(url: str | None) -> Iterator[None]:
         if cause is None:
             raise
         where = url[len("sqlite:///") :] if url and url.startswith("sqlite:///") else url
-        raise OSError(f"{where}: the study storage failed: {cause}") from None
+        raise StudyStorageError(f"{where}: the study storage failed: {cause}") from None
 
 
 def _stamp(path: Path) -> tuple[int, int, int] | None:

@@ -245,10 +245,11 @@ class Camera:
         return out
 
     def _burst_keys(self) -> list[int]:
-        """Each shake burst's seed key: its place in the spec's events list
-        (:attr:`Event.index`), so a burst stays the same when ``--frames`` drops events that
-        start after the cut; bursts built by hand without distinct places take their order."""
-        keys = [ev.index for ev in self.shake_events]
+        """Each shake burst's seed key: its place among the spec's shake bursts
+        (:attr:`Event.ordinal`), so a burst stays the same when ``--frames`` drops bursts that
+        start after the cut; bursts built by hand without distinct places take their order
+        (the same keys for a spec's whole list)."""
+        keys = [ev.ordinal for ev in self.shake_events]
         return keys if len(set(keys)) == len(keys) else list(range(len(keys)))
 
     def _ar1(self, n_frames: int, sigma: float, seed: list[int]) -> np.ndarray:

@@ -53,6 +53,7 @@ Determinism
 from __future__ import annotations
 
 import os
+import pickle
 import signal
 import sys
 import threading
@@ -63,6 +64,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from multiprocessing import connection, shared_memory
+from multiprocessing.reduction import ForkingPickler
 from time import perf_counter
 from typing import Any
 
@@ -506,7 +508,12 @@ class StripEngine:
         self._pending_static: list[dict[str, np.ndarray]] = []
         self.procs: list[Any] = []
         self.conns: list[Any] = []
-        self._state = {"procs": self.procs, "conns": self.conns, "shared": [self.shared]}
+        self._state = {
+            "procs": self.procs,
+            "conns": self.conns,
+            "shared": [self.shared],
+            "senders": [],
+        }
         self._finalizer = weakref.finalize(self, _shutdown, self._state)
         sh = self.shared
         sh.alive[:] = 0
@@ -519,8 +526,9 @@ class StripEngine:
         # good, out of reach of START_TIMEOUT_S. SIGINT stays blocked while the workers
         # start, so they begin with it blocked (they ignore it, then unblock it) and a
         # Ctrl-C sent to the whole group never shows a worker's import traceback.
-        bulk = {"world": world, "routes": routes, "static": static}
-        senders = []
+        # pickled here, once: an object that cannot be pickled fails now, not in a thread
+        bulk = bytes(ForkingPickler.dumps({"world": world, "routes": routes, "static": static}))
+        senders = self._state["senders"]
         held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
             for k in range(n_workers):
@@ -767,8 +775,17 @@ def _bare_main() -> Iterator[None]:
 
 
 def _shutdown(state: dict[str, Any]) -> None:
-    """Stop the workers (politely, then terminate, then kill) and unlink the memory."""
-    for conn in state["conns"]:
+    """Stop the workers (politely, then terminate, then kill) and unlink the memory.
+
+    A worker whose start-up data is still being sent gets no "stop" on its pipe (it would
+    interleave with the data): it is terminated, and its sender thread ends with it before
+    the pipe is closed."""
+    senders = state.get("senders", [])
+    sending = [k < len(senders) and senders[k].is_alive() for k in range(len(state["conns"]))]
+    for conn, busy, proc in zip(state["conns"], sending, state["procs"], strict=False):
+        if busy:
+            proc.terminate()
+            continue
         try:
             conn.send(("stop",))
         except (OSError, ValueError):
@@ -781,10 +798,13 @@ def _shutdown(state: dict[str, Any]) -> None:
         if proc.is_alive():
             proc.kill()
             proc.join()
+    for sender in senders:  # their workers are gone: a send fails at once
+        sender.join(STOP_GRACE_S)
     for conn in state["conns"]:
         conn.close()
     for sh in state["shared"]:
         sh.close(unlink=True)
+    senders.clear()
     state["conns"].clear()
     state["procs"].clear()
     state["shared"].clear()
@@ -964,12 +984,12 @@ class _Strip:
         self.shared.close()
 
 
-def _send_quietly(conn: Any, message: Any) -> None:
-    """Send ``message`` on ``conn`` (a worker's start-up data, from a thread); a worker that
-    died or was stopped meanwhile is named by :meth:`StripEngine._gather`, not here."""
+def _send_quietly(conn: Any, data: bytes) -> None:
+    """Send the pickled ``data`` on ``conn`` (a worker's start-up data, from a thread); a
+    worker that died or was stopped meanwhile is named by :meth:`StripEngine._gather`."""
     try:
-        conn.send(message)
-    except (OSError, ValueError):
+        conn.send_bytes(data)
+    except (OSError, ValueError, TypeError):  # TypeError: the pipe was closed under it
         pass
 
 
@@ -985,7 +1005,7 @@ def _worker_main(conn: Any, init: dict[str, Any]) -> None:
     try:
         if init["die_at"] == -2:  # test hook: die before the start-up data is read
             os.kill(os.getpid(), signal.SIGKILL)
-        init = {**init, **conn.recv()}
+        init = {**init, **pickle.loads(conn.recv_bytes())}
         import numba
 
         numba.set_num_threads(int(init["threads"]))

@@ -72,8 +72,10 @@ class Event:
     magnitude : float
         Its strength, in the kind's unit and range (:data:`EVENT_KINDS`).
     index : int
-        Position in the spec's list (for error messages and a shake burst's seed; not
-        compared)
+        Position in the spec's list (for error messages; not compared).
+    ordinal : int
+        Position among the spec's events of the same kind (a shake burst's seed; not
+        compared): it stays when ``--frames`` drops later events.
     """
 
     kind: str
@@ -81,6 +83,7 @@ class Event:
     frames: int = 0
     magnitude: float = 1.0
     index: int = field(default=0, compare=False, repr=False)
+    ordinal: int = field(default=0, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         own = f"events[{self.index}]"
@@ -149,6 +152,7 @@ def parse_events(value: Any, where: str = "spec", n_frames: int | None = None) -
                 frames=item.get("frames", 0),
                 magnitude=item.get("magnitude", 1.0),
                 index=i,
+                ordinal=sum(1 for e in out if e.kind == item["kind"]),
             )
         except ValueError as exc:
             raise ValueError(f"{where}: {exc}") from None

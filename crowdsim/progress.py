@@ -107,8 +107,11 @@ def _keep_ticking(bar: Any, every: float) -> Any:
             b = ref()
             if b is None or b.disable:  # closed (tqdm disables a bar when it closes)
                 return
-            if b._time() - b.last_print_t >= every:
-                b.refresh()
+            with b._lock:  # close() disables the bar before it takes the lock to clear it
+                if b.disable:
+                    return
+                if b._time() - b.last_print_t >= every:
+                    b.refresh(nolock=True)
             del b
 
     threading.Thread(target=tick, name="progress-tick", daemon=True).start()

@@ -28,7 +28,13 @@ from typing import Any
 
 import numpy as np
 
-from crowdsim.atomic import new_study_files, output_folder, sha256_file, study_storage
+from crowdsim.atomic import (
+    StudyStorageError,
+    new_study_files,
+    output_folder,
+    sha256_file,
+    study_storage,
+)
 from crowdsim.checks import require_choice, require_number, require_workers
 from crowdsim.jobs import read_manifest
 from crowdsim.optional import DependencyNotInstalled, require
@@ -648,7 +654,7 @@ def _run_local(
         progress=progress,
         desc="tune",
         unit="trial",
-        passthrough=(ValueError, OSError),  # a study storage that failed (study_storage)
+        passthrough=(ValueError, StudyStorageError),  # a study storage that failed
     )
 
 

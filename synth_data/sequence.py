@@ -78,13 +78,6 @@ def _no_gt(length: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ---------------------------------------------------------------------------- video
-COUNTED_CONTAINERS: frozenset[str] = frozenset(
-    {".mkv", ".webm", ".ts", ".m2ts", ".mts", ".flv", ".mpg", ".mpeg", ".vob", ".ogv"}
-)
-"""Video suffixes whose frame count :class:`VideoSequence` counts by reading the file: their
-headers give none, or one estimated from the duration, wrong for a variable frame rate."""
-
-
 class VideoSequence:
     """Frames of a video file; targets from a points CSV (``init``), no ground truth.
 
@@ -120,9 +113,7 @@ class VideoSequence:
                 raise ValueError(f"{path}: not a readable video file")
             fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
             count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
-            # containers without a frame count, or whose count is an estimate from the
-            # duration (variable frame rate: a 60-frame .mkv said 37): count them
-            if count <= 0 or path.suffix.lower() in COUNTED_CONTAINERS:
+            if count <= 0:  # containers without a frame count: count them
                 count = 1
                 while cap.grab():
                     count += 1
@@ -166,10 +157,11 @@ class VideoSequence:
                     )
                     return
                 yield img
-            if cap.grab():
+            if cap.grab():  # a header's count estimated from the duration (.mkv, .webm)
                 warnings.warn(
                     f"{self.path}: the video holds more frames than the {self.length} its "
-                    "header counts; the later ones are not read",
+                    "header counts (an estimate from its duration, as a variable frame rate "
+                    "gives); the later ones are not read: convert it to MP4 to read them all",
                     DataNote,
                     stacklevel=2,
                 )

@@ -87,6 +87,21 @@ def test_heads_larger_than_the_detector_learnt_are_found_once(tmp_path, rendered
     assert score.f1 >= 0.85, score
 
 
+def test_the_detector_is_told_a_head_size_never_a_body_width():
+    """A MOT17 folder's template size is its body boxes' width: the detector keeps 12 px
+    there (it had shrunk the frame by 12/40 and found 19 of 54 heads)."""
+    from types import SimpleNamespace
+
+    from crowdsim.commands.detect import head_size
+
+    body = SimpleNamespace(info={}, box_type="body", template_size=40)
+    head = SimpleNamespace(info={}, box_type="head", template_size=36)
+    given = SimpleNamespace(info={"templateSize": "30"}, box_type="body", template_size=30)
+    video = SimpleNamespace(template_size=12)
+    assert [head_size(s, None) for s in (body, head, given, video)] == [12.0, 36.0, 30.0, 12.0]
+    assert head_size(body, 20) == 20.0
+
+
 def test_detect_all_frames_with_scores(tmp_path, rendered):
     video, seq = rendered
     out = tmp_path / "all.csv"

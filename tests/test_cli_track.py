@@ -139,7 +139,7 @@ def test_track_evaluate_maps_the_ids_of_a_points_csv_by_the_evidence(tmp_path, s
 def test_evaluate_says_when_the_scores_would_mislead_and_scores_the_frames_asked(
     tmp_path, seq, scene, capsys
 ):
-    """Results of the first 6 of 10 frames, ground truth on 3 frames, head boxes without
+    """Results of the first 6 of 10 frames, ground truth on 2 frames, head boxes without
     boxType: each is named on stderr with the flag that scores it as meant."""
     from synth_data.mot import read_mot_file, write_mot
 
@@ -155,12 +155,12 @@ def test_evaluate_says_when_the_scores_would_mislead_and_scores_the_frames_asked
     first = capsys.readouterr()
     assert json.loads(first.out)["acc@5"] == 100.0 and "note" not in first.err
     gt = read_mot_file(seq / "gt" / "gt.txt")
-    write_mot(seq / "gt" / "gt.txt", gt[np.isin(gt[:, 0], [1, 3, 5])])  # three frames annotated
+    write_mot(seq / "gt" / "gt.txt", gt[np.isin(gt[:, 0], [3, 5])])  # two frames annotated
     info = seq / "seqinfo.ini"
     info.write_text(info.read_text().replace("boxType=head\n", ""))
     assert main(["evaluate", str(out), str(seq), "--json", "--frames", "6"]) == 0
     few = capsys.readouterr().err
-    assert "ground truth on 3 of 6 frames: MOTA, IDF1 and HOTA count every tracked point" in few
+    assert "ground truth on 2 of 6 frames: MOTA, IDF1 and HOTA count every tracked point" in few
     assert "seqinfo.ini gives no boxType" in few and "median height/width 1.00" in few
     info.write_text(info.read_text() + "boxType=head\n")
     assert (
@@ -171,6 +171,8 @@ def test_evaluate_says_when_the_scores_would_mislead_and_scores_the_frames_asked
     assert rep["acc@5"] == 100.0 and rep["mota"] == pytest.approx(100.0) and "note" not in only.err
     assert main(["evaluate", str(out), str(seq), "--frames", "11"]) == 2
     assert "--frames must be in [1, 10]" in _error_line(capsys, "evaluate")
+    assert main(["evaluate", str(out), str(seq), "--frames", "2", "--annotated-frames"]) == 2
+    assert "no ground truth in the 2 frames scored" in _error_line(capsys, "evaluate")
 
 
 def test_a_cut_video_is_tracked_to_its_end_with_a_note(tmp_path, scene, capsys):

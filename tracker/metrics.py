@@ -356,6 +356,8 @@ def resolve_id_mapping(
     gt_ids, gt_points, tr_ids, tr_points = _align(gt_ids, gt_points, tr_ids, tr_points, False)
     own = point_errors(gt_ids, gt_points, tr_ids[known], tr_points[:, known]) <= radius
     near = _near_anyone(gt_points, tr_points[:, known], radius)
+    if near == 0:  # no evidence either way: known ids are taken at their word
+        return "same" if known.all() else "majority"
     return "same" if int(own.sum()) > ID_AGREEMENT * near else "majority"
 
 

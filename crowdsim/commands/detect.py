@@ -54,6 +54,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def head_size(src: object, given: int | None) -> float:
+    """The head size, px, the detector is told for ``src``: ``given`` (``--template-size``),
+    else the sequence's own where it is a head size (a video's, a MOT folder's
+    ``templateSize`` or head boxes), else 12: a MOT17 folder's template size is the median
+    width of its body boxes, not of heads."""
+    if given:
+        return float(given)
+    info = getattr(src, "info", None)
+    if info is not None and "templateSize" not in info and getattr(src, "box_type", "") != "head":
+        return 12.0
+    return float(getattr(src, "template_size", 12))
+
+
 def detector_params(weights: str | None, threshold: float | None, flag: str) -> object:
     """:meth:`tracker.detect.DetectorParams.given`, a bad threshold named by its flag."""
     from tracker.detect import DetectorParams
@@ -89,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         )
     detector = HeadDetector(detector_params(args.weights, args.threshold, "--threshold"))
     src = open_sequence(args.input)
-    detector.template_size = float(args.template_size or getattr(src, "template_size", 12))
+    detector.template_size = head_size(src, args.template_size)
     n = src.length if args.all else min(args.frames, src.length)
     buf = io.StringIO()
     buf.write("frame,id,x,y,score\n" if args.scores else "frame,id,x,y\n")

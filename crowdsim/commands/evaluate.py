@@ -143,16 +143,18 @@ def scored_frames(args: argparse.Namespace, seq, gt_pts, pts):
             )
         gt_pts, pts, n = gt_pts[: args.frames], pts[: args.frames], args.frames
     tracked = np.flatnonzero(np.isfinite(pts).all(-1).any(1)) if pts.shape[1] else []
-    if args.frames is None and len(tracked) and tracked[-1] + 1 < n:
-        last = int(tracked[-1]) + 1
+    annotated = np.isfinite(gt_pts).all(-1).any(1)
+    last = int(tracked[-1]) + 1 if len(tracked) else n
+    if args.frames is None and last < n and annotated[last:].any():  # people after the end
         note(
             f"the results end at frame {last} of {n}; the people of frames {last + 1}-{n} count "
             f"as missed (--frames {last} scores the first {last})"
         )
-    annotated = np.isfinite(gt_pts).all(-1).any(1)
+    if not annotated.any():
+        raise ValueError(f"{args.sequence}: no ground truth in the {n} frames scored")
     if args.annotated_frames:
         gt_pts, pts = gt_pts[annotated], pts[annotated]
-    elif annotated.sum() < n and np.isfinite(pts[~annotated]).any():
+    elif annotated.sum() < n / 2 and np.isfinite(pts[~annotated]).any():  # a few annotated
         note(
             f"ground truth on {int(annotated.sum())} of {n} frames: MOTA, IDF1 and HOTA count "
             "every tracked point of the others as a false positive (--annotated-frames scores "

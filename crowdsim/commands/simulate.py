@@ -163,10 +163,15 @@ def check_inflow_memory(sim, steps: int) -> None:
     20000`` ends with about 3,400 people and 3.4 GB; :func:`check_args` counts ``--agents``)."""
     from crowdsim.checks import require_memory
 
-    rate = sum(float(src.rate) for src in sim.sources)  # people a second, all sources
-    if rate <= 0:
+    seconds = steps * sim.params.dt
+    # people from each source while it is open (Source.start .. stop, seconds)
+    arrivals = sum(
+        float(src.rate) * max(0.0, min(float(src.stop), seconds) - max(float(src.start), 0.0))
+        for src in sim.sources
+    )
+    if arrivals <= 0:
         return
-    arrivals = rate * steps * sim.params.dt
+    rate = arrivals / max(seconds, 1e-12)
     people = len(sim.state.ids) + arrivals
     require_memory(
         f"--steps {steps} with the scenario's inflow (about {arrivals:,.0f} more people at "

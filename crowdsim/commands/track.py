@@ -372,12 +372,16 @@ def run(args: argparse.Namespace) -> int:
     src = open_sequence(args.input, init=None if use_detector else args.init)
     if is_folder:
         verify_folder(src)  # a damaged, truncated or swapped image is named, not tracked
+        if args.evaluate and not len(src.gt_points()[0]):
+            raise ValueError(f"--evaluate: {args.input} has no ground truth (gt/gt.txt) to score")
         square = box_type_note(src)
         if square:
             print(f"crowdsim track: note: {square}", file=sys.stderr)
     size = int(size or src.template_size)
     if detector is not None:  # heads beyond the sizes it learnt are found on a shrunk frame
-        detector.template_size = float(size)
+        from crowdsim.commands.detect import head_size
+
+        detector.template_size = head_size(src, args.template_size)
     start, births = _detected_start(args, src, detector, size, use_detector)
     if args.params or args.policy:
         tracker, feed, what = _tuned(args, src)

@@ -322,8 +322,8 @@ def test_an_in_memory_sequence_refuses_what_no_tracker_could_read():
 
 
 def test_a_video_whose_header_miscounts_its_frames_is_said_so(tmp_path, crowd):
-    """A cut file (the header counts 30, the decoder gives fewer) warns as a DataNote; a
-    .mkv is counted by reading it (its header's count is an estimate from the duration)."""
+    """A cut file (the header counts 30, the decoder gives fewer) warns as a DataNote;
+    whole files give no note."""
     import warnings
 
     from crowdsim.checks import DataNote

@@ -455,3 +455,5 @@ def test_known_id_numbers_on_other_people_are_mapped_by_majority():
     assert rep["id_mapping"] == "majority" and rep["acc@5"] == 100.0
     same = evaluate([1, 2], gt, [1, 2], gt, id_mapping="auto")
     assert same["id_mapping"] == "same" and same["acc@5"] == 100.0
+    far = gt + 100.0  # known ids near nobody: no evidence, taken at their word
+    assert evaluate([1, 2], gt, [1, 2], far, id_mapping="auto")["id_mapping"] == "same"

@@ -205,9 +205,13 @@ class HeadDetector:
         found on the frame shrunk to :data:`SCALE_TO_PX` px heads, and their points scaled
         back (at full size a head three times too large was found 2.2 times over)."""
         frame = np.asarray(frame)
+        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+            self.heatmap(frame)  # names what is wrong with it
         h, w = frame.shape[:2]
         scale = SCALE_TO_PX / self.template_size if self.template_size > TRAINED_HEAD_PX[1] else 1
-        if scale < 1 and min(h, w) >= MIN_SIDE:  # never below the network's smallest input
+        if min(h, w) < MIN_SIDE:  # too small already: the network says so at full size
+            scale = 1
+        elif scale < 1:  # never below the network's smallest input
             scale = max(scale, MIN_SIDE / min(h, w))
         small = frame
         if scale < 1:
