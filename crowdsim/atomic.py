@@ -303,8 +303,8 @@ class StudyStorageError(OSError):
 def study_storage(url: str | None) -> Iterator[None]:
     """Run trials on an Optuna study in the block: a storage that fails mid-run (a full disk,
     a database locked or gone) ends as one :class:`StudyStorageError` (an ``OSError``) naming
-    the storage and the cause,
-    not as Optuna's and SQLAlchemy's traceback. The study keeps the trials it finished."""
+    the storage and the cause, not as Optuna's and SQLAlchemy's traceback. The study keeps
+    the trials it finished."""
     try:
         yield
     except Exception as exc:  # noqa: BLE001 - only storage failures are turned into OSError

@@ -525,8 +525,8 @@ class StripEngine:
         # a worker that died before reading it all left the parent blocked in start() for
         # good, out of reach of START_TIMEOUT_S. SIGINT stays blocked while the workers
         # start, so they begin with it blocked (they ignore it, then unblock it) and a
-        # Ctrl-C sent to the whole group never shows a worker's import traceback.
-        # pickled here, once: an object that cannot be pickled fails now, not in a thread
+        # Ctrl-C sent to the whole group never shows a worker's import traceback. The data is
+        # pickled here, once: an object that cannot be pickled fails now, not in a thread.
         bulk = bytes(ForkingPickler.dumps({"world": world, "routes": routes, "static": static}))
         senders = self._state["senders"]
         held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})

@@ -113,6 +113,8 @@ def check_args(args: argparse.Namespace) -> None:
         raise ValueError(
             f"--similarity-px must be in (0, {MAX_SIMILARITY_PX:g}] px, got {args.similarity_px}"
         )
+    if args.frames is not None and args.frames < 1:
+        raise ValueError(f"--frames must be >= 1, got {args.frames}")
     results = Path(args.results)
     if results.is_dir():
         raise ValueError(f"{args.results}: is a folder, not a MOT results file")
