@@ -128,7 +128,7 @@ def as_points(ids, points, what: str = "targets") -> tuple[np.ndarray, np.ndarra
     uniq, counts = np.unique(ids, return_counts=True)
     if (counts > 1).any():
         raise ValueError(f"{what}: duplicate ids {uniq[counts > 1][:5].tolist()}")
-    return ids.astype(np.int64), points
+    return ids.astype(np.int64), points.copy()  # never the caller's array: _add may keep it
 
 
 def _checked_births(births: Any, n_frames: int | None) -> dict[int, Births]:

@@ -2,7 +2,11 @@
 
 A tracker is registered as a lazily imported ``"module:Class"`` with its parameter dataclass
 and the parameter overrides that make the named variant (``bqp-ncc`` is the BQP tracker with
-NCC appearance). Adding a tracker is one line in :data:`TRACKERS`.
+NCC appearance). Adding a tracker is one line in :data:`TRACKERS`; its tests then ask for its
+accuracy floor on the planted crowd (``tests/tracker/accuracy_floor.json``: a few points under
+what ``test_plant_and_recover_accuracy_floor`` measures), and a row in
+:data:`envs.param_space.TUNABLES` makes it tunable. ``crowdsim compare --trackers NAME`` gives it
+a row of its own.
 
 >>> sorted(names())[:3]
 ['bqp', 'bqp-dense', 'bqp-ncc']

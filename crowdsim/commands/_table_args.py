@@ -118,10 +118,12 @@ def run_table_command(args: argparse.Namespace, rows, title: str, paper_table: s
 def add_tracker_argument(p: argparse.ArgumentParser) -> None:
     """``--tracker NAME``: a tracker with a row of tunables (``tune``, ``train``, ``heldout``,
     ``headroom``); checked by :func:`envs.param_space.require_tunable` when the work starts."""
+    from envs.param_space import tunable_trackers  # the TUNABLES table, so a new row shows
+
     p.add_argument(
         "--tracker",
         default="bqp",
-        help="tunable tracker from the registry (bqp, bqp-ncc, bqp-dense, pnmc, ncc; default bqp)",
+        help=f"tunable tracker from the registry ({', '.join(tunable_trackers())}; default bqp)",
     )
 
 

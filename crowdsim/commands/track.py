@@ -420,7 +420,9 @@ def run(args: argparse.Namespace) -> int:
                 fps=getattr(src, "frame_rate", 25.0),
             )
     stages = ", ".join(f"{k} {v:.1f} ms" for k, v in run.stage_ms.items())
-    speed = f"{run.fps:.1f} frames/s ({stages} per frame)" if stages else "no frame stepped"
+    speed = f"{run.fps:.1f} frames/s" + (f" ({stages} per frame)" if stages else "")
+    if result.n_frames <= 1:
+        speed = "no frame stepped"
     print(
         f"{run.tracker}: {result.n_frames} frames, {len(result.ids)} targets, {speed} -> {out}",
         file=sys.stderr,

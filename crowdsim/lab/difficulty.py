@@ -57,7 +57,9 @@ def variant_specs(spec: Any, groups: Sequence[str] | None = None) -> list[tuple[
     out = [("calibrated", replace(spec, name=f"{spec.name}.calibrated"))]
     margin = ground_margin(spec)
     for group in chosen:
-        names = DIFFICULTY_GROUPS[group]
+        # a knob with no base_* value recorded (added after the spec was calibrated) was not
+        # moved by the calibration: the spec's own value is its base
+        names = [n for n in DIFFICULTY_GROUPS[group] if n in section]
         values = {(section[n], n): base[(section[n], n)] for n in names}
         v = apply_knobs(spec, values)
         if ground_margin(v) < margin:  # the same ground as the calibrated spec

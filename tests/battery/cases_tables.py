@@ -351,7 +351,7 @@ case(
 case(
     "tables-compare-trackers-unknown",
     "compare --trackers bqp nosuch --out {w}/o",
-    "--trackers: no compare row runs 'nosuch'&&bqp",
+    "unknown tracker 'nosuch'; valid trackers: bqp",
 )
 case(
     "tables-compare-set-unknown",

@@ -152,3 +152,14 @@ def test_candidate_actions_are_the_defaults_then_sobol_points_over_the_whole_box
     want = 2.0 * qmc.Sobol(5, scramble=True, seed=3).random(8) - 1.0
     np.testing.assert_array_equal(actions[1:], want)
     assert (actions[1:] < 0).any() and (actions[1:] > 0).any()
+
+
+def test_the_default_distribution_holds_every_scenario():
+    """--scenarios all draws from DEFAULT_SCENARIOS, a fixed order: a new scenario must be
+    appended there (the end keeps every earlier draw), or it is left out in silence."""
+    from crowdsim.scenarios import SCENARIOS
+    from envs.episodes import DEFAULT_SCENARIOS
+
+    missing = sorted(set(SCENARIOS) - set(DEFAULT_SCENARIOS))
+    assert not missing, f"append {missing} to envs.episodes.DEFAULT_SCENARIOS"
+    assert len(DEFAULT_SCENARIOS) == len(set(DEFAULT_SCENARIOS)) == len(SCENARIOS)

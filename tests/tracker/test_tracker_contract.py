@@ -42,6 +42,11 @@ checked by ``test_detection_trackers.py`` too."""
 
 
 def test_every_point_tracker_has_a_floor():
+    missing = sorted(set(KEEPS_IDS) - set(FLOOR))
+    assert not missing, (
+        f"add a floor for {missing} to tests/tracker/accuracy_floor.json: a few points under "
+        "the acc@5 and acc@15 that test_plant_and_recover_accuracy_floor measures for it"
+    )
     assert set(FLOOR) - {"_comment"} == set(KEEPS_IDS)
 
 
@@ -265,3 +270,14 @@ def test_run_tracker_refuses_a_start_without_its_births_mapping():
     assert res.fps == res.result.fps > 0
     one = run_tracker("ncc", Source(), metrics="none", frames=1)  # nothing tracked: no rate
     assert one.fps == one.result.fps == 0.0
+
+
+def test_a_tracker_gets_its_own_copy_of_the_callers_points():
+    """as_points hands the tracker a copy: one that moves its points in place had moved the
+    caller's initial points and births (20.0 -> 20.25, seen by a contributor)."""
+    from tracker.base import as_points
+
+    pts = np.array([[20.0, 30.0]])
+    _, got = as_points([1], pts)
+    got += 0.25
+    assert pts.tolist() == [[20.0, 30.0]]

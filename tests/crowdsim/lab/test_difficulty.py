@@ -39,6 +39,20 @@ def test_each_variant_resets_exactly_one_group_to_the_uncalibrated_values():
     assert len({v.name for v in variants.values()}) == len(variants)
 
 
+def test_a_knob_newer_than_the_calibration_keeps_its_value():
+    """A knob added after a spec was calibrated has no base_* value: its group's variant
+    keeps the spec's own value (it had raised KeyError, a traceback from difficulty)."""
+    from dataclasses import replace
+
+    (spec,) = suite_specs("ucf9", ["seq9"])
+    group, names = next(iter(DIFFICULTY_GROUPS.items()))
+    newer = names[0]
+    cal = {k: v for k, v in spec.calibration.items() if not k.endswith(f"_{newer}")}
+    assert len(cal) == len(spec.calibration) - 1
+    variants = dict(variant_specs(replace(spec, calibration=cal)))
+    assert _knobs(variants[f"-{group}"])[newer] == _knobs(spec)[newer]
+
+
 def test_the_still_twin_of_a_shaken_spec_draws_its_ground():
     """ucf9-shake's seq4 shakes by 1.59 px, uncalibrated not at all: its -shake variant keeps
     the 8 px of ground the shake needs, so the two render the same ground and differ by the

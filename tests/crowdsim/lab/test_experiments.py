@@ -552,3 +552,8 @@ def test_compare_trackers_and_cmc_run_only_those_rows(tmp_path, capsys):
     assert (out / "table.md").read_text().startswith("# compare on ")
     assert "with search_factor=1.5" in (out / "table.md").read_text().splitlines()[0]
     assert len(json.loads((out / "cells.json").read_text())["cells"]) == 4
+    # a registered tracker without a row of its own gets one under its name
+    argv = ["compare", "--suite", str(suite), "--trackers", "bqp-dense", "--no-progress"]
+    assert main([*argv, "--out", str(tmp_path / "dense")]) == 0
+    table = (tmp_path / "dense" / "table.md").read_text()
+    assert "| bqp-dense |" in table
