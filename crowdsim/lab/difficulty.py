@@ -135,7 +135,7 @@ def attribute(
     """
     import json
 
-    from crowdsim.lab.experiments import Row, cell_key, run_table
+    from crowdsim.lab.experiments import Row, cell_key, cut_spec, run_table
     from synth_data.suites import suite_specs
     from tracker.registry import get
 
@@ -172,7 +172,7 @@ def attribute(
             per = {}
             for row in rows:
                 acc = {
-                    label: float(cells[cell_key(sp.name, row, frames)]["acc@15"])
+                    label: float(cells[cell_key(cut_spec(sp, frames), row, frames)]["acc@15"])
                     for label, sp in vs
                 }
                 per[row.label] = {

@@ -295,10 +295,17 @@ def takes_detections(tracker: str) -> bool:
     return hasattr(get(tracker).tracker_class(), "use_detections")
 
 
-def cell_key(seq: str, row: Row, frames: int | None) -> str:
+def cut_spec(spec: Any, frames: int | None) -> Any:
+    """``spec`` as a table runs it with ``--frames`` (its first ``frames`` frames)."""
+    return spec if frames is None else replace(spec, frames=min(spec.frames, frames))
+
+
+def cell_key(seq: Any, row: Row, frames: int | None) -> str:
     """The manifest key of a cell: sequence, tracker, its complete parameters and, for a
     tracker fed detections, its complete detector (a digest, so that a changed default is not
-    mistaken for a finished cell) and the frame count."""
+    mistaken for a finished cell) and the frame count. ``seq`` is the sequence's spec (its
+    name and the digest of what it renders: another suite's ``seq8``, or an edited spec, is
+    another cell) or, for a caller without one, its name."""
     import dataclasses
     import hashlib
 
@@ -316,7 +323,8 @@ def cell_key(seq: str, row: Row, frames: int | None) -> str:
                 "weights": weights_digest(detector),
             }
     digest = hashlib.sha256(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
-    return f"{seq}|{row.tracker}|params={digest}|frames={frames or 'all'}"
+    name = seq if isinstance(seq, str) else f"{seq.name}@{seq.digest()[:12]}"
+    return f"{name}|{row.tracker}|params={digest}|frames={frames or 'all'}"
 
 
 def run_table(
@@ -392,12 +400,11 @@ def run_table(
             raise ValueError(f"--only: no sequence {unknown[0]!r} among the specs")
         specs = [sp for sp in specs if not only or sp.name in only]
         suite, paper = "specs", {}
-    if frames is not None:
-        specs = [replace(s, frames=min(s.frames, frames)) for s in specs]
+    specs = [cut_spec(s, frames) for s in specs]
     labels = [r.label for r in rows]
     if len(set(labels)) != len(labels):
         raise ValueError(f"{title}: two rows share the label {_first_dup(labels)!r}")
-    keys = {(s.name, r.label): cell_key(s.name, r, frames) for s in specs for r in rows}
+    keys = {(s.name, r.label): cell_key(s, r, frames) for s in specs for r in rows}
     if len(set(keys.values())) != len(keys):
         raise ValueError(
             f"{title}: two rows run the same tracker with the same parameters "

@@ -206,6 +206,19 @@ def test_knob_values_are_validated():
 
 
 # ------------------------------------------------------------------ the tables map cells right
+def test_a_sequence_of_another_suite_or_an_edited_spec_is_another_cell():
+    """The key holds the digest of what the spec renders: another suite's seq8 of the same
+    name had reused the first suite's cells (and shown them under the second's title)."""
+    from synth_data.suites import suite_specs
+
+    row = experiments.COMPARE_ROWS[0]
+    (still,) = suite_specs("ucf9", ["seq8"])
+    (shaken,) = suite_specs("ucf9-shake", ["seq8"])
+    assert still.name == shaken.name
+    assert experiments.cell_key(still, row, 30) != experiments.cell_key(shaken, row, 30)
+    assert experiments.cell_key(still, row, 30) == experiments.cell_key(still, row, 30)
+
+
 def test_every_row_has_its_own_cell_key():
     for rows in (experiments.COMPARE_ROWS, experiments.ablation_rows()):
         for frames in (None, 40):
@@ -247,11 +260,12 @@ def _differing_specs():
 def test_cells_are_read_back_per_sequence_and_method(tmp_path):
     out = tmp_path / "t"
     rows = (Row("NCC", "ncc", paper="NCC"), Row("mean-shift", "meanshift", paper="MS"))
-    run_table(rows, _differing_specs(), out, progress=False, log=lambda m: None)
+    specs = _differing_specs()
+    run_table(rows, specs, out, progress=False, log=lambda m: None)
     cells = json.loads((out / "cells.json").read_text())["cells"]
     by = {
-        (seq, row.label): cells[experiments.cell_key(seq, row, None)]
-        for seq in ("a", "b")
+        (sp.name, row.label): cells[experiments.cell_key(sp, row, None)]
+        for sp in specs
         for row in rows
     }
     figures = {k: (c["acc@15"], c["mota"], c["hota"]) for k, c in by.items()}
@@ -323,18 +337,18 @@ def test_a_hand_edited_cell_is_refused_naming_it(tmp_path, monkeypatch):
     path = out / "cells.json"
     original = path.read_bytes()
     data = json.loads(original)
-    key = experiments.cell_key("a", ROWS[0], None)
+    key = experiments.cell_key(tiny("a"), ROWS[0], None)
     data["cells"][key]["acc@15"] = 999.0
     path.write_text(json.dumps(data))
     before = path.read_bytes()
     with pytest.raises(
-        ValueError, match=r"cells.json: cell 'a\|ncc\|.*does not match its checksum"
+        ValueError, match=r"cells.json: cell 'a@[0-9a-f]{12}\|ncc\|.*does not match its checksum"
     ):
         run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
     assert path.read_bytes() == before
     # a cell moved under another key fails as well
     data = json.loads(original)
-    other = experiments.cell_key("a", ROWS[1], None)
+    other = experiments.cell_key(tiny("a"), ROWS[1], None)
     data["cells"][key], data["cells"][other] = data["cells"][other], data["cells"][key]
     path.write_text(json.dumps(data))
     with pytest.raises(ValueError, match="does not match its checksum"):
@@ -468,7 +482,9 @@ def test_a_detection_row_tracks_with_its_own_detector(tmp_path):
     out = tmp_path / "t"
     run_table(rows, [tiny("a", frames=10)], out, progress=False, log=lambda m: None)
     cells = experiments.read_cells(out / experiments.CELLS_FILE)
-    acc = {r.label: cells[experiments.cell_key("a", r, None)]["acc@15"] for r in rows}
+    acc = {
+        r.label: cells[experiments.cell_key(tiny("a", frames=10), r, None)]["acc@15"] for r in rows
+    }
     assert acc["clean"] > 80.0 and acc["poor"] < 20.0
 
 
@@ -479,7 +495,7 @@ def test_a_row_fed_by_the_trained_detector_finds_the_people(tmp_path):
     out = tmp_path / "t"
     run_table(rows, [tiny("a", frames=10)], out, progress=False, log=lambda m: None)
     cells = experiments.read_cells(out / experiments.CELLS_FILE)
-    assert cells[experiments.cell_key("a", rows[0], None)]["acc@15"] > 70.0
+    assert cells[experiments.cell_key(tiny("a", frames=10), rows[0], None)]["acc@15"] > 70.0
 
 
 def test_new_weights_are_a_new_cell(tmp_path):
