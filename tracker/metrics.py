@@ -445,9 +445,17 @@ def plot_accuracy(
     Up to four methods share the plot with their legend; more get the legend beside it."""
     beside = len(curves) > 4
     fig, ax = new_figure(figsize=(7.2 if beside else 5, 3.6), dpi=120)
-    for name, curve in curves.items():
+    styles = ("-", "--", ":", "-.")  # past the colour cycle's 10 colours, another line style
+    for k, (name, curve) in enumerate(curves.items()):
         curve = np.asarray(curve, dtype=np.float64)
-        ax.plot(THRESHOLDS[: len(curve)], curve, marker="o", markersize=3, label=name)
+        ax.plot(
+            THRESHOLDS[: len(curve)],
+            curve,
+            styles[(k // 10) % len(styles)],
+            marker="os^D"[(k // 10) % 4],
+            markersize=3,
+            label=name,
+        )
     ax.set_xlabel("pixel threshold T (px)")
     ax.set_ylabel("tracking accuracy (%)")
     ax.set_xlim(0, THRESHOLDS[-1])

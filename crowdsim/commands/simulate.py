@@ -24,6 +24,8 @@ def parse_assignments(items: list[str] | None, flag: str) -> dict[str, Any]:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise ValueError(f"{flag} expects NAME=VALUE, got {item!r}")
+        if key.strip() in out:  # the last would win in silence
+            raise ValueError(f"{flag} {key.strip()} is given twice")
         try:
             out[key.strip()] = float(value) if _is_float(value) else yaml.safe_load(value)
         except yaml.YAMLError:

@@ -401,6 +401,8 @@ def run_table(
         specs = [sp for sp in specs if not only or sp.name in only]
         suite, paper = "specs", {}
     specs = [cut_spec(s, frames) for s in specs]
+    if frames is not None:  # never beside the papers' whole-sequence figures unsaid
+        title += f", first {frames} frames of each sequence"
     labels = [r.label for r in rows]
     if len(set(labels)) != len(labels):
         raise ValueError(f"{title}: two rows share the label {_first_dup(labels)!r}")
@@ -471,7 +473,7 @@ def run_table(
     outputs: dict[str, Callable[[Path], object]] = {
         "table.md": lambda p: p.write_text(text),
         "table.csv": lambda p: p.write_text(csv_text),
-        **_curve_writers(rows, names, cells),
+        **_curve_writers(rows, names, cells, title),
     }
     if finish is not None:
         outputs.update(finish(done))
@@ -557,9 +559,11 @@ def table_csv(
 
 
 def _curve_writers(
-    rows: Sequence[Row], seqs: Sequence[str], cells: dict
+    rows: Sequence[Row], seqs: Sequence[str], cells: dict, run: str = ""
 ) -> dict[str, Callable[[Path], object]]:
-    """``{"curves/<sequence>.png": write(path)}``: each sequence's accuracy curves."""
+    """``{"curves/<sequence>.png": write(path)}``: each sequence's accuracy curves, titled
+    with the run's title (its settings and frames: a curve of another run in the same folder
+    says which)."""
     from tracker.metrics import plot_accuracy
 
     writers: dict[str, Callable[[Path], object]] = {}
@@ -568,6 +572,6 @@ def _curve_writers(
             r.label: cells[(s, r.label)]["curve"] for r in rows if cells[(s, r.label)].get("curve")
         }
         if curves:
-            title = f"{s}: accuracy vs threshold"
+            title = f"{s}: accuracy vs threshold" + (f"\n{run}" if run else "")
             writers[f"curves/{s}.png"] = lambda p, c=curves, t=title: plot_accuracy(c, p, title=t)
     return writers

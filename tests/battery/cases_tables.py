@@ -354,6 +354,11 @@ case(
     "unknown tracker 'nosuch'; valid trackers: bqp",
 )
 case(
+    "tables-compare-set-twice",
+    "compare --trackers bqp --set zeta=0.3 --set zeta=0.4 --out {w}/o",
+    "--set zeta is given twice",
+)
+case(
     "tables-compare-set-unknown",
     "compare --set nosuch=1 --out {w}/o",
     "--set nosuch: no row's tracker has that parameter&&bqp",
