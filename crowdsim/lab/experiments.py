@@ -160,6 +160,10 @@ def paper_numbers(suite: Any) -> dict[str, dict[str, dict[str, float]]]:
     return numbers(suite)
 
 
+_WARMED: set[str] = set()
+"""Trackers (with their overrides) this process has run once: their kernels are compiled."""
+
+
 def run_cell(
     seq_dir: str,
     tracker: str,
@@ -169,7 +173,9 @@ def run_cell(
 ) -> dict[str, Any]:
     """Track one sequence with one row; JSON-ready figures and the accuracy curve.
 
-    ``detections``: the detector of a tracking-by-detection row (:class:`Row`).
+    ``detections``: the detector of a tracking-by-detection row (:class:`Row`). The first
+    cell of a detection-free tracker in a process tracks a few frames first, untimed, so
+    that its frames/s never counts the kernels' compilation.
     """
     from synth_data.detections import attach_detections
     from synth_data.sequence import open_sequence
@@ -186,6 +192,14 @@ def run_cell(
             attach_detections(trk, source, detections)
 
     source = open_sequence(seq_dir)
+    key = json.dumps([tracker, overrides], sort_keys=True, default=str)
+    if key not in _WARMED and not takes_detections(tracker):
+        # a first run compiles the numba kernels (about 30 s on a fresh clone), which the
+        # cell's frames/s must not count: a few frames of the same sequence compile them
+        run_tracker(
+            make_tracker(tracker, **overrides), source, frames=min(3, source.length), metrics="none"
+        )
+        _WARMED.add(key)
     run = run_tracker(make_tracker(tracker, **overrides), source, frames=frames, prepare=prepare)
     out = run.summary()
     out["curve"] = [c["acc"] for c in run.report.get("curve", [])]

@@ -573,3 +573,25 @@ def test_compare_trackers_and_cmc_run_only_those_rows(tmp_path, capsys):
     assert main([*argv, "--out", str(tmp_path / "dense")]) == 0
     table = (tmp_path / "dense" / "table.md").read_text()
     assert "| bqp-dense |" in table
+
+
+def test_a_trackers_first_cell_is_timed_after_its_kernels_compile(tmp_path, monkeypatch):
+    """The first cell of a tracker in a process runs a few untimed frames first (a fresh
+    clone's first BQP cell had read 1.0 frames/s, the compilation's 33 s); later cells don't."""
+    import tracker.runner as runner
+    from synth_data.generate import generate
+
+    generate([tiny("w")], tmp_path / "s", progress=False, log=lambda m: None)
+    calls = []
+    real = runner.run_tracker
+    monkeypatch.setattr(
+        runner, "run_tracker", lambda *a, **k: calls.append(k.get("frames")) or real(*a, **k)
+    )
+    monkeypatch.setattr(experiments, "_WARMED", set())
+    seq = str(tmp_path / "s" / "w")
+    first = experiments.run_cell(seq, "ncc", {}, None)
+    assert calls == [3, None]  # the warm-up, then the timed cell
+    second = experiments.run_cell(seq, "ncc", {}, None)
+    assert calls == [3, None, None] and first["acc@15"] == second["acc@15"]
+    experiments.run_cell(seq, "ncc", {"search_factor": 1.5}, None)  # other kernels' types
+    assert calls[3:] == [3, None]
