@@ -206,6 +206,7 @@ def attribute(
         log=log,
         more_outputs=("attribution.json", "attribution.md"),
         finish=attribution,
+        mean=False,  # its columns are variants of one sequence: their mean means nothing
     )
     return doc
 

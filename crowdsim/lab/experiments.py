@@ -356,6 +356,7 @@ def run_table(
     paper_table: str = "acc@15",
     log: Callable[[str], None] = print,
     more_outputs: Sequence[str] = (),
+    mean: bool = True,
     finish: Callable[[dict[str, dict[str, Any]]], dict[str, Callable[[Path], object]]]
     | None = None,
 ) -> str:
@@ -379,6 +380,9 @@ def run_table(
         ``backend="ray"``.
     paper_table : str
         The section of the suite's ``paper.json`` holding the 15 px figures of these rows.
+    mean : bool
+        Give each metric a column of the mean over the sequences (not for ``difficulty``,
+        whose columns are variants of the same sequence).
     more_outputs, finish
         Further files the caller writes into ``out`` (checked with the table's own before any
         work) and, called with the finished cells (:func:`read_cells`), their writers
@@ -482,7 +486,7 @@ def run_table(
     done = read_cells(out / CELLS_FILE)
     cells = {cell: done[key] for cell, key in keys.items()}
     names = [s.name for s in specs]
-    text = format_table(rows, names, cells, paper, paper_table, title)
+    text = format_table(rows, names, cells, paper, paper_table, title, mean=mean)
     csv_text = table_csv(rows, names, cells, paper, paper_table)
     outputs: dict[str, Callable[[Path], object]] = {
         "table.md": lambda p: p.write_text(text),
@@ -514,8 +518,10 @@ def format_table(
     paper: dict,
     paper_table: str = "acc@15",
     title: str = "comparison",
+    mean: bool = True,
 ) -> str:
-    """Markdown: one section per metric, rows = methods, columns = sequences and the mean.
+    """Markdown: one section per metric, rows = methods, columns = sequences and (``mean``)
+    their mean.
 
     Accuracy cells read ``ours (paper)`` where the papers report the figure.
     """
@@ -524,8 +530,8 @@ def format_table(
         lines += [
             f"## {heading}",
             "",
-            "| method | " + " | ".join(seqs) + " | mean |",
-            "|---" * (len(seqs) + 2) + "|",
+            "| method | " + " | ".join(seqs) + (" | mean |" if mean else " |"),
+            "|---" * (len(seqs) + 1 + mean) + "|",
         ]
         for row in rows:
             vals, texts = [], []
@@ -537,8 +543,10 @@ def format_table(
                 t = "n/a" if v is None else f"{v:.1f}{unit}"
                 texts.append(t if ref is None else f"{t} ({ref:g})")
             good = [v for v in vals if v is not None]
-            mean = f"{sum(good) / len(good):.1f}{unit}" if good else "n/a"
-            lines.append(f"| {row.label} | " + " | ".join(texts) + f" | {mean} |")
+            avg = f"{sum(good) / len(good):.1f}{unit}" if good else "n/a"
+            lines.append(
+                f"| {row.label} | " + " | ".join(texts) + (f" | {avg} |" if mean else " |")
+            )
         lines.append("")
     lines.append("Figures in brackets: the papers' (paper 1 Tables 1-3, paper 2 Table 1).")
     if any(r.paper in ELEVEN for r in rows):
