@@ -98,12 +98,15 @@ REGISTRIES: dict[str, str] = {
     "tracker.registry": "tracker.",
     "envs": "envs.",
     "crowdsim.bench": "crowdsim.bench.",
+    "envs.param_space": "tracker.",  # TUNABLES: keyed by the trackers' parameter classes
 }
 """Modules that hold a string registry, and the package its targets must live in (rule 5)."""
 OPTIONAL = "crowdsim.optional"
 """The one module that imports by a computed name: third-party stacks, named by each caller."""
 
 _TARGET = re.compile(r"^(crowdsim|tracker|synth_data|envs)(\.\w+)+(:\w+)?$")
+_ANY_TARGET = re.compile(r"^[A-Za-z_]\w*(\.\w+)*:[A-Za-z_]\w*$")
+"""A ``"module:Class"`` target of any package: one outside the project breaks rule 5 too."""
 _DYNAMIC = {"import_module", "__import__", "run_module", "run_path", "spec_from_file_location"}
 
 
@@ -217,11 +220,12 @@ class Tree:
             yield from self._walk(child, here, inner)
 
     def registry_targets(self, module: str) -> Iterator[tuple[int, str]]:
-        """``(line, "module[:attr]")`` of every project target string in a registry module."""
+        """``(line, "module[:attr]")`` of every target string in a registry module: the
+        project's, and any other package's ``"module:Class"``."""
         tree = ast.parse(self.sources[self.modules[module]])
         for node in ast.walk(tree):
             text = _literal(node) if isinstance(node, ast.Constant) else None
-            if text and _TARGET.match(text):
+            if text and (_TARGET.match(text) or _ANY_TARGET.match(text)):
                 yield node.lineno, text
 
     def defines(self, module: str, attr: str) -> bool:
@@ -385,6 +389,9 @@ PLANTED = {
     },
     "rule 5 (registry target 'crowdsim.render:SceneRenderer' is not tracker.*)": {
         "tracker/registry.py": "T = {'x': 'crowdsim.render:SceneRenderer'}\n",
+    },
+    "rule 5 (registry target 'cvtrack.tracker:CVTracker' is not tracker.*)": {
+        "tracker/registry.py": "T = {'x': 'cvtrack.tracker:CVTracker'}\n",  # outside the tree
     },
     "rule 5 (registry target 'tracker.bqp.tracker:NoSuchTracker' does not exist)": {
         "tracker/registry.py": "T = {'x': 'tracker.bqp.tracker:NoSuchTracker'}\n",
