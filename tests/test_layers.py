@@ -22,8 +22,10 @@ function) included, and so is every target of a string registry. An import insid
    :mod:`crowdsim.optional`, whose ``require(module, ...)`` calls must each name a third-party
    module literally.
 5. **Registry targets** are strings under the registry's own package: ``tracker.*`` for the
-   tracker registry, ``envs.*`` for the Gymnasium table, ``crowdsim.bench.*`` for the
-   benchmarks; each must name an existing module and attribute.
+   tracker registry and for the tunables' parameter classes (``envs.param_space``),
+   ``envs.*`` for the Gymnasium table, ``crowdsim.bench.*`` for the benchmarks; each must
+   name an existing module and attribute (a ``"module:Class"`` outside the project breaks
+   the rule too).
 6. **No import cycle**, lazy imports and registry targets included.
 7. Importing a library module sets no environment variable and selects no matplotlib backend;
    importing ``envs`` imports nothing heavy (subprocess tests below).
