@@ -342,14 +342,32 @@ def scene_detections(scene: Scene, first: int = 0) -> list[tuple[np.ndarray, np.
     return out
 
 
+def set_params_scenes() -> tuple[Scene, ...]:
+    """The scenes of :func:`check_set_params`: four textured targets of four colours, one
+    faster than the default search radius, over 16 frames (past the default template refresh
+    of 10), so that search, update and refresh parameters change the tracks; and 24 look-alike
+    targets packed 11 px apart in two opposite flows, where the solver's term weights and the
+    neighbourhood parameters decide."""
+    sparse = make_scene(
+        [[12, 20], [60, 30], [100, 70], [30, 70]], [[5, 1], [0, 2], [-1, 0], [2, -2]], n_frames=16
+    )
+    starts = [[12 + 11 * (k % 8), 20 + 11 * (k // 8)] for k in range(24)]
+    flows = [[2 if (k // 8) % 2 == 0 else -2, k % 3 - 1] for k in range(24)]
+    packed = make_scene(
+        starts, flows, n_frames=14, shape=(80, 112), colours=np.tile([[40, 40, 40]], (24, 1))
+    )
+    return sparse, packed
+
+
 def check_set_params(make_tracker: Callable[[Any], Any], scene: Scene | None = None) -> list[str]:
     """Every parameter given through ``set_params`` after ``init`` acts as if given at start.
 
     For each field of the tracker's parameters, tracker X starts with the changed value and
     tracker Y starts with the default, then receives the changed value by ``set_params``
-    right after ``init``. Both must give identical tracks on the rest of the scene: a value
-    copied into the tracker's state at ``init`` and silently ignored afterwards shows up here.
-    Fields in ``fixed_params`` must be refused with a ``ValueError`` naming them.
+    right after ``init``. Both must give identical tracks on the rest of each scene
+    (:func:`set_params_scenes`, or ``scene``): a value copied into the tracker's state at
+    ``init`` and silently ignored afterwards shows up here. Fields in ``fixed_params`` must be
+    refused with a ``ValueError`` naming them.
 
     Parameters
     ----------
@@ -358,18 +376,14 @@ def check_set_params(make_tracker: Callable[[Any], Any], scene: Scene | None = N
 
     Returns
     -------
-    The field names checked: refused as fixed, or changing the tracks or confidences on the
-    scene. A field whose changed value gives the default's tracks could be copied and ignored
-    unseen, so it is not counted (:attr:`unexercised` of the function lists the last call's).
+    The field names checked: refused as fixed, or changing the tracks or confidences on at
+    least one scene. A field whose changed value gives the default's tracks on every scene
+    could be copied and ignored unseen, so it is not counted:
+    ``check_set_params.unexercised`` lists the last call's.
     """
-    # 16 frames (past the default template refresh of 10), one target faster than the
-    # default search radius, textured ground inside the templates: so that search, update
-    # and refresh parameters all change the tracks or the confidences
-    sc = scene or make_scene(
-        [[12, 20], [60, 30], [100, 70], [30, 70]], [[5, 1], [0, 2], [-1, 0], [2, -2]], n_frames=16
-    )
+    scenes = (scene,) if scene is not None else set_params_scenes()
 
-    def make(params: Any) -> Any:
+    def make(params: Any, sc: Scene) -> Any:
         tr = make_tracker(params)
         if hasattr(tr, "use_detections"):
             # tracking-by-detection: perfect head boxes from frame 1 on, so that init (which
@@ -377,16 +391,29 @@ def check_set_params(make_tracker: Callable[[Any], Any], scene: Scene | None = N
             tr.use_detections(scene_detections(sc, first=1))
         return tr
 
-    base = make(None)
-    base.init(sc.frames[0], sc.ids, sc.points[0], sc.template_size)
-    default = [(*base.step(f), np.array(base.confidence, copy=True)) for f in sc.frames[1:]]
+    def started(params: Any, sc: Scene) -> Any:
+        tr = make(params, sc)
+        tr.init(sc.frames[0], sc.ids, sc.points[0], sc.template_size)
+        return tr
+
+    def state(tr: Any, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        ids, pts = tr.step(frame)
+        return ids, pts, np.array(tr.confidence, copy=True)
+
+    def same(a: tuple, b: tuple) -> bool:
+        return all(np.array_equal(u, v) for u, v in zip(a, b, strict=True))
+
+    params = make_tracker(None).params
+    defaults = []
+    for sc in scenes:
+        base = started(None, sc)
+        defaults.append([state(base, f) for f in sc.frames[1:]])
     checked: list[str] = []
     check_set_params.unexercised = []
-    for name, value in perturbations(base.params).items():
-        new = replace(base.params, **{name: value})
-        y = make(None)
-        y.init(sc.frames[0], sc.ids, sc.points[0], sc.template_size)
-        if name in type(y).fixed_params:
+    for name, value in perturbations(params).items():
+        new = replace(params, **{name: value})
+        if name in type(make_tracker(None)).fixed_params:
+            y = started(None, scenes[0])
             try:
                 y.set_params(new)
             except ValueError as exc:
@@ -395,35 +422,26 @@ def check_set_params(make_tracker: Callable[[Any], Any], scene: Scene | None = N
                 checked.append(name)
                 continue
             raise AssertionError(f"fixed parameter {name} was accepted mid-sequence")
-        y.set_params(new)
-        if y.params is not new:
-            raise AssertionError(f"set_params({name}={value!r}) did not replace params")
-        x = make(new)
-        x.init(sc.frames[0], sc.ids, sc.points[0], sc.template_size)
-        same_as_default = True
-        for t, frame in enumerate(sc.frames[1:], 1):
-            xi, xp = x.step(frame)
-            yi, yp = y.step(frame)
-            di, dp, dc = default[t - 1]
-            same_as_default &= (
-                np.array_equal(xi, di)
-                and np.array_equal(xp, dp)
-                and np.array_equal(x.confidence, dc)
-            )
-            if not (
-                np.array_equal(xi, yi)
-                and np.array_equal(xp, yp)
-                and np.array_equal(x.confidence, y.confidence)
-            ):
-                raise AssertionError(
-                    f"{type(y).__name__}: {name}={value!r} given by "
-                    f"set_params after init differs at frame {t} from the "
-                    "same value given at start"
-                )
-        if same_as_default:  # no effect on this scene: nothing was compared
+        moved = False
+        for sc, default in zip(scenes, defaults, strict=True):
+            y = started(None, sc)
+            y.set_params(new)
+            if y.params is not new:
+                raise AssertionError(f"set_params({name}={value!r}) did not replace params")
+            x = started(new, sc)
+            for t, frame in enumerate(sc.frames[1:], 1):
+                got, want = state(y, frame), state(x, frame)
+                if not same(got, want):
+                    raise AssertionError(
+                        f"{type(y).__name__}: {name}={value!r} given by "
+                        f"set_params after init differs at frame {t} from the "
+                        "same value given at start"
+                    )
+                moved = moved or not same(want, default[t - 1])
+        if moved:
+            checked.append(name)
+        else:  # no effect on any scene: nothing was compared
             check_set_params.unexercised.append(name)
-            continue
-        checked.append(name)
     return checked
 
 

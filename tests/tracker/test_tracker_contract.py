@@ -281,3 +281,30 @@ def test_a_tracker_gets_its_own_copy_of_the_callers_points():
     _, got = as_points([1], pts)
     got += 0.25
     assert pts.tolist() == [[20.0, 30.0]]
+
+
+def test_set_params_check_catches_a_value_copied_at_init():
+    """A tracker that copies search_factor at init and ignores set_params is caught (the
+    field moves the tracks on the check's scenes); a field that moves nothing is reported as
+    unexercised, not as checked."""
+    from tracker.baselines.ncc import NCCTracker
+    from tracker.testing import check_set_params
+
+    class Frozen(NCCTracker):
+        def _init(self, frame):
+            self._frozen = self.params.search_factor
+            super()._init(frame)
+
+        def _set_radius(self):
+            from tracker.candidates import grid_offsets, search_radius
+
+            factor = getattr(self, "_frozen", self.params.search_factor)
+            self.radius = search_radius(self.template_size, factor)
+            self.model.radius = self.radius
+            self.model.window = self.template_size + 2 * self.radius
+            self._offsets = grid_offsets(self.radius)
+
+    with pytest.raises(AssertionError, match="search_factor=.* given by set_params after init"):
+        check_set_params(lambda p: Frozen(p))
+    checked = check_set_params(lambda p: NCCTracker(p))
+    assert "search_factor" in checked and check_set_params.unexercised == ["cmc_method"]
