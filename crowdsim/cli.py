@@ -188,7 +188,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args, extra = parser.parse_known_args(argv)
     if extra:  # argparse's top-level message would not name the command
         _command_parser(parser, args).error(f"unrecognized arguments: {' '.join(extra)}")
-    command = " ".join(filter(None, (args.command, getattr(args, "verb", None))))
+    # the sub-command's own name too: "detector train", "bench sim"
+    sub = getattr(args, "verb", None) or getattr(args, "benchmark", None)
+    command = " ".join(filter(None, (args.command, sub)))
     prefix = f"crowdsim {command}: error:"
     try:
         refuse_empty_paths(args)
