@@ -298,7 +298,7 @@ def test_an_interrupt_a_c_extension_wrapped_still_ends_the_command_in_one_line(m
     monkeypatch.setattr(args, "func", wrapped)
     assert cli.main([]) == 143
     assert capsys.readouterr().err.strip().splitlines() == [
-        "crowdsim bench: interrupted by SIGTERM"
+        "crowdsim bench sim: interrupted by SIGTERM"
     ]
     args.func = lambda a: (_ for _ in ()).throw(SystemError("a real one"))
     with pytest.raises(SystemError, match="a real one"):
