@@ -184,6 +184,11 @@ class DataNote(UserWarning):
     command prints it as one line ``crowdsim <command>: note: <message>``."""
 
 
+def note_line(command: str, message: object) -> str:
+    """The one line a note takes on stderr: ``crowdsim <command>: note: <message>``."""
+    return f"crowdsim {command}: note: {message}"
+
+
 def format_bytes(n: float) -> str:
     """``1536 -> '1.5 KiB'``, ``3 * 2**30 -> '3.0 GiB'`` (binary units).
 

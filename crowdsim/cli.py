@@ -150,13 +150,13 @@ def _notes_as_lines(command: str) -> Iterator[None]:
     note: <message>`` while the command runs (other warnings as Python prints them)."""
     import warnings
 
-    from crowdsim.checks import DataNote
+    from crowdsim.checks import DataNote, note_line
 
     shown = warnings.showwarning
 
     def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
         if issubclass(category, DataNote):
-            print(f"crowdsim {command}: note: {message}", file=sys.stderr)
+            print(note_line(command, message), file=sys.stderr)
         else:
             shown(message, category, filename, lineno, file, line)
 

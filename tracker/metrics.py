@@ -235,12 +235,22 @@ def accuracy_curve(
 def trackeval_data(
     gt_ids, gt_points, tr_ids, tr_points, similarity_scale: float = SIMILARITY_SCALE
 ) -> dict[str, Any]:
-    """TrackEval's per-sequence ``data`` dict with point similarities ``max(0, 1 - d/T)``."""
+    """TrackEval's per-sequence ``data`` dict with point similarities ``max(0, 1 - d/T)``;
+    refused with the estimate when its tables would pass the memory limit
+    (:func:`trackeval_bytes`)."""
     gt_ids, gt_points, tr_ids, tr_points = _align(gt_ids, gt_points, tr_ids, tr_points, False)
     if not similarity_scale > 0:
         raise ValueError(f"similarity_scale must be > 0 px, got {similarity_scale!r}")
     gt_present = np.isfinite(gt_points).all(-1)
     tr_present = np.isfinite(tr_points).all(-1)
+    need = _tables_bytes(gt_present, tr_present)  # sized before any table is built
+    if need > MEMORY_LIMIT_BYTES:
+        raise ValueError(
+            f"MOTA, IDF1 and HOTA of {len(gt_points)} frames with {len(gt_ids)} people and "
+            f"{len(tr_ids)} tracks need about {format_bytes(need)} of memory in TrackEval, "
+            f"more than the {format_bytes(MEMORY_LIMIT_BYTES)} limit; score the papers' acc@T "
+            "alone (crowdsim evaluate --metrics accuracy), or fewer frames"
+        )
     gt_used = np.flatnonzero(gt_present.any(0))
     tr_used = np.flatnonzero(tr_present.any(0))
     gt_map = np.full(len(gt_ids), -1, np.int64)
@@ -274,6 +284,11 @@ def trackeval_bytes(gt_points: np.ndarray, tr_points: np.ndarray) -> int:
     tables (``G R``; ``(G + R)^2`` three times for its assignment)."""
     gt = np.isfinite(np.asarray(gt_points, np.float64)).all(-1)
     tr = np.isfinite(np.asarray(tr_points, np.float64)).all(-1)
+    return _tables_bytes(gt, tr)
+
+
+def _tables_bytes(gt: np.ndarray, tr: np.ndarray) -> int:
+    """:func:`trackeval_bytes` of the ``(T, N)`` presence masks."""
     pairs = gt.sum(1).astype(np.float64) * tr.sum(1)
     g, r = float(gt.any(0).sum()), float(tr.any(0).sum())
     peak = pairs.max(initial=0.0)
@@ -291,15 +306,6 @@ def trackeval_metrics(
     :func:`accuracy_curve` (the papers' acc@T) needs no such tables."""
     from trackeval.metrics import CLEAR, HOTA, Identity
 
-    gt_ids, gt_points, tr_ids, tr_points = _align(gt_ids, gt_points, tr_ids, tr_points, False)
-    need = trackeval_bytes(gt_points, tr_points)
-    if need > MEMORY_LIMIT_BYTES:
-        raise ValueError(
-            f"MOTA, IDF1 and HOTA of {len(gt_points)} frames with {len(gt_ids)} people and "
-            f"{len(tr_ids)} tracks need about {format_bytes(need)} of memory in TrackEval, "
-            f"more than the {format_bytes(MEMORY_LIMIT_BYTES)} limit; score the papers' acc@T "
-            "alone (crowdsim evaluate --metrics accuracy), or fewer frames"
-        )
     data = trackeval_data(gt_ids, gt_points, tr_ids, tr_points, similarity_scale)
     quiet = {"PRINT_CONFIG": False}
     clear = CLEAR(quiet).eval_sequence(data)

@@ -17,7 +17,7 @@ import itertools
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal, Protocol
+from typing import Any, Literal, Protocol, get_args
 
 import numpy as np
 
@@ -145,8 +145,7 @@ def run_tracker(
         frames = int(frames)
     if template_size is not None:
         require_number("run_tracker", "template_size", template_size, lo=2, integer=True)
-    if metrics not in ("full", "accuracy", "none"):
-        raise ValueError(f"metrics must be 'full', 'accuracy' or 'none', got {metrics!r}")
+    _check_metrics(metrics)
     if start is not None and not (
         isinstance(start, tuple)
         and len(start) == 2
@@ -189,6 +188,11 @@ def run_tracker(
     return run
 
 
+def _check_metrics(metrics: Any) -> None:
+    if metrics not in get_args(Metrics):
+        raise ValueError(f"metrics must be 'full', 'accuracy' or 'none', got {metrics!r}")
+
+
 def score(
     result: TrackResult,
     source: SequenceLike,
@@ -199,8 +203,7 @@ def score(
     """:attr:`TrackRun.report` of ``result`` against ``source``'s ground truth over the frames
     it tracked (empty without ground truth or with ``metrics="none"``; see
     :func:`run_tracker`)."""
-    if metrics not in ("full", "accuracy", "none"):
-        raise ValueError(f"metrics must be 'full', 'accuracy' or 'none', got {metrics!r}")
+    _check_metrics(metrics)
     if metrics == "none":
         return {}
     gt_ids, gt_pts = source.gt_points()

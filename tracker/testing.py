@@ -403,7 +403,8 @@ def check_set_params(make_tracker: Callable[[Any], Any], scene: Scene | None = N
     def same(a: tuple, b: tuple) -> bool:
         return all(np.array_equal(u, v) for u, v in zip(a, b, strict=True))
 
-    params = make_tracker(None).params
+    first = make_tracker(None)
+    params, fixed = first.params, type(first).fixed_params
     defaults = []
     for sc in scenes:
         base = started(None, sc)
@@ -412,7 +413,7 @@ def check_set_params(make_tracker: Callable[[Any], Any], scene: Scene | None = N
     check_set_params.unexercised = []
     for name, value in perturbations(params).items():
         new = replace(params, **{name: value})
-        if name in type(make_tracker(None)).fixed_params:
+        if name in fixed:
             y = started(None, scenes[0])
             try:
                 y.set_params(new)

@@ -134,8 +134,10 @@ def scored_frames(args: argparse.Namespace, seq, gt_pts, pts):
     sequence's seqinfo.ini lets be read as body boxes."""
     import numpy as np
 
+    from crowdsim.checks import note_line
+
     def note(text: str) -> None:
-        print(f"crowdsim evaluate: note: {text}", file=sys.stderr)
+        print(note_line("evaluate", text), file=sys.stderr)
 
     n = seq.length
     if args.frames is not None:
@@ -172,6 +174,7 @@ def scored_frames(args: argparse.Namespace, seq, gt_pts, pts):
 
 def run(args: argparse.Namespace) -> int:
     from crowdsim.atomic import recorded
+    from crowdsim.checks import note_line
     from synth_data.mot import verify_frames
     from tracker.metrics import evaluate, format_table, plot_accuracy
 
@@ -180,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
     verify_frames(seq)
     if not len(ids):  # a valid result (a tracker that found no one), but never a silent 0
         print(
-            f"crowdsim evaluate: note: {args.results} has no result rows; every score is 0",
+            note_line("evaluate", f"{args.results} has no result rows; every score is 0"),
             file=sys.stderr,
         )
     gt_pts, pts = scored_frames(args, seq, gt_pts, pts)

@@ -190,8 +190,9 @@ def _overrides(args: argparse.Namespace, name: str) -> dict:
 
 
 def _file_tracker(args: argparse.Namespace) -> tuple[str, object]:
-    """``(tracker name, params or None)`` of ``--params`` / ``--policy``, refused when
-    ``--tracker`` names another tracker (checked before the head detector runs)."""
+    """``(tracker name, params or None)`` of ``--params`` / ``--policy``. The file names its
+    tracker; ``--tracker``, when given, must be the same one (a parameters file of ``ncc``
+    never silently turns ``--tracker bqp`` into NCC)."""
     from envs.param_space import load_params
     from envs.training import policy_meta
 
@@ -210,17 +211,16 @@ def _file_tracker(args: argparse.Namespace) -> tuple[str, object]:
     return name, params
 
 
-def _tuned(args: argparse.Namespace, src: object) -> tuple[object, object, str]:
-    """``(tracker, frame source, description)`` for ``--params`` / ``--policy``.
-
-    The file names its tracker; ``--tracker``, when given, must be the same one (a parameters
-    file of ``ncc`` never silently turns ``--tracker bqp`` into NCC)."""
+def _tuned(
+    args: argparse.Namespace, src: object, name: str, params: object
+) -> tuple[object, object, str]:
+    """``(tracker, frame source, description)`` for ``--params`` / ``--policy``, whose
+    tracker ``name`` and ``params`` :func:`_file_tracker` read."""
     from dataclasses import replace
 
     from envs.training import load_policy, policy_description, policy_tracker
     from tracker.registry import make_tracker
 
-    name, params = _file_tracker(args)
     path = args.params or args.policy
     over = _overrides(args, name)
     followed = "" if args.tracker is not None else " (the tracker the file names)"
@@ -312,6 +312,7 @@ def run(args: argparse.Namespace) -> int:
     from functools import partial
 
     from crowdsim.atomic import atomic_path, recorded
+    from crowdsim.checks import note_line
     from envs.episodes import verify_folder
     from synth_data.mot import box_type_note, write_mot
     from synth_data.sequence import open_sequence
@@ -366,8 +367,8 @@ def run(args: argparse.Namespace) -> int:
             "--init detect, --births detect, --detections detector, or a video as INPUT)",
             file=sys.stderr,
         )
-    if args.params or args.policy:
-        _file_tracker(args)  # a file of another tracker is refused before any detection
+    # the file's tracker, read once: one of another tracker is refused before any detection
+    tuned = _file_tracker(args) if args.params or args.policy else None
     detector = _detector(args) if uses_detector else None
     src = open_sequence(args.input, init=None if use_detector else args.init)
     if is_folder:
@@ -376,15 +377,15 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--evaluate: {args.input} has no ground truth (gt/gt.txt) to score")
         square = box_type_note(src)
         if square:
-            print(f"crowdsim track: note: {square}", file=sys.stderr)
+            print(note_line("track", square), file=sys.stderr)
     size = int(size or src.template_size)
     if detector is not None:  # heads beyond the sizes it learnt are found on a shrunk frame
         from crowdsim.commands.detect import head_size
 
         detector.template_size = head_size(src, args.template_size)
     start, births = _detected_start(args, src, detector, size, use_detector)
-    if args.params or args.policy:
-        tracker, feed, what = _tuned(args, src)
+    if tuned is not None:
+        tracker, feed, what = _tuned(args, src, *tuned)
         print(f"tracking with {what}", file=sys.stderr)
     else:
         tracker, feed = make_tracker(args.tracker or "bqp", **over), src
