@@ -186,7 +186,7 @@ class AppearanceParams:
         require_number("appearance", "n_clusters", self.n_clusters, hi=len(PALETTES[self.palette]))
         if SUPERSAMPLE % self.subpixel:
             raise ValueError(
-                f"appearance.subpixel must divide {SUPERSAMPLE} (1, 2, 4 or 8), got {self.subpixel}"
+                f"appearance.subpixel must divide {SUPERSAMPLE} (1, 2 or 4), got {self.subpixel}"
             )
         object.__setattr__(self, "ground_bgr", tuple(int(c) for c in self.ground_bgr))
 

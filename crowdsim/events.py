@@ -87,7 +87,7 @@ class Event:
 
     def __post_init__(self) -> None:
         own = f"events[{self.index}]"
-        if self.kind not in EVENT_KINDS:
+        if not isinstance(self.kind, str) or self.kind not in EVENT_KINDS:
             raise ValueError(
                 f"{own}.kind must be one of {', '.join(EVENT_KINDS)}, got {self.kind!r}"
             )

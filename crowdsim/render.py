@@ -727,6 +727,7 @@ class SceneRenderer:
             0 for agents entirely outside. Computed before the moving shadows and blurs,
             which do not hide a head.
         """
+        pixels, heading, appearance, pose = self._checked_agents(pixels, heading, appearance, pose)
         if self._canvas is not None:
             return self._render_view(t, pixels, heading, appearance, out, pose, visibility)
         cam = self.camera
@@ -777,11 +778,9 @@ class SceneRenderer:
                 )
             sel = np.flatnonzero(ok)
             pts = pixels[sel]
-            hd = np.asarray(heading, np.float64)[sel]
-            ap = np.asarray(appearance, np.int64)[sel]
-            ps = np.zeros(len(sel), np.int64) if pose is None else np.asarray(pose, np.int64)[sel]
-            if len(ps) and (ps.min() < 0 or ps.max() >= bank.n_poses):
-                raise ValueError(f"pose must be in [0, {bank.n_poses}), got {ps.min()}..{ps.max()}")
+            hd = heading[sel]
+            ap = appearance[sel]
+            ps = np.zeros(len(sel), np.int64) if pose is None else pose[sel]
             p = bank.subpixel
             f = pts - (z - 1) / 2.0
             base = np.floor(f)
@@ -868,6 +867,39 @@ class SceneRenderer:
         if self._blur is not None:
             cv2.filter2D(out, -1, self._blur, dst=out, borderType=cv2.BORDER_REFLECT)
         return out
+
+    def _checked_agents(
+        self, pixels, heading, appearance, pose
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """:meth:`render`'s agent arrays as float64 / int64, checked: one row per agent, and
+        the appearance and pose indices of the drawn (finite) rows inside the sprite bank (an
+        index outside it would be read out of bounds by the compiled stamp)."""
+        pixels = np.asarray(pixels, np.float64)
+        if pixels.ndim != 2 or pixels.shape[1] != 2:
+            raise ValueError(f"pixels must have shape (n, 2), got {pixels.shape}")
+        n = len(pixels)
+        drawn = np.isfinite(pixels).all(axis=1)
+        heading = np.asarray(heading, np.float64)
+        if heading.shape != (n,):
+            raise ValueError(f"heading must have shape ({n},), got {heading.shape}")
+        checked = []
+        for name, value, count in (
+            ("appearance", appearance, len(self.bank.colours)),
+            ("pose", pose, self.bank.n_poses),
+        ):
+            if value is None:
+                checked.append(None)
+                continue
+            value = np.asarray(value)
+            if value.shape != (n,):
+                raise ValueError(f"{name} must have shape ({n},), got {value.shape}")
+            if n and value.dtype.kind not in "iu":
+                raise ValueError(f"{name} must hold integer indices, got {value.dtype}")
+            used = value[drawn]
+            if len(used) and (used.min() < 0 or used.max() >= count):
+                raise ValueError(f"{name} must be in [0, {count}), got {used.min()}..{used.max()}")
+            checked.append(value.astype(np.int64, copy=False))
+        return pixels, heading, checked[0], checked[1]
 
     def _render_view(
         self,

@@ -144,7 +144,10 @@ def _check_type(scenario: str, name: str, value: Any, default: Any) -> None:
     if isinstance(default, bool):
         if not isinstance(value, (bool, np.bool_)):
             raise ValueError(f"{where} must be true or false, got {value!r}")
-    elif isinstance(default, (int, float)):
+    elif isinstance(default, int):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+            raise ValueError(f"{where} must be an integer, got {value!r}")
+    elif isinstance(default, float):
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
             raise ValueError(f"{where} must be a number, got {value!r}")
         if not math.isfinite(value):

@@ -298,7 +298,7 @@ class Simulation:
         if self._engine is not None:
             raise ValueError(_unsupported("set_desired"))
         ids = self._present_ids(ids, "set_desired")
-        vel = _velocities(velocity, len(ids), "set_desired.velocity")
+        vel = _desired_velocities(velocity, ids, "set_desired.velocity")
         ids, first = np.unique(ids[::-1], return_index=True)  # the last entry of an id wins
         vel = vel[::-1][first]
         keep = ~np.isin(self._held_ids, ids)
@@ -558,13 +558,7 @@ class Simulation:
                 ids = st.ids[c]
             else:
                 ids = self._present_ids(c, "step.controlled")
-        vel = _velocities(desired_velocity, len(ids), "step.desired_velocity")
-        fast = np.hypot(vel[:, 0], vel[:, 1]) > MAX_SPEED
-        if fast.any():
-            raise ValueError(
-                f"step.desired_velocity must be at most {MAX_SPEED} m/s, got "
-                f"{vel[fast][0].tolist()} for agent {int(ids[fast][0])}"
-            )
+        vel = _desired_velocities(desired_velocity, ids, "step.desired_velocity")
         if len(ids) > 1 and not (ids[1:] > ids[:-1]).all() and len(np.unique(ids)) != len(ids):
             raise ValueError("step.controlled lists an agent more than once")
         return ids, vel
@@ -887,6 +881,19 @@ def _velocities(value: Any, m: int, where: str) -> np.ndarray:
     if not np.isfinite(v).all():
         raise ValueError(f"{where} must be finite")
     return np.array(v)
+
+
+def _desired_velocities(value: Any, ids: np.ndarray, where: str) -> np.ndarray:
+    """:func:`_velocities` of the agents ``ids``, each at most :data:`MAX_SPEED` (a faster
+    command would throw the agent out of the world within a few steps)."""
+    vel = _velocities(value, len(ids), where)
+    fast = np.hypot(vel[:, 0], vel[:, 1]) > MAX_SPEED
+    if fast.any():
+        raise ValueError(
+            f"{where} must be at most {MAX_SPEED} m/s, got "
+            f"{vel[fast][0].tolist()} for agent {int(ids[fast][0])}"
+        )
+    return vel
 
 
 def _per_agent(value: Any, m: int, dtype: Any, name: str) -> np.ndarray:

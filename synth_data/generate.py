@@ -84,6 +84,14 @@ def build_sequence(
 
     cv2.setNumThreads(1)  # one sequence per core; OpenCV's own threads only add contention
     scene = Scene.from_spec(spec)
+    if not scene.camera.visible(scene.tracks.pixels).any():  # as crowdsim render refuses it
+        cam = scene.camera
+        raise ValueError(
+            f"{spec.source or spec.name}: camera: no person is inside the {cam.width}x"
+            f"{cam.height} frame centred on ({cam.center[0]:g}, {cam.center[1]:g}) m at "
+            f"{cam.px_per_m:g} px/m in any of the {spec.frames} frames; check camera.center, "
+            "width/height and px_per_m"
+        )
     meta = {
         "spec": spec.to_dict(),
         "spec_sha256": spec.digest(),

@@ -87,6 +87,12 @@ def write_mot(path: str | os.PathLike[str], rows: np.ndarray) -> Path:
         raise ValueError(f"{path}: MOT rows must have shape (K, >= 9), got {rows.shape}")
     if rows.size and not np.isfinite(rows).all():
         raise ValueError(f"{path}: MOT rows contain NaN or infinite values")
+    for col, what in ((0, "frame"), (1, "id"), (7, "class")):
+        raw = rows[:, col] if rows.size else rows[:0, 0]
+        bad = raw != np.round(raw)
+        if bad.any():  # int() would truncate id 2.5 onto id 2 and merge two people
+            i = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"{path}: MOT row {i + 1}: {what} {raw[i]:g} is not a whole number")
     lines = []
     for r in rows:
         head = f"{int(r[0])},{int(r[1])},{r[2]:.3f},{r[3]:.3f},{r[4]:.3f},{r[5]:.3f}"

@@ -5,7 +5,7 @@ A spec describes one sequence. Example (TOML)::
     name = "seq3"            # folder name: letters, digits, '.', '-', '_' (not manifest.json)
     seed = 3                 # seeds simulation and rendering
     frames = 144             # frames written (one simulation step per frame)
-    fps = 25.0               # frame rate; simulation dt = 1 / fps
+    fps = 25.0               # frame rate in [5, 1000]; simulation dt = 1 / fps
     warmup_steps = 50        # simulated steps dropped before frame 1
     description = "marathon, dense"
 
@@ -108,6 +108,9 @@ PX_PER_M: tuple[float, float] = (1e-3, 1e4)
 """Allowed camera scale, px/m."""
 OUTPUT_FIELDS: dict[str, type] = {"images": bool, "video": bool}
 MAX_FRAMES: int = 1_000_000
+MIN_FPS: float = 5.0
+"""Lowest frame rate: the simulation steps ``1 / fps`` seconds, and
+:class:`crowdsim.params.SocialForceParams` integrates stably up to ``dt = 0.2`` s."""
 MAX_WARMUP_STEPS: int = 100_000
 
 
@@ -184,7 +187,12 @@ class SequenceSpec:
     def truncated(self, frames: int | None) -> SequenceSpec:
         """This spec with at most ``frames`` frames (unchanged for None), less the events
         that start after the cut (they act on no frame, and a spec holding them would not
-        load again). The frames kept are those of the whole sequence."""
+        load again). The crowd of the kept frames is the whole sequence's (the same simulation,
+        step for step), but the camera is framed on that crowd alone
+        (:func:`synth_data.scene.camera_for` fits its size and centre to the crowd's extent
+        over the frames it is given), so the pixels and the boxes are those of the whole
+        sequence's first ``frames`` frames only where the spec fixes ``camera.width``,
+        ``camera.height`` and ``camera.center``."""
         if frames is None:
             return self
         if frames < 1:
@@ -252,8 +260,8 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
     if not (1 <= data["frames"] <= MAX_FRAMES):
         raise ValueError(f"{where}: frames must be in [1, {MAX_FRAMES}], got {data['frames']!r}")
     fps = float(data.get("fps", 25.0))
-    if not (0 < fps <= 1000):
-        raise ValueError(f"{where}: fps must be in (0, 1000], got {data.get('fps')!r}")
+    if not (MIN_FPS <= fps <= 1000):  # the simulation steps 1 / fps s, at most 0.2 s
+        raise ValueError(f"{where}: fps must be in [{MIN_FPS:g}, 1000], got {data.get('fps')!r}")
     warmup = data.get("warmup_steps", 0)
     if not 0 <= warmup <= MAX_WARMUP_STEPS:  # 1e5 steps = 67 simulated minutes at 25 fps
         raise ValueError(
@@ -279,6 +287,12 @@ def spec_from_dict(data: Any, source: str = "<spec>") -> SequenceSpec:
                 f"{where}: unknown field 'camera.{key}'{_suggest(key, list(CAMERA_FIELDS))}"
             )
         _check_type(where, f"camera.{key}", value, CAMERA_FIELDS[key])
+    if ("width" in camera) != ("height" in camera):
+        given = "width" if "width" in camera else "height"
+        raise ValueError(
+            f"{where}: camera.{given} needs camera.{'height' if given == 'width' else 'width'} "
+            f"(give both or neither), got camera.{given} = {camera[given]!r} alone"
+        )
     if "center" in camera:
         c = camera["center"]
         if len(c) != 2 or not all(
@@ -453,6 +467,8 @@ def _unique_key_loader() -> type:
     def mapping(loader: Any, node: Any, deep: bool = False) -> dict[Any, Any]:
         seen = set()
         for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # '<<: *anchor': SafeLoader merges it
+                continue
             key = loader.construct_object(key_node, deep=deep)
             if key in seen:
                 mark = key_node.start_mark

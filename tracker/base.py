@@ -302,6 +302,7 @@ class Tracker(ABC):
         frame = self._check_frame(frame)
         if births is not None:
             b_ids, b_pts = as_points(*births, what="births")
+            self._check_new_targets(b_ids, b_pts)  # before the frame changes any state
         self.frame_index += 1
         t0 = time.perf_counter()
         small = len(self.ids) < self.parallel_min_targets
@@ -545,6 +546,17 @@ class Tracker(ABC):
     def _add_targets(self, frame: np.ndarray, ids: np.ndarray, points: np.ndarray) -> None:
         if len(ids) == 0:
             return
+        self._check_new_targets(ids, points)
+        self._seen.update(int(i) for i in ids)
+        self._add(frame, points)
+        self.ids = np.concatenate([self.ids, ids])
+        self.points = np.concatenate([self.points, points])
+        self.confidence = np.concatenate([self.confidence, np.ones(len(ids))])
+        self.lost = np.concatenate([self.lost, np.zeros(len(ids), np.int64)])
+        self.conf_ref = np.concatenate([self.conf_ref, np.full(len(ids), np.nan)])
+
+    def _check_new_targets(self, ids: np.ndarray, points: np.ndarray) -> None:
+        """``ValueError`` for ids used before in this sequence or points outside the image."""
         again = [int(i) for i in ids if int(i) in self._seen]
         if again:
             raise ValueError(
@@ -563,13 +575,6 @@ class Tracker(ABC):
                 f"target id {int(ids[bad])} starts outside the {w}x{h} image at "
                 f"({points[bad, 0]:.1f}, {points[bad, 1]:.1f})"
             )
-        self._seen.update(int(i) for i in ids)
-        self._add(frame, points)
-        self.ids = np.concatenate([self.ids, ids])
-        self.points = np.concatenate([self.points, points])
-        self.confidence = np.concatenate([self.confidence, np.ones(len(ids))])
-        self.lost = np.concatenate([self.lost, np.zeros(len(ids), np.int64)])
-        self.conf_ref = np.concatenate([self.conf_ref, np.full(len(ids), np.nan)])
 
     def _terminate(self) -> None:
         """End the tracks that leave the image or whose evidence is gone (module docstring)."""

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from crowdsim.checks import checked_ids, require_number
+from crowdsim.checks import checked_ids, require_memory, require_number
 
 
 def tracks_to_mot_rows(ids: np.ndarray, positions: np.ndarray, template_size: int) -> np.ndarray:
@@ -82,6 +82,10 @@ def mot_rows_to_tracks(
         bad = frames[(frames < 1) | (frames > t_len)][0]
         raise ValueError(f"{source}: frame {bad} is outside the sequence (1..{t_len})")
     ids, col = np.unique(ids_all, return_inverse=True)
+    # a frame number far past the rows (1e12) would ask for terabytes of NaN
+    require_memory(
+        f"{source}: tracks of {len(ids)} ids over {t_len} frames", 16.0 * t_len * len(ids)
+    )
     key = (frames - 1) * len(ids) + col
     uniq, counts = np.unique(key, return_counts=True)
     if (counts > 1).any():

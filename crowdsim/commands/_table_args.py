@@ -48,7 +48,8 @@ def add_table_arguments(p: argparse.ArgumentParser, writes: str = "") -> None:
         "--frames",
         type=int,
         metavar="N",
-        help="truncate every sequence to its first N frames (quick runs)",
+        help="truncate every sequence to its first N frames (quick runs; the camera is framed "
+        "on those frames' crowd, as generate --frames does)",
     )
     add_jobs_arguments(p, "parallel cells (local processes or Ray tasks; default 1)", 1)
     p.add_argument(

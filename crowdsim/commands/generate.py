@@ -47,7 +47,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--only", nargs="+", metavar="SEQ", help="with --suite: only these sequences")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--frames", type=int, metavar="N", help="truncate every sequence to N frames")
+    p.add_argument(
+        "--frames",
+        type=int,
+        metavar="N",
+        help="truncate every sequence to N frames: the crowd's first N frames, with the camera "
+        "framed on them (a spec without camera width, height and center gets another frame "
+        "size or centre than the whole sequence's)",
+    )
     add_jobs_arguments(
         p, "parallel sequences (default: CPU count, at most the sequence count)", None
     )

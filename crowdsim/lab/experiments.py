@@ -310,8 +310,9 @@ def takes_detections(tracker: str) -> bool:
 
 
 def cut_spec(spec: Any, frames: int | None) -> Any:
-    """``spec`` as a table runs it with ``--frames`` (its first ``frames`` frames)."""
-    return spec if frames is None else replace(spec, frames=min(spec.frames, frames))
+    """``spec`` as a table runs it with ``--frames``: :meth:`~synth_data.spec.SequenceSpec.
+    truncated`, as ``generate --frames`` cuts it."""
+    return spec.truncated(frames)
 
 
 def cell_key(seq: Any, row: Row, frames: int | None) -> str:

@@ -783,8 +783,29 @@ spec_case(
 spec_case("gen-warmup-float", _sub("warmup_steps = 0", "warmup_steps = 2.5"), "2.5")
 spec_case("gen-frames-0", _sub("frames = 4", "frames = 0"), "frames must be in [1,")
 spec_case("gen-frames-float", _sub("frames = 4", "frames = 4.5"), "4.5")
-spec_case("gen-fps-0", _sub("fps = 25.0", "fps = 0.0"), "fps must be in (0, 1000], got 0.0")
+spec_case("gen-fps-0", _sub("fps = 25.0", "fps = 0.0"), "fps must be in [5, 1000], got 0.0")
 spec_case("gen-fps-nan", _sub("fps = 25.0", "fps = nan"), "nan")
+spec_case("gen-fps-2", _sub("fps = 25.0", "fps = 2.0"), "fps must be in [5, 1000], got 2.0")
+spec_case(
+    "gen-event-kind-list",
+    lambda t: t + '\n[[events]]\nkind = ["stop"]\nstart = 1\n',
+    "events[0].kind must be one of",
+)
+spec_case(
+    "gen-agents-float",
+    _sub("n_agents = 6", "n_agents = 6.5"),
+    "marathon.n_agents must be an integer, got 6.5",
+)
+spec_case(
+    "gen-camera-width-alone",
+    _sub("max_width = 96", "max_width = 96\nwidth = 64"),
+    "s.toml: camera.width needs camera.height (give both or neither)",
+)
+spec_case(
+    "gen-camera-sees-nobody",
+    _sub("max_width = 96", "max_width = 96\ncenter = [1000.0, 1000.0]"),
+    "camera: no person is inside the",
+)
 spec_case("gen-seed-neg", _sub("seed = 1", "seed = -1"), "seed must be >= 0, got -1")
 spec_case("gen-name-slash", _sub('name = "tiny"', 'name = "../evil"'), "'../evil'")
 spec_case("gen-unknown-field", _sub("seed = 1", "seed = 1\nsede = 2"), "unknown field 'sede'")

@@ -133,6 +133,31 @@ def test_edge_cases_render_without_error(points):
     assert frame.shape == (176, 256, 3)
 
 
+@pytest.mark.parametrize(
+    ("pixels", "heading", "appearance", "pose", "message"),
+    [
+        ([[50.0, 50.0]], [0.0], [10**6], None, "appearance must be in [0, "),
+        ([[50.0, 50.0]], [0.0], [-1], None, "appearance must be in [0, "),
+        ([[50.0, 50.0]], [0.0], [0.0], None, "appearance must hold integer indices, got float64"),
+        ([[50.0, 50.0]], [0.0], [0], [99], "pose must be in [0, "),
+        ([[50.0, 50.0, 1.0]], [0.0], [0], None, "pixels must have shape (n, 2), got (1, 3)"),
+        ([[50.0, 50.0]], [0.0, 1.0], [0], None, "heading must have shape (1,), got (2,)"),
+        ([[50.0, 50.0]], [0.0], [0, 1], None, "appearance must have shape (1,), got (2,)"),
+    ],
+)
+def test_bad_agent_arrays_are_refused_by_name(pixels, heading, appearance, pose, message):
+    """An appearance index outside the sprite bank had crashed the interpreter (the compiled
+    stamp read past the colour table: SIGSEGV); the other arrays failed deep in numpy."""
+    import re
+
+    r = SceneRenderer(CAMERA, PARAMS, seed=0, fps=25.0)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        r.render(0, np.array(pixels), np.array(heading), np.array(appearance), pose=pose)
+    # an absent agent's index is never read, so it is not checked
+    frame = r.render(0, np.array([[np.nan, np.nan]]), np.zeros(1), np.array([10**6]))
+    assert frame.shape == (176, 256, 3)
+
+
 def _bilinear(image: np.ndarray, y: float, x: float, h: int, w: int) -> np.ndarray:
     """``image`` sampled at ``(y + r, x + c)`` for the ``h x w`` grid of rows ``r`` and
     columns ``c`` (bilinear, float)."""

@@ -156,6 +156,8 @@ def test_bad_control_input_is_refused():
         sim.step(desired_velocity=np.zeros((1, 2)), controlled=[99])
     with pytest.raises(ValueError, match="finite"):
         sim.set_desired([0], [np.nan, 0.0])
+    with pytest.raises(ValueError, match=r"set_desired.velocity must be at most .* agent 0"):
+        sim.set_desired([0], [500.0, 0.0])  # held unchecked, it threw the agent off the world
     with pytest.raises(ValueError, match="without desired_velocity"):
         sim.step(controlled=[0])
     with pytest.raises(ValueError, match="radius"):

@@ -291,3 +291,13 @@ def test_gt_visibility_is_the_boxs_fraction_inside_the_frame():
 
     rows = gt_rows(np.array([[[97.0, 50.0]]]), Camera(), 10, np.array([1]))
     assert rows.tolist() == [[1, 1, 92.0, 45.0, 10, 10, 1, 1, 0.8]]
+
+
+@pytest.mark.parametrize(("col", "what"), [(0, "frame"), (1, "id"), (7, "class")])
+def test_write_mot_refuses_fractional_integer_columns(tmp_path, col, what):
+    """``int()`` had written id 2.5 as 2, merging two people, where the reader refuses it."""
+    row = np.array([[1, 2, 0, 0, 5, 5, 1, 1, 1.0]])
+    row[0, col] += 0.5
+    with pytest.raises(ValueError, match=f"MOT row 1: {what} .* is not a whole number"):
+        write_mot(tmp_path / "gt.txt", row)
+    assert not (tmp_path / "gt.txt").exists()

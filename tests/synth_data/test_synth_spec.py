@@ -223,6 +223,7 @@ def test_the_digest_covers_everything_that_changes_the_output():
     assert set(output) == set(OUTPUT_FIELDS)
     scenario = {"n_agents": {"n_agents": 11}, "density": {"density": 1.5}}
     camera = {key: {key: value} for key, value in camera.items()}
+    camera["width"] = camera["height"] = {"width": 100, "height": 80}  # one needs the other
     for section, values in (("camera", camera), ("output", output), ("scenario", scenario)):
         for key, change in values.items():
             data = base.to_dict()
@@ -266,11 +267,19 @@ def _spec(**over):
 
 
 def test_spec_fps_range_includes_its_upper_end():
-    """fps must be in (0, 1000]: 1000 is accepted, just above and 0 are refused."""
+    """fps must be in [5, 1000]: both ends are accepted; above, 0 and 2 (a 0.5 s step, which
+    the simulation refuses) are refused on load."""
     assert _spec(fps=1000.0).fps == 1000.0
-    for bad in (1000.5, 0.0):
-        with pytest.raises(ValueError, match=r"t.toml: fps must be in \(0, 1000\]"):
+    assert _spec(fps=5.0).fps == 5.0
+    for bad in (1000.5, 0.0, 2.0):
+        with pytest.raises(ValueError, match=r"t.toml: fps must be in \[5, 1000\]"):
             _spec(fps=bad)
+
+
+def test_spec_camera_width_needs_height():
+    """camera.width without camera.height is refused on load, naming the file."""
+    with pytest.raises(ValueError, match=r"t.toml: camera.width needs camera.height"):
+        _spec(camera={"width": 64})
 
 
 def test_spec_camera_margin_range_includes_both_ends():
@@ -330,4 +339,20 @@ def test_spec_mistakes_a_dataset_author_makes_are_named_when_read(tmp_path, text
     path = tmp_path / "s.yaml"
     path.write_text(text)
     with pytest.raises(ValueError, match=re.escape(f"{path}: ") + ".*" + re.escape(message)):
+        load_spec(path)
+
+
+def test_yaml_merge_keys_are_read_and_duplicates_still_refused(tmp_path):
+    """``<<: *anchor`` (YAML's merge key, which SafeLoader reads) had been refused as an
+    unknown constructor by the duplicate-key check."""
+    head = "name: m\nseed: 1\nframes: 5\nscenario:\n  name: crossing\n"
+    path = tmp_path / "s.yaml"
+    path.write_text(
+        head + "events:\n  - &e {kind: noise, start: 1, frames: 2, magnitude: 3.0}\n"
+        "  - {<<: *e, start: 3}\n"
+    )
+    spec = load_spec(path)
+    assert [(e.kind, e.start, e.frames) for e in spec.events] == [("noise", 1, 2), ("noise", 3, 2)]
+    path.write_text(head + "seed: 2\n")
+    with pytest.raises(ValueError, match="seed"):
         load_spec(path)

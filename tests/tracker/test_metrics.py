@@ -103,6 +103,9 @@ def test_mot_rows_round_trip_and_errors():
         mot_rows_to_tracks(rows, length=4)
     with pytest.raises(ValueError, match="appears twice"):
         mot_rows_to_tracks(np.concatenate([rows, rows[:1]]), length=6)
+    far = np.array([[1e12, 1, 0, 0, 5, 5, 1, -1, -1]])  # asked for 14.6 TiB of NaN
+    with pytest.raises(ValueError, match="tracks of 1 ids over 1000000000000 frames needs"):
+        mot_rows_to_tracks(far)
 
 
 @settings(max_examples=40, deadline=None)

@@ -248,6 +248,26 @@ def test_births_the_tracker_would_drop_are_refused_before_tracking(births, messa
         tr.track(sc.frames, sc.ids, sc.points[0], sc.template_size, births={9: ([5], [[1, 1]])})
 
 
+@pytest.mark.parametrize(
+    ("births", "message"),
+    [(([7], [[5000.0, 5.0]]), "starts outside the"), (([1], [[30.0, 30.0]]), "already used")],
+)
+def test_step_refuses_bad_births_before_it_moves_anything(births, message):
+    """A birth outside the image or with a used id is refused before the frame is tracked:
+    the refusal had come after the targets had stepped into the frame, so a caller that
+    retried the frame with mended births tracked it twice."""
+    from tracker.testing import make_scene
+
+    sc = make_scene([[20, 20], [60, 40]], [[1, 0], [0, 1]], n_frames=3)
+    tr = NCCTracker()
+    tr.init(sc.frames[0], sc.ids, sc.points[0], sc.template_size)
+    before = tr.points.copy()
+    with pytest.raises(ValueError, match=message):
+        tr.step(sc.frames[1], (np.array(births[0]), np.array(births[1])))
+    assert tr.frame_index == 0
+    np.testing.assert_array_equal(tr.points, before)
+
+
 def test_run_tracker_refuses_a_start_without_its_births_mapping():
     from tracker.runner import run_tracker
     from tracker.testing import make_scene
