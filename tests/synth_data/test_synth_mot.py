@@ -301,3 +301,28 @@ def test_write_mot_refuses_fractional_integer_columns(tmp_path, col, what):
     with pytest.raises(ValueError, match=f"MOT row 1: {what} .* is not a whole number"):
         write_mot(tmp_path / "gt.txt", row)
     assert not (tmp_path / "gt.txt").exists()
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(
+        st.lists(
+            st.floats(-1e15, 1e15, allow_nan=False) | st.sampled_from([-0.0, 5e-324, 0.0005]),
+            min_size=12,
+            max_size=12,
+        ),
+        max_size=20,
+    ),
+    st.integers(9, 12),
+)
+def test_write_mot_text_is_the_per_row_formatting(tmp_path_factory, values, width):
+    """The chunked %-format writes the text the per-row f-strings it replaced wrote."""
+    rows = np.array(values, dtype=float).reshape(-1, 12)[:, :width]
+    rows[:, [0, 1, 7]] = np.round(rows[:, [0, 1, 7]])
+    expected = "".join(
+        f"{int(r[0])},{int(r[1])},{r[2]:.3f},{r[3]:.3f},{r[4]:.3f},{r[5]:.3f},"
+        f"{r[6]:g},{int(r[7])},{r[8]:.4f}" + "".join(f",{v:g}" for v in r[9:]) + "\n"
+        for r in rows
+    )
+    path = write_mot(tmp_path_factory.mktemp("mot") / "gt.txt", rows)
+    assert path.read_text() == expected
