@@ -582,9 +582,9 @@ def _check_gt_rows(gt_path: Path, gt: np.ndarray) -> None:
     if not len(gt):
         return
     ids = gt[:, 1]
-    bad = (ids != np.round(ids)) | (np.abs(ids) >= 2.0**63)
+    bad = (ids != np.round(ids)) | (np.abs(ids) >= 2.0**53)  # float64 holds them exactly
     if bad.any():
-        raise ValueError(f"{gt_path}: id {ids[bad][0]:g} is not an integer within int64")
+        raise ValueError(f"{gt_path}: id {ids[bad][0]:g} is not a whole number below 2^53")
     key = np.unique(gt[:, :2], axis=0, return_counts=True)
     if (key[1] > 1).any():
         f, i = key[0][key[1] > 1][0]

@@ -40,12 +40,17 @@ def tracks_to_mot_rows(ids: np.ndarray, positions: np.ndarray, template_size: in
 
 
 def mot_rows_to_tracks(
-    rows: np.ndarray, length: int | None = None, source: str = "results"
+    rows: np.ndarray,
+    length: int | None = None,
+    source: str = "results",
+    head_in_body: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Box centres of MOT rows as ``(ids (N,), positions (T, N, 2))``, NaN where absent.
 
     ``T = length`` when given (rows beyond it are an error), else the last frame.
-    Duplicate ``(frame, id)`` rows are an error.
+    Duplicate ``(frame, id)`` rows are an error. ``head_in_body``: the rows are full-body
+    boxes, and the point is the head, this share of the box's height below its top (as a
+    MOTChallenge sequence's ground truth is read: :data:`synth_data.mot.HEAD_IN_BODY`).
     """
     if length is not None:
         require_number(source, "length", length, lo=0, integer=True)
@@ -64,10 +69,10 @@ def mot_rows_to_tracks(
         raise ValueError(
             f"{source}: row {i + 1}: box {boxes[i].tolist()} is not a finite box of positive size"
         )
-    # ids and frames are whole numbers within int64: truncating id 2.5 or wrapping 1e30 would
-    # merge people, truncating frame 1.5 would move a row
+    # ids and frames are whole numbers that float64 holds exactly: truncating id 2.5, or
+    # reading 2^53 + 1 as 2^53, would merge people; truncating frame 1.5 would move a row
     for col, what, limit, says in (
-        (1, "id", 2.0**63, "is not an integer within int64"),
+        (1, "id", 2.0**53, "is not a whole number below 2^53"),
         (0, "frame", 2.0**62, "is not a whole number"),
     ):
         raw = rows[:, col]
@@ -95,5 +100,6 @@ def mot_rows_to_tracks(
         )
     pos = np.full((t_len, len(ids), 2), np.nan)
     pos[frames - 1, col, 0] = rows[:, 2] + rows[:, 4] / 2.0
-    pos[frames - 1, col, 1] = rows[:, 3] + rows[:, 5] / 2.0
+    below_top = 0.5 if head_in_body is None else float(head_in_body)
+    pos[frames - 1, col, 1] = rows[:, 3] + below_top * rows[:, 5]
     return ids, pos

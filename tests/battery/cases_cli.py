@@ -577,9 +577,9 @@ res_case("eval-res-neg-size", "1,1,2,2,-8,8\n", "box width/height must be >= 0")
 res_case("eval-res-ragged", "1,1,2,2,8,8,1,1,1\n2,1,2,2,8,8\n", "r.txt:2: expected 9 columns")
 res_case("eval-res-outside", "1,1,5000,5000,8,8\n", "point (5004.0, 5004.0) lies outside")
 res_case("eval-res-beyond-length", "99,1,2,2,8,8\n", "99")
-res_case("eval-res-id-float", "1,1.5,2,2,8,8\n", "id 1.5 is not an integer")
+res_case("eval-res-id-float", "1,1.5,2,2,8,8\n", "id 1.5 is not a whole number")
 res_case("eval-res-duplicate", "1,1,2,2,8,8\n1,1,3,3,8,8\n", "appears twice")
-res_case("eval-res-id-huge", "1,1e30,2,2,8,8\n", "id 1e+30 is not an integer")
+res_case("eval-res-id-huge", "1,1e30,2,2,8,8\n", "id 1e+30 is not a whole number below 2^53")
 
 
 MOT_SEQ_CASES: list[tuple[str, Callable[[Path], None], str, bool]] = [
@@ -627,11 +627,11 @@ MOT_SEQ_CASES: list[tuple[str, Callable[[Path], None], str, bool]] = [
         False,
     ),
     ("gt-duplicate", _append_gt("1,1,2,2,12,12,1,1,1\n"), "frame 1, id 1 appears twice", False),
-    ("gt-id-float", _append_gt("2,7.5,2,2,12,12,1,1,1\n"), "id 7.5 is not an integer", False),
+    ("gt-id-float", _append_gt("2,7.5,2,2,12,12,1,1,1\n"), "id 7.5 is not a whole number", False),
     (
         "gt-id-huge",
         _append_gt("2,1e30,2,2,12,12,1,1,1\n"),
-        "id 1e+30 is not an integer within int64",
+        "id 1e+30 is not a whole number below 2^53",
         False,
     ),
     ("gt-text", _gt("1,1,x,2,12,12,1,1,1\n"), "non-numeric value 'x'", False),

@@ -460,3 +460,48 @@ def test_known_id_numbers_on_other_people_are_mapped_by_majority():
     assert same["id_mapping"] == "same" and same["acc@5"] == 100.0
     far = gt + 100.0  # known ids near nobody: no evidence, taken at their word
     assert evaluate([1, 2], gt, [1, 2], far, id_mapping="auto")["id_mapping"] == "same"
+
+
+def test_auto_mapping_judges_known_ids_where_their_tracks_start():
+    """Two people 100 px apart whose tracks (the people's own ids) swap from the second frame
+    on: only frame 1 is right, acc@15 10 %. Judged on every frame, the ids had looked like a
+    tracker's own and the majority vote scored 90 %; swapping later scored lower than that."""
+    t = 10
+    gt = np.zeros((t, 2, 2))
+    gt[:, 1, 0] = 100.0
+    swapped = gt[:, ::-1].copy()
+    swapped[0] = gt[0]
+    rep = evaluate([1, 2], gt, [1, 2], swapped, trackeval=False)
+    assert rep["id_mapping"] == "same" and rep["acc@15"] == pytest.approx(10.0)
+    later = gt[:, ::-1].copy()
+    later[:2] = gt[:2]
+    assert evaluate([1, 2], gt, [1, 2], later, trackeval=False)["acc@15"] == pytest.approx(20.0)
+    # a tracker's own 0, 1 start on the people 1, 2: not their ids, majority vote
+    assert evaluate([1, 2], gt, [0, 1], gt, trackeval=False)["id_mapping"] == "majority"
+
+
+def test_acc_at_t_never_moves_with_trackevals_similarity_scale():
+    """Own ids, each track 10 px off its person: acc@15 100 % whatever T_sim is (at T_sim 8
+    the majority vote had matched no track: 0 %)."""
+    gt = np.zeros((5, 2, 2))
+    gt[:, 1, 0] = 100.0
+    tr = gt + [10.0, 0.0]
+    for scale in (8.0, 15.0, 25.0):
+        rep = evaluate([1, 2], gt, [11, 12], tr, similarity_scale=scale, trackeval=False)
+        assert rep["acc@15"] == 100.0 and rep["id_mapping"] == "majority"
+
+
+def test_ids_past_2_53_are_refused_not_merged():
+    """float64 reads 2^53 + 1 as 2^53: two tracks would have become one."""
+    rows = np.array([[1, 2.0**53, 0, 0, 5, 5, 1, -1, -1]])
+    with pytest.raises(ValueError, match=r"id 9.0072e\+15 is not a whole number below 2\^53"):
+        mot_rows_to_tracks(rows)
+    rows[0, 1] = 2.0**53 - 1
+    assert mot_rows_to_tracks(rows)[0].tolist() == [2**53 - 1]
+
+
+def test_gt_ids_counts_the_people_of_the_frames_scored():
+    gt = np.full((4, 2, 2), np.nan)
+    gt[:2, 0] = 0.0
+    gt[2:, 1] = 50.0
+    assert evaluate([1, 2], gt[:2], [1, 2], gt[:2], trackeval=False)["gt_ids"] == 1
