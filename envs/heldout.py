@@ -31,6 +31,13 @@ _MAX_DRAWS_PER_SEED = 40
 """A scenario family that has not come up after ``40 * families * seeds`` draws is missing."""
 
 
+def _is_folder(objective: Any) -> bool:
+    """Whether ``objective`` tunes on a folder of sequences (which cannot be re-seeded)."""
+    from synth_data.suites import is_spec_suite
+
+    return objective.suite is not None and not is_spec_suite(objective.suite)
+
+
 def heldout_episodes(
     objective: Any, seeds: int, skipped: list[str] | None = None
 ) -> Iterator[tuple[str, Any, Any]]:
@@ -45,9 +52,7 @@ def heldout_episodes(
     re-seeded).
     """
     require_number("heldout", "seeds", seeds, lo=1, integer=True)
-    from synth_data.suites import is_spec_suite
-
-    if objective.suite is not None and not is_spec_suite(objective.suite):
+    if _is_folder(objective):
         src = objective.episodes(heldout=True)
         for i, name in enumerate(src.names()):
             yield name, src.episode(i), src.spec(i)
@@ -212,7 +217,7 @@ def evaluate_heldout(
         "labels": labels,
         "reference": ref,
         "paired": paired,
-        "seeds_per_family": int(seeds),
+        "seeds_per_family": 1 if _is_folder(objective) else int(seeds),  # folders: once each
         "threshold_px": objective.threshold_px,
         "sequences": rows,
         "skipped_empty": skipped,

@@ -427,8 +427,14 @@ def policy_tracker(
     name = kwargs.get("tracker", "bqp")
     base = get(name).make_params(**dict(overrides or {}))
     space = ParamSpace(extended=bool(kwargs.get("extended", False)), base=base)
-    trk = make_tuned_tracker(name, space.to_params(space.default_action))
     k = int(kwargs.get("k_frames", 25))
+    clash = [n for n in space.names if n in (overrides or {})]
+    if clash:  # the policy's first action replaces them: the value would be dropped in silence
+        raise ValueError(
+            f"--set {clash[0]}={overrides[clash[0]]}: {policy_description(meta)} sets "
+            f"{clash[0]} itself; drop it (tuned by the policy: {', '.join(space.names)})"
+        )
+    trk = make_tuned_tracker(name, space.to_params(space.default_action))
     ctl = PolicyControlled(source, trk, model, space, k_frames=k)
     return trk, ctl, f"{name} with {policy_description(meta)}"
 

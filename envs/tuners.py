@@ -121,6 +121,15 @@ class Objective:
             object.__setattr__(self, name, tuple(names))
         if isinstance(self.scenarios, Mapping):
             object.__setattr__(self, "scenarios", ScenarioDistribution.from_dict(self.scenarios))
+        if self.suite is not None:
+            from synth_data.suites import SUITE_NAMES
+
+            suite = str(self.suite)
+            if suite not in SUITE_NAMES and Path(suite).is_dir():
+                # one folder is one suite however it is typed (./own/, its absolute path, or
+                # a relative path from another working folder): the study signature holds it
+                suite = str(Path(suite).resolve())
+            object.__setattr__(self, "suite", suite)
 
     def episodes(self, heldout: bool = False, cache: int = 0) -> EpisodeSource:
         """Training (stream 0) or held-out episodes."""
@@ -423,6 +432,18 @@ def open_study(
                 f"cannot open study {name!r} in {url}: {type(exc).__name__}: "
                 f"{str(exc).splitlines()[0] if str(exc) else ''}"
             ) from None
+        # a resumed study gets a sampler seeded past its history: the same seed would draw
+        # the same startup points again (a run killed after trial k repeats trials 1..k)
+        from optuna.trial import TrialState
+
+        finished = len(
+            study.get_trials(
+                deepcopy=False,
+                states=(TrialState.COMPLETE, TrialState.FAIL, TrialState.PRUNED),
+            )
+        )
+        if finished:
+            study.sampler = _make_sampler(sampler, space, (seed + 7919 * finished) % 2**32, trials)
         if study.direction != optuna.study.StudyDirection.MAXIMIZE:
             raise ValueError(
                 f"study {name!r} in {url} minimises; it is not a crowdsim tuning "
@@ -441,11 +462,12 @@ def open_study(
                     dict(zip(space.names, space.default.tolist(), strict=True)),
                     user_attrs={"defaults": True},
                 )
-        elif old != json.loads(json.dumps(signature)):
+        elif _comparable(old) != _comparable(json.loads(json.dumps(signature))):
             changed = [
                 k
                 for k in signature["objective"]
-                if old.get("objective", {}).get(k) != signature["objective"][k]
+                if k != "heldout_only"
+                and old.get("objective", {}).get(k) != signature["objective"][k]
             ]
             if old.get("space") != signature["space"]:
                 changed.insert(0, "parameter space")
@@ -455,6 +477,32 @@ def open_study(
                 "choose another --out or --study-name"
             )
     return study
+
+
+def _comparable(signature: Any) -> Any:
+    """A study signature without ``heldout_only``: the held-out sequences change no trial's
+    score, so resuming with other ones (or ``--heldout 0`` and none) is the same study."""
+    if not isinstance(signature, dict) or not isinstance(signature.get("objective"), dict):
+        return signature
+    return {
+        **signature,
+        "objective": {k: v for k, v in signature["objective"].items() if k != "heldout_only"},
+    }
+
+
+def _requeue_defaults(study: Any, space: ParamSpace) -> None:
+    """Enqueue the paper defaults again when no trial of them is complete, waiting or running
+    (the enqueued one failed: Ctrl-C or a kill during the study's first trial). Without it the
+    study never scores them and ``default_value`` stays null for good."""
+    from optuna.trial import TrialState
+
+    live = (TrialState.COMPLETE, TrialState.WAITING, TrialState.RUNNING)
+    if any(t.user_attrs.get("defaults") for t in study.get_trials(deepcopy=False, states=live)):
+        return
+    study.enqueue_trial(
+        dict(zip(space.names, space.default.tolist(), strict=True)),
+        user_attrs={"defaults": True},
+    )
 
 
 def complete_trials(study: Any) -> list[Any]:
@@ -693,12 +741,22 @@ def _run_ray(
 
     import optuna
 
-    points = [] if done else [dict(zip(space.names, space.default.tolist(), strict=True))]
+    # a resumed run hands the study's finished trials to the searcher as evaluated points
+    # (not re-run) and seeds it past them, so that it continues the search instead of
+    # drawing the first run's points again
+    history = [t for t in complete_trials(study) if set(t.params) == set(space.names)]
+    if history:
+        points = [{k: float(t.params[k]) for k in space.names} for t in history]
+        rewards = [float(t.value) for t in history]
+    else:
+        points = [dict(zip(space.names, space.default.tolist(), strict=True))]
+        rewards = None
     search = OptunaSearch(
         metric="accuracy",
         mode="max",
-        points_to_evaluate=points or None,
-        sampler=_make_sampler(sampler, space, seed, trials),
+        points_to_evaluate=points,
+        evaluated_rewards=rewards,
+        sampler=_make_sampler(sampler, space, (seed + 7919 * len(history)) % 2**32, trials),
     )
     tuner = rtune.Tuner(
         rtune.with_resources(trainable, {"cpu": 1}),
@@ -832,6 +890,25 @@ def plot_importances(
     return save_figure(fig, path, dpi=110), {k: float(v) for k, v in imp.items()}
 
 
+def _require_unseen(objective: Objective) -> None:
+    """Refuse ``--heldout-only`` sequences that are also tuning sequences (``--only``, or
+    every sequence of the folder without it): their scores would not be held out."""
+    from synth_data.suites import is_spec_suite
+
+    if not objective.heldout_only or objective.suite is None or is_spec_suite(objective.suite):
+        return  # a built-in suite's held-out sequences are re-seeded, never tuned on
+    train = set(objective.only) or set(SuiteEpisodes.folder_names(objective.suite))
+    seen = [n for n in objective.heldout_only if n in train]
+    if seen:
+        where = (
+            "--only" if objective.only else f"every sequence of {objective.suite} without --only"
+        )
+        raise ValueError(
+            f"--heldout-only {seen[0]}: also a tuning sequence ({where}); held-out "
+            "sequences must be ones the tuner never scores"
+        )
+
+
 def tune(
     objective: Objective,
     *,
@@ -876,6 +953,7 @@ def tune(
     objective.episodes()  # validate suite / scenarios / --only before any work
     if heldout:
         objective.episodes(heldout=True)  # a suite folder needs --heldout-only: say it now
+        _require_unseen(objective)
     check_storage(url)  # a foreign study file is refused before anything is created
     check_tune_out(out, heldout > 0)
     # a run refused or stopped before writing anything leaves no folder of its own
@@ -928,6 +1006,8 @@ def _tune_locked(
             n = _fail_orphans(st)  # our own file: RUNNING trials belong to a killed run
             if n:
                 log(f"marked {n} unfinished trial(s) of an interrupted run as failed")
+        if backend == "local":
+            _requeue_defaults(st, space)  # a run killed in its first trial failed them
         before = len(complete_trials(st))
         if before:
             log(f"resuming study {study_name!r}: {before} finished trial(s) in {url}")
@@ -972,7 +1052,11 @@ def _tune_locked(
             "default_value": default_value,
             "trial": int(best.number),
             "trials": len(ts),
-            "metric": f"mean accuracy at {objective.threshold_px:g} px (%) on the tuning sequences",
+            "metric": (
+                f"mean accuracy at {objective.threshold_px:g} px (%) on the tuning sequences, "
+                "frame 1 (the initialisation) left out; track --evaluate and the held-out "
+                "scores count it"
+            ),
             "objective": objective.describe(),
             "space": space.describe(),
             "importances": importances,

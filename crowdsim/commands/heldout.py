@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
     )
     files = write_heldout(result, out)
     n = len(result["sequences"])
-    print(f"{n} held-out sequences ({args.seeds} per family), mean ± std:")
+    print(f"{n} held-out sequences ({result['seeds_per_family']} per family), mean ± std:")
     print(heldout_table(result), end="")
     print(f"-> {files['heldout']}, {files['heldout_table']}, {files['heldout_plot']}")
     return 0

@@ -89,7 +89,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help=f"also tune the tracker's extra parameters ({extended_summary()})",
     )
     add_tracker_argument(p)
-    p.add_argument("--seed", type=int, default=0, help="sampler seed")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="sampler seed: one worker draws the same trials every run; with several, the "
+        "order in which trials finish changes what the sampler draws next",
+    )
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.set_defaults(func=run)
@@ -126,14 +132,16 @@ def run(args: argparse.Namespace) -> int:
     default = "n/a" if res.default_value is None else f"{res.default_value:.2f} %"
     print(
         f"{res.trials} trials; best acc@{t:g} on the tuning sequences {res.best_value:.2f} % "
-        f"(paper defaults {default})"
+        f"(paper defaults {default}; scored on the frames after the first, where track "
+        "--evaluate and the held-out scores count the first too)"
     )
     print("best: " + ", ".join(f"{k}={v:.4g}" for k, v in res.best_params.items()))
     if res.heldout:
         from envs.heldout import heldout_table
 
         n = len(res.heldout["sequences"])
-        print(f"held-out ({n} sequences, {args.heldout} per family, mean ± std):")
+        per = res.heldout["seeds_per_family"]
+        print(f"held-out ({n} sequences, {per} per family, mean ± std):")
         print(heldout_table(res.heldout), end="")
     print(f"-> {res.files['best_params']}")
     return 0
