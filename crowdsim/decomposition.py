@@ -946,7 +946,8 @@ class _Strip:
             sh.alive[wb],
         ):
             raise FloatingPointError(
-                f"non-finite agent state at step {steps}; reduce dt (now {p.dt} s)"
+                f"non-finite agent state at step {steps}; reduce dt (now {p.dt} s) or the "
+                "force strengths (--param)"
             )
         self.stage_s[:] = (t1 - t0, t2 - t1, t3 - t2, perf_counter() - t3)
 

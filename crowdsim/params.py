@@ -51,7 +51,9 @@ class SocialForceParams:
     potential : str
         ``"elliptic"``: pedestrian potential ``V(b) = V0 exp(-b/sigma)`` over the semi-minor
         axis ``b`` of the ellipse spanned by the other's step ``v_j * delta_t`` [HM95 Eq. 4];
-        ``"exponential"``: circular ``A exp((r_ij - d_ij)/B)`` [HFV00].
+        ``"exponential"``: circular ``A exp((r_ij - d_ij)/B)`` [HFV00], the repulsion term
+        alone: HFV00's body force and sliding friction (``k``, ``kappa``) are not modelled,
+        pymunk's rigid contacts (friction 0.3) stand in for them.
     V0 : float
         Pedestrian potential strength ``V0_ab`` [HM95], m²/s².
     sigma : float

@@ -43,8 +43,12 @@ def plot_trajectories(
         ax.plot([x0, x1], [y0, y1], "k-", lw=1.5)
     pos = traj.positions
     step = max(1, traj.n_agents // max_tracks)
+    period = traj.period
     for n in range(0, traj.n_agents, step):
-        ax.plot(pos[:, n, 0], pos[:, n, 1], "-", lw=0.6, alpha=0.7)
+        x, y = pos[:, n, 0].copy(), pos[:, n, 1]
+        if period > 0:  # break the line where the agent crosses the seam
+            x[1:][np.abs(np.diff(x)) > period / 2] = np.nan
+        ax.plot(x, y, "-", lw=0.6, alpha=0.7)
     last = pos[-1][traj.present[-1]]
     ax.scatter(last[:, 0], last[:, 1], s=4, c="k", zorder=3, label="last positions")
     ax.set_aspect("equal")

@@ -137,7 +137,9 @@ class Simulation:
     seed : int
         Seed of every random draw (placement, speeds, arrivals).
     params : SocialForceParams, optional
-        Model parameters; defaults to Helbing & Molnár (1995) values.
+        Model parameters; defaults to :class:`SocialForceParams`' own: Helbing & Molnár's
+        (1995) potentials and strengths, with the departures the README's model table
+        measures (``c`` 0.6, ``step_time`` 0.4 s, the self-stopping headway).
     record : bool
         Keep positions of every step for :attr:`trajectories` (turn off for pure speed runs).
     workers : int
@@ -378,7 +380,9 @@ class Simulation:
             raise ValueError(f"add_agents.route must be in [0, {n_routes}), got {routes}")
         batch = AgentBatch(
             pos=pos,
-            vel=np.zeros((m, 2)) if vel is None else _velocities(vel, m, "add_agents.vel"),
+            vel=np.zeros((m, 2))
+            if vel is None
+            else _desired_velocities(vel, np.arange(m), "add_agents.vel"),
             radius=radius,
             desired_speed=speed,
             route=routes,
@@ -461,6 +465,8 @@ class Simulation:
                 raise ValueError(f"{name} must be finite")
             if name == "pos":
                 self._require_inside(value, "set_state.pos")
+            else:  # a body faster than this leaves the world within a step, unseen
+                _desired_velocities(value, self.state.ids, "set_state.vel")
             setattr(self.state, name, value)
         if self.world.period > 0:
             self.state.pos[:, 0] %= self.world.period
@@ -527,6 +533,9 @@ class Simulation:
                 "numpy": np.__version__,
             },
             "info": _jsonable(self.info),
+            # a periodic x axis: Trajectories.velocities takes a step across the seam the
+            # short way round (it had read up to 417 m/s there)
+            **({"period": float(self.world.period)} if self.world.period > 0 else {}),
             **({"workers": self.workers} if self.workers > 1 else {}),
         }
 
@@ -673,7 +682,8 @@ class Simulation:
         self.state.vel = mine[:, 2:].copy()
         if not np.isfinite(mine).all():
             raise FloatingPointError(
-                f"non-finite agent state at step {self.steps}; reduce dt (now {self.params.dt} s)"
+                f"non-finite agent state at step {self.steps}; reduce dt (now {self.params.dt} "
+                "s) or the force strengths (--param)"
             )
 
     def _wrap_and_cull(self) -> None:
@@ -884,8 +894,9 @@ def _velocities(value: Any, m: int, where: str) -> np.ndarray:
 
 
 def _desired_velocities(value: Any, ids: np.ndarray, where: str) -> np.ndarray:
-    """:func:`_velocities` of the agents ``ids``, each at most :data:`MAX_SPEED` (a faster
-    command would throw the agent out of the world within a few steps)."""
+    """:func:`_velocities` of the agents ``ids`` (for new agents, their rows), each at most
+    :data:`MAX_SPEED` (a faster command or start would throw the agent out of the world
+    within a few steps)."""
     vel = _velocities(value, len(ids), where)
     fast = np.hypot(vel[:, 0], vel[:, 1]) > MAX_SPEED
     if fast.any():

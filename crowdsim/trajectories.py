@@ -15,6 +15,7 @@ writes the ``frame,id,x,y`` CSV shape that public pedestrian data sets use.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import zipfile
@@ -121,10 +122,26 @@ class Trajectories:
         """``(T, N)`` bool, True where the agent is present."""
         return ~np.isnan(self.positions[..., 0])
 
+    @property
+    def period(self) -> float:
+        """Length of a periodic x axis (m) from ``meta`` (0 = none)."""
+        value = self.meta.get("period", 0.0) or 0.0
+        try:
+            period = float(value)
+        except (TypeError, ValueError):
+            period = math.nan
+        if not (math.isfinite(period) and period >= 0):
+            raise ValueError(f"trajectories meta.period must be a length >= 0 m, got {value!r}")
+        return period
+
     def velocities(self) -> np.ndarray:
-        """``(T, N, 2)`` m/s by backward differences; NaN at entry rows and where absent."""
+        """``(T, N, 2)`` m/s by backward differences; NaN at entry rows and where absent.
+        On a periodic x axis a step across the seam counts as the short way round."""
         vel = np.full_like(self.positions, np.nan)
-        vel[1:] = (self.positions[1:] - self.positions[:-1]) / self.dt
+        d = self.positions[1:] - self.positions[:-1]
+        if self.period > 0:
+            d[..., 0] -= self.period * np.round(d[..., 0] / self.period)
+        vel[1:] = d / self.dt
         return vel
 
     def extent(self) -> tuple[float, float, float, float]:

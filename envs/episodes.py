@@ -342,7 +342,10 @@ class ScenarioDistribution:
             frames=self.frames,
             fps=float(self.fps),
             warmup_steps=self.warmup_steps,
-            scenario={"name": scen, "n_agents": n, "density": round(density, 3)},
+            scenario={"name": scen, "n_agents": n, "density": round(density, 3)}
+            # the station's route layout the tuning evidence was measured on (no draw: every
+            # episode stays the same; crowdsim.scenarios.Station says what layout 2 mends)
+            | ({"routes": 1} if scen == "station" else {}),
             camera={"max_width": self.max_width, "max_height": self.max_height},
             appearance=appearance,
             output={"images": True, "video": False},

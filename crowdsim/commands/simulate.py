@@ -162,7 +162,8 @@ def check_inflow_memory(sim, steps: int) -> None:
     """Refuse, before stepping, a run whose sources would bring more people than the memory
     holds: the trajectories are dense, one column per person who was ever there, so a
     station's inflow makes them grow with the square of the steps (``--agents 50 --steps
-    20000`` ends with about 3,400 people and 3.4 GB; :func:`check_args` counts ``--agents``)."""
+    20000`` ended with about 3,400 people and 3.4 GB under the station's route layout 1;
+    :func:`check_args` counts ``--agents``)."""
     from crowdsim.checks import require_memory
 
     seconds = steps * sim.params.dt
@@ -215,7 +216,8 @@ def run(args: argparse.Namespace) -> int:
             t0 = time.perf_counter()
             traj = sim.run(args.steps, progress=not args.no_progress)
             wall = time.perf_counter() - t0
-    except WorkerFailed as exc:  # the workers are stopped; nothing was written
+    # the workers are stopped, or the state overflowed (a dt or force far too large)
+    except (WorkerFailed, FloatingPointError) as exc:
         print(f"crowdsim simulate: error: {exc}; nothing written", file=sys.stderr)
         return 2
     assert traj is not None

@@ -35,9 +35,14 @@ case(
 case(
     "sim-steps-inflow-memory",  # 50 people at the start, but the station's doors bring more
     "simulate station --agents 50 --steps 100000 --no-progress",
-    "--steps 100000 with the scenario's inflow (about 26,800 more people at 6.70 a second",
+    "--steps 100000 with the scenario's inflow (about 17,574 more people at 4.39 a second",
 )
 case("sim-steps-float", f"{SIM} --steps 2.5", "'2.5'")
+case(  # a finite but absurd force overflows the state: one line, not FloatingPointError's trace
+    "sim-param-overflow",
+    "simulate counterflow --agents 20 --steps 30 --no-progress --param U0=1e308",
+    "or the force strengths (--param); nothing written",
+)
 case("sim-dt-0", f"{SIM} --dt 0", "--dt must be in (0, 0.2] seconds, got 0.0")
 # sizes and speeds far outside any crowd: named before the world's walls fill the memory
 SIM1 = "simulate {} --agents 10 --steps 1 --no-progress --set {}"

@@ -254,7 +254,7 @@ def test_generate_overwrite_keeps_a_user_file_inside_a_sequence(tmp_path, capsys
 
     spec = tmp_path / "s.toml"
     spec.write_text(
-        'name = "s"\nseed = 1\nframes = 3\n[scenario]\nname = "marathon"\nn_agents = 4\n'
+        'name = "s"\nseed = 1\nframes = 3\n[scenario]\nname = "marathon"\nn_agents = 40\n'
         "[camera]\nmax_width = 64\nmax_height = 48\n[appearance]\ntemplate_px = 8\n"
     )
     out = tmp_path / "out"

@@ -198,3 +198,25 @@ def test_nearest_wall_distance_and_direction():
     np.testing.assert_allclose(clearance[:3], [0.95, 0.45, 1.95])
     np.testing.assert_allclose(direction[:3], [[0, -1], [0, 1], [0, -1]])
     assert clearance[3] == np.inf and not direction[3].any()
+
+
+def test_starting_velocities_hold_the_speed_limit():
+    """A body started at 1e6 m/s had left the world in one step and been removed unseen."""
+    sim = two_groups()
+    with pytest.raises(ValueError, match=r"add_agents.vel must be at most .* agent 0"):
+        sim.add_agents([[1.0, 1.0]], vel=[1e6, 0.0])
+    with pytest.raises(ValueError, match=r"set_state.vel must be at most"):
+        sim.set_state(vel=np.full((sim.state.n, 2), 1e6))
+
+
+def test_a_periodic_world_reads_its_speeds_the_short_way_round():
+    """A step across the seam of a periodic corridor had counted as a jump of the whole
+    length (up to 417 m/s): the trajectories now carry the period."""
+    sim = Simulation(make_scenario("counterflow", n_agents=60, periodic=True, inflow=False), seed=1)
+    traj = sim.run(150)
+    assert traj.period == sim.world.period > 0
+    speed = np.linalg.norm(traj.velocities(), axis=-1)
+    assert np.nanmax(speed) < 5.0
+    back = traj.__class__(positions=traj.positions, ids=traj.ids, dt=traj.dt, meta={"period": "x"})
+    with pytest.raises(ValueError, match="meta.period must be a length >= 0 m, got 'x'"):
+        back.velocities()

@@ -274,3 +274,31 @@ def test_thinning_keeps_the_earlier_candidate_of_each_close_pair():
         _thin_to_min_distance(cand, 1.0, 10), [[0.0, 0.0], [1.6, 0.0], [5.0, 0.0]]
     )
     np.testing.assert_array_equal(_thin_to_min_distance(cand, 1.0, 2), [[0.0, 0.0], [1.6, 0.0]])
+
+
+@pytest.mark.parametrize("routes", [1, 2])
+def test_station_keeps_its_people_inside_and_near_its_size(routes):
+    """Layout 2: no one walks along the outside of the walls (beyond the 3 m where walkers
+    arrive and leave) and 73 people stay under 1.6 times that; layout 1, kept for the
+    calibrated suites, had up to 9 far outside the walls and grew to about 150."""
+    sim = Simulation(make_scenario("station", n_agents=73, routes=routes), seed=1007)
+    side = sim.info["side"]
+    doors = np.asarray(sim.info["doors"])
+    centres = (doors[:, :2] + doors[:, 2:4]) / 2
+    far, most = 0, 0
+    for _ in range(9):
+        sim.run(250)
+        p = sim.state.pos
+        outside = ((p < -0.3) | (p > side + 0.3)).any(1)
+        to_door = np.sqrt(((p[:, None] - centres[None]) ** 2).sum(-1)).min(1)
+        far = max(far, int((outside & (to_door > 5.5)).sum()))
+        most = max(most, sim.state.n)
+    if routes == 2:
+        assert far == 0 and most <= 1.6 * 73, (far, most)
+    else:
+        assert far > 0 and most > 1.6 * 73, (far, most)
+
+
+def test_station_routes_is_checked():
+    with pytest.raises(ValueError, match="station.routes must be 1 or 2, got 3"):
+        make_scenario("station", routes=3)
