@@ -927,8 +927,8 @@ class _Strip:
         forces = np.zeros((self.n_rows, 2))
         _scatter_scaled(acc, p.mass, self.rows, forces)
         t2 = perf_counter()
-        sub_dt = p.dt / p.contact_substeps
-        for _ in range(int(p.contact_substeps)):
+        sub_dt = p.dt / p.substeps
+        for _ in range(p.substeps):
             self.body_rows.write(_BODY.FORCE, forces)  # pymunk clears forces
             self.space.step(sub_dt)
         t3 = perf_counter()

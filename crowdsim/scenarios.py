@@ -283,7 +283,9 @@ class Groups(Scenario):
     """Unidirectional corridor in which 2-5-person groups keep formation (Moussaïd 2010).
 
     ``group_fraction`` of the agents walk in groups of ``group_size`` (inclusive range) people;
-    members share one desired speed (the group walks together) and start next to each other.
+    members share one desired speed (the group walks together) and start near each other
+    (consecutive places of a grid ordered along the corridor, so some members start a few
+    metres apart; the group terms gather them in the first seconds).
 
     Extra attributes: ``width`` (m), ``group_fraction``, ``group_size``.
     """
@@ -336,8 +338,9 @@ class Anomalies(Scenario):
     """A street flow towards +x in which a fraction of people behaves abnormally.
 
     Kinds (``ANOMALY_KINDS``): ``against`` walks against the flow, ``stop`` stands still for
-    3-8 s, ``cross`` crosses to the other side of the street, ``leave`` leaves the flow
-    through a side exit in the middle of the street.
+    3-8 s (its desired speed is 0, nothing holds it in place: passers-by push it along, and
+    it drifts with them), ``cross`` crosses to the other side of the street, ``leave``
+    leaves the flow through a side exit in the middle of the street.
 
     Extra attributes: ``width`` (m), ``anomaly_fraction``, ``kinds`` (names to use).
     """

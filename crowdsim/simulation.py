@@ -280,8 +280,8 @@ class Simulation:
             forces[self._row_of_agent] = acc * p.mass
         # Social forces stay fixed over the step; contacts are resolved in sub-steps so that
         # fast head-on encounters do not sink into each other within one 0.04 s move.
-        sub_dt = p.dt / p.contact_substeps
-        for _ in range(int(p.contact_substeps)):
+        sub_dt = p.dt / p.substeps
+        for _ in range(p.substeps):
             if st.n:
                 self._rows.write(_BODY.FORCE, forces)  # pymunk clears forces
             self._space.step(sub_dt)

@@ -302,3 +302,20 @@ def test_station_keeps_its_people_inside_and_near_its_size(routes):
 def test_station_routes_is_checked():
     with pytest.raises(ValueError, match="station.routes must be 1 or 2, got 3"):
         make_scenario("station", routes=3)
+
+
+def test_a_long_step_takes_more_contact_substeps_and_keeps_bodies_inside():
+    """dt 0.2 s with everyone driven at 10 m/s into a corridor's wall: with three sub-steps
+    77 of 300 went through it and walkers sank 0.9 of their radius into each other."""
+    from crowdsim.params import SocialForceParams
+
+    assert SocialForceParams().substeps == 3 and SocialForceParams(dt=0.2).substeps == 15
+    sc = make_scenario("counterflow", n_agents=300, density=0.5, width=4.0, periodic=True)
+    sim = Simulation(sc, seed=1, params=SocialForceParams(dt=0.2))
+    n0 = sim.state.n
+    sim.set_desired(sim.state.ids, [0.0, 10.0])
+    worst = 0.0
+    for _ in range(30):
+        sim.step()
+        worst = max(worst, max_overlap(sim.state.pos, sim.state.radius, sim.world.period))
+    assert sim.state.n == n0 and worst < 0.5, (n0 - sim.state.n, worst)
