@@ -1,7 +1,8 @@
 """``crowdsim compare``: every tracker on a suite, the papers' figures beside ours.
 
 ``crowdsim compare --suite NAME|DIR [--only SEQ ...] [--trackers NAME ...] [--cmc]
-[--set NAME=VALUE ...] [--frames N] [--workers N] [--backend local|ray [--address ADDR]] --out DIR``
+[--params FILE ...] [--set NAME=VALUE ...] [--frames N] [--workers N]
+[--backend local|ray [--address ADDR]] --out DIR``
 
 ``--suite`` is a built-in suite (ucf9, ucf9-shake, ucf9-drone, galleria, stress) or a suite
 folder of spec files, such as the one ``crowdsim calibrate --out`` writes (its ``paper.json``
@@ -9,7 +10,8 @@ gives the papers' column).
 Rows: NCC, mean-shift, PNMC, BQP (KCF), BQP (NCC appearance), ByteTrack and OC-SORT at
 detector miss rates 0.1 and 0.3; with ``--cmc``, each detection-free tracker also with
 camera-motion compensation (``<row> + CMC``); ``--trackers`` keeps only the rows of those
-registered trackers; ``--set NAME=VALUE`` gives every row whose tracker has that parameter
+registered trackers; ``--params FILE ...`` adds a row per tuned parameter file (the tracker it
+names, with its parameters); ``--set NAME=VALUE`` gives every row whose tracker has that parameter
 its value (``--set fw_variant=block``: both BQP rows with the block solver). Per sequence:
 acc@15, acc@5, MOTA, IDF1, HOTA, frames/s. Writes ``table.md``, ``table.csv`` and
 accuracy-versus-threshold PNGs and prints the table.
@@ -54,7 +56,46 @@ def register(sub: argparse._SubParsersAction) -> None:
         "bytetrack, ocsort; any other registered tracker (bqp-dense, one of your own) gets a "
         "row under its name (default: every row)",
     )
+    p.add_argument(
+        "--params",
+        nargs="+",
+        metavar="FILE",
+        help="add a row for each tuned parameter file (best_params.json of crowdsim tune, or "
+        "any file track --params takes): the tracker it names with those parameters, "
+        "labelled 'NAME tuned (FOLDER/FILE)'",
+    )
     p.set_defaults(func=run)
+
+
+def tuned_rows(files: list[str]) -> tuple:
+    """One :class:`~crowdsim.lab.experiments.Row` per parameter file: the tracker the file
+    names, overriding the fields whose values differ from its defaults (so ``--set`` of one
+    of them is refused as the row's own)."""
+    from dataclasses import fields
+    from pathlib import Path
+
+    from crowdsim.lab.experiments import Row
+    from envs.param_space import load_params
+    from synth_data.detections import DetectionParams
+    from tracker.registry import get
+
+    rows = []
+    for file in files:
+        name, params = load_params(file)  # errors name the file
+        entry = get(name)
+        default = entry.make_params()
+        overrides = {
+            f.name: getattr(params, f.name)
+            for f in fields(params)
+            if getattr(params, f.name) != getattr(default, f.name)
+        }
+        path = Path(file)
+        label = f"{name} tuned ({path.parent.name + '/' if path.parent.name else ''}{path.name})"
+        by_detection = entry.tracker_class().id_mapping != "same"
+        rows.append(
+            Row(label, name, overrides, detections=DetectionParams() if by_detection else None)
+        )
+    return tuple(rows)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,5 +118,7 @@ def run(args: argparse.Namespace) -> int:
             by_detection = entry.tracker_class().id_mapping != "same"
             extra.append(Row(name, name, detections=DetectionParams() if by_detection else None))
         rows = tuple(r for r in rows if r.tracker in args.trackers) + tuple(extra)
+    if args.params:
+        rows = tuple(rows) + tuned_rows(args.params)
     rows = with_cmc(rows) if args.cmc else rows
     return run_table_command(args, rows, f"compare on {args.suite}", "acc@15")

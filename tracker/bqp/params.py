@@ -72,7 +72,9 @@ class BQPParams:
     kcf_lambda : float
         Ridge regulariser ``lambda`` of Eq. 4.
     kcf_learning_rate : float
-        Interpolation factor of the KCF model update (as in [15]).
+        Interpolation factor of the KCF model update, updated as in [15] (whose code takes
+        0.075 for raw pixels and 0.02 for HOG features; 0.05 here, not measured against
+        either).
     kcf_label_sigma : float
         Standard deviation of the Gaussian regression target ``y`` of Eq. 4, template sizes.
     kcf_kernel : str
@@ -117,7 +119,9 @@ class BQPParams:
         ``S``; entries below ``exp(-1.125) = 0.32``). 1.5 instead of 2 made 1000 targets at
         2.5 people/m^2 18 % faster for accuracy changes within +-0.2 points.
     group_sigma : float
-        ``sigma`` of Eq. 10, template sizes.
+        ``sigma`` of Eq. 10, template sizes (the paper reuses Eq. 9's, half the target size;
+        0.25 here, and the deviation ``|p_i - p_j| - e_ij`` is squared, as SPEC has it: the
+        paper prints it unsquared).
     laplacian_tau : float
         Degree regulariser ``tau`` of both normalised Laplacians,
         ``(D + tau I)^-1/2 (D -/+ W) (D + tau I)^-1/2`` (0 = the paper's ``I -/+ D^-1/2 W

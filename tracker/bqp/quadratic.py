@@ -12,10 +12,14 @@ Laplacian, PSD) rewards co-selecting candidates that keep the group's formation.
 proximity the paper's ``C_sp = I - D^-1/2 S D^-1/2`` would *reward* co-selecting close
 candidates of two targets, the opposite of its stated purpose; we use the signless normalised
 Laplacian ``C_sp = I + D^-1/2 S D^-1/2 = D^-1/2 (D + S) D^-1/2``, which is PSD as well and
-penalises close co-selection. On binary points the identity part is a constant. The identity
-is only put on candidates with at least one neighbour (``D_ii > 0``). Optionally the degrees
-are regularised, ``(D + tau I)^-1/2 (D +/- W) (D + tau I)^-1/2`` (still PSD), so that a weak
-similarity between two otherwise isolated candidates stays weak (the tracker uses tau = 1).
+penalises close co-selection. The identity is only put on candidates with at least one
+neighbour (``D_ii > 0``), and with the degrees regularised, ``(D + tau I)^-1/2 (D +/- W)
+(D + tau I)^-1/2`` (still PSD, so that a weak similarity between two otherwise isolated
+candidates stays weak; the tracker uses tau = 1), it becomes ``D / (D + tau)``. So, unlike
+the paper's identity on every candidate, it is not a constant on binary points: two targets
+on one grouping edge pay 0 for keeping their formation, 1 (tau 0) or 0.5 (tau 1) for
+breaking it on one side and 0 for breaking it on both, where the paper's form pays 0, 2, 2
+(a departure found by an audit; the README says why it is not mended yet).
 
 The matrix is written by compiled kernels, one pass each, with no Python loop over targets:
 the linked pairs are counted (:func:`_pair_entries`), their Gaussians evaluated (from tables

@@ -260,7 +260,10 @@ def neighbours_in_groups(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The ``N_i`` of Eq. 7 and their weights (Eq. 8).
 
-    Up to ``k`` nearest targets of the same coherent group within ``radius`` px. Weights are
+    The targets of the same coherent group among the ``k`` nearest group members within
+    ``radius`` px (targets of other groups take places: where two groups interleave, a target
+    is left with fewer than ``k`` or none; Eq. 7's ``N_i`` are the ``k`` nearest of the same
+    group, a departure the README lists as not yet mended). Weights are
     ``exp(-|p_j - p_i|^2 / scale^2)`` normalised over ``N_i`` (Eq. 8 with distances measured in
     units of ``scale`` px).
 
