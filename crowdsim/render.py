@@ -893,12 +893,18 @@ class SceneRenderer:
             value = np.asarray(value)
             if value.shape != (n,):
                 raise ValueError(f"{name} must have shape ({n},), got {value.shape}")
-            if n and value.dtype.kind not in "iu":
+            if value.dtype.kind not in "iubf":
                 raise ValueError(f"{name} must hold integer indices, got {value.dtype}")
             used = value[drawn]
+            # whole numbers in any numeric dtype (a float column read from a file), as before
+            if value.dtype.kind == "f" and not (np.isfinite(used) & (used == np.round(used))).all():
+                bad = used[~(np.isfinite(used) & (used == np.round(used)))][0]
+                raise ValueError(f"{name} must hold integer indices, got {bad}")
             if len(used) and (used.min() < 0 or used.max() >= count):
                 raise ValueError(f"{name} must be in [0, {count}), got {used.min()}..{used.max()}")
-            checked.append(value.astype(np.int64, copy=False))
+            out = np.zeros(n, np.int64)  # absent rows are never read
+            out[drawn] = used
+            checked.append(out)
         return pixels, heading, checked[0], checked[1]
 
     def _render_view(

@@ -382,7 +382,7 @@ class Simulation:
             pos=pos,
             vel=np.zeros((m, 2))
             if vel is None
-            else _desired_velocities(vel, np.arange(m), "add_agents.vel"),
+            else _desired_velocities(vel, np.arange(m), "add_agents.vel", "row"),
             radius=radius,
             desired_speed=speed,
             route=routes,
@@ -455,6 +455,7 @@ class Simulation:
         """Overwrite positions ``(n, 2)`` m and/or velocities ``(n, 2)`` m/s of the present
         agents (in :attr:`state` order), e.g. to build a hand-made scene."""
         n = self.state.n
+        given = {}
         for name, value in (("pos", pos), ("vel", vel)):
             if value is None:
                 continue
@@ -467,6 +468,8 @@ class Simulation:
                 self._require_inside(value, "set_state.pos")
             else:  # a body faster than this leaves the world within a step, unseen
                 _desired_velocities(value, self.state.ids, "set_state.vel")
+            given[name] = value
+        for name, value in given.items():  # both checked before either is set
             setattr(self.state, name, value)
         if self.world.period > 0:
             self.state.pos[:, 0] %= self.world.period
@@ -893,16 +896,16 @@ def _velocities(value: Any, m: int, where: str) -> np.ndarray:
     return np.array(v)
 
 
-def _desired_velocities(value: Any, ids: np.ndarray, where: str) -> np.ndarray:
-    """:func:`_velocities` of the agents ``ids`` (for new agents, their rows), each at most
-    :data:`MAX_SPEED` (a faster command or start would throw the agent out of the world
-    within a few steps)."""
+def _desired_velocities(value: Any, ids: np.ndarray, where: str, what: str = "agent") -> np.ndarray:
+    """:func:`_velocities` of the agents ``ids`` (for new agents, their rows: ``what`` names
+    which), each at most :data:`MAX_SPEED` (a faster command or start would throw the agent
+    out of the world within a few steps)."""
     vel = _velocities(value, len(ids), where)
     fast = np.hypot(vel[:, 0], vel[:, 1]) > MAX_SPEED
     if fast.any():
         raise ValueError(
             f"{where} must be at most {MAX_SPEED} m/s, got "
-            f"{vel[fast][0].tolist()} for agent {int(ids[fast][0])}"
+            f"{vel[fast][0].tolist()} for {what} {int(ids[fast][0])}"
         )
     return vel
 

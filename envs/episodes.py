@@ -257,7 +257,8 @@ class ScenarioDistribution:
         # whole numbers written as 100.0 or 1e2 in a file are the integers they mean
         object.__setattr__(self, "frames", int(self.frames))
         object.__setattr__(self, "warmup_steps", int(self.warmup_steps))
-        require_number(own, "fps", self.fps, lo=1, hi=240)
+        # a spec's lowest frame rate: the simulation steps 1 / fps s, at most 0.2 s
+        require_number(own, "fps", self.fps, lo=5, hi=240)
         require_number(own, "max_width", self.max_width, lo=32, hi=MAX_SIDE_PX, integer=True)
         require_number(own, "max_height", self.max_height, lo=32, hi=MAX_SIDE_PX, integer=True)
 

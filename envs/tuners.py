@@ -480,14 +480,19 @@ def open_study(
 
 
 def _comparable(signature: Any) -> Any:
-    """A study signature without ``heldout_only``: the held-out sequences change no trial's
-    score, so resuming with other ones (or ``--heldout 0`` and none) is the same study."""
+    """A study signature without ``heldout_only`` (the held-out sequences change no trial's
+    score, so resuming with other ones, or ``--heldout 0`` and none, is the same study) and
+    with a suite folder's path resolved."""
     if not isinstance(signature, dict) or not isinstance(signature.get("objective"), dict):
         return signature
-    return {
-        **signature,
-        "objective": {k: v for k, v in signature["objective"].items() if k != "heldout_only"},
-    }
+    from synth_data.suites import SUITE_NAMES
+
+    objective = {k: v for k, v in signature["objective"].items() if k != "heldout_only"}
+    suite = objective.get("suite")
+    if isinstance(suite, str) and suite not in SUITE_NAMES and Path(suite).is_dir():
+        # a study from before suite folders were stored resolved holds the path as typed
+        objective["suite"] = str(Path(suite).resolve())
+    return {**signature, "objective": objective}
 
 
 def _requeue_defaults(study: Any, space: ParamSpace) -> None:

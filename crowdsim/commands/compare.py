@@ -62,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="FILE",
         help="add a row for each tuned parameter file (best_params.json of crowdsim tune, or "
         "any file track --params takes): the tracker it names with those parameters, "
-        "labelled 'NAME tuned (FOLDER/FILE)'",
+        "labelled 'NAME tuned (FILE)'",
     )
     p.set_defaults(func=run)
 
@@ -89,8 +89,7 @@ def tuned_rows(files: list[str]) -> tuple:
             for f in fields(params)
             if getattr(params, f.name) != getattr(default, f.name)
         }
-        path = Path(file)
-        label = f"{name} tuned ({path.parent.name + '/' if path.parent.name else ''}{path.name})"
+        label = f"{name} tuned ({Path(file).as_posix()})"  # as typed: two runs' files differ
         by_detection = entry.tracker_class().id_mapping != "same"
         rows.append(
             Row(label, name, overrides, detections=DetectionParams() if by_detection else None)

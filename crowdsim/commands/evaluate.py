@@ -120,7 +120,9 @@ def _body_boxes(results: str, seq, rows) -> float | None:
 
     if seq.box_type != "body" or not len(rows):
         return None
-    if float(np.median(rows[:, 5] / rows[:, 4])) < TALL_BOXES:
+    with np.errstate(invalid="ignore"):  # the rows' own check names a bad box later
+        tall = float(np.nanmedian(rows[:, 5] / np.maximum(rows[:, 4], 1e-9)))
+    if not tall >= TALL_BOXES:
         return None
     print(
         note_line(

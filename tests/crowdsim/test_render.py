@@ -138,7 +138,7 @@ def test_edge_cases_render_without_error(points):
     [
         ([[50.0, 50.0]], [0.0], [10**6], None, "appearance must be in [0, "),
         ([[50.0, 50.0]], [0.0], [-1], None, "appearance must be in [0, "),
-        ([[50.0, 50.0]], [0.0], [0.0], None, "appearance must hold integer indices, got float64"),
+        ([[50.0, 50.0]], [0.0], [0.5], None, "appearance must hold integer indices, got 0.5"),
         ([[50.0, 50.0]], [0.0], [0], [99], "pose must be in [0, "),
         ([[50.0, 50.0, 1.0]], [0.0], [0], None, "pixels must have shape (n, 2), got (1, 3)"),
         ([[50.0, 50.0]], [0.0, 1.0], [0], None, "heading must have shape (1,), got (2,)"),
@@ -156,6 +156,12 @@ def test_bad_agent_arrays_are_refused_by_name(pixels, heading, appearance, pose,
     # an absent agent's index is never read, so it is not checked
     frame = r.render(0, np.array([[np.nan, np.nan]]), np.zeros(1), np.array([10**6]))
     assert frame.shape == (176, 256, 3)
+    # whole numbers in a float array (a column read from a file) draw as the integers do
+    pts = np.array([[50.0, 50.0], [80.0, 60.0], [np.nan, np.nan]])
+    as_int = r.render(0, pts, np.zeros(3), np.array([1, 2, 0]))
+    np.testing.assert_array_equal(
+        r.render(0, pts, np.zeros(3), np.array([1.0, 2.0, np.nan])), as_int
+    )
 
 
 def _bilinear(image: np.ndarray, y: float, x: float, h: int, w: int) -> np.ndarray:

@@ -203,10 +203,12 @@ def test_nearest_wall_distance_and_direction():
 def test_starting_velocities_hold_the_speed_limit():
     """A body started at 1e6 m/s had left the world in one step and been removed unseen."""
     sim = two_groups()
-    with pytest.raises(ValueError, match=r"add_agents.vel must be at most .* agent 0"):
+    with pytest.raises(ValueError, match=r"add_agents.vel must be at most .* row 0"):
         sim.add_agents([[1.0, 1.0]], vel=[1e6, 0.0])
+    before = sim.state.pos.copy()
     with pytest.raises(ValueError, match=r"set_state.vel must be at most"):
-        sim.set_state(vel=np.full((sim.state.n, 2), 1e6))
+        sim.set_state(pos=before + 0.1, vel=np.full((sim.state.n, 2), 1e6))
+    np.testing.assert_array_equal(sim.state.pos, before)  # nothing set when one is refused
 
 
 def test_a_periodic_world_reads_its_speeds_the_short_way_round():

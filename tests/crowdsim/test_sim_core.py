@@ -310,6 +310,8 @@ def test_a_long_step_takes_more_contact_substeps_and_keeps_bodies_inside():
     from crowdsim.params import SocialForceParams
 
     assert SocialForceParams().substeps == 3 and SocialForceParams(dt=0.2).substeps == 15
+    assert SocialForceParams(contact_substeps=1).substeps == 1  # a user's own count holds
+    assert SocialForceParams(contact_substeps=2, dt=0.05).substeps == 4
     sc = make_scenario("counterflow", n_agents=300, density=0.5, width=4.0, periodic=True)
     sim = Simulation(sc, seed=1, params=SocialForceParams(dt=0.2))
     n0 = sim.state.n

@@ -356,3 +356,21 @@ def test_yaml_merge_keys_are_read_and_duplicates_still_refused(tmp_path):
     path.write_text(head + "seed: 2\n")
     with pytest.raises(ValueError, match="seed"):
         load_spec(path)
+
+
+def test_a_station_specs_digest_follows_its_route_layout():
+    """Layout 1, what every station spec simulated before ``routes`` existed, keeps the
+    digest of a spec without the key from then (its sequence is the same); a spec that takes
+    the new default, layout 2, is a new sequence with a new digest."""
+    import hashlib
+    import json
+
+    def spec(**routes):
+        return _spec(scenario={"name": "station", "n_agents": 9, **routes})
+
+    old = spec().to_dict()  # the digest as computed before the field: no special case
+    for key in ("description", "calibration"):
+        old.pop(key)
+    before = hashlib.sha256(json.dumps(old, sort_keys=True).encode()).hexdigest()
+    assert spec(routes=1).digest() == before
+    assert spec().digest() == spec(routes=2).digest() != before

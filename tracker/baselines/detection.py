@@ -37,7 +37,8 @@ Ids
     unconfirmed tracks, id ``-1`` in the library, are not reported). They do not correspond to
     ground-truth ids, so the class declares ``id_mapping = "majority"``: the runner asks
     :func:`tracker.metrics.evaluate` to map each track to the ground-truth id it lies within
-    ``similarity_scale`` px of in most frames (majority vote) for the papers' acc@T, while
+    :data:`tracker.metrics.SIMILARITY_SCALE` px of in most frames (majority vote) for the
+    papers' acc@T, while
     MOTA, IDF1 and HOTA need no correspondence and are computed on the tracks as they are.
 
 Positions
