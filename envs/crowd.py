@@ -155,7 +155,9 @@ class CrowdParallelEnv(ParallelEnv):
     ``max_agents``, ``max_cycles``, ``k_neighbours``, ``neighbour_radius``, ``vmax``,
     ``controlled_fraction``, ``collision_weight``). ``scenario`` is a scenario name (see
     :data:`crowdsim.scenarios.SCENARIOS`) or a :class:`~crowdsim.scenarios.Scenario`;
-    ``controlled_ids`` lists the agent ids explicitly instead of ``controlled_fraction``.
+    ``controlled_ids`` lists the agent ids explicitly instead of ``controlled_fraction``; at
+    least one of them must be in the scene at the start (an episode ends when no agent is
+    left, so one without any would be over at once: :meth:`reset` refuses it).
     ``render_mode="rgb_array"`` makes :meth:`render` return the top-down ``(H, W, 3)``
     uint8 RGB frame drawn by :class:`crowdsim.render.SceneRenderer` (agents in the distinct
     "prominent" colours, background walkers in dull ones, walls as dark lines).
@@ -282,7 +284,10 @@ class CrowdParallelEnv(ParallelEnv):
     def _check_action(name: str, a: Any) -> None:
         """``ValueError`` naming agent ``name`` unless ``a`` is a finite ``(2,)`` action."""
         try:
-            v = np.asarray(a, dtype=np.float64)
+            raw = np.asarray(a)
+            if raw.dtype.kind not in "iuf":  # never cast "1", 1+2j or True in silence
+                raise TypeError
+            v = raw.astype(np.float64)
         except (TypeError, ValueError):
             raise ValueError(f"action of {name!r} must be 2 numbers (m/s), got {a!r}") from None
         if v.shape != (2,):
@@ -330,6 +335,12 @@ class CrowdParallelEnv(ParallelEnv):
         self._cycles = 0
         self.n_clipped = 0
         self._refresh_live()
+        if len(self._ids) == 0:
+            raise ValueError(
+                "reset: no agent is in the scene at the start (the controlled ids "
+                f"{self.possible_agents[:5]} have not arrived), so the episode would be over "
+                "at once; control pedestrians present at the start"
+            )
         return self._obs.copy()
 
     def observe_arrays(self) -> np.ndarray:
@@ -366,9 +377,11 @@ class CrowdParallelEnv(ParallelEnv):
             raise RuntimeError(
                 f"the episode is over (max_cycles={self.params.max_cycles} reached): call reset()"
             )
+        if self._cycles > 0 and len(self._ids) == 0:  # as step() does: one end for both faces
+            raise RuntimeError("the episode is over (no agent is left): call reset()")
         ids = self._ids
         n = len(ids)
-        if np.asarray(actions).dtype.kind not in "biuf":
+        if np.asarray(actions).dtype.kind not in "iuf":
             raise ValueError(f"actions must be (n, 2) numbers, got {actions!r:.60}")
         a = np.asarray(actions, dtype=np.float64)
         if a.shape != (n, 2):
@@ -377,16 +390,16 @@ class CrowdParallelEnv(ParallelEnv):
             raise ValueError("actions must be finite")
         vmax = self.params.vmax
         clipped = np.clip(a, -vmax, vmax)
-        self.n_clipped += int(np.count_nonzero((clipped != a).any(axis=1)))
         if act is None:
-            controlled, command = ids, clipped
+            mask = np.ones(n, dtype=bool)
         else:
             mask = np.asarray(act)
             if mask.dtype != np.bool_ or mask.shape != (n,):
                 raise ValueError(
                     f"act must be a boolean ({n},) mask, got {mask.dtype} of shape {mask.shape}"
                 )
-            controlled, command = ids[mask], clipped[mask]
+        controlled, command = ids[mask], clipped[mask]
+        self.n_clipped += int(np.count_nonzero((command != a[mask]).any(axis=1)))
         before = sim.state.pos[sim.index_of(ids)]
         goal = self._goal
         sim.step(desired_velocity=command, controlled=controlled)
@@ -441,10 +454,15 @@ class CrowdParallelEnv(ParallelEnv):
         rows = [k for k, name in enumerate(names) if actions.get(name) is not None]
         given = [actions[names[k]] for k in rows]
         try:  # one conversion for all (thousands of agents); per agent only to name a culprit
-            block = np.asarray(given, dtype=np.float64) if given else np.zeros((0, 2))
-        except (TypeError, ValueError):  # ragged or not numbers
+            block = np.asarray(given) if given else np.zeros((0, 2))
+        except (TypeError, ValueError):  # ragged
             block = None
-        if block is None or block.shape != (len(given), 2) or not np.isfinite(block).all():
+        if (
+            block is None
+            or block.dtype.kind not in "iuf"
+            or block.shape != (len(given), 2)
+            or not np.isfinite(block).all()
+        ):
             for k in rows:
                 self._check_action(names[k], actions[names[k]])
         arr = np.zeros((n, 2))
@@ -613,6 +631,8 @@ def shared_policy_vec_env(env: CrowdParallelEnv, seed: int | None = None) -> Any
     if not isinstance(env, CrowdParallelEnv):
         raise ValueError(f"env must be a CrowdParallelEnv, got {type(env).__name__}")
 
+    if not env.possible_agents:
+        raise ValueError("shared_policy_vec_env: the env has no possible agents (no slot)")
     slot_ids = np.array([int(a.split("_", 1)[1]) for a in env.possible_agents], np.int64)
 
     class SharedPolicyVecEnv(VecEnv):
@@ -636,7 +656,10 @@ def shared_policy_vec_env(env: CrowdParallelEnv, seed: int | None = None) -> Any
             return self._fill(obs)
 
         def step_async(self, actions: np.ndarray) -> None:
-            self._actions = np.asarray(actions, dtype=np.float64).reshape(self.num_envs, 2)
+            a = np.asarray(actions, dtype=np.float64)
+            if a.shape != (self.num_envs, 2):
+                raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {a.shape}")
+            self._actions = a
 
         def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict]]:
             slots = np.searchsorted(slot_ids, env.agent_ids)
@@ -662,6 +685,12 @@ def shared_policy_vec_env(env: CrowdParallelEnv, seed: int | None = None) -> Any
 
         def close(self) -> None:
             env.close()
+
+        def render(self, mode: str | None = None) -> np.ndarray | None:
+            return env.render()  # one crowd: one frame, not a mosaic of num_envs copies
+
+        def get_images(self) -> list[np.ndarray | None]:
+            return [env.render()] * self.num_envs
 
         def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
             return [getattr(env, attr_name)] * len(self._indices(indices))

@@ -45,6 +45,11 @@ class _Checked(wrappers.BaseWrapper):
 
     def observe(self, agent: str) -> Any:
         self._crowd._check_agent(agent)
+        inner = self.env
+        while not hasattr(inner, "_observations") and hasattr(inner, "env"):
+            inner = inner.env  # down to parallel_to_aec, which keeps the last observations
+        if agent not in getattr(inner, "_observations", {agent: None}):
+            raise ValueError(f"observe: agent {agent!r} has not entered the scene yet")
         return super().observe(agent)
 
 

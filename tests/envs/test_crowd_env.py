@@ -218,6 +218,8 @@ def test_step_refuses_actions_it_cannot_apply_naming_the_agent():
         ({a1: [[1.0, 2.0]]}, f"action of {a1!r} must have shape (2,)"),
         ({a1: [np.inf, 0.0]}, f"action of {a1!r} must be finite"),
         ({a1: "fast"}, f"action of {a1!r} must be 2 numbers"),
+        ({a1: ["1", "2"]}, f"action of {a1!r} must be 2 numbers"),  # was cast in silence
+        ({a1: [1 + 1j, 0]}, f"action of {a1!r} must be 2 numbers"),
     ):
         with pytest.raises(ValueError) as info:
             env.step(actions)
@@ -338,3 +340,30 @@ def test_the_aec_faces_pass_api_test_and_check_each_call(face):
     aec.step(np.zeros(2, np.float32))
     aec.step(np.zeros(2, np.float32))  # the cycle's last agent: the crowd steps
     assert set(aec.agents) == {f"ped_{i}" for i in range(4)} and aec.agent_selection == "ped_0"
+
+
+def test_a_crowd_whose_agents_are_not_there_yet_is_refused_and_its_faces_agree():
+    """Controlled ids that only arrive later: the dict face's episode ended at once while
+    step_arrays stepped on; now reset says so. An agent that has not entered is named by the
+    AEC face's observe (a bare KeyError before)."""
+    env = crowd_v0.parallel_env(n_agents=5, max_agents=30, controlled_ids=[20], max_cycles=50)
+    with pytest.raises(ValueError, match="no agent is in the scene at the start"):
+        env.reset(seed=0)
+    aec = crowd_v0.env(n_agents=4, max_agents=20)
+    aec.reset(seed=0)
+    with pytest.raises(ValueError, match="observe: agent 'ped_15' has not entered the scene yet"):
+        aec.observe("ped_15")
+
+
+def test_shared_policy_vec_env_checks_its_actions_and_renders_one_frame():
+    from envs.crowd import shared_policy_vec_env
+
+    venv = shared_policy_vec_env(sparse_env(4, max_cycles=3, render_mode="rgb_array"), seed=0)
+    venv.reset()
+    with pytest.raises(ValueError, match=r"actions must have shape \(4, 2\), got \(2, 4\)"):
+        venv.step_async(np.zeros((2, 4)))  # a transposed batch had been reshaped in silence
+    frame = venv.render()
+    assert frame.ndim == 3 and frame.dtype == np.uint8
+    assert len(venv.get_images()) == 4
+    with pytest.raises(ValueError, match="has no possible agents"):
+        shared_policy_vec_env(CrowdParallelEnv(n_agents=4, controlled_fraction=0.0))
