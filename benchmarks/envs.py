@@ -1,8 +1,15 @@
 """Same as ``crowdsim bench envs`` (``python benchmarks/envs.py --help`` lists its options)."""
 
 import sys
+from pathlib import Path
 
-from crowdsim.bench import main
+# Python puts this folder first on sys.path, where envs.py would shadow the envs package
+here = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != here]
+
+from crowdsim.cli import main  # noqa: E402
 
 if __name__ == "__main__":
-    sys.exit(main("envs"))
+    # through the command itself: its process settings (OMP_WAIT_POLICY, malloc), its
+    # one-line errors and its Ctrl-C handling (exit 130), exactly as `crowdsim bench envs`
+    sys.exit(main(["bench", "envs", *sys.argv[1:]]))

@@ -1,8 +1,15 @@
 """Same as ``crowdsim bench solver`` (``python benchmarks/solver.py --help`` lists its options)."""
 
 import sys
+from pathlib import Path
 
-from crowdsim.bench import main
+# Python puts this folder first on sys.path, where envs.py would shadow the envs package
+here = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != here]
+
+from crowdsim.cli import main  # noqa: E402
 
 if __name__ == "__main__":
-    sys.exit(main("solver"))
+    # through the command itself: its process settings (OMP_WAIT_POLICY, malloc), its
+    # one-line errors and its Ctrl-C handling (exit 130), exactly as `crowdsim bench solver`
+    sys.exit(main(["bench", "solver", *sys.argv[1:]]))

@@ -156,15 +156,18 @@ class VideoSequence:
                         stacklevel=2,
                     )
                     return
+                # looked for before the last frame is handed over: a reader that takes
+                # exactly ``length`` frames (itertools.islice) never resumes this generator
+                if i == self.length - 1 and cap.grab():  # a count estimated from the duration
+                    warnings.warn(
+                        f"{self.path}: the video holds more frames than the {self.length} its "
+                        "header counts (an estimate from its duration, as a variable frame "
+                        "rate gives); the later ones are not read: convert it to MP4 to read "
+                        "them all",
+                        DataNote,
+                        stacklevel=2,
+                    )
                 yield img
-            if cap.grab():  # a header's count estimated from the duration (.mkv, .webm)
-                warnings.warn(
-                    f"{self.path}: the video holds more frames than the {self.length} its "
-                    "header counts (an estimate from its duration, as a variable frame rate "
-                    "gives); the later ones are not read: convert it to MP4 to read them all",
-                    DataNote,
-                    stacklevel=2,
-                )
         finally:
             cap.release()
 

@@ -220,3 +220,91 @@ def test_bytetrack_on_a_video_is_fed_by_the_head_detector(tmp_path, rendered, ca
     people = int(np.isfinite(seq.gt_points()[1][-1]).all(1).sum())
     last = rows[rows[:, 0] == rows[:, 0].max()]
     assert len(last) >= 0.8 * people  # confirmed tracks on (nearly) every head in view
+
+
+def test_track_from_detections_on_a_body_box_folder_keeps_the_head_size(tmp_path, capsys):
+    """A MOTChallenge-style folder (body boxes 40 px wide, no boxType, no templateSize): the
+    detector keeps 12 px heads through track --init detect (the tracker's template, the body
+    width, had overwritten it: 30 heads for 66 people)."""
+    from synth_data.generate import build_sequence
+    from synth_data.mot import read_mot_file, write_mot
+
+    build_sequence(clip_spec("bodies", frames=3), tmp_path)
+    folder = tmp_path / "bodies"
+    info = folder / "seqinfo.ini"
+    info.write_text(
+        "".join(
+            line
+            for line in info.read_text().splitlines(keepends=True)
+            if not line.startswith(("boxType", "templateSize"))
+        )
+    )
+    gt = read_mot_file(folder / "gt" / "gt.txt")
+    cx, cy = gt[:, 2] + gt[:, 4] / 2, gt[:, 3] + gt[:, 5] / 2
+    gt[:, 4], gt[:, 5] = 40.0, 100.0  # body boxes whose head point is the same
+    gt[:, 2], gt[:, 3] = cx - 20.0, cy - 0.08 * 100.0
+    write_mot(folder / "gt" / "gt.txt", gt)
+    (folder / "checksums.json").unlink()
+    direct = tmp_path / "d.csv"
+    assert main(["detect", str(folder), "--out", str(direct)]) == 0
+    heads = len(read_points_csv(direct)[0])
+    out = tmp_path / "r.txt"
+    argv = ["track", str(folder), "--init", "detect", "--out", str(out), "--tracker", "ncc"]
+    assert main([*argv, "--no-progress"]) == 0
+    assert f"head detector: {heads} heads in frame 1" in capsys.readouterr().err
+
+
+def test_a_header_that_counts_too_few_frames_is_said(tmp_path, rendered):
+    """A reader that takes exactly the header's count (islice, as detect and track do) never
+    resumed the generator, so the check after its loop never ran: now the note comes with
+    the last counted frame."""
+    import itertools
+    import warnings
+
+    from crowdsim.checks import DataNote
+    from synth_data.sequence import VideoSequence
+
+    video, _ = rendered
+    seq = VideoSequence(video, template_size=12)
+    seq.length = 5  # as a header that under-counts would say
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = list(itertools.islice(seq.frames(), seq.length))
+    assert len(got) == 5
+    assert any(issubclass(w.category, DataNote) and "more frames" in str(w.message) for w in caught)
+
+
+def test_letterbox_bars_are_cropped_before_detection(rendered):
+    """Flat black bars of a letterboxed video took the detector's recall to 0.06: the bars
+    are cropped, the points shifted back."""
+    from tracker.detect.inference import HeadDetector, content_box
+
+    _, seq = rendered
+    frame = next(iter(seq.frames()))
+    h, w = frame.shape[:2]
+    boxed = np.zeros((h + 80, w, 3), np.uint8)
+    boxed[40 : 40 + h] = frame
+    assert content_box(frame) == (0, h, 0, w)
+    assert content_box(boxed) == (40, 40 + h, 0, w)
+    det = HeadDetector()
+    plain, _ = det.detect_points(frame)
+    found, _ = det.detect_points(boxed)
+    np.testing.assert_allclose(found, plain + [0, 40])
+
+
+def test_a_damaged_checkpoint_is_named_before_the_training_data_is_rendered(tmp_path, capsys):
+    """A checkpoint.pt that is not torch's (or not train's) had ended in an UnpicklingError
+    traceback after minutes of rendering; it is read first and named."""
+    import json
+    from dataclasses import asdict, replace
+
+    from crowdsim.lab.detector import MARKER, TrainConfig
+
+    out = tmp_path / "tr"
+    out.mkdir()  # as a stopped run of these settings left it
+    config = replace(TrainConfig(), sequences=3, iterations=20, batch=2)
+    (out / MARKER).write_text(json.dumps({"config": asdict(config)}))
+    (out / "checkpoint.pt").write_text("x\n")
+    argv = ["detector", "train", "--out", str(out), "--sequences", "3", "--iterations", "20"]
+    assert main([*argv, "--batch", "2", "--no-progress"]) == 2
+    assert "checkpoint.pt: not a readable checkpoint" in _error_line(capsys, "detector train")

@@ -445,6 +445,10 @@ def run(args: argparse.Namespace) -> int:
         bad = [v for v in getattr(args, name, None) or () if v < 1]
         if bad:
             raise ValueError(f"--{name} must be >= 1, got {bad[0]}")
+    if getattr(args, "workers", None):
+        from crowdsim.checks import require_cpus
+
+        require_cpus("--workers", args.workers)  # each async env is a process
     if getattr(args, "episode_cache", None):
         from crowdsim.checks import require_output_dir
 

@@ -407,6 +407,11 @@ def train(
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / MARKER, json.dumps({"config": asdict(config)}, indent=1))
 
+    ckpt = out / "checkpoint.pt"
+    # read before the minutes of rendering the training data, so that a damaged or foreign
+    # checkpoint is named at once (the network is built after: the render workers fork)
+    state = _read_checkpoint(torch, ckpt) if ckpt.is_file() else None
+
     t0 = time.perf_counter()
     specs = training_specs(config)
     jobs = [(s, config.frames_per_sequence, k, "") for k, s in specs]
@@ -424,11 +429,14 @@ def train(
     opt = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=1e-4)
     history: list[list[float]] = []
     start = 0
-    ckpt = out / "checkpoint.pt"
-    if ckpt.is_file():
-        state = torch.load(ckpt, map_location="cpu", weights_only=True)
-        net.load_state_dict(state["net"])
-        opt.load_state_dict(state["opt"])
+    if state is not None:
+        try:
+            net.load_state_dict(state["net"])
+            opt.load_state_dict(state["opt"])
+        except (RuntimeError, ValueError, KeyError) as exc:  # another network's shapes
+            raise ValueError(
+                f"{ckpt}: {_first_line(exc)}; delete it to train from step 0"
+            ) from None
         start = int(state["iteration"])
         history = [list(map(float, row)) for row in state["history"].tolist()]
         log(f"resuming {out} at step {start} of {config.iterations}")
@@ -503,6 +511,29 @@ def train(
     return record
 
 
+def _first_line(exc: BaseException) -> str:
+    return (str(exc).splitlines() or [type(exc).__name__])[0][:200]
+
+
+def _read_checkpoint(torch: Any, path: Path) -> dict[str, Any]:
+    """The training checkpoint at ``path``, or ``ValueError`` naming it when it is damaged or
+    not one of :func:`train`'s (torch raises many kinds of errors for such files)."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 -- any unpickling failure is the same answer
+        raise ValueError(
+            f"{path}: not a readable checkpoint ({_first_line(exc)}); delete it to train "
+            "from step 0"
+        ) from None
+    keys = {"net", "opt", "iteration", "history"}
+    if not isinstance(state, dict) or not keys <= set(state):
+        raise ValueError(
+            f"{path}: not a checkpoint of crowdsim detector train (it needs "
+            f"{', '.join(sorted(keys))}); delete it to train from step 0"
+        )
+    return state
+
+
 def plot_losses(history: Sequence[Sequence[float]], path: Path) -> None:
     """The loss curve (total, focal, offset; a 50-step running mean) as a PNG."""
     from crowdsim.plotting import new_figure, save_figure
@@ -510,7 +541,7 @@ def plot_losses(history: Sequence[Sequence[float]], path: Path) -> None:
     if not len(history):
         return
     h = np.asarray(history, dtype=np.float64)
-    k = min(50, len(h))
+    k = max(1, min(50, len(h) // 5))  # a short run keeps a curve, not one averaged point
     kernel = np.ones(k) / k
     fig, ax = new_figure(figsize=(6, 3.6))
     for col, label in ((1, "total"), (2, "focal (heat map)"), (3, "offset (L1)")):

@@ -348,3 +348,25 @@ def test_a_manifest_crowdsim_did_not_write_is_refused_never_replaced(tmp_path, h
         m["jobs"]["a"] = 1
     assert read_manifest(path, "sequences")["sequences"] == {"s": 1}
     assert read_manifest(path)["jobs"] == {"a": 1}
+
+
+@pytest.mark.parametrize("name", ["sim", "fd", "render", "solver", "track", "envs"])
+def test_each_benchmark_script_is_its_bench_command(run_benchmark, name):
+    """``python benchmarks/NAME.py`` runs ``crowdsim bench NAME`` itself: benchmarks/envs.py
+    had shadowed the envs package (ModuleNotFoundError on every run), and the scripts had
+    skipped the command's process settings and its one-line errors."""
+    out = run_benchmark(f"{name}.py", "--help")
+    assert out.returncode == 0, out.stderr
+    assert f"usage: crowdsim bench {name}" in out.stdout
+    bad = run_benchmark(f"{name}.py", "--no-such-flag")
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+
+
+def test_bench_envs_workers_are_at_most_the_cores(capsys):
+    import os
+
+    from crowdsim.cli import main
+
+    n = (os.cpu_count() or 1) + 1
+    assert main(["bench", "envs", "--only", "crowd", "--workers", str(n)]) == 2
+    assert f"--workers must be in [1, {n - 1}]" in capsys.readouterr().err
