@@ -157,6 +157,22 @@ def test_damaged_or_foreign_weights_are_named(tmp_path, rendered, capsys):
         args = ["track", str(video), "--out", str(tmp_path / "r.txt"), "--detector-weights"]
         assert main([*args, str(path)]) == 2
         assert why in _error_line(capsys, "track")
+    # a pickle with objects a safe load refuses: never torch's hint to load it unsafely
+    unsafe = tmp_path / "unsafe.pt"
+    torch.save({"when": __import__("datetime").date(2020, 1, 1)}, unsafe)
+    argv = ["detect", str(video), "--out", str(tmp_path / "q.csv"), "--weights", str(unsafe)]
+    assert main(argv) == 2
+    line = _error_line(capsys, "detect")
+    assert "safe load refuses" in line and "weights_only=False" not in line
+    # the shipped weights with a meta that is not a table
+    from tracker.detect.inference import DEFAULT_WEIGHTS, WeightsError, load_weights
+
+    blob = torch.load(DEFAULT_WEIGHTS, map_location="cpu", weights_only=True)
+    blob["meta"] = [1, 2]
+    odd = tmp_path / "odd.pt"
+    torch.save(blob, odd)
+    with pytest.raises(WeightsError, match="its 'meta' is not a table"):
+        load_weights(odd)
 
 
 def test_detect_bad_inputs(tmp_path, rendered, capsys):

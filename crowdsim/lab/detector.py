@@ -37,7 +37,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -511,6 +511,19 @@ def train(
     return record
 
 
+def _config_of(meta: dict, weights: Any) -> TrainConfig:
+    """The :class:`TrainConfig` that made weights with ``meta`` (the defaults without one):
+    fields of another release are left out, and a config that is not a table is named."""
+    raw = meta.get("config", {})
+    if not isinstance(raw, dict):
+        raise ValueError(f"{weights or 'the weights'}: meta.config is not a table, got {raw!r:.60}")
+    known = {f.name for f in fields(TrainConfig)}
+    try:
+        return TrainConfig(**{k: v for k, v in raw.items() if k in known})
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{weights or 'the weights'}: meta.config: {exc}") from None
+
+
 def _first_line(exc: BaseException) -> str:
     return (str(exc).splitlines() or [type(exc).__name__])[0][:200]
 
@@ -615,7 +628,7 @@ def evaluate(
     require_number("", "--baseline-sequences", baseline_sequences, lo=1, hi=10_000, integer=True)
     params = DetectorParams.given(weights, threshold)
     det = HeadDetector(params)
-    config = TrainConfig(**det.meta["config"]) if "config" in det.meta else TrainConfig()
+    config = _config_of(det.meta, params.weights)
     thresholds = _baseline_thresholds(config, baseline_sequences, workers, progress, radius)
     held = heldout_specs(per_kind)
     samples = render_samples(

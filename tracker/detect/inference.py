@@ -107,6 +107,8 @@ def load_weights(path: str | os.PathLike[str] | None = None) -> tuple[Any, dict]
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many kinds for a damaged file
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if reason.startswith("Weights only load failed"):  # never suggest an unsafe load
+            reason = "it holds objects that a safe load refuses"
         raise WeightsError(f"{path}: not a readable weights file ({reason[:200]})") from None
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:
         raise WeightsError(f"{path}: not a crowdsim head-detector weights file")
@@ -121,8 +123,11 @@ def load_weights(path: str | os.PathLike[str] | None = None) -> tuple[Any, dict]
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise WeightsError(f"{path}: weights do not fit the network ({reason[:200]})") from None
+    meta = blob.get("meta", {})
+    if not isinstance(meta, dict):
+        raise WeightsError(f"{path}: its 'meta' is not a table of how the weights were made")
     net.eval()
-    return net.to(memory_format=torch.channels_last), dict(blob.get("meta", {}))
+    return net.to(memory_format=torch.channels_last), dict(meta)
 
 
 def weights_digest(params: DetectorParams | None = None) -> str:
