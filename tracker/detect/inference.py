@@ -160,13 +160,16 @@ def content_box(frame: np.ndarray, tol: float = 16.0) -> tuple[int, int, int, in
     letterbox or pillarbox: rows / columns whose every pixel is within ``tol`` of the line's
     first pixel, codec ringing included); the whole frame when no bar is found or too
     little would be left."""
-    f = frame.astype(np.int16)
-    h, w = f.shape[:2]
+    h, w = frame.shape[:2]
 
     def flat(lines: np.ndarray) -> np.ndarray:  # (n, k, 3): is each line one colour?
+        lines = lines.astype(np.int16)
         return np.abs(lines - lines[:, :1]).max(axis=(1, 2)) <= tol
 
-    rows, cols = flat(f), flat(f.transpose(1, 0, 2))
+    edges = frame[[0, h - 1]], frame[:, [0, w - 1]].transpose(1, 0, 2)
+    if not (flat(edges[0]).any() or flat(edges[1]).any()):
+        return 0, h, 0, w  # no bar (nearly every frame): the four edge lines alone are read
+    rows, cols = flat(frame), flat(frame.transpose(1, 0, 2))
     y0 = int(np.argmin(rows)) if not rows.all() else 0
     y1 = h - int(np.argmin(rows[::-1])) if not rows.all() else h
     x0 = int(np.argmin(cols)) if not cols.all() else 0
