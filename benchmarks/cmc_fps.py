@@ -157,4 +157,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from crowdsim.bench import run_script
+
+    raise SystemExit(run_script(main, "cmc_fps.py"))

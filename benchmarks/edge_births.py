@@ -105,4 +105,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from crowdsim.bench import run_script
+
+    raise SystemExit(run_script(main, "edge_births.py"))

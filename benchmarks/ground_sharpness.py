@@ -72,4 +72,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from crowdsim.bench import run_script
+
+    raise SystemExit(run_script(main, "ground_sharpness.py"))

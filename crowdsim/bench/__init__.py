@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from collections.abc import Callable
 
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "sim": ("crowdsim.bench.sim", "simulator speed vs JuPedSim and PySocialForce (corridor)"),
@@ -38,7 +39,8 @@ def bench_parser(name: str) -> tuple[argparse.ArgumentParser, object]:
 
 
 def main(name: str, argv: list[str] | None = None) -> int:
-    """Run benchmark ``name`` with command-line ``argv`` (``benchmarks/NAME.py`` calls this).
+    """Run benchmark ``name`` with command-line ``argv`` (``crowdsim bench NAME`` calls this,
+    under the command's process settings and signal handling; so do ``benchmarks/NAME.py``).
 
     Bad input (``ValueError``) and file errors end with one line on stderr and exit code 2.
     """
@@ -55,6 +57,16 @@ def main(name: str, argv: list[str] | None = None) -> int:
         text = describe_os_error(exc) if isinstance(exc, OSError) else str(exc)
         print(f"crowdsim bench {name}: error: {text}", file=sys.stderr)
         return 2
+
+
+def run_script(main: Callable[[], int], name: str) -> int:
+    """A standalone ``benchmarks/*.py`` script's entry: ``main()``, or one line and exit 130
+    on Ctrl-C (a traceback from wherever the script was had ended it)."""
+    try:
+        return int(main() or 0)
+    except KeyboardInterrupt:
+        print(f"{name}: interrupted by SIGINT", file=sys.stderr)
+        return 130
 
 
 def add_suite_arguments(parser: argparse.ArgumentParser, default: str) -> None:

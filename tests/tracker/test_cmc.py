@@ -489,6 +489,23 @@ def test_cmc_error_benchmark_reports_the_error_at_the_origin_and_over_the_frame(
     assert bad.returncode == 2 and "--frames must be >= 2, got 1" in bad.stderr
 
 
+def test_a_benchmark_script_stopped_by_ctrl_c_says_so_in_one_line():
+    """Ctrl-C in a standalone script ended in a traceback from wherever it was."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "cmc_error.py"
+    argv = [sys.executable, str(script), "--only", "seq4", "--frames", "200", "--config", "d={}"]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().startswith("sequence")  # main() is running
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == ["cmc_error.py: interrupted by SIGINT"]
+
+
 def test_fit_shift_keeps_displacements_strictly_within_the_threshold():
     from tracker.cmc import fit_shift
 
