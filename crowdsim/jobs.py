@@ -371,6 +371,24 @@ def interrupt_in(exc: BaseException) -> KeyboardInterrupt | None:
     return None
 
 
+def ray_init(ray: Any, address: str | None) -> None:
+    """Start (or join) Ray unless it runs, keeping this process's SIGINT and SIGTERM handlers:
+    ``ray.init`` installs its own, and a SIGTERM then ended a run with exit 15 and Ray's stack
+    dump instead of the one line and 143 (:func:`interruptible`)."""
+    import signal
+
+    if ray.is_initialized():
+        return
+    main = threading.current_thread() is threading.main_thread()
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    try:
+        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+    finally:
+        for sig, handler in saved.items():
+            if handler is not None:
+                signal.signal(sig, handler)
+
+
 @contextmanager
 def interruptible() -> Iterator[None]:
     """While inside (in the main thread), SIGINT and SIGTERM raise :class:`Interrupted`.
@@ -680,8 +698,7 @@ def _run_ray(
     from crowdsim.optional import require
 
     ray = require("ray", "distributed", "--backend ray")
-    if not ray.is_initialized():
-        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+    ray_init(ray, address)
     task = ray.remote(num_cpus=1)(_call_on_ray)
     refs = {task.remote(job): job for job in todo}
     try:

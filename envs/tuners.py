@@ -737,7 +737,8 @@ def _run_ray(
     done = len(complete_trials(study))
     if done >= trials:
         return study
-    if not ray.is_initialized():
+    if not ray.is_initialized():  # Ray keeps its SIGTERM handler: ours, raised inside Ray
+        # Tune, left its shutdown waiting a minute for a lost GCS
         ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
 
     def trainable(config: dict[str, float]) -> dict[str, float]:
@@ -773,7 +774,7 @@ def _run_ray(
             name=name, storage_path=str((out / "ray").resolve()), verbose=int(progress)
         ),
     )
-    results = tuner.fit()
+    results = tuner.fit()  # Ray Tune's own SIGINT handler ends it early, gracefully
     dists = space.optuna_distributions()
     for r in results:
         if r.error is None and r.metrics and "accuracy" in r.metrics:
@@ -789,6 +790,14 @@ def _run_ray(
                     user_attrs=attrs,
                 )
             )
+    ended = sum(1 for r in results if r.error is not None or "accuracy" in (r.metrics or {}))
+    if ended < trials - done:  # stopped early: a Ctrl-C, which Ray Tune takes itself
+        from crowdsim.jobs import Interrupted
+
+        kept = len(complete_trials(study))
+        raise Interrupted(
+            "SIGINT", f"the study keeps its {kept} finished trial(s); the same command resumes"
+        )
     return study
 
 
@@ -1004,15 +1013,24 @@ def _tune_locked(
 ) -> TuneResult:
     """:func:`tune` after its checks, holding ``OUT/.tune.lock``."""
     with _OutLock(out):
-        st = open_study(
-            url, study_name, objective, sampler, seed, trials, enqueue_defaults=backend == "local"
-        )
-        if study is None:
-            n = _fail_orphans(st)  # our own file: RUNNING trials belong to a killed run
-            if n:
-                log(f"marked {n} unfinished trial(s) of an interrupted run as failed")
-        if backend == "local":
-            _requeue_defaults(st, space)  # a run killed in its first trial failed them
+        # the study's own writes too: a disk that is full when the study opens or resumes ends
+        # in one line, as one that fills during the trials does
+        with study_storage(url):
+            st = open_study(
+                url,
+                study_name,
+                objective,
+                sampler,
+                seed,
+                trials,
+                enqueue_defaults=backend == "local",
+            )
+            if study is None:
+                n = _fail_orphans(st)  # our own file: RUNNING trials belong to a killed run
+                if n:
+                    log(f"marked {n} unfinished trial(s) of an interrupted run as failed")
+            if backend == "local":
+                _requeue_defaults(st, space)  # a run killed in its first trial failed them
         before = len(complete_trials(st))
         if before:
             log(f"resuming study {study_name!r}: {before} finished trial(s) in {url}")

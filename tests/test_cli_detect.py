@@ -324,3 +324,22 @@ def test_a_damaged_checkpoint_is_named_before_the_training_data_is_rendered(tmp_
     argv = ["detector", "train", "--out", str(out), "--sequences", "3", "--iterations", "20"]
     assert main([*argv, "--batch", "2", "--no-progress"]) == 2
     assert "checkpoint.pt: not a readable checkpoint" in _error_line(capsys, "detector train")
+
+
+def test_a_checkpoint_of_the_wrong_kind_is_named(tmp_path, capsys):
+    """Right keys, wrong types (a history that is a number): named, not an AttributeError."""
+    import json
+    from dataclasses import asdict, replace
+
+    import torch
+
+    from crowdsim.lab.detector import MARKER, TrainConfig
+
+    out = tmp_path / "tr"
+    out.mkdir()
+    config = replace(TrainConfig(), sequences=3, iterations=20, batch=2)
+    (out / MARKER).write_text(json.dumps({"config": asdict(config)}))
+    torch.save({"net": {}, "opt": {}, "iteration": 1, "history": 5}, out / "checkpoint.pt")
+    argv = ["detector", "train", "--out", str(out), "--sequences", "3", "--iterations", "20"]
+    assert main([*argv, "--batch", "2", "--no-progress"]) == 2
+    assert "not a checkpoint of crowdsim detector train" in _error_line(capsys, "detector train")

@@ -434,8 +434,10 @@ def train(
             net.load_state_dict(state["net"])
             opt.load_state_dict(state["opt"])
         except (RuntimeError, ValueError, KeyError) as exc:  # another network's shapes
+            lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()][:2]
             raise ValueError(
-                f"{ckpt}: {_first_line(exc)}; delete it to train from step 0"
+                f"{ckpt}: not this network's checkpoint ({' '.join(lines)[:200]}); delete it "
+                "to train from step 0"
             ) from None
         start = int(state["iteration"])
         history = [list(map(float, row)) for row in state["history"].tolist()]
@@ -534,15 +536,23 @@ def _read_checkpoint(torch: Any, path: Path) -> dict[str, Any]:
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 -- any unpickling failure is the same answer
+        reason = _first_line(exc)
+        if reason.startswith("Weights only load failed"):  # never suggest an unsafe load
+            reason = "it holds objects that a safe load refuses"
         raise ValueError(
-            f"{path}: not a readable checkpoint ({_first_line(exc)}); delete it to train "
-            "from step 0"
+            f"{path}: not a readable checkpoint ({reason}); delete it to train from step 0"
         ) from None
-    keys = {"net", "opt", "iteration", "history"}
-    if not isinstance(state, dict) or not keys <= set(state):
+    ok = (
+        isinstance(state, dict)
+        and isinstance(state.get("net"), dict)
+        and isinstance(state.get("opt"), dict)
+        and isinstance(state.get("iteration"), int)
+        and isinstance(state.get("history"), torch.Tensor)
+    )
+    if not ok:
         raise ValueError(
-            f"{path}: not a checkpoint of crowdsim detector train (it needs "
-            f"{', '.join(sorted(keys))}); delete it to train from step 0"
+            f"{path}: not a checkpoint of crowdsim detector train (it holds net, opt, an "
+            "integer iteration and a history tensor); delete it to train from step 0"
         )
     return state
 

@@ -427,9 +427,11 @@ def run_table(
         raise ValueError(f"{title}: two rows share the label {_first_dup(labels)!r}")
     keys = {(s.name, r.label): cell_key(s, r, frames) for s in specs for r in rows}
     if len(set(keys.values())) != len(keys):
+        dup = _first_dup(list(keys.values()))
+        same = [label for (_, label), key in keys.items() if key == dup]
         raise ValueError(
-            f"{title}: two rows run the same tracker with the same parameters "
-            f"({_first_dup(list(keys.values()))})"
+            f"{title}: rows {same[0]!r} and {same[1]!r} run the same tracker with the same "
+            "parameters"
         )
     read_cells(out / CELLS_FILE)  # an edited or foreign cells.json fails before any work
     curve_names = [f"curves/{s.name}.png" for s in specs]

@@ -464,7 +464,7 @@ api_case(
 api_case(
     "tables-api-run-table-same-cell",
     lambda w, env: _run_table(w, _rows(("A", "bqp", {"zeta": 2.0}), ("B", "bqp", {"zeta": 2.0}))),
-    "two rows run the same tracker with the same parameters",
+    "rows 'A' and 'B' run the same tracker with the same parameters",
 )
 api_case(
     "tables-api-run-table-only-unknown",
