@@ -498,7 +498,15 @@ def test_a_benchmark_script_stopped_by_ctrl_c_says_so_in_one_line():
 
     script = Path(__file__).resolve().parents[2] / "benchmarks" / "cmc_error.py"
     argv = [sys.executable, str(script), "--only", "seq4", "--frames", "200", "--config", "d={}"]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # a runner that starts its jobs in the background hands SIGINT down ignored: the script
+    # is started as a terminal would start it, with the default disposition
+    proc = subprocess.Popen(
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     assert proc.stdout.readline().startswith("sequence")  # main() is running
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
