@@ -526,21 +526,17 @@ def _config_of(meta: dict, weights: Any) -> TrainConfig:
         raise ValueError(f"{weights or 'the weights'}: meta.config: {exc}") from None
 
 
-def _first_line(exc: BaseException) -> str:
-    return (str(exc).splitlines() or [type(exc).__name__])[0][:200]
-
-
 def _read_checkpoint(torch: Any, path: Path) -> dict[str, Any]:
     """The training checkpoint at ``path``, or ``ValueError`` naming it when it is damaged or
     not one of :func:`train`'s (torch raises many kinds of errors for such files)."""
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 -- any unpickling failure is the same answer
-        reason = _first_line(exc)
-        if reason.startswith("Weights only load failed"):  # never suggest an unsafe load
-            reason = "it holds objects that a safe load refuses"
+        from tracker.detect.inference import load_failure
+
         raise ValueError(
-            f"{path}: not a readable checkpoint ({reason}); delete it to train from step 0"
+            f"{path}: not a readable checkpoint ({load_failure(exc)}); delete it to train from "
+            "step 0"
         ) from None
     ok = (
         isinstance(state, dict)

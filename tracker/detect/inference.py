@@ -94,6 +94,15 @@ def save_weights(path: str | os.PathLike[str], net: Any, arch: Architecture, met
     return Path(path)
 
 
+def load_failure(exc: BaseException) -> str:
+    """Why ``torch.load(..., weights_only=True)`` failed, in one line of at most 200
+    characters; never torch's advice to load the file unsafely."""
+    reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    if reason.startswith("Weights only load failed"):
+        reason = "it holds objects that a safe load refuses"
+    return reason[:200]
+
+
 def load_weights(path: str | os.PathLike[str] | None = None) -> tuple[Any, dict]:
     """``(net in eval mode, meta)`` from a weights file; :class:`WeightsError` names the file
     when it is missing, damaged or foreign."""
@@ -106,10 +115,7 @@ def load_weights(path: str | os.PathLike[str] | None = None) -> tuple[Any, dict]
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many kinds for a damaged file
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        if reason.startswith("Weights only load failed"):  # never suggest an unsafe load
-            reason = "it holds objects that a safe load refuses"
-        raise WeightsError(f"{path}: not a readable weights file ({reason[:200]})") from None
+        raise WeightsError(f"{path}: not a readable weights file ({load_failure(exc)})") from None
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:
         raise WeightsError(f"{path}: not a crowdsim head-detector weights file")
     if blob.get("version") != VERSION:
