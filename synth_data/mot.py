@@ -664,14 +664,27 @@ def read_sequence(path: str | os.PathLike[str]) -> MotSequence:
     )
 
 
+TALL_BOXES: float = 1.3
+"""MOT rows whose median box is this many times taller than wide are body boxes (a person's
+box is about 2.5 times; a head box is square): :func:`box_type_note`, and ``evaluate``'s
+reading of body-box results."""
+
+
+def box_aspect(rows: np.ndarray) -> float:
+    """Median height / width of the boxes of MOT ``rows`` (NaN rows left out; a box of no
+    width counts as very tall, for its own check to name later)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return float(np.nanmedian(rows[:, 5] / np.maximum(rows[:, 4], 1e-9)))
+
+
 def box_type_note(seq: MotSequence) -> str | None:
     """A warning when ``seq``'s seqinfo.ini gives no ``boxType`` (so its boxes are read as
     MOTChallenge full-body boxes, the head at :data:`HEAD_IN_BODY` of their height) while its
     ground-truth boxes are about square, as head boxes are; ``None`` otherwise."""
     if "boxType" in seq.info or not len(seq.gt):
         return None
-    ratio = float(np.median(seq.gt[:, 5] / np.maximum(seq.gt[:, 4], 1e-9)))
-    if ratio >= 1.3:
+    ratio = box_aspect(seq.gt)
+    if ratio >= TALL_BOXES:
         return None
     return (
         "seqinfo.ini gives no boxType, so the ground-truth boxes are read as MOTChallenge "

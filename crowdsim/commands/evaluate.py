@@ -102,27 +102,17 @@ def load_results(results: str, seq_dir: str):
     return seq, gt_ids, gt_pts, ids, pts
 
 
-TALL_BOXES: float = 1.3
-"""Results whose median box is this many times taller than wide are body boxes (a person's
-box is about 2.5 times; a head box, the trackers' output, is square)."""
-
-
 def _body_boxes(results: str, seq, rows) -> float | None:
     """:data:`synth_data.mot.HEAD_IN_BODY` when the sequence's ground truth is read as
     full-body boxes (a MOTChallenge folder) and the results hold tall boxes too, so that both
     give the head point the same way (the results' box centres lay 0.42 box heights below
     the ground truth's heads: acc@15 0 % for a copy of the ground truth); with a note. Else
     ``None``: the results' box centres."""
-    import numpy as np
-
     from crowdsim.checks import note_line
-    from synth_data.mot import HEAD_IN_BODY
+    from synth_data.mot import HEAD_IN_BODY, TALL_BOXES, box_aspect
 
-    if seq.box_type != "body" or not len(rows):
-        return None
-    with np.errstate(invalid="ignore"):  # the rows' own check names a bad box later
-        tall = float(np.nanmedian(rows[:, 5] / np.maximum(rows[:, 4], 1e-9)))
-    if not tall >= TALL_BOXES:
+    # the rows' own check names a bad box later (mot_rows_to_tracks)
+    if seq.box_type != "body" or not len(rows) or not box_aspect(rows) >= TALL_BOXES:
         return None
     print(
         note_line(
