@@ -122,14 +122,7 @@ class Objective:
         if isinstance(self.scenarios, Mapping):
             object.__setattr__(self, "scenarios", ScenarioDistribution.from_dict(self.scenarios))
         if self.suite is not None:
-            from synth_data.suites import SUITE_NAMES
-
-            suite = str(self.suite)
-            if suite not in SUITE_NAMES and Path(suite).is_dir():
-                # one folder is one suite however it is typed (./own/, its absolute path, or
-                # a relative path from another working folder): the study signature holds it
-                suite = str(Path(suite).resolve())
-            object.__setattr__(self, "suite", suite)
+            object.__setattr__(self, "suite", _resolved_suite(str(self.suite)))
 
     def episodes(self, heldout: bool = False, cache: int = 0) -> EpisodeSource:
         """Training (stream 0) or held-out episodes."""
@@ -485,14 +478,22 @@ def _comparable(signature: Any) -> Any:
     with a suite folder's path resolved."""
     if not isinstance(signature, dict) or not isinstance(signature.get("objective"), dict):
         return signature
+    objective = {k: v for k, v in signature["objective"].items() if k != "heldout_only"}
+    if isinstance(objective.get("suite"), str):
+        # a study from before suite folders were stored resolved holds the path as typed
+        objective["suite"] = _resolved_suite(objective["suite"])
+    return {**signature, "objective": objective}
+
+
+def _resolved_suite(suite: str) -> str:
+    """A built-in suite's name as it is; a suite folder's absolute path, so that one folder
+    is one suite however it is typed (``./own/``, its absolute path, or a relative path from
+    another working folder): the study signature holds it."""
     from synth_data.suites import SUITE_NAMES
 
-    objective = {k: v for k, v in signature["objective"].items() if k != "heldout_only"}
-    suite = objective.get("suite")
-    if isinstance(suite, str) and suite not in SUITE_NAMES and Path(suite).is_dir():
-        # a study from before suite folders were stored resolved holds the path as typed
-        objective["suite"] = str(Path(suite).resolve())
-    return {**signature, "objective": objective}
+    if suite not in SUITE_NAMES and Path(suite).is_dir():
+        return str(Path(suite).resolve())
+    return suite
 
 
 def _requeue_defaults(study: Any, space: ParamSpace) -> None:
