@@ -497,9 +497,9 @@ class ParamSpace:
 
 def tunable_trackers() -> tuple[str, ...]:
     """Registry names whose family has a row of :data:`TUNABLES`."""
-    from tracker.registry import TRACKERS
+    from tracker.registry import entries
 
-    return tuple(n for n, e in TRACKERS.items() if e.params in TUNABLES)
+    return tuple(n for n, e in entries().items() if e.params in TUNABLES)
 
 
 def require_tunable(tracker: Any, flag: str = "--tracker") -> str:

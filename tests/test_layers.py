@@ -225,9 +225,16 @@ class Tree:
         """``(line, "module[:attr]")`` of every target string in a registry module: the
         project's, and any other package's ``"module:Class"``."""
         tree = ast.parse(self.sources[self.modules[module]])
+        # the entry-point group's name ("crowdsim.trackers") reads like a module and is none
+        group = {
+            id(node.value)
+            for node in ast.walk(tree)
+            if isinstance(node, ast.Assign)
+            and [getattr(t, "id", None) for t in node.targets] == ["PLUGIN_GROUP"]
+        }
         for node in ast.walk(tree):
             text = _literal(node) if isinstance(node, ast.Constant) else None
-            if text and (_TARGET.match(text) or _ANY_TARGET.match(text)):
+            if text and id(node) not in group and (_TARGET.match(text) or _ANY_TARGET.match(text)):
                 yield node.lineno, text
 
     def defines(self, module: str, attr: str) -> bool:

@@ -2,11 +2,32 @@
 
 A tracker is registered as a lazily imported ``"module:Class"`` with its parameter dataclass
 and the parameter overrides that make the named variant (``bqp-ncc`` is the BQP tracker with
-NCC appearance). Adding a tracker is one line in :data:`TRACKERS`; its tests then ask for its
-accuracy floor on the planted crowd (``tests/tracker/accuracy_floor.json``: a few points under
-what ``test_plant_and_recover_accuracy_floor`` measures), and a row in
+NCC appearance). Adding a tracker to this package is one line in :data:`TRACKERS`; its tests
+then ask for its accuracy floor on the planted crowd (``tests/tracker/accuracy_floor.json``: a
+few points under what ``test_plant_and_recover_accuracy_floor`` measures), and a row in
 :data:`envs.param_space.TUNABLES` makes it tunable. ``crowdsim compare --trackers NAME`` gives it
 a row of its own.
+
+A tracker of your own, outside this package, is registered in one of two ways:
+
+* **An entry point** (what the CLI and its worker processes see). Your package declares, in its
+  ``pyproject.toml``::
+
+      [project.entry-points."crowdsim.trackers"]
+      mine = "my_package.crowd:ENTRY"
+
+  where ``ENTRY = tracker.registry.entry("mine", "my_package.crowd:MyTracker",
+  "my_package.crowd:MyParams", "one line for --help")``. Once the package is installed,
+  ``crowdsim track --tracker mine``, ``crowdsim compare --trackers mine`` and
+  :func:`make_tracker` find it in every process, pool workers and Ray tasks included. Its
+  module is imported only when the tracker is asked for, so a broken plug-in fails naming
+  itself, never another command.
+* **:func:`register`**, for this Python process alone (a notebook, a script that calls
+  :func:`tracker.runner.run_tracker` or builds the tuning environment in process). Spawned
+  worker processes do not see it: give jobs with several workers an entry point.
+
+Either way, :func:`tracker.testing.check_tracker_contract` checks the tracker against the
+contract the runner, the environments and the metrics rely on.
 
 >>> sorted(names())[:3]
 ['bqp', 'bqp-dense', 'bqp-ncc']
@@ -20,9 +41,11 @@ ValueError: unknown tracker 'kalman'; valid trackers: bqp, bqp-ncc, bqp-dense, n
 
 from __future__ import annotations
 
+import functools
 import importlib
+import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from types import MappingProxyType
 from typing import Any
 
@@ -72,7 +95,7 @@ class TrackerEntry:
         """The variant's parameters, with ``overrides`` on top (unknown fields are refused)."""
         cls = self.params_class()
         valid = self.field_names()
-        unknown = sorted(set(overrides) - valid)
+        unknown = sorted((set(self.overrides) | set(overrides)) - valid)
         if unknown:
             raise ValueError(
                 f"tracker {self.name!r} has no parameter(s) {', '.join(unknown)}; "
@@ -105,7 +128,14 @@ class TrackerEntry:
         return trk
 
 
-def _entry(name: str, target: str, params: str, summary: str, **overrides: Any) -> TrackerEntry:
+def entry(name: str, target: str, params: str, summary: str = "", **overrides: Any) -> TrackerEntry:
+    """A :class:`TrackerEntry`: the tracker ``target`` and its parameter dataclass ``params``
+    (both ``"module:Class"``, imported on use), with ``overrides`` making the variant.
+
+    >>> entry("ncc-wide", "tracker.baselines.ncc:NCCTracker", "tracker.baselines.ncc:NCCParams",
+    ...       search_factor=3.0).make_params().search_factor
+    3.0
+    """
     return TrackerEntry(name, target, params, MappingProxyType(overrides), summary)
 
 
@@ -116,41 +146,41 @@ TRACKERS: Mapping[str, TrackerEntry] = MappingProxyType(
     {
         e.name: e
         for e in (
-            _entry(
+            entry(
                 "bqp", *_BQP, "BQP / Frank-Wolfe SWAP, KCF appearance, speed-up sampling (paper 1)"
             ),
-            _entry(
+            entry(
                 "bqp-ncc",
                 *_BQP,
                 "BQP / Frank-Wolfe SWAP with NCC template appearance",
                 appearance="ncc",
             ),
-            _entry(
+            entry(
                 "bqp-dense",
                 *_BQP,
                 "BQP with dense candidates (no speed-up sampling)",
                 speedup=False,
             ),
-            _entry("ncc", *_NCC, "independent NCC template tracker (baseline of both papers)"),
-            _entry(
+            entry("ncc", *_NCC, "independent NCC template tracker (baseline of both papers)"),
+            entry(
                 "pnmc",
                 "tracker.pnmc.tracker:PNMCTracker",
                 "tracker.pnmc.params:PNMCParams",
                 "prominence + neighbourhood motion concurrence, hierarchical update (paper 2)",
             ),
-            _entry(
+            entry(
                 "meanshift",
                 "tracker.baselines.meanshift:MeanShiftTracker",
                 "tracker.baselines.meanshift:MeanShiftParams",
                 "OpenCV mean-shift on colour histograms (paper 2's MS)",
             ),
-            _entry(
+            entry(
                 "bytetrack",
                 "tracker.baselines.detection:ByteTrackTracker",
                 "tracker.baselines.detection:ByteTrackParams",
                 "ByteTrack on a detection feed (simulated head detections by default)",
             ),
-            _entry(
+            entry(
                 "ocsort",
                 "tracker.baselines.detection:OCSORTTracker",
                 "tracker.baselines.detection:OCSORTParams",
@@ -162,19 +192,133 @@ TRACKERS: Mapping[str, TrackerEntry] = MappingProxyType(
 """Registry name -> :class:`TrackerEntry`, in the order tables list them."""
 
 
+PLUGIN_GROUP = "crowdsim.trackers"
+"""The entry-point group that installed packages declare their trackers under."""
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}")
+_TARGET = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_][\w.]*")
+_REGISTERED: dict[str, TrackerEntry] = {}
+
+
+def _check_entry(e: Any, origin: str) -> TrackerEntry:
+    """``e`` if it is a well-formed entry whose classes import, else ``ValueError`` naming
+    ``origin`` and the field."""
+    if not isinstance(e, TrackerEntry):
+        raise ValueError(
+            f"{origin}: expected a tracker.registry.TrackerEntry (tracker.registry.entry(...)), "
+            f"got {type(e).__name__}"
+        )
+    if not isinstance(e.name, str) or not _NAME.fullmatch(e.name):
+        raise ValueError(
+            f"{origin}: name must be 1-64 letters, digits or _.+- (starting with a letter or "
+            f"digit), got {e.name!r}"
+        )
+    if e.name in TRACKERS:
+        raise ValueError(f"{origin}: {e.name!r} is a built-in tracker; choose another name")
+    for what in ("target", "params"):
+        value = getattr(e, what)
+        if not isinstance(value, str) or not _TARGET.fullmatch(value):
+            raise ValueError(f"{origin}: {what} must be 'module:Class', got {value!r}")
+        try:
+            _load(value)
+        except Exception as exc:  # noqa: BLE001 - any import failure, named
+            raise ValueError(
+                f"{origin}: {what} {value!r} does not import: {type(exc).__name__}: {exc}"
+            ) from None
+    cls = e.tracker_class()
+    if not (isinstance(cls, type) and issubclass(cls, Tracker)):
+        raise ValueError(f"{origin}: target {e.target!r} is not a tracker.base.Tracker subclass")
+    if not is_dataclass(e.params_class()):
+        raise ValueError(f"{origin}: params {e.params!r} is not a dataclass")
+    e.make_params()  # its overrides name fields of its parameters, with valid values
+    return e
+
+
+def register(e: TrackerEntry) -> None:
+    """Register ``e`` (made with :func:`entry`) in this process: :func:`get`,
+    :func:`make_tracker` and the commands run in process see it; spawned workers do not (use
+    an entry point, the module docstring). Its classes are imported and checked now; a name
+    taken by a built-in, an entry point or an earlier :func:`register` is refused.
+    """
+    _check_entry(e, f"register({getattr(e, 'name', e)!r})")
+    if e.name in _REGISTERED or e.name in _plugins():
+        raise ValueError(f"register: tracker {e.name!r} is already registered; unregister it first")
+    _REGISTERED[e.name] = e
+
+
+def unregister(name: str) -> None:
+    """Forget a tracker added with :func:`register` (built-ins and entry points stay)."""
+    if name not in _REGISTERED:
+        raise ValueError(f"unregister: {name!r} was not added with register()")
+    del _REGISTERED[name]
+
+
+@functools.cache
+def _plugins() -> Mapping[str, Any]:
+    """Name -> entry point of the group :data:`PLUGIN_GROUP`, read once per process (the
+    modules are imported only by :func:`_plugin`). Built-in names are left out."""
+    from importlib.metadata import entry_points
+
+    return MappingProxyType(
+        {ep.name: ep for ep in entry_points(group=PLUGIN_GROUP) if ep.name not in TRACKERS}
+    )
+
+
+@functools.cache
+def _plugin(name: str) -> TrackerEntry:
+    ep = _plugins()[name]
+    dist = getattr(getattr(ep, "dist", None), "name", None) or "an installed package"
+    origin = f"tracker plug-in {name!r} ({ep.value}, entry point of {dist})"
+    try:
+        obj = ep.load()
+    except Exception as exc:  # noqa: BLE001 - any import failure, named
+        raise ValueError(f"{origin} does not load: {type(exc).__name__}: {exc}") from None
+    e = _check_entry(obj, origin)
+    if e.name != name:
+        raise ValueError(f"{origin} names itself {e.name!r}; the two must agree")
+    return e
+
+
 def names() -> tuple[str, ...]:
-    """Registered tracker names."""
-    return tuple(TRACKERS)
+    """Registered tracker names: the built-ins, then :func:`register`'s, then the installed
+    plug-ins' (read without importing them)."""
+    return (*TRACKERS, *_REGISTERED, *(n for n in _plugins() if n not in _REGISTERED))
 
 
 def get(name: str) -> TrackerEntry:
-    """The entry named ``name``; ``ValueError`` listing the valid names otherwise."""
-    try:
-        return TRACKERS[name]
-    except (KeyError, TypeError):
-        raise ValueError(
-            f"unknown tracker {name!r}; valid trackers: {', '.join(TRACKERS)}"
-        ) from None
+    """The entry named ``name``; ``ValueError`` listing the valid names otherwise (or naming
+    the plug-in that does not load)."""
+    if isinstance(name, str):
+        if name in TRACKERS:
+            return TRACKERS[name]
+        if name in _REGISTERED:
+            return _REGISTERED[name]
+        if name in _plugins():
+            return _plugin(name)
+    raise ValueError(f"unknown tracker {name!r}; valid trackers: {', '.join(names())}")
+
+
+def entries() -> Mapping[str, TrackerEntry]:
+    """Every tracker's entry by name (:func:`names`' order), plug-ins that do not load left
+    out (:func:`get` names them and why)."""
+    out = {}
+    for n in names():
+        try:
+            out[n] = get(n)
+        except ValueError:
+            continue
+    return MappingProxyType(out)
+
+
+def listing() -> str:
+    """``"name: summary; ..."`` of every tracker, for ``--help`` (a plug-in that does not load
+    is listed as such, so the help itself never fails)."""
+    parts = []
+    for n in names():
+        try:
+            parts.append(f"{n}: {get(n).summary}")
+        except ValueError:
+            parts.append(f"{n}: (a plug-in that does not load: --tracker {n} says why)")
+    return "; ".join(parts)
 
 
 def make_tracker(tracker: str | Tracker, params: Any = None, **overrides: Any) -> Tracker:

@@ -26,9 +26,7 @@ from pathlib import Path
 def register(sub: argparse._SubParsersAction) -> None:
     from crowdsim.atomic import OVERWRITE_HELP
     from tracker.base import MAX_TEMPLATE_PX
-    from tracker.registry import TRACKERS
-
-    listing = "; ".join(f"{name}: {e.summary}" for name, e in TRACKERS.items())
+    from tracker.registry import listing
     p = sub.add_parser(
         "track",
         help="track a sequence or video with any registered tracker, write MOT results",
@@ -40,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="NAME",
         help="registered tracker (default bqp; with --params or --policy: the tracker the file "
-        f"names). {listing}",
+        f"names). {listing()}",
     )
     p.add_argument(
         "--set",
@@ -158,7 +156,7 @@ def _overrides(args: argparse.Namespace, name: str) -> dict:
     """``--set``, ``--appearance`` and ``--dense`` as parameter values of tracker ``name``,
     checked: unknown or out-of-range values and flags that contradict each other are named."""
     from crowdsim.commands.simulate import parse_assignments
-    from tracker.registry import TRACKERS, get
+    from tracker.registry import entries, get
 
     entry = get(name)  # unknown names list the valid ones
     over = parse_assignments(args.set, "--set")
@@ -168,7 +166,7 @@ def _overrides(args: argparse.Namespace, name: str) -> dict:
         ("--dense", "speedup", args.dense),
     ):
         if given and field not in own:
-            having = [n for n, e in TRACKERS.items() if field in e.field_names()]
+            having = [n for n, e in entries().items() if field in e.field_names()]
             raise ValueError(
                 f"{flag} sets a parameter of the BQP trackers ({', '.join(having)}), "
                 f"not of --tracker {name}"

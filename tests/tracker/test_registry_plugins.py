@@ -1,0 +1,188 @@
+"""Trackers from outside the package: :func:`tracker.registry.register` in process, and the
+``crowdsim.trackers`` entry points that the CLI and its worker processes see."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tracker import registry
+from tracker.registry import entry, get, make_tracker, names, register, unregister
+
+ROOT = Path(__file__).resolve().parents[2]
+_NCC = ("tracker.baselines.ncc:NCCTracker", "tracker.baselines.ncc:NCCParams")
+
+
+@pytest.fixture
+def wide_ncc():
+    e = entry("ncc-wide", *_NCC, "NCC with a wider search", search_factor=3.0)
+    register(e)
+    yield e
+    unregister("ncc-wide")
+
+
+def test_a_registered_tracker_is_found_made_and_listed(wide_ncc):
+    assert get("ncc-wide") is wide_ncc
+    assert names()[-1] == "ncc-wide" and names()[: len(registry.TRACKERS)] == tuple(
+        registry.TRACKERS
+    )
+    trk = make_tracker("ncc-wide", max_lost=7)
+    assert (trk.name, trk.params.search_factor, trk.params.max_lost) == ("ncc-wide", 3.0, 7)
+    assert "ncc-wide: NCC with a wider search" in registry.listing()
+    with pytest.raises(ValueError, match="already registered"):
+        register(wide_ncc)
+
+
+def test_unregister_forgets_it():
+    register(entry("ncc-gone", *_NCC))
+    unregister("ncc-gone")
+    with pytest.raises(ValueError, match="unknown tracker 'ncc-gone'"):
+        get("ncc-gone")
+    with pytest.raises(ValueError, match="was not added with register"):
+        unregister("ncc")
+
+
+@pytest.mark.parametrize(
+    ("bad", "message"),
+    [
+        (entry("bqp", *_NCC), "'bqp' is a built-in tracker"),
+        (entry("", *_NCC), "name must be"),
+        (entry("a b", *_NCC), "name must be"),
+        (entry("x", "tracker.baselines.ncc.NCCTracker", _NCC[1]), "target must be 'module:Class'"),
+        (
+            entry("x", "no_such_module_zz:T", _NCC[1]),
+            "target 'no_such_module_zz:T' does not import",
+        ),
+        (entry("x", "tracker.baselines.ncc:NCCParams", _NCC[1]), "not a tracker.base.Tracker"),
+        (entry("x", _NCC[0], "tracker.baselines.ncc:NCCTracker"), "is not a dataclass"),
+        (entry("x", *_NCC, search_factr=3.0), "has no parameter"),
+        (("x", *_NCC), "expected a tracker.registry.TrackerEntry"),
+    ],
+)
+def test_a_bad_registration_is_refused_by_field(bad, message):
+    with pytest.raises(ValueError, match=message):
+        register(bad)
+    assert "x" not in names()
+
+
+PLUGIN = """
+from tracker.registry import entry
+
+ENTRY = entry("mine", "tracker.baselines.ncc:NCCTracker", "tracker.baselines.ncc:NCCParams",
+              "my NCC variant", search_factor=2.5)
+WRONG_NAME = entry("other", "tracker.baselines.ncc:NCCTracker", "tracker.baselines.ncc:NCCParams")
+"""
+
+
+def _plugin_env(tmp_path: Path, lines: str) -> dict[str, str]:
+    """An environment whose interpreter sees an installed distribution ``myplug`` with the
+    ``crowdsim.trackers`` entry points ``lines`` (what ``pip install`` of a package declaring
+    them leaves: a module and a ``.dist-info`` folder)."""
+    site = tmp_path / "site"
+    (site / "myplug").mkdir(parents=True)
+    (site / "myplug" / "__init__.py").write_text(PLUGIN)
+    info = site / "myplug-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: myplug\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(f"[crowdsim.trackers]\n{lines}\n")
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(site), str(ROOT)]))
+
+
+def _python(env: dict[str, str], code: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=ROOT
+    )
+
+
+def test_an_entry_point_plugin_is_a_tracker_of_every_process(tmp_path):
+    env = _plugin_env(
+        tmp_path,
+        "mine = myplug:ENTRY\nbroken = myplug_missing:ENTRY\nmisnamed = myplug:WRONG_NAME\n"
+        "bqp = myplug:ENTRY",
+    )
+    code = """
+import sys
+from tracker.registry import get, make_tracker, names, listing
+assert "myplug" not in sys.modules, "listing names must not import a plug-in"
+print(names())
+trk = make_tracker("mine")
+print(trk.name, trk.params.search_factor, get("bqp").target)
+for bad in ("broken", "misnamed"):
+    try:
+        get(bad)
+    except ValueError as exc:
+        print(exc)
+print(listing())
+"""
+    run = _python(env, code)
+    assert run.returncode == 0, run.stderr
+    out = run.stdout.splitlines()
+    assert out[0].endswith("'mine', 'broken', 'misnamed')") and out[0].count("'bqp'") == 1
+    assert out[1] == "mine 2.5 tracker.bqp.tracker:BQPTracker"  # a plug-in never shadows bqp
+    assert out[2].startswith(
+        "tracker plug-in 'broken' (myplug_missing:ENTRY, entry point of myplug) does not load: "
+        "ModuleNotFoundError"
+    )
+    assert out[3].endswith("names itself 'other'; the two must agree")
+    assert (
+        "; broken: (a plug-in that does not load: --tracker broken says why); misnamed:" in out[4]
+    )
+
+
+def test_the_cli_tracks_with_a_plugin_and_names_a_broken_one(tmp_path):
+    import cv2
+
+    from synth_data.mot import write_mot, write_seqinfo
+    from tracker.mot_io import tracks_to_mot_rows
+    from tracker.testing import make_scene
+
+    sc = make_scene([[20, 20], [90, 20], [100, 75]], [[2, 1], [-2, 1], [-2, 0]], n_frames=6)
+    d = tmp_path / "seq"
+    (d / "img1").mkdir(parents=True)
+    (d / "gt").mkdir()
+    for i, f in enumerate(sc.frames, start=1):
+        cv2.imwrite(str(d / "img1" / f"{i:06d}.png"), f)
+    h, w = sc.frames[0].shape[:2]
+    write_seqinfo(
+        d,
+        name="tiny",
+        frame_rate=25,
+        length=len(sc.frames),
+        width=w,
+        height=h,
+        template_size=sc.template_size,
+        im_ext=".png",
+    )
+    rows = tracks_to_mot_rows(sc.ids, sc.points, sc.template_size)
+    rows[:, 7] = 1
+    rows[:, 8] = 1
+    write_mot(d / "gt" / "gt.txt", rows[:, :9])
+    env = _plugin_env(tmp_path, "mine = myplug:ENTRY\nbroken = myplug_missing:ENTRY")
+
+    def crowdsim(*args):
+        return subprocess.run(
+            [sys.executable, "-m", "crowdsim", *args], env=env, capture_output=True, text=True
+        )
+
+    run = crowdsim(
+        "track",
+        str(d),
+        "--tracker",
+        "mine",
+        "--out",
+        str(tmp_path / "m.txt"),
+        "--evaluate",
+        "--no-progress",
+    )
+    assert run.returncode == 0, run.stderr
+    assert (tmp_path / "m.txt").stat().st_size > 0
+    run = crowdsim("track", str(d), "--tracker", "broken", "--out", str(tmp_path / "b.txt"))
+    assert run.returncode == 2 and not (tmp_path / "b.txt").exists()
+    err = run.stderr.strip().splitlines()
+    assert len(err) == 1 and "tracker plug-in 'broken'" in err[0] and "does not load" in err[0], err
+    run = crowdsim("track", "--help")
+    assert run.returncode == 0 and "mine: my NCC variant" in " ".join(run.stdout.split())
