@@ -49,6 +49,12 @@ def read_points_csv(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarra
             ) from None
         except (UnicodeDecodeError, csv.Error) as exc:
             raise ValueError(f"{path}: not a text CSV file ({exc})") from None
+        if header[:2] == ["frame", "detection"]:
+            raise ValueError(
+                f"{path}: per-frame detections (crowdsim detect --frames N or --all), not the "
+                "people to start from: give --init the points of frame 1 (crowdsim detect "
+                "without --frames), or --init detect"
+            )
         if header not in (["frame", "id", "x", "y"], ["id", "x", "y"]):
             raise ValueError(
                 f"{path}:1: header must be 'frame,id,x,y' or 'id,x,y', got {','.join(header)!r}"

@@ -113,6 +113,23 @@ def test_detect_all_frames_with_scores(tmp_path, rendered):
     assert ((rows[:, 4] > 0) & (rows[:, 4] < 1)).all()
 
 
+def test_detections_of_several_frames_are_no_init_file(tmp_path, rendered, capsys):
+    video, _ = rendered
+    one, three = tmp_path / "one.csv", tmp_path / "three.csv"
+    assert main(["detect", str(video), "--out", str(one), "--no-progress"]) == 0
+    assert main(["detect", str(video), "--out", str(three), "--frames", "3", "--no-progress"]) == 0
+    assert one.read_text().startswith("frame,id,x,y\n")
+    assert three.read_text().startswith("frame,detection,x,y\n")
+    capsys.readouterr()
+    args = ["track", str(video), "--tracker", "ncc", "--no-progress"]
+    assert main([*args, "--out", str(tmp_path / "a.txt"), "--init", str(one)]) == 0
+    capsys.readouterr()
+    assert main([*args, "--out", str(tmp_path / "b.txt"), "--init", str(three)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "three.csv: per-frame detections" in err[0], err
+    assert not (tmp_path / "b.txt").exists()
+
+
 def test_track_a_video_with_no_points_starts_from_the_detector(tmp_path, rendered, capsys):
     video, _ = rendered
     out = tmp_path / "res.txt"

@@ -3,9 +3,10 @@
 INPUT is a video file or a MOTChallenge sequence folder. The output is the points CSV the
 trackers read (``crowdsim track --init points.csv``): a header ``frame,id,x,y`` and one row per
 head, pixels, frames 1-based. By default only frame 1 is detected (the people a tracker starts
-from, ids 1, 2, ...); ``--frames N`` detects the first N frames and ``--all`` every frame, each
-head of each frame with its own id (per-frame detections, not tracks: feed them to a
-tracking-by-detection tracker, not to ``--init``). ``--scores`` adds a ``score`` column.
+from, ids 1, 2, ...); ``--frames N`` (N > 1) and ``--all`` detect more frames and write
+per-frame detections, not tracks: the header is ``frame,detection,x,y`` and each head of each
+frame has its own number, so ``track --init`` refuses the file (it would start every
+detection as a new person). ``--scores`` adds a ``score`` column.
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=int,
         default=1,
         metavar="N",
-        help="detect the first N frames (1); past frame 1 every head of every frame gets its "
-        "own id: detections, not an --init file (track would start each as a new person)",
+        help="detect the first N frames (1); past frame 1 the file holds per-frame detections "
+        "(header frame,detection,x,y), not an --init file",
     )
     frames.add_argument("--all", action="store_true", help="detect every frame")
     p.add_argument("--weights", default=None, metavar="FILE", help="weights (default: shipped)")
@@ -105,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
     detector.template_size = head_size(src, args.template_size)
     n = src.length if args.all else min(args.frames, src.length)
     buf = io.StringIO()
-    buf.write("frame,id,x,y,score\n" if args.scores else "frame,id,x,y\n")
+    key = "id" if n == 1 else "detection"  # detections of several frames are no --init file
+    buf.write(f"frame,{key},x,y,score\n" if args.scores else f"frame,{key},x,y\n")
     next_id, done, seconds = 1, 0, 0.0
     bar = progress_bar(total=n, desc="detect", unit="frame", enabled=not args.no_progress)
     try:

@@ -214,6 +214,11 @@ for cid, content, needle in (
     ("data-track-init-negative", "id,x,y\n1,-5,3\n", "at (-5.0, 3.0)"),
     ("data-track-init-semicolons", "id;x;y\n1;2;3\n", "header must be 'frame,id,x,y' or 'id,x,y'"),
     ("data-track-init-birth-unknown", "frame,id,x,y\n1,1,2,3\n2,7,1,1\n", "ids [7] are unknown"),
+    (
+        "data-track-init-detections",
+        "frame,detection,x,y\n1,1,2,3\n2,2,3,3\n",
+        "i.csv: per-frame detections (crowdsim detect --frames N or --all)",
+    ),
 ):
     case(cid, T, needle, files=(("i.csv", content),))
 
