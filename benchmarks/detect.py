@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 
 
@@ -107,4 +108,9 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    try:
+        raise SystemExit(main())
+    except KeyboardInterrupt:  # one line and 130, not a traceback (no crowdsim import: the
+        # script also runs against older code)
+        print("detect.py: interrupted by SIGINT", file=sys.stderr)
+        raise SystemExit(130) from None

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 
 import numpy as np
@@ -83,4 +84,9 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    try:
+        raise SystemExit(main())
+    except KeyboardInterrupt:  # one line and 130, not a traceback (no crowdsim import: the
+        # script also runs against older code)
+        print("force_threads.py: interrupted by SIGINT", file=sys.stderr)
+        raise SystemExit(130) from None

@@ -29,6 +29,7 @@ import argparse
 import json
 import multiprocessing as mp
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -273,4 +274,9 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    try:
+        raise SystemExit(main())
+    except KeyboardInterrupt:  # one line and 130, not a traceback (no crowdsim import: the
+        # script also runs against older code)
+        print("split_profile.py: interrupted by SIGINT", file=sys.stderr)
+        raise SystemExit(130) from None

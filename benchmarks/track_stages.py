@@ -42,6 +42,8 @@ except ImportError:
 else:
     process_settings()
 
+import sys
+
 import numba  # noqa: E402
 
 STAGES = {
@@ -160,4 +162,9 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    try:
+        raise SystemExit(main())
+    except KeyboardInterrupt:  # one line and 130, not a traceback (no crowdsim import: the
+        # script also runs against older code)
+        print("track_stages.py: interrupted by SIGINT", file=sys.stderr)
+        raise SystemExit(130) from None

@@ -143,4 +143,9 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    try:
+        raise SystemExit(main())
+    except KeyboardInterrupt:  # one line and 130, not a traceback (no crowdsim import: the
+        # script also runs against older code)
+        print("tuning_env_vs_commit.py: interrupted by SIGINT", file=sys.stderr)
+        raise SystemExit(130) from None

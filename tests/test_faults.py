@@ -226,3 +226,32 @@ def test_full_disk_simulate_and_render(tiny_disk, tmp_path, capsys):
     assert err.strip() == f"crowdsim render: error: {seq}: no space left on the device"
     assert _contents(tiny_disk) == ["keep.txt"]
     assert keep.read_text() == "earlier results\n"
+
+
+STANDALONE_SCRIPTS = (
+    "track_stages",
+    "split_balance",
+    "split_profile",
+    "detect",
+    "force_threads",
+    "tuning_env_vs_commit",
+)
+
+
+@pytest.mark.parametrize("name", STANDALONE_SCRIPTS)
+def test_a_standalone_benchmark_stopped_by_ctrl_c_says_so_in_one_line(name):
+    """The six scripts that import nothing of crowdsim's at the top (they also run against
+    older code) ended a Ctrl-C in a traceback. The interrupt is raised where each reads its
+    arguments, inside ``main()``, so the test never races the script's imports."""
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    code = (
+        "import argparse, runpy, sys\n"
+        "def stop(*args, **kwargs):\n"
+        "    raise KeyboardInterrupt\n"
+        "argparse.ArgumentParser.parse_args = stop\n"
+        f"sys.argv = [{str(script)!r}]\n"
+        f"runpy.run_path({str(script)!r}, run_name='__main__')\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert run.returncode == 130, run.stderr
+    assert run.stderr.strip().splitlines() == [f"{name}.py: interrupted by SIGINT"]
