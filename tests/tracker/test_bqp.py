@@ -246,3 +246,67 @@ def test_threads_out_of_range_are_refused(bad):
     tr = BQPTracker()
     with pytest.raises(ValueError, match="threads must be"):
         tr.threads = bad
+
+
+# --------------------------------------------------------------------------- the paper's forms
+def test_the_papers_identity_makes_the_grouping_term_pay_0_2_2():
+    """Two targets on one grouping edge, each with a candidate in formation and one far off:
+    on binary points today's diagonal (identity only where D > 0) pays 0 for keeping the
+    formation, 1 for breaking it on one side and 0 on both (tau 0); the paper's identity on
+    every candidate pays 0, 2, 2 (up to the constant it adds, 2). ``laplacian_identity =
+    "every"`` is the linear cost less ``Q``'s diagonal, so its binary objective is the
+    paper's."""
+    from tracker.bqp.quadratic import quadratic_matrix
+
+    cand = np.array([[[0.0, 0.0], [0.0, 60.0]], [[10.0, 0.0], [90.0, 70.0]]])  # a0 a1 / b0 b1
+    q, diag = quadratic_matrix(
+        cand,
+        0.0,
+        4.0,
+        1.5,
+        1.0,
+        np.array([[0, 1]]),
+        np.array([10.0]),
+        2.0,
+        1.5,
+        0.0,
+        diagonal=True,
+    )
+    np.testing.assert_allclose(diag, [1.0, 0.0, 1.0, 0.0])  # a1, b1 have no neighbour
+    q = q.toarray()
+
+    def pay(a, b, every):
+        x = np.zeros(4)
+        x[[a, 2 + b]] = 1.0
+        return x @ q @ x - (diag @ x if every else 0.0) + (2.0 if every else 0.0)
+
+    keep, one, both = (0, 0), (0, 1), (1, 1)
+    assert [pay(*c, every=False) for c in (keep, one, both)] == pytest.approx([0, 1, 0])
+    assert [pay(*c, every=True) for c in (keep, one, both)] == pytest.approx([0, 2, 2])
+
+
+def test_the_papers_forms_are_options_that_track_and_change_the_qp():
+    sc = _convoy(16)
+    runs = {}
+    for identity, neighbours in (("linked", "nearest"), ("every", "group")):
+        tr = BQPTracker(
+            BQPParams(
+                speedup=False,
+                group_refresh=5,
+                laplacian_identity=identity,
+                neighbour_set=neighbours,
+            ),
+            record_qps=True,
+        )
+        res = tr.track(sc.frames, sc.ids, sc.points[0], sc.template_size)
+        np.testing.assert_array_equal(res.positions, sc.points)  # a clean convoy either way
+        runs[identity] = tr.recorded_qps
+    before, after = runs["linked"][-1], runs["every"][-1]
+    assert (before.Q != after.Q).nnz == 0  # the same quadratic terms
+    diag = before.Q.diagonal()
+    assert diag.max() > 0
+    np.testing.assert_allclose(after.c, before.c - diag, atol=1e-12)
+    with pytest.raises(ValueError, match="laplacian_identity must be one of"):
+        BQPParams(laplacian_identity="paper")
+    with pytest.raises(ValueError, match="neighbour_set must be one of"):
+        BQPParams(neighbour_set="all")

@@ -748,3 +748,19 @@ def test_speedup_extrema_need_every_neighbour_higher_including_the_right_one():
     assert s.k == 3
     assert s.cell[0].tolist() == [7, 18, 6]
     np.testing.assert_array_equal(s.positions[0], [[20, 19], [21, 21], [19, 19]])
+
+
+def test_eq7_neighbours_are_the_nearest_of_the_own_group():
+    """Two interleaved lanes: by default the nearest targets of any group take the places,
+    so with k = 2 each target finds at most one of its own; Eq. 7's set finds two."""
+    x = np.arange(8, dtype=float) * 3.0
+    pos = np.column_stack([x, np.zeros(8)])
+    labels = np.array([0, 1] * 4)
+    nbr, _ = neighbours_in_groups(pos, labels, k=2, radius=20.0, scale=1.0)
+    assert ((nbr >= 0).sum(1) <= 1).all()
+    nbr, w = neighbours_in_groups(pos, labels, k=2, radius=20.0, scale=1.0, same_group=True)
+    assert nbr[0].tolist() == [2, 4] and nbr[3].tolist() in ([1, 5], [5, 1])
+    assert (labels[nbr] == labels[:, None]).all()
+    np.testing.assert_allclose(w.sum(1), 1.0)
+    nbr, _ = neighbours_in_groups(pos, labels, k=2, radius=5.0, scale=1.0, same_group=True)
+    assert (nbr == -1).all()  # the own group's nearest is 6 px away: beyond the radius

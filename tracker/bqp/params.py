@@ -15,6 +15,10 @@ from tracker.bqp.frank_wolfe import VARIANTS as FW_VARIANTS
 from tracker.cmc import check_fields as check_cmc_fields
 
 APPEARANCE_MODELS: tuple[str, ...] = ("kcf", "ncc")
+NEIGHBOUR_SETS: tuple[str, ...] = ("nearest", "group")
+"""``BQPParams.neighbour_set``: today's ``N_i`` and Eq. 7's."""
+IDENTITIES: tuple[str, ...] = ("linked", "every")
+"""``BQPParams.laplacian_identity``: today's diagonal and the paper's identity."""
 
 
 UPPER: dict[str, float] = {
@@ -97,6 +101,12 @@ class BQPParams:
         Eq. 6 (0 = last displacement only).
     n_neighbours : int
         Maximum size of the neighbour set ``N_i`` of Eq. 7 (paper: 5).
+    neighbour_set : str
+        Which targets ``N_i`` holds (:func:`tracker.bqp.terms.neighbours_in_groups`):
+        ``"nearest"`` (default, every figure of the README), the same-group targets among the
+        ``n_neighbours`` nearest of any group, so where two groups interleave (counterflow
+        lanes) a target is left with fewer or none; ``"group"``, Eq. 7's: the
+        ``n_neighbours`` nearest targets of its own group. Both within ``group_radius``.
     neighbour_scale : float
         Length unit of the distance in the weights of Eq. 8, template sizes (the paper leaves
         the unit implicit; in pixels the weights would collapse onto the nearest neighbour).
@@ -129,6 +139,17 @@ class BQPParams:
         a candidate pair that is barely similar but has no other neighbour gets a
         full-strength proximity penalty, which cost 0.4 points at 5 px on a 300-person
         synthetic crowd; ``tau = 1`` lost nothing.
+    laplacian_identity : str
+        Where the Laplacians' identity sits. ``"linked"`` (default, every figure of the
+        README): ``D / (D + tau)`` on the diagonal, so only on candidates with a neighbour,
+        and on binary points the terms are no constant: two targets on one grouping edge pay
+        0 for keeping their formation, 0.5 (tau 1) for breaking it on one side and 0 for
+        breaking it on both. ``"every"``, the paper's ``I`` on every candidate: a constant on
+        binary points, where the terms reduce to their off-diagonal entries (keeping 0,
+        breaking on one side or both 2 with tau 0). It is reached by taking ``Q``'s diagonal
+        off the linear cost, which gives the paper's objective on every binary point and keeps
+        the relaxation's curvature (the paper's ``I`` in the relaxation would add ``|x|^2``
+        on every simplex, pulling the relaxed optimum further inside them).
     group_offsets : bool
         Grouping term on relative positions ``e_ij = p_i - p_j`` (2-vectors) instead of the
         distances ``|p_i - p_j|`` of Eq. 10; see :func:`tracker.bqp.quadratic.grouping_matrix`.
@@ -201,6 +222,7 @@ class BQPParams:
     motion_sigma: float = 0.5
     velocity_smoothing: float = 0.5
     n_neighbours: int = 5
+    neighbour_set: str = "nearest"
     neighbour_scale: float = 1.0
     history: int = 10
     group_refresh: int = 10
@@ -213,6 +235,7 @@ class BQPParams:
     group_cutoff: float = 1.5
     group_offsets: bool = False
     laplacian_tau: float = 1.0
+    laplacian_identity: str = "linked"
     candidate_stride: int = 1
     speedup: bool = True
     n_extrema: int = 3
@@ -283,6 +306,8 @@ class BQPParams:
         require_choice(own, "appearance", self.appearance, APPEARANCE_MODELS)
         require_choice(own, "kcf_kernel", self.kcf_kernel, ("gaussian", "linear"))
         require_choice(own, "fw_variant", self.fw_variant, FW_VARIANTS)
+        require_choice(own, "neighbour_set", self.neighbour_set, NEIGHBOUR_SETS)
+        require_choice(own, "laplacian_identity", self.laplacian_identity, IDENTITIES)
         check_cmc_fields(own, self)
 
     @classmethod

@@ -256,16 +256,29 @@ def coherent_groups(
 
 
 def neighbours_in_groups(
-    positions: np.ndarray, labels: np.ndarray, k: int, radius: float, scale: float
+    positions: np.ndarray,
+    labels: np.ndarray,
+    k: int,
+    radius: float,
+    scale: float,
+    same_group: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The ``N_i`` of Eq. 7 and their weights (Eq. 8).
 
-    The targets of the same coherent group among the ``k`` nearest group members within
-    ``radius`` px (targets of other groups take places: where two groups interleave, a target
-    is left with fewer than ``k`` or none; Eq. 7's ``N_i`` are the ``k`` nearest of the same
-    group, a departure the README lists as not yet mended). Weights are
-    ``exp(-|p_j - p_i|^2 / scale^2)`` normalised over ``N_i`` (Eq. 8 with distances measured in
-    units of ``scale`` px).
+    By default the targets of the same coherent group among the ``k`` nearest group members
+    within ``radius`` px (targets of other groups take places: where two groups interleave, a
+    target is left with fewer than ``k`` or none). ``same_group=True`` gives Eq. 7's: the ``k``
+    nearest targets of the same group within ``radius`` px (each group's members are set
+    apart by more than ``radius`` along a third axis, so one tree query finds them). Weights
+    are ``exp(-|p_j - p_i|^2 / scale^2)`` normalised over ``N_i`` (Eq. 8 with distances
+    measured in units of ``scale`` px).
+
+    >>> pos = np.array([[0.0, 0], [1, 0], [2, 0], [3, 0]])  # two groups, interleaved
+    >>> labels = np.array([0, 1, 0, 1])
+    >>> neighbours_in_groups(pos, labels, 1, 10.0, 1.0)[0][:, 0].tolist()  # nearest is 1 away
+    [-1, -1, -1, -1]
+    >>> neighbours_in_groups(pos, labels, 1, 10.0, 1.0, same_group=True)[0][:, 0].tolist()
+    [2, 3, 0, 1]
 
     Returns
     -------
@@ -279,7 +292,11 @@ def neighbours_in_groups(
     if len(member) < 2:
         return nbr, w
     kk = min(k + 1, len(member))
-    dist, j = cKDTree(positions[member]).query(positions[member], k=kk, distance_upper_bound=radius)
+    where = positions[member]
+    if same_group:  # groups apart by more than the radius: a query finds its own group alone
+        apart = 2.0 * float(radius) + 1.0
+        where = np.column_stack([where, labels[member] * apart])
+    dist, j = cKDTree(where).query(where, k=kk, distance_upper_bound=radius)
     dist, j = dist[:, 1:], j[:, 1:]  # drop self
     found = j < len(member)
     jj = np.where(found, member[np.minimum(j, len(member) - 1)], -1)

@@ -232,6 +232,7 @@ class BQPTracker(Tracker):
                 p.n_neighbours,
                 self._px(p.group_radius),
                 self._px(p.neighbour_scale),
+                same_group=p.neighbour_set == "group",
             )
         else:
             nbr, wts = np.zeros((len(pred), 0), np.int64), np.zeros((len(pred), 0))
@@ -297,8 +298,10 @@ class BQPTracker(Tracker):
         t0 = time.perf_counter()
         q, components, order, diagonal = self.quadratic(cands)
         t0 = self._tick("terms", t0)
-        cost = cands.cost if order is None else cands.cost[order]
-        qp = BlockQP.from_terms(cost.ravel(), q, cands.block_ptr, diagonal)
+        cost = (cands.cost if order is None else cands.cost[order]).ravel()
+        if p.laplacian_identity == "every":  # the paper's I: a constant on binary points
+            cost = cost - diagonal
+        qp = BlockQP.from_terms(cost, q, cands.block_ptr, diagonal)
         if self.record_qps:
             self.recorded_qps.append(qp)
         res = solve(
