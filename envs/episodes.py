@@ -430,6 +430,20 @@ def folder_sequence(path: str | os.PathLike[str], frames: int | None = None) -> 
     return seq
 
 
+def mot_folders(path: str | os.PathLike[str]) -> list[Path]:
+    """The MOT sequence folders of ``path``: ``[path]`` when it is one itself (it has a
+    ``seqinfo.ini``), else its sub-folders that have one, sorted by name. Raises
+    ``ValueError`` naming ``path`` when there is none (what ``tune``, ``heldout`` and
+    ``compare --sequences`` read)."""
+    path = Path(path)
+    if (path / "seqinfo.ini").is_file():
+        return [path]
+    folders = sorted(p for p in path.iterdir() if (p / "seqinfo.ini").is_file())
+    if not folders:
+        raise ValueError(f"{path}: no MOT sequence folders (sub-folders with seqinfo.ini)")
+    return folders
+
+
 _JPEG_EOI_WINDOW = 64
 """Bytes at the end of a JPEG searched for its end-of-image marker ``FF D9`` (encoders may
 pad after it; inside the entropy-coded data ``FF`` is never followed by ``D9``)."""
@@ -948,7 +962,7 @@ class SuiteEpisodes(EpisodeSource):
             raise ValueError(
                 "reseed applies to built-in suites only (a folder on disk has fixed sequences)"
             )
-        folders = self._folders(path)
+        folders = mot_folders(path)
         if only:
             known = [p.name for p in folders]
             unknown = [o for o in only if o not in known]
@@ -964,19 +978,10 @@ class SuiteEpisodes(EpisodeSource):
         self.items = folders
         self.on_disk = True
 
-    @staticmethod
-    def _folders(path: Path) -> list[Path]:
-        if (path / "seqinfo.ini").is_file():
-            return [path]
-        folders = sorted(p for p in path.iterdir() if (p / "seqinfo.ini").is_file())
-        if not folders:
-            raise ValueError(f"{path}: no MOT sequence folders (sub-folders with seqinfo.ini)")
-        return folders
-
     @classmethod
     def folder_names(cls, suite: str | os.PathLike[str]) -> list[str]:
         """Names of the sequences of a suite folder (without opening any)."""
-        return [p.name for p in cls._folders(Path(suite))]
+        return [p.name for p in mot_folders(suite)]
 
     def __len__(self) -> int:
         return len(self.items)

@@ -32,31 +32,52 @@ def add_jobs_arguments(p: argparse.ArgumentParser, workers_help: str, workers: i
     )
 
 
-def add_table_arguments(p: argparse.ArgumentParser, writes: str = "") -> None:
+DEFAULT_SUITE = "ucf9"
+"""The suite of ``compare``, ``ablation`` and ``difficulty`` without ``--suite``."""
+
+
+def add_table_arguments(
+    p: argparse.ArgumentParser, writes: str = "", sequences: bool = False
+) -> None:
     """``--suite NAME|DIR``, ``--only``, ``--frames``, the jobs flags, ``--out``,
     ``--no-progress`` of ``compare``, ``ablation`` and ``difficulty`` (``writes``: what the
-    command writes into ``--out`` beside the tables, for its help)."""
-    p.add_argument(
+    command writes into ``--out`` beside the tables, for its help); with ``sequences``,
+    ``--sequences DIR`` instead of ``--suite`` (``compare`` and ``ablation``: the user's
+    own MOT sequences; ``difficulty`` changes specs, so it has none)."""
+    src = p.add_mutually_exclusive_group() if sequences else p
+    src.add_argument(
         "--suite",
-        default="ucf9",
+        # None beside --sequences: argparse tells a given value from the default by identity,
+        # so a default "ucf9" would let "--suite ucf9 --sequences DIR" through
+        default=None if sequences else DEFAULT_SUITE,
         metavar="NAME|DIR",
         help="built-in suite (ucf9, ucf9-shake, ucf9-drone, galleria, stress) or a suite "
         "folder of spec files, e.g. one written by crowdsim calibrate --out (default ucf9)",
     )
+    if sequences:
+        src.add_argument(
+            "--sequences",
+            metavar="DIR",
+            help="instead of a suite: your own sequences in the MOT layout (a folder of "
+            "sequence folders with seqinfo.ini, gt/gt.txt and img1/ or video.mp4, as "
+            "crowdsim generate writes them, or one such folder), tracked where they are and "
+            "never written into; no papers' figures",
+        )
     p.add_argument("--only", nargs="+", metavar="SEQ", help="only these sequences")
     p.add_argument(
         "--frames",
         type=int,
         metavar="N",
-        help="truncate every sequence to its first N frames (quick runs; the camera is framed "
-        "on those frames' crowd, as generate --frames does)",
+        help="truncate every sequence to its first N frames (quick runs; a suite's camera is "
+        "framed on those frames' crowd, as generate --frames does)",
     )
     add_jobs_arguments(p, "parallel cells (local processes or Ray tasks; default 1)", 1)
     p.add_argument(
         "--out",
         required=True,
         metavar="DIR",
-        help="output folder: sequences/, cells.json (resume), table.md, table.csv, "
+        help="output folder: sequences/ (generated; not with --sequences), cells.json "
+        "(resume), table.md, table.csv, "
         f"curves/*.png{writes} and outputs.json (their digests: a rerun replaces only those)",
     )
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
@@ -94,6 +115,12 @@ def add_set_argument(p: argparse.ArgumentParser) -> None:
     )
 
 
+def table_source(args: argparse.Namespace) -> str:
+    """How a table's title names what it ran on: ``--sequences DIR`` or ``--suite``."""
+    sequences = getattr(args, "sequences", None)
+    return str(sequences if sequences is not None else args.suite or DEFAULT_SUITE)
+
+
 def run_table_command(args: argparse.Namespace, rows, title: str, paper_table: str) -> int:
     """Run :func:`crowdsim.lab.experiments.run_table` from the flags; print the table.
 
@@ -107,7 +134,17 @@ def run_table_command(args: argparse.Namespace, rows, title: str, paper_table: s
         rows = with_params(rows, settings)
         title += " with " + ", ".join(f"{k}={v}" for k, v in settings.items())
     kwargs = table_run_kwargs(args)  # flags checked before any work
-    text = run_table(rows, args.suite, args.out, title=title, paper_table=paper_table, **kwargs)
+    sequences = getattr(args, "sequences", None)
+    suite = None if sequences is not None else args.suite or DEFAULT_SUITE
+    text = run_table(
+        rows,
+        suite,
+        args.out,
+        sequences=sequences,
+        title=title,
+        paper_table=paper_table,
+        **kwargs,
+    )
     print(text)
     print(
         f"table -> {args.out}/table.md, {args.out}/table.csv; curves -> {args.out}/curves/",

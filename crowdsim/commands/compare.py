@@ -1,12 +1,16 @@
-"""``crowdsim compare``: every tracker on a suite, the papers' figures beside ours.
+"""``crowdsim compare``: every tracker on a suite or your sequences, beside the papers' figures.
 
-``crowdsim compare --suite NAME|DIR [--only SEQ ...] [--trackers NAME ...] [--cmc]
-[--params FILE ...] [--set NAME=VALUE ...] [--frames N] [--workers N]
+``crowdsim compare --suite NAME|DIR | --sequences DIR [--only SEQ ...] [--trackers NAME ...]
+[--cmc] [--params FILE ...] [--set NAME=VALUE ...] [--frames N] [--workers N]
 [--backend local|ray [--address ADDR]] --out DIR``
 
 ``--suite`` is a built-in suite (ucf9, ucf9-shake, ucf9-drone, galleria, stress) or a suite
 folder of spec files, such as the one ``crowdsim calibrate --out`` writes (its ``paper.json``
-gives the papers' column).
+gives the papers' column). ``--sequences DIR`` runs the same rows on sequences you already
+have in the MOT layout instead (a folder of sequence folders, or one: ``seqinfo.ini``,
+``gt/gt.txt``, ``img1/`` frames or ``video.mp4``, as ``generate`` writes them or as
+MOTChallenge footage comes), read as ``track`` reads them and never written into; the table
+says the papers report nothing on them, and ``--frames N`` tracks their first N frames.
 Rows: NCC, mean-shift, PNMC, BQP (KCF), BQP (NCC appearance), ByteTrack and OC-SORT at
 detector miss rates 0.1 and 0.3; with ``--cmc``, each detection-free tracker also with
 camera-motion compensation (``<row> + CMC``); ``--trackers`` keeps only the rows of those
@@ -17,10 +21,12 @@ acc@15, acc@5, MOTA, IDF1, HOTA, frames/s. Writes ``table.md``, ``table.csv`` an
 accuracy-versus-threshold PNGs and prints the table.
 Resumable: a rerun with the same ``--out`` skips finished cells, each checked against the
 checksum stored with it in ``cells.json`` (an edited cell is refused, naming it; see
-:mod:`crowdsim.lab.experiments`). A sequence folder in ``DIR/sequences`` made from another
-spec is never replaced (exit 2: remove it or choose another ``--out``), nor is a
-``table.md``, ``table.csv`` or curve that no table run wrote (``outputs.json`` lists the
-digests of what one did).
+:mod:`crowdsim.lab.experiments`). A cell of ``--sequences`` is keyed by a digest of its
+sequence's ground truth, ``seqinfo.ini`` and frame files
+(:func:`crowdsim.lab.experiments.sequence_digest`): an edited sequence is a new cell. A
+sequence folder in ``DIR/sequences`` made from another spec is never replaced (exit 2: remove
+it or choose another ``--out``), nor is a ``table.md``, ``table.csv`` or curve that no table
+run wrote (``outputs.json`` lists the digests of what one did).
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from crowdsim.commands._table_args import (
     add_set_argument,
     add_table_arguments,
     run_table_command,
+    table_source,
 )
 
 
@@ -40,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="compare every tracker on a suite (the papers' Table 1)",
         description=__doc__.splitlines()[0].replace("``", ""),
     )
-    add_table_arguments(p)
+    add_table_arguments(p, sequences=True)
     add_set_argument(p)
     p.add_argument(
         "--cmc",
@@ -120,4 +127,4 @@ def run(args: argparse.Namespace) -> int:
     if args.params:
         rows = tuple(rows) + tuned_rows(args.params)
     rows = with_cmc(rows) if args.cmc else rows
-    return run_table_command(args, rows, f"compare on {args.suite}", "acc@15")
+    return run_table_command(args, rows, f"compare on {table_source(args)}", "acc@15")

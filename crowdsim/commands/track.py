@@ -27,6 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     from crowdsim.atomic import OVERWRITE_HELP
     from tracker.base import MAX_TEMPLATE_PX
     from tracker.registry import listing
+
     p = sub.add_parser(
         "track",
         help="track a sequence or video with any registered tracker, write MOT results",

@@ -6,7 +6,9 @@ OC-SORT at two detector miss rates), ``crowdsim ablation`` paper 1's Table 3 row
 (:func:`ablation_rows`, from :mod:`tracker.bqp.ablation`). Both:
 
 1. generate the suite's sequences into ``OUT/sequences`` (:func:`synth_data.generate.generate`,
-   resumable, checksummed; ``frames`` truncates every spec);
+   resumable, checksummed; ``frames`` truncates every spec) -- or, with ``sequences``
+   (``--sequences DIR``), read the user's own MOT sequence folders where they are, never
+   writing into them (:func:`user_sequences`; no papers' figures for those);
 2. run one *cell* (row x sequence) per job on :func:`crowdsim.jobs.run_jobs` (local pool or
    Ray), recording each finished cell in ``OUT/cells.json`` -- a killed run loses no finished
    cell and a rerun resumes. Each cell is stored with a SHA-256 of its key and figures
@@ -77,6 +79,12 @@ ELEVEN_NOTE = (
     "them (paper 1 puts its own template baseline, B(NCC), about 30 points higher); our NCC "
     "and mean-shift trackers are independent implementations."
 )
+
+NO_PAPER_NOTE = (
+    "No figures in brackets: these are your own sequences (--sequences), on which the papers "
+    "report nothing; every figure here is ours."
+)
+"""The note of a table on the user's sequences, in place of the papers' one."""
 
 METRICS: tuple[tuple[str, str, str], ...] = (
     ("acc@15", "acc@15", "%"),
@@ -315,12 +323,147 @@ def cut_spec(spec: Any, frames: int | None) -> Any:
     return spec.truncated(frames)
 
 
+@dataclass(frozen=True)
+class UserSequence:
+    """A MOT sequence folder of the user's (``--sequences``), as a table runs it.
+
+    ``name`` is the folder's name (its row of the table, its curve's file name), ``frames``
+    the frames its cells track (its length, or ``--frames`` when shorter) and ``content``
+    :func:`sequence_digest` of the folder. It has what :func:`cell_key` reads of a spec
+    (``name``, ``digest()``), so an edited or replaced sequence is another cell.
+    """
+
+    name: str
+    path: Path
+    frames: int
+    content: str
+
+    def digest(self) -> str:
+        return self.content
+
+
+def sequence_digest(seq: Any) -> str:
+    """SHA-256 of what identifies a MOT sequence folder's content, without decoding a frame.
+
+    It covers the bytes of ``seqinfo.ini`` (name, size, length, frame rate, box type,
+    template size), of ``gt/gt.txt`` and, where there is one, of ``checksums.json`` (a
+    crowdsim sequence: the SHA-256 of every frame); then the frames by their files: the
+    sorted names, sizes and modification times (ns) of the files of the image folder
+    (``img1/``), and the size, modification time and first 64 KiB (the container's header)
+    of ``video.mp4``. An edited ground truth, a frame added, removed, re-encoded or copied
+    over with another (a new modification time), or a replaced video is another digest, so
+    :func:`run_table` never reuses a cell of the old sequence for it. The price: a copy that
+    does not keep modification times (``cp`` without ``-p``) is computed again.
+
+    Parameters
+    ----------
+    seq : synth_data.mot.MotSequence
+        The sequence, as :func:`synth_data.mot.read_sequence` read it.
+    """
+    import hashlib
+
+    h = hashlib.sha256()
+
+    def add(tag: str, data: bytes) -> None:
+        h.update(f"{tag}:{len(data)}:".encode())
+        h.update(data)
+
+    from synth_data.mot import CHECKSUMS_FILE
+
+    folder = Path(seq.path)
+    add("seqinfo.ini", (folder / "seqinfo.ini").read_bytes())
+    add("gt.txt", (folder / "gt" / "gt.txt").read_bytes())
+    if (folder / CHECKSUMS_FILE).is_file():
+        add(CHECKSUMS_FILE, (folder / CHECKSUMS_FILE).read_bytes())
+    im_dir = folder / seq.im_dir
+    if im_dir.is_dir():
+        listing = []
+        for p in im_dir.iterdir():
+            if p.is_file():
+                st = p.stat()
+                listing.append((p.name, st.st_size, st.st_mtime_ns))
+        add("frames", json.dumps(sorted(listing)).encode())
+    video = seq.video_path
+    if video.is_file():
+        st = video.stat()
+        with open(video, "rb") as fh:
+            head = fh.read(64 * 1024)
+        add("video", json.dumps([st.st_size, st.st_mtime_ns]).encode() + head)
+    return h.hexdigest()
+
+
+def user_sequences(
+    folder: str | os.PathLike[str],
+    only: list[str] | None,
+    frames: int | None,
+    out: str | os.PathLike[str],
+    log: Callable[[str], None] = print,
+) -> list[UserSequence]:
+    """The MOT sequence folders of ``folder`` (``--sequences``: a folder of them, or one
+    itself), each checked before any work, as ``crowdsim track`` checks its input.
+
+    Read with the readers ``track`` and ``evaluate`` use (:func:`synth_data.sequence.
+    open_sequence`, :func:`envs.episodes.verify_folder`): head or body boxes, image folders or
+    ``video.mp4``, births from the ground truth. Raises ``ValueError`` naming the path for a
+    folder that is missing or holds no sequence, a sequence without ground truth, a
+    missing, damaged or unreadable frame, an ``--only`` name it does not hold, and an
+    ``out`` inside ``folder`` (a table run never writes into the user's sequences).
+    A ground truth of about square boxes that ``seqinfo.ini`` does not call head boxes is
+    logged as a note (:func:`synth_data.mot.box_type_note`), once every sequence passed.
+    """
+    from envs.episodes import mot_folders, verify_folder
+    from synth_data.mot import box_type_note
+    from synth_data.sequence import open_sequence
+
+    root = Path(folder)
+    if not root.exists():
+        raise ValueError(f"--sequences {root}: no such folder")
+    if not root.is_dir():
+        raise ValueError(f"--sequences {root}: is a file, not a folder of MOT sequences")
+    target = Path(out).resolve()
+    if target == root.resolve() or target.is_relative_to(root.resolve()):
+        raise ValueError(
+            f"--out {out}: inside --sequences {root}; a table run never writes into your "
+            "sequences: choose an --out outside it"
+        )
+    folders = mot_folders(root)
+    if only:
+        known = [p.name for p in folders]
+        unknown = [o for o in only if o not in known]
+        if unknown:
+            raise ValueError(
+                f"--only: no sequence {unknown[0]!r} in {root}; choose from {', '.join(known)}"
+            )
+        folders = [p for p in folders if p.name in only]
+    seqs, notes = [], []
+    for path in folders:
+        seq = open_sequence(path)  # names a bad seqinfo.ini or gt.txt
+        gt = path / "gt" / "gt.txt"
+        if not gt.is_file():
+            raise ValueError(f"{path}: no ground truth ({gt.relative_to(path)}) to score")
+        ids, _ = seq.gt_points()
+        if not len(ids):
+            raise ValueError(f"{gt}: no ground truth to score (no row with conf > 0, class 1)")
+        verify_folder(seq)  # a missing, truncated or damaged image is named, not tracked
+        if not (path / seq.im_dir).is_dir():
+            seq.frame(1)  # a video (or no frames at all): its first frame must decode
+        square = box_type_note(seq)
+        if square:
+            notes.append(f"note: {path}: {square}")
+        n = seq.length if frames is None else min(frames, seq.length)
+        seqs.append(UserSequence(path.name, path, n, sequence_digest(seq)))
+    for note in notes:  # once every sequence passed: a refusal is one line
+        log(note)
+    return seqs
+
+
 def cell_key(seq: Any, row: Row, frames: int | None) -> str:
     """The manifest key of a cell: sequence, tracker, its complete parameters and, for a
     tracker fed detections, its complete detector (a digest, so that a changed default is not
     mistaken for a finished cell) and the frame count. ``seq`` is the sequence's spec (its
     name and the digest of what it renders: another suite's ``seq8``, or an edited spec, is
-    another cell) or, for a caller without one, its name."""
+    another cell), a :class:`UserSequence` (its name and :func:`sequence_digest`: an edited
+    or replaced sequence is another cell) or, for a caller without one, its name."""
     import dataclasses
     import hashlib
 
@@ -344,9 +487,10 @@ def cell_key(seq: Any, row: Row, frames: int | None) -> str:
 
 def run_table(
     rows: Sequence[Row],
-    suite: str | Sequence[Any],
+    suite: str | Sequence[Any] | None,
     out: str | os.PathLike[str],
     *,
+    sequences: str | os.PathLike[str] | None = None,
     only: list[str] | None = None,
     frames: int | None = None,
     workers: int = 1,
@@ -366,12 +510,18 @@ def run_table(
     Parameters
     ----------
     rows : sequence of Row
-    suite : str, path or list of SequenceSpec
+    suite : str, path or list of SequenceSpec, or None
         A suite name (:data:`synth_data.suites.SUITE_NAMES`), a suite folder of spec files
-        (its ``paper.json`` gives the papers' figures), or the specs themselves.
+        (its ``paper.json`` gives the papers' figures), or the specs themselves; ``None``
+        with ``sequences``.
     out : path
-        Output folder: ``sequences/``, ``cells.json``, ``table.md``, ``table.csv``,
-        ``curves/<sequence>.png``.
+        Output folder: ``sequences/`` (not with ``sequences``), ``cells.json``, ``table.md``,
+        ``table.csv``, ``curves/<sequence>.png``.
+    sequences : path, optional
+        Instead of a suite: a folder of the user's MOT sequence folders, or one itself
+        (:func:`user_sequences`), tracked where they are (nothing is generated or written
+        there). The papers report nothing on them: the table says so, and its CSV has no
+        papers' columns.
     only : list of str, optional
         Sequence names to run.
     frames : int, optional
@@ -409,7 +559,12 @@ def run_table(
                 "takes no detections"
             )
     out = Path(out)
-    if isinstance(suite, (str, os.PathLike)):
+    if (suite is None) == (sequences is None):
+        raise ValueError("give either a suite or sequences (--suite or --sequences)")
+    if sequences is not None:
+        specs = user_sequences(sequences, only, frames, out, log)
+        suite, paper = str(sequences), None
+    elif isinstance(suite, (str, os.PathLike)):
         specs = suite_specs(suite, only)
         paper = paper_numbers(suite)
     else:
@@ -419,7 +574,8 @@ def run_table(
             raise ValueError(f"--only: no sequence {unknown[0]!r} among the specs")
         specs = [sp for sp in specs if not only or sp.name in only]
         suite, paper = "specs", {}
-    specs = [cut_spec(s, frames) for s in specs]
+    if sequences is None:
+        specs = [cut_spec(s, frames) for s in specs]
     if frames is not None:  # never beside the papers' whole-sequence figures unsaid
         title += f", first {frames} frames of each sequence"
     labels = [r.label for r in rows]
@@ -438,16 +594,18 @@ def run_table(
     owned = ["table.md", "table.csv", *curve_names, *more_outputs]
     check_table_outputs(out, owned)
     seq_root = out / "sequences"
+    folders = {s.name: s.path if sequences is not None else seq_root / s.name for s in specs}
     try:
-        generate(
-            specs,
-            seq_root,
-            workers=workers,
-            backend=backend,
-            address=address,
-            progress=progress,
-            log=log,
-        )
+        if sequences is None:
+            generate(
+                specs,
+                seq_root,
+                workers=workers,
+                backend=backend,
+                address=address,
+                progress=progress,
+                log=log,
+            )
     except FileExistsError as exc:  # a sequence folder made from another spec
         why = str(exc).split("; pass --overwrite")[0].split("; move it away")[0]
         raise ValueError(
@@ -464,7 +622,7 @@ def run_table(
             run_sealed_cell,
             (
                 keys[(s.name, r.label)],
-                str(seq_root / s.name),
+                str(folders[s.name]),
                 r.tracker,
                 dict(r.overrides),
                 frames,
@@ -508,8 +666,8 @@ def _first_dup(items: list[str]) -> str:
     return next(x for i, x in enumerate(items) if x in items[:i])
 
 
-def _paper(paper: dict, table: str, row: Row, seq: str) -> float | None:
-    if row.paper is None:
+def _paper(paper: dict | None, table: str, row: Row, seq: str) -> float | None:
+    if row.paper is None or paper is None:
         return None
     return paper.get(table, {}).get(row.paper, {}).get(seq)
 
@@ -518,7 +676,7 @@ def format_table(
     rows: Sequence[Row],
     seqs: Sequence[str],
     cells: dict,
-    paper: dict,
+    paper: dict | None,
     paper_table: str = "acc@15",
     title: str = "comparison",
     mean: bool = True,
@@ -526,9 +684,12 @@ def format_table(
     """Markdown: one section per metric, rows = methods, columns = sequences and (``mean``)
     their mean.
 
-    Accuracy cells read ``ours (paper)`` where the papers report the figure.
+    Accuracy cells read ``ours (paper)`` where the papers report the figure. ``paper=None``:
+    the user's own sequences (``--sequences``), on which the papers report nothing; the
+    table says so in place of the papers' note.
     """
     lines = [f"# {title}", ""]
+    bracketed = False
     for key, heading, unit in METRICS:
         lines += [
             f"## {heading}",
@@ -545,12 +706,19 @@ def format_table(
                 ref = _paper(paper, table, row, s) if table else None
                 t = "n/a" if v is None else f"{v:.1f}{unit}"
                 texts.append(t if ref is None else f"{t} ({ref:g})")
+                bracketed |= ref is not None
             good = [v for v in vals if v is not None]
             avg = f"{sum(good) / len(good):.1f}{unit}" if good else "n/a"
             lines.append(
                 f"| {row.label} | " + " | ".join(texts) + (f" | {avg} |" if mean else " |")
             )
         lines.append("")
+    if paper is None:
+        lines.append(NO_PAPER_NOTE)
+        return "\n".join(lines) + "\n"
+    if not bracketed:  # a suite without paper.json (stress, galleria, a folder of specs)
+        lines.append("No figures in brackets: the papers report none for these sequences.")
+        return "\n".join(lines) + "\n"
     lines.append("Figures in brackets: the papers' (paper 1 Tables 1-3, paper 2 Table 1).")
     if any(r.paper in ELEVEN for r in rows):
         lines.append(ELEVEN_NOTE)
@@ -558,13 +726,20 @@ def format_table(
 
 
 def table_csv(
-    rows: Sequence[Row], seqs: Sequence[str], cells: dict, paper: dict, paper_table: str = "acc@15"
+    rows: Sequence[Row],
+    seqs: Sequence[str],
+    cells: dict,
+    paper: dict | None,
+    paper_table: str = "acc@15",
 ) -> str:
-    """Long format: one line per method and sequence, ours and the papers' figures."""
+    """Long format: one line per method and sequence, ours and the papers' figures (an empty
+    papers' field: they report none for that method and sequence). ``paper=None``, the user's
+    own sequences: no papers' columns at all, as there is no papers' figure to miss."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     keys = [k for k, _, _ in METRICS]
-    w.writerow(["method", "tracker", "sequence", *keys, "paper_acc@15", "paper_acc@5"])
+    papers = [] if paper is None else ["paper_acc@15", "paper_acc@5"]
+    w.writerow(["method", "tracker", "sequence", *keys, *papers])
     for row in rows:
         for s in seqs:
             c = cells[(s, row.label)]
@@ -576,8 +751,11 @@ def table_csv(
                     row.tracker,
                     s,
                     *[("" if c.get(k) is None else f"{c[k]:.3f}") for k in keys],
-                    "" if p15 is None else p15,
-                    "" if p5 is None else p5,
+                    *(
+                        []
+                        if paper is None
+                        else ["" if p15 is None else p15, "" if p5 is None else p5]
+                    ),
                 ]
             )
     return buf.getvalue()

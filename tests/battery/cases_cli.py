@@ -661,6 +661,12 @@ for _name, _edit, _needle, _keep in MOT_SEQ_CASES:
         setup=seq_copy(_edit, _keep),
         xfail=_why,
     )
+    case(  # the same readers and checks, before any cell runs
+        f"compare-seq-{_name}",
+        "compare --sequences {w}/s --trackers ncc --no-progress --out {w}/o",
+        _needle,
+        setup=seq_copy(_edit, _keep),
+    )
 
 # --- track ------------------------------------------------------------------------------
 T = "track {seq} --tracker ncc --no-progress"

@@ -326,6 +326,80 @@ case(
     files=(("s/tiny.toml", SPEC),),
     setup=_existing_sequence,
 )
+
+# --- compare / ablation --sequences: the user's own MOT sequences ---------------------------
+SEQS = "--trackers ncc --no-progress --out {w}/o"
+
+
+def _seq_edit(edit):
+    """``{w}/m/seq``: a copy of the shared sequence without ``checksums.json`` (as real MOT
+    footage comes), ``edit``ed."""
+
+    def setup(w: Path, env: Env) -> None:
+        _mot_folder(w, env)
+        (w / "m" / "seq" / "checksums.json").unlink()
+        edit(w / "m" / "seq")
+
+    return setup
+
+
+def _bad_video(s: Path) -> None:
+    shutil.rmtree(s / "img1")
+    (s / "video.mp4").write_bytes(b"\x00" * 4096)
+
+
+for command in ("compare", "ablation"):
+    short = command[:4]
+    case(
+        f"tables-{short}-sequences-empty",
+        f"{command} --sequences {{w}}/e --no-progress --out {{w}}/o",
+        "{w}/e: no MOT sequence folders (sub-folders with seqinfo.ini)",
+        setup=lambda w, env: (w / "e").mkdir(),
+    )
+    case(
+        f"tables-{short}-sequences-missing",
+        f"{command} --sequences {{w}}/nosuch --no-progress --out {{w}}/o",
+        "--sequences {w}/nosuch: no such folder",
+    )
+case(
+    "tables-comp-sequences-file",
+    f"compare --sequences {{afile}} {SEQS}",
+    "--sequences {afile}: is a file, not a folder of MOT sequences",
+)
+case(
+    "tables-comp-sequences-no-gt",
+    f"compare --sequences {{w}}/m {SEQS}",
+    "{w}/m/seq: no ground truth (gt/gt.txt) to score",
+    setup=_seq_edit(lambda s: (s / "gt" / "gt.txt").unlink()),
+)
+case(
+    "tables-comp-sequences-video-unreadable",
+    f"compare --sequences {{w}}/m {SEQS}",
+    "{w}/m/seq/video.mp4: could not read frame 1",
+    setup=_seq_edit(_bad_video),
+)
+case(
+    "tables-comp-sequences-out-inside",
+    "compare --sequences {w}/m --trackers ncc --no-progress --out {w}/m/o",
+    "--out {w}/m/o: inside --sequences {w}/m",
+    setup=_mot_folder,
+)
+case(
+    "tables-comp-sequences-only-unknown",
+    f"compare --sequences {{w}}/m --only nosuch {SEQS}",
+    "--only: no sequence 'nosuch' in {w}/m; choose from seq",
+    setup=_mot_folder,
+)
+case(
+    "tables-comp-sequences-and-suite",
+    f"compare --suite ucf9 --sequences {{seq}} {SEQS}",
+    "argument --sequences: not allowed with argument --suite",
+)
+case(
+    "tables-diff-sequences",
+    "difficulty --sequences {seq} --out {w}/o",
+    "unrecognized arguments: --sequences",
+)
 case(
     "tables-gen-suite-missing",
     "generate --suite {w}/nosuch --out {w}/o",

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
+import shutil
 
 import pytest
 
@@ -96,6 +98,11 @@ def test_paper_figures_sit_beside_ours():
         b, ["seq5"], {("seq5", b[0].label): cells[("seq5", "NCC")]}, paper
     )
     assert "[11]" not in ablation  # paper 1's own rows are not labelled as [11]'s
+    assert "Figures in brackets: the papers'" in text
+    # a suite without paper.json (stress, galleria): no brackets, and no note promising them
+    none = experiments.format_table((Row("NCC", "ncc", paper="NCC"),), ["seq5"], cells, {})
+    assert "Figures in brackets" not in none and "(33)" not in none
+    assert none.rstrip().endswith("the papers report none for these sequences.")
     assert len(experiments.ablation_rows()) == 12
     assert {r.label for r in experiments.ablation_rows()} <= set(paper["ablation@15"])
 
@@ -608,3 +615,242 @@ def test_a_trackers_first_cell_is_timed_after_its_kernels_compile(tmp_path, monk
     assert calls == [3, None, None] and first["acc@15"] == second["acc@15"]
     experiments.run_cell(seq, "ncc", {"search_factor": 1.5}, None)  # other kernels' types
     assert calls[3:] == [3, None]
+
+
+# ---------------------------------------------------------------- compare --sequences
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory):
+    """A folder of one tiny sequence (10 frames) as ``crowdsim generate`` writes it."""
+    from crowdsim.cli import main
+
+    spec = tmp_path_factory.mktemp("spec") / "a.toml"
+    spec.write_text(
+        'name = "a"\nseed = 3\nframes = 10\nwarmup_steps = 2\n'
+        '[scenario]\nname = "crossing"\nn_agents = 14\ndensity = 1.0\n'
+        "[camera]\npx_per_m = 14.0\n[appearance]\ntemplate_px = 8\n"
+    )
+    seqs = tmp_path_factory.mktemp("generated") / "seqs"
+    argv = ["generate", "--spec", str(spec), "--frames", "10", "--workers", "1"]
+    assert main([*argv, "--no-progress", "--out", str(seqs)]) == 0
+    return seqs
+
+
+def _user_folder(generated, tmp_path):
+    """``tmp_path/mine``: the generated sequence ``a`` and a copy ``b`` without its
+    ``checksums.json`` (as MOTChallenge footage comes)."""
+    mine = tmp_path / "mine"
+    shutil.copytree(generated / "a", mine / "a")
+    shutil.copytree(generated / "a", mine / "b")
+    (mine / "b" / "checksums.json").unlink()
+    return mine
+
+
+def _snapshot(folder):
+    from crowdsim.atomic import sha256_file
+
+    return {
+        str(p): (p.stat().st_mtime_ns, sha256_file(p)) for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }  # fmt: skip
+
+
+def test_compare_runs_every_row_on_a_folder_of_mot_sequences(generated, tmp_path, monkeypatch):
+    """``compare --sequences``: a row per tracker with figures on each sequence, the papers'
+    absence said, the user's folder untouched; a rerun resumes; an edited gt.txt is a new
+    cell of that sequence only."""
+    from crowdsim.cli import main
+
+    mine = _user_folder(generated, tmp_path)
+    before = _snapshot(mine)
+    out = tmp_path / "cmp"
+    argv = ["compare", "--sequences", str(mine), "--trackers", "ncc", "ocsort", "--frames", "8"]
+    argv += ["--no-progress", "--out", str(out)]
+    assert main(argv) == 0
+    table = (out / "table.md").read_text()
+    assert table.startswith(f"# compare on {mine}, first 8 frames of each sequence")
+    assert "No figures in brackets: these are your own sequences" in table
+    ncc = next(ln for ln in table.splitlines() if ln.startswith("| NCC |"))
+    assert "(" not in ncc  # a paper's row, with no papers' figure beside it
+    labels = ["NCC", "OC-SORT miss 0.1", "OC-SORT miss 0.3", "OC-SORT (head detector)"]
+    rows = list(csv.DictReader(io.StringIO((out / "table.csv").read_text())))
+    assert "paper_acc@15" not in rows[0]
+    assert [(r["method"], r["sequence"]) for r in rows] == [
+        (label, s) for label in labels for s in ("a", "b")
+    ]
+    for r in rows:
+        assert 0.0 <= float(r["acc@15"]) <= 100.0 and float(r["fps"]) > 0
+    assert rows[0]["acc@15"] == rows[1]["acc@15"]  # the same frames, read from either folder
+    assert (out / "curves" / "a.png").stat().st_size > 0
+    assert not (out / "sequences").exists()
+    assert _snapshot(mine) == before  # nothing written into the user's folder
+    cells = json.loads((out / "cells.json").read_text())["cells"]
+    assert len(cells) == 8 and all("frames=8" in k for k in cells)
+
+    # a rerun resumes: no cell is tracked again, and the table is the same
+    monkeypatch.setattr(experiments, "run_cell", lambda *a: pytest.fail("cell rerun"))
+    assert main(argv) == 0
+    assert (out / "table.md").read_text() == table
+
+    # an edited gt.txt is another sequence: its cells are computed, the other's reused
+    monkeypatch.undo()
+    ran = []
+    real = experiments.run_cell
+    monkeypatch.setattr(
+        experiments, "run_cell", lambda seq_dir, *a: ran.append(seq_dir) or real(seq_dir, *a)
+    )
+    gt = mine / "b" / "gt" / "gt.txt"
+    lines = gt.read_text().splitlines()
+    f, i, x, *rest = lines[-1].split(",")
+    gt.write_text("\n".join([*lines[:-1], ",".join([f, i, str(float(x) + 1.0), *rest])]) + "\n")
+    assert main(argv) == 0
+    assert ran == [str(mine / "b")] * 4
+    assert len(json.loads((out / "cells.json").read_text())["cells"]) == 12
+
+
+def test_compare_sequences_reads_a_video_sequence_and_one_sequence_folder(generated, tmp_path):
+    """A sequence whose frames are ``video.mp4`` (no ``img1/``), given as the folder itself."""
+    import cv2
+
+    from crowdsim.cli import main
+    from synth_data.mot import read_sequence
+
+    seq = tmp_path / "vid"
+    shutil.copytree(generated / "a", seq)
+    (seq / "checksums.json").unlink()
+    src = read_sequence(seq)
+    writer = cv2.VideoWriter(
+        str(seq / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (src.width, src.height)
+    )
+    for frame in src.frames():
+        writer.write(frame)
+    writer.release()
+    shutil.rmtree(seq / "img1")
+    out = tmp_path / "cmp"
+    argv = ["compare", "--sequences", str(seq), "--trackers", "ncc", "--no-progress"]
+    assert main([*argv, "--out", str(out)]) == 0
+    rows = list(csv.DictReader(io.StringIO((out / "table.csv").read_text())))
+    assert [(r["method"], r["sequence"]) for r in rows] == [("NCC", "vid")]
+    assert float(rows[0]["acc@15"]) > 50.0
+
+
+def _drop_frame_1_rows(s):
+    gt = s / "gt" / "gt.txt"
+    gt.write_text(
+        "".join(ln + "\n" for ln in gt.read_text().splitlines() if ln.split(",")[0] != "1")
+    )
+
+
+def test_compare_sequences_tracks_people_born_after_frame_1_as_track_does(generated, tmp_path):
+    """Nobody in frame 1: every person is born at their first frame, as ``track`` has it."""
+    from crowdsim.cli import main
+
+    mine = _user_folder(generated, tmp_path)
+    _drop_frame_1_rows(mine / "b")
+    out = tmp_path / "cmp"
+    argv = ["compare", "--sequences", str(mine), "--only", "b", "--trackers", "ncc"]
+    assert main([*argv, "--no-progress", "--out", str(out)]) == 0
+    rows = list(csv.DictReader(io.StringIO((out / "table.csv").read_text())))
+    assert [(r["method"], r["sequence"]) for r in rows] == [("NCC", "b")]
+    assert float(rows[0]["acc@15"]) > 50.0
+
+
+def _garbage_jpeg(s):
+    (s / "img1" / "000004.jpg").write_bytes(b"not a jpeg")
+
+
+def _garbage_video(s):
+    shutil.rmtree(s / "img1")
+    (s / "video.mp4").write_bytes(b"\x00" * 4096)
+
+
+@pytest.mark.parametrize(
+    "edit, where, needle",
+    [
+        (None, "mine", "no MOT sequence folders (sub-folders with seqinfo.ini)"),
+        (
+            lambda s: (s / "gt" / "gt.txt").unlink(),
+            "mine/b",
+            "no ground truth (gt/gt.txt) to score",
+        ),
+        (_garbage_jpeg, "mine/b/img1/000004.jpg", "not a complete image"),
+        (lambda s: (s / "img1" / "000004.jpg").unlink(), "mine/b/img1/000004.jpg", "missing"),
+        (_garbage_video, "mine/b/video.mp4", "could not read frame 1"),
+    ],
+    ids=["no-sequences", "no-gt", "unreadable-frame", "missing-frame", "video"],
+)
+def test_compare_sequences_refuses_bad_input_naming_the_path(
+    generated, tmp_path, capsys, edit, where, needle
+):
+    """Exit 2 with one line naming the path, before any work: nothing written anywhere."""
+    from crowdsim.cli import main
+
+    mine = _user_folder(generated, tmp_path)
+    if edit is None:  # no sequence at all: an empty folder
+        shutil.rmtree(mine)
+        mine.mkdir()
+    else:
+        edit(mine / "b")
+    before = _snapshot(mine)
+    out = tmp_path / "cmp"
+    capsys.readouterr()
+    argv = ["compare", "--sequences", str(mine), "--trackers", "ncc", "--no-progress"]
+    assert main([*argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith("crowdsim compare: error: ")
+    assert str(tmp_path / where) in err and needle in err
+    assert not out.exists() and _snapshot(mine) == before
+
+
+def test_compare_sequences_refuses_bad_flags(generated, tmp_path, capsys):
+    """An ``--out`` inside the user's folder, a missing folder, an unknown ``--only`` and
+    ``--suite`` beside ``--sequences``: exit 2, one line naming them."""
+    from crowdsim.cli import main
+
+    mine = _user_folder(generated, tmp_path)
+    base = ["compare", "--trackers", "ncc", "--no-progress"]
+    cases = [
+        (["--sequences", str(mine), "--out", str(mine / "o")], f"--out {mine / 'o'}: inside"),
+        (["--sequences", str(mine), "--out", str(mine)], "inside --sequences"),
+        (["--sequences", str(tmp_path / "none"), "--out", str(tmp_path / "o")], "none: no such"),
+        (
+            ["--sequences", str(mine), "--only", "c", "--out", str(tmp_path / "o")],
+            f"no sequence 'c' in {mine}; choose from a, b",
+        ),
+        (
+            ["--suite", "ucf9", "--sequences", str(mine), "--out", str(tmp_path / "o")],
+            "argument --sequences: not allowed with argument --suite",
+        ),
+    ]
+    for argv, needle in cases:
+        capsys.readouterr()
+        with pytest.raises(SystemExit) if "--suite" in argv else contextlib.nullcontext():
+            assert main([*base, *argv]) == 2
+        err = capsys.readouterr().err
+        assert needle in err, err
+    assert not (tmp_path / "o").exists() and not (mine / "o").exists()
+
+
+def test_a_sequences_digest_follows_its_files_without_decoding_them(generated, tmp_path):
+    """:func:`~crowdsim.lab.experiments.sequence_digest`: the same folder read twice is the
+    same digest; an edited seqinfo.ini, a frame copied over with another of the same size
+    or a frame removed is another."""
+    import os
+
+    from crowdsim.lab.experiments import sequence_digest
+    from synth_data.mot import read_sequence
+
+    seq = _user_folder(generated, tmp_path) / "b"
+    first = sequence_digest(read_sequence(seq))
+    assert sequence_digest(read_sequence(seq)) == first
+    frame = seq / "img1" / "000002.jpg"
+    st = frame.stat()
+    frame.write_bytes(frame.read_bytes()[::-1])  # the same size, other bytes
+    os.utime(frame, ns=(st.st_atime_ns, st.st_mtime_ns + 1))
+    second = sequence_digest(read_sequence(seq))
+    assert second != first
+    (seq / "seqinfo.ini").write_text((seq / "seqinfo.ini").read_text() + "\n")
+    third = sequence_digest(read_sequence(seq))
+    assert third not in (first, second)
+    (seq / "img1" / "000010.jpg").unlink()
+    assert sequence_digest(read_sequence(seq)) not in (first, second, third)
