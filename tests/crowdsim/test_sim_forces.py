@@ -7,7 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from crowdsim.forces import BodyRows, WallGrid, contact_space, social_force
+from crowdsim.forces import (
+    BodyRows,
+    WallGrid,
+    contact_space,
+    group_vision_attraction,
+    social_force,
+)
 from crowdsim.params import SocialForceParams
 from crowdsim.world import polyline, rectangle
 
@@ -233,3 +239,71 @@ def test_exponential_potential_repels_by_the_sum_of_the_radii():
     )
     w = p.A * math.exp((0.3 + 0.2 - 1.0) / p.B)
     np.testing.assert_allclose(acc, [[-w, 0.0], [w, 0.0]], rtol=1e-12)
+
+
+def test_group_members_closer_than_the_gap_repel_by_beta3():
+    """[M10] f_rep: two members of one group standing closer than ``r_i + r_j + gap`` are
+    pushed apart by ``beta3`` along the line between them (hand-computed: at rest, so the
+    vision term ``-beta1 alpha v`` is 0, and 0.3 m from their centre, within ``(N - 1) / 2 =
+    0.5`` m, so there is no attraction); beyond the gap the group changes nothing."""
+    p = SocialForceParams(headway_time=0.0, speed_cap=1000.0, beta3=0.7)
+    r = np.array([0.22, 0.22])
+    e = np.array([[0.0, 1.0], [0.0, 1.0]])
+    none = np.zeros((0, 5))
+
+    def acc(d, group):
+        pos = np.array([[0.0, 0.0], [d, 0.0]])
+        return social_force(pos, np.zeros((2, 2)), r, np.zeros(2), e, group, none, p)
+
+    close = acc(0.6, np.array([4, 4])) - acc(0.6, np.array([-1, -1]))
+    np.testing.assert_allclose(close, [[-0.7, 0.0], [0.7, 0.0]], atol=1e-12)
+    apart = acc(0.8, np.array([4, 4])) - acc(0.8, np.array([-1, -1]))  # 0.8 > 0.74
+    np.testing.assert_allclose(apart, 0.0, atol=1e-12)
+
+
+def test_group_vision_and_attraction_by_hand():
+    """[M10] vision ``-beta1 alpha v`` with ``alpha`` the turn past ``group_gaze_deg`` needed
+    to see the group's centre, and attraction ``beta2`` towards the centre beyond ``(N - 1)
+    / 2`` m from it."""
+    p = SocialForceParams(beta1=0.5, beta2=2.0, group_gaze_deg=90.0)
+    # a pair 1.6 m apart (0.8 m > 0.5 m from the centre), both walking +x at 1 m/s: the
+    # leader (x = 1.6) has the centre straight behind it (alpha = 180 - 90 degrees), the
+    # follower straight ahead (alpha = 0); a lone walker gets nothing
+    pos = np.array([[0.0, 0.0], [1.6, 0.0], [5.0, 5.0]])
+    vel = np.array([[1.0, 0.0], [1.0, 0.0], [1.0, 0.0]])
+    e = np.array([[1.0, 0.0]] * 3)
+    f = group_vision_attraction(pos, vel, e, np.array([3, 3, -1]), p)
+    np.testing.assert_allclose(
+        f, [[2.0, 0.0], [-0.5 * math.pi / 2 - 2.0, 0.0], [0.0, 0.0]], atol=1e-12
+    )
+    # 0.4 m from the centre: within (2 - 1) / 2 m, no attraction; vision as before
+    near = group_vision_attraction(pos * 0.5, vel, e, np.array([3, 3, -1]), p)
+    np.testing.assert_allclose(
+        near, [[0.0, 0.0], [-0.5 * math.pi / 2, 0.0], [0.0, 0.0]], atol=1e-12
+    )
+
+
+@pytest.mark.parametrize(
+    ("heading_deg", "follows"), [(0.0, True), (45.0, True), (90.0, False), (180.0, False)]
+)
+def test_headway_follows_only_a_body_that_heads_within_60_degrees(heading_deg, follows):
+    """The headway cap applies behind a body whose direction is within 60 degrees of the
+    walker's (``e_i . e_j > 0.5``): 0 and 45 degrees give the cap of the test above; a body
+    crossing (90) or coming towards the walker (180) leaves the speed to the forces alone, the
+    same as with ``headway_time = 0``."""
+    p = SocialForceParams()
+    pos = np.array([[0.0, 0.0], [0.75, 0.0]])
+    vel = np.array([[1.0, 0.0], [0.0, 0.0]])
+    a = math.radians(heading_deg)
+    e = np.array([[1.0, 0.0], [math.cos(a), math.sin(a)]])
+    r = np.array([0.22, 0.22])
+    args = (pos, vel, r, np.array([1.3, 0.0]), e, np.array([-1, -1]), np.zeros((0, 5)))
+    acc = social_force(*args, p)
+    v_next = np.hypot(*(vel[0] + acc[0] * p.dt))
+    capped = 1.3 / p.headway_ref_speed * (0.75 - p.headway_depth * 0.44) / p.headway_time
+    free = social_force(*args, SocialForceParams(headway_time=0.0))
+    if follows:
+        assert v_next == pytest.approx(capped, rel=1e-9)
+    else:
+        np.testing.assert_array_equal(acc[0], free[0])
+        assert v_next > 1.5 * capped

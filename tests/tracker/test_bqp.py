@@ -310,3 +310,20 @@ def test_the_papers_forms_are_options_that_track_and_change_the_qp():
         BQPParams(laplacian_identity="paper")
     with pytest.raises(ValueError, match="neighbour_set must be one of"):
         BQPParams(neighbour_set="all")
+
+
+@pytest.mark.parametrize("a", [0.0, 0.75])
+def test_velocity_is_smoothed_with_the_given_weight_on_the_old_velocity(a):
+    """``p_dot <- a p_dot + (1 - a) (p_new - p)`` (velocity_smoothing ``a``; 0 = the last
+    displacement alone), from ``p_dot = 0`` at init, on the convoy the tracker follows
+    exactly (2 px/frame right, 2 left). The default ``a = 0.5`` cannot tell ``a`` from
+    ``1 - a``."""
+    sc = _convoy(4)
+    tr = BQPTracker(BQPParams(speedup=False, velocity_smoothing=a))
+    tr.init(sc.frames[0], sc.ids, sc.points[0], sc.template_size)
+    v = np.zeros((4, 2))
+    for t in (1, 2, 3):
+        tr.step(sc.frames[t])
+        np.testing.assert_array_equal(tr.points, sc.points[t])
+        v = a * v + (1 - a) * (sc.points[t] - sc.points[t - 1])
+        np.testing.assert_allclose(tr.velocities, v, rtol=1e-12, atol=1e-12)

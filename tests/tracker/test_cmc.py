@@ -521,3 +521,22 @@ def test_fit_shift_keeps_displacements_strictly_within_the_threshold():
     a, inliers = fit_shift(src, np.array([[0.0, 0.0], [1.0, 0.0], [0.5, 0.0]]), 0.5)
     assert a.tolist() == [[1.0, 0.0, 0.5], [0.0, 1.0, 0.0]]
     assert inliers.ravel().tolist() == [0, 0, 1]  # 0 and 1 lie exactly 0.5 from the median
+
+
+def test_corners_kept_from_the_last_frame_are_dropped_on_people_and_off_the_frame():
+    """With ``redetect < 1`` the corners tracked forward are reused only where they lie on
+    the frame and off the people's discs (the mask of the previous frame's points): of 16
+    corners on a 4 x 4 lattice, 4 lie in the masked square and 1 is moved off the frame."""
+    cmc = MotionCompensator(CMCParams(redetect=0.25, max_corners=40, min_inliers=4, downscale=1))
+    cmc.last = IDENTITY.copy()
+    g = np.arange(4) * 10.0 + 5.0
+    kept = np.stack(np.meshgrid(g, g), -1).reshape(-1, 1, 2).astype(np.float32)
+    kept[15] = [80.0, 20.0]  # beyond the 60 px wide frame
+    mask = np.full((50, 60), 255, np.uint8)
+    mask[:20, :20] = 0  # the corners (5, 5), (15, 5), (5, 15), (15, 15)
+    out = cmc._still_usable(kept, mask, mask.shape)
+    want = [i for i in range(15) if not (kept[i, 0] < 20).all()]
+    np.testing.assert_array_equal(out, kept[want])
+    assert len(want) == 11
+    # fewer than redetect * max_corners = 10 left: detect afresh (None)
+    assert cmc._still_usable(kept[:12], mask, mask.shape) is None

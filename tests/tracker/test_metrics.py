@@ -505,3 +505,37 @@ def test_gt_ids_counts_the_people_of_the_frames_scored():
     gt[:2, 0] = 0.0
     gt[2:, 1] = 50.0
     assert evaluate([1, 2], gt[:2], [1, 2], gt[:2], trackeval=False)["gt_ids"] == 1
+
+
+def test_majority_votes_and_auto_evidence_stop_at_the_radius():
+    """A tracked point votes for a person within ``radius`` px (15 by default) and not beyond;
+    ``"auto"`` counts as evidence only first points within ``radius`` px of someone."""
+    gt_ids = np.array([7, 8])
+    gt = np.zeros((3, 2, 2))
+    gt[:, 1, 0] = 100.0
+    tr = np.stack([gt[:, 0] + [14.0, 0.0], gt[:, 1] + [0.0, 16.0]], axis=1)
+    best, votes = map_track_ids(gt_ids, gt, [0, 1], tr)
+    assert best.tolist() == [7, -1] and votes.tolist() == [3, 0]
+    best, votes = map_track_ids(gt_ids, gt, [0, 1], tr, radius=16.5)
+    assert best.tolist() == [7, 8] and votes.tolist() == [3, 3]
+    # one known id whose track starts 16 px from the other person: no evidence either way,
+    # so the id is taken at its word; 14 px from that person, it is evidence of another id
+    ids = np.array([1, 2])
+    off = gt[:, [1]] + [0.0, 16.0]
+    assert resolve_id_mapping(ids, [1], "auto", gt, off) == "same"
+    assert resolve_id_mapping(ids, [1], "auto", gt, off - [0.0, 2.0]) == "majority"
+
+
+def test_auto_mapping_needs_more_than_the_agreement_share():
+    """``"same"`` needs *more than* ``ID_AGREEMENT`` (10 %) of the evidence on its own ids:
+    10 tracks near people, 1 on its own person (exactly 10 %) is majority, 2 are same."""
+    from tracker.metrics import ID_AGREEMENT
+
+    assert ID_AGREEMENT == 0.1
+    ids = np.arange(1, 11)
+    gt = np.zeros((2, 10, 2))
+    gt[..., 0] = 100.0 * np.arange(10)
+    one = [0, 2, 3, 4, 5, 6, 7, 8, 9, 1]  # track 1 on person 1, the others shifted by one
+    two = [0, 1, 3, 4, 5, 6, 7, 8, 9, 2]
+    assert resolve_id_mapping(ids, ids, "auto", gt, gt[:, one]) == "majority"
+    assert resolve_id_mapping(ids, ids, "auto", gt, gt[:, two]) == "same"

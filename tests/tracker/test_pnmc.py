@@ -156,6 +156,32 @@ def test_fit_gmm_recovers_separated_clusters():
     assert (labels[:400] == order[0]).all() and (labels[400:] == order[1]).all()
 
 
+def test_mixture_posteriors_likelihood_and_volumes_by_hand():
+    """Components 10 apart with weights 0.8 / 0.2, covariances ``I`` and ``diag(4, 9, 1)``:
+    at the midpoint the posteriors are ``w_k N(x; mu_k, Sigma_k)`` normalised and the
+    log-likelihood is the log of their sum, the densities written out by hand; the volume of
+    Sec. 3.1 is ``(2 pi)^{3/2} |Sigma|^{1/2}`` (``|Sigma|^{1/2} = 6`` for the second). With
+    equal covariances the midpoint's posteriors are the weights."""
+    from tracker.pnmc.queens import GaussianMixture
+
+    gm = GaussianMixture(
+        np.array([0.8, 0.2]),
+        np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]]),
+        np.stack([np.eye(3), np.diag([4.0, 9.0, 1.0])]),
+    )
+    lr, ll = gm.log_responsibilities(np.array([[5.0, 0.0, 0.0]]))
+    # component 2's density there: exp(-25 / 8) / ((2 pi)^{3/2} 6)
+    p1 = np.exp(-12.5) / (2 * np.pi) ** 1.5
+    p2 = np.exp(-25 / 8) / ((2 * np.pi) ** 1.5 * 6.0)
+    want = np.array([0.8 * p1, 0.2 * p2])
+    np.testing.assert_allclose(np.exp(lr[0]), want / want.sum(), rtol=1e-9)
+    assert ll[0] == pytest.approx(np.log(want.sum()), rel=1e-12)
+    np.testing.assert_allclose(gm.volumes, (2 * np.pi) ** 1.5 * np.array([1.0, 6.0]), rtol=1e-12)
+    same = GaussianMixture(gm.weights, gm.means, np.stack([np.eye(3)] * 2))
+    lr_same, _ = same.log_responsibilities(np.array([[5.0, 0.0, 0.0]]))
+    np.testing.assert_allclose(np.exp(lr_same), [[0.8, 0.2]], rtol=1e-12)
+
+
 def test_back_assignment_stops_at_the_first_fill():
     # cluster 2 (rank 0) fills templates 0 and 1 at once: both are queens (> 10 %)
     owner = np.repeat(np.arange(4), 3)

@@ -30,6 +30,11 @@ def test_motion_cost_peaks_at_prediction():
     assert np.unravel_index(c[0].argmin(), (7, 7)) == (3 - 1, 3 + 2)
     assert c[1, 3, 3] == pytest.approx(-1.0)
     assert (c <= 0).all() and (c >= -1).all()
+    # Eq. 6 with Sigma = sigma^2 I: -exp(-|p - A s|^2 / (2 sigma^2)) on every cell, e.g. the
+    # centre (10, 10) is (2, 1) px from the prediction: -exp(-5 / 8)
+    assert c[0, 3, 3] == pytest.approx(-np.exp(-5 / 8), rel=1e-12)
+    d2 = ((grid - pred[:, None, None]) ** 2).sum(-1)
+    np.testing.assert_allclose(c, -np.exp(-d2 / (2 * 2.0**2)), rtol=1e-12)
 
 
 def test_neighbourhood_cost_uses_neighbour_velocities_eq7():
@@ -42,6 +47,9 @@ def test_neighbourhood_cost_uses_neighbour_velocities_eq7():
     # strongest pull at p_i + v_1 = (23, 20), weaker at p_i + v_2 = (20, 18)
     assert np.unravel_index(c[0].argmin(), (9, 9)) == (4, 7)
     assert c[0, 4 - 2, 4] == pytest.approx(-0.25, abs=5e-3)
+    # at the centre (20, 20): 3 px from (23, 20) and 2 px from (20, 18), sigma = 1
+    want = -(0.75 * np.exp(-9 / 2) + 0.25 * np.exp(-4 / 2))
+    assert c[0, 4, 4] == pytest.approx(want, rel=1e-12)
     none = neighbourhood_cost(grid, pos[:1], vel, np.full((1, 3), -1), np.zeros((1, 3)), 1.0)
     assert (none == 0).all()
 
@@ -269,6 +277,16 @@ def test_regularised_laplacian_keeps_weak_couplings_weak():
     assert plain[0, 1] == pytest.approx(1.0)  # plain normalisation: full strength
     assert reg[0, 1] == pytest.approx(s / (s + 1.0))
     assert reg[0, 0] == pytest.approx(s / (s + 1.0))
+    # the grouping Laplacian the same way: I - D^-1/2 Gamma D^-1/2 becomes
+    # D / (D + tau) - (D + tau)^-1/2 Gamma (D + tau)^-1/2, one edge of length 4 px here, so
+    # the pair 5.9 px apart deviates by 1.9 px: Gamma = D = exp(-1.9^2 / 18)
+    edge, length = np.array([[0, 1]]), np.array([4.0])
+    g = np.exp(-(1.9**2) / 18)
+    plain_g = grouping_matrix(far, edge, length, 3.0, 2.0).toarray()
+    reg_g = grouping_matrix(far, edge, length, 3.0, 2.0, tau=1.0).toarray()
+    np.testing.assert_allclose(plain_g, [[1.0, -1.0], [-1.0, 1.0]], rtol=1e-12)
+    w = g / (g + 1.0)
+    np.testing.assert_allclose(reg_g, [[w, -w], [-w, w]], rtol=1e-12)
     rng = np.random.default_rng(5)
     cand = rng.uniform(0, 20, (4, 5, 2))
     for q in (
