@@ -10,9 +10,7 @@ from hypothesis import strategies as st
 
 from tracker.bqp.frank_wolfe import VARIANTS, FWParams, FWResult, default_start, solve
 from tracker.bqp.qp import BlockQP, load_many, save_many
-
-clarabel = pytest.importorskip("clarabel")
-from tracker.bqp.qp_baselines import solve_clarabel, solve_osqp  # noqa: E402
+from tracker.bqp.qp_baselines import solve_clarabel, solve_osqp
 
 FAST = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
