@@ -244,6 +244,85 @@ def test_flow_prior_is_tried_when_confidence_is_low():
 
 
 # ---------------------------------------------------------------------------- flow
+def _fast_square(n_frames: int = 13, v: int = -4, s: int = 12) -> tuple[list, np.ndarray]:
+    """A ``s`` px random-texture square moving ``v`` px/frame in x over a static random
+    texture (96 x 160), with +-2 grey levels of noise per frame so that no NCC peak is 1."""
+    rng = np.random.default_rng(0)
+    bg = rng.integers(0, 256, (96, 160, 3)).astype(np.uint8)
+    tex = rng.integers(0, 256, (s, s, 3)).astype(np.uint8)
+    frames, path = [], []
+    for t in range(n_frames):
+        f = bg.copy()
+        x = 120 + v * t
+        f[48 - s // 2 : 48 + s // 2, x - s // 2 : x + s // 2] = tex
+        noise = rng.integers(-2, 3, f.shape)
+        frames.append(np.clip(f.astype(int) + noise, 0, 255).astype(np.uint8))
+        path.append((x, 48))
+    return frames, np.array(path, np.float64)
+
+
+def test_flow_select_last_follows_a_fast_target(monkeypatch):
+    """The flow prior of a target moving -4 px/frame (``tau`` ~ 1: it is taken every frame)
+    from the patches near ``x_i^{t-1}`` by their start four frames back (``flow_select=
+    "start"``, the default) or by their position in ``x_i^{t-1}``'s frame (``"last"``, the
+    paper's Sec. 3.3 / Eq. 3): the patch-weighted mean x velocity over the frames with a
+    full five-frame buffer. By start, no patch on the target is picked (they began 12 px
+    back) and the prior is pulled towards the static background; by last, the target's own
+    patches (exactly -4) are among them. Pins PNMCParams.flow_select's documented numbers."""
+    import tracker.pnmc.tracker as pnmc
+
+    frames, path = _fast_square()
+    real = pnmc._flow_map_cells
+    seen = []
+
+    def spy(targets, ptr, e, fvel, camera_v, *args):
+        if len(targets):
+            q = slice(ptr[0], ptr[1])
+            seen.append(((e[q] / e[q].sum()) @ fvel[q, 0], fvel[q, 0].copy()))
+        return real(targets, ptr, e, fvel, camera_v, *args)
+
+    monkeypatch.setattr(pnmc, "_flow_map_cells", spy)
+    mean, own = {}, {}
+    for sel in ("start", "last"):
+        t = PNMCTracker(PNMCParams(tau=0.99999, max_lost=0, flow_select=sel))
+        t.init(frames[0], np.array([1]), path[:1], 12)
+        got = []
+        for k, f in enumerate(frames[1:], 1):
+            seen.clear()
+            t.step(f)
+            np.testing.assert_array_equal(t.points[0], path[k])
+            assert len(seen) == 1
+            if len(t.flow.pairs) == 4:
+                got.append(seen[0])
+        assert len(got) == len(frames) - 4
+        mean[sel] = float(np.mean([g[0] for g in got]))
+        own[sel] = min(int(np.sum(g[1] == -4.0)) for g in got)
+    assert own["start"] == 0 and own["last"] >= 4  # the 2 x 2 patches inside the target
+    assert mean["start"] == pytest.approx(-1.20, abs=0.02)
+    assert mean["last"] == pytest.approx(-2.68, abs=0.02)
+
+
+def test_flow_select_last_takes_every_patch_within_the_radius_at_t_minus_1():
+    """``near_many(by="last")``: exactly the valid tracks (over the whole grid) whose
+    position in the frame before the newest lies within the radius, in start-cell order."""
+    frames, _ = _fast_square(6)
+    flow = InstantaneousFlow(patch=4, spacing=4, frames=5, search=6, min_ncc=0.5)
+    for f in frames:
+        flow.push(f)
+    centres = np.array([[104.0, 48.0], [60.0, 30.0], [2.0, 2.0]])
+    ptr, pos, vel = flow.near_many(centres, 9.0, "last")
+    gh, gw = flow._shape
+    flow.near_many(np.array([[80.0, 48.0]]), 1000.0)  # every track
+    assert flow._done.all()
+    for t, c in enumerate(centres):
+        ok = flow._valid & (((flow._last - c) ** 2).sum(-1) <= 81.0)
+        np.testing.assert_array_equal(pos[ptr[t] : ptr[t + 1]], flow._last[ok])
+        np.testing.assert_array_equal(vel[ptr[t] : ptr[t + 1]], flow._vel[ok])
+    assert (vel[ptr[0] : ptr[1], 0] == -4.0).sum() >= 4
+    with pytest.raises(ValueError, match="by must be one of"):
+        flow.near_many(centres, 9.0, "first")
+
+
 def test_flow_recovers_a_translation():
     rng = np.random.default_rng(0)
     tex = rng.integers(0, 255, (80, 100, 3)).astype(np.uint8)
@@ -408,6 +487,7 @@ CHANGES = {
     "flow_frames": 3,
     "flow_search": 0.25,
     "flow_radius": 2.0,
+    "flow_select": "last",
     "flow_min_ncc": 0.95,
     "update_every": 2,
     "update_threshold": 0.95,
@@ -544,6 +624,7 @@ def test_births_reselect_queens_and_copy_is_independent():
         ("flow_patch", 1),
         ("flow_frames", 1),
         ("weight_scale", float("nan")),
+        ("flow_select", "first"),
         ("update_every", 0),
         ("seed", -1),
     ],

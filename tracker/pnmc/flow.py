@@ -210,6 +210,12 @@ def _ncc_argmax_in(prev, nxt, top_left, p, r):
     return best, score
 
 
+SELECT_BY: tuple[str, ...] = ("start", "last")
+"""Which position of a patch track :meth:`InstantaneousFlow.near` compares with the centre:
+its ``"start"`` (the grid cell in the oldest buffered frame) or its ``"last"`` position (the
+frame before the newest, where ``x_i^{t-1}`` lives and where the positions it returns are)."""
+
+
 class InstantaneousFlow:
     """Lazily computed patch flow over the last ``frames`` frames (module docstring).
 
@@ -344,8 +350,12 @@ class InstantaneousFlow:
         self._valid[rows, cols] = worst >= self.min_ncc
         self._done[rows, cols] = True
 
-    def near(self, center: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-        """Valid patches whose start lies within ``radius`` px of ``center`` ``(2,)``.
+    def near(
+        self, center: np.ndarray, radius: float, by: str = "start"
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Valid patches whose start (``by="start"``) or whose position in the frame before
+        the newest (``by="last"``) lies within ``radius`` px of ``center`` ``(2,)``
+        (:data:`SELECT_BY`).
 
         Returns
         -------
@@ -354,13 +364,18 @@ class InstantaneousFlow:
         velocities : (q, 2) float64
             Mean velocity of each patch over the buffered frames, px/frame.
         """
-        _, positions, velocities = self.near_many(np.asarray(center).reshape(1, 2), radius)
+        _, positions, velocities = self.near_many(np.asarray(center).reshape(1, 2), radius, by)
         return positions, velocities
 
     def near_many(
-        self, centers: np.ndarray, radius: float
+        self, centers: np.ndarray, radius: float, by: str = "start"
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`near` of every centre ``(m, 2)`` at once, the patches tracked in one batch.
+
+        ``by="last"`` tracks every patch that could end up within ``radius``: those starting
+        within ``radius`` plus a track's reach by the frame before the newest (each step
+        moves a track at most ``search`` px in x and in y), then keeps those whose position
+        in that frame is within ``radius``; the same row-major order of start cells.
 
         Returns
         -------
@@ -370,16 +385,27 @@ class InstantaneousFlow:
         positions, velocities : (Q, 2) float64
             As :meth:`near`'s.
         """
+        if by not in SELECT_BY:
+            raise ValueError(f"near_many: by must be one of {SELECT_BY}, got {by!r}")
         centers = np.asarray(centers, np.float64).reshape(-1, 2)
         gh, gw = self._shape
         if len(centers) == 0 or len(self.buffer) < 2 or gh == 0 or gw == 0:
             return np.zeros(len(centers) + 1, np.int64), np.zeros((0, 2)), np.zeros((0, 2))
-        ptr, rr, cc = _discs_cells(centers, float(radius), self.spacing, self.patch / 2.0, gh, gw)
+        reach = 0.0
+        if by == "last":  # |last - start| <= (pairs - 1) search in x and in y
+            reach = np.sqrt(2.0) * (len(self.pairs) - 1) * self.search + 1e-6
+        ptr, rr, cc = _discs_cells(
+            centers, float(radius) + reach, self.spacing, self.patch / 2.0, gh, gw
+        )
         todo = ~self._done[rr, cc]
         if todo.any():
             flat = np.unique(rr[todo] * gw + cc[todo])
             self._track(*np.divmod(flat, gw))
         ok = self._valid[rr, cc]
+        if by == "last":
+            seg = np.repeat(np.arange(len(centers)), np.diff(ptr))
+            d2 = ((self._last[rr, cc] - centers[seg]) ** 2).sum(1)
+            ok &= d2 <= float(radius) ** 2
         kept = np.zeros(len(ok) + 1, np.int64)  # valid cells before each cell
         np.cumsum(ok, out=kept[1:])
         return kept[ptr], self._last[rr[ok], cc[ok]], self._vel[rr[ok], cc[ok]]

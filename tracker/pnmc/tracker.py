@@ -50,6 +50,12 @@ with each formula; the paper is the source where they differ):
   (:mod:`tracker.pnmc.flow`); the flow prior of a target is computed once per frame, and for
   every target whose likelihood peak is already below ``tau`` (all of them will need it) in
   one batch up front (:data:`FLOW_PRIORS_AHEAD`).
+* **Flow neighbours** (``flow_select``): by default a target's flow patches are those whose
+  track *started* (``flow_frames - 1`` frames before ``x_i^{t-1}``'s frame) within
+  ``flow_radius`` of ``x_i^{t-1}``, Eq. 3's weights then use their positions in
+  ``x_i^{t-1}``'s frame; ``flow_select="last"`` selects by that position too, the paper's
+  "nearby patches" (Sec. 3.3). The default is kept so that no figure moves; the bias it
+  gives a fast target is measured in :class:`tracker.pnmc.params.PNMCParams`.
 * **Camera motion** (``cmc``, beyond the paper, :class:`tracker.base.Tracker`): the positions
   and velocities move with the camera before the likelihood is computed; the flow is looked
   up where the targets were in the uncompensated frame, and the camera's mean shift over the
@@ -516,7 +522,7 @@ class PNMCTracker(Tracker):
         def flow_priors(targets: np.ndarray) -> None:
             """The flow prior's MAP cell of ``targets`` (Eq. 9), all at once."""
             at = flow_at[targets]
-            ptr, fpos, fvel = self.flow.near_many(at, p.flow_radius * s)
+            ptr, fpos, fvel = self.flow.near_many(at, p.flow_radius * s, p.flow_select)
             seg = np.repeat(np.arange(len(targets)), np.diff(ptr))
             dist = np.sqrt(((fpos - at[seg]) ** 2).sum(1))
             near = np.flatnonzero(ptr[1:] > ptr[:-1])
