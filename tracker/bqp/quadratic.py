@@ -19,7 +19,9 @@ candidates stays weak; the tracker uses tau = 1), it becomes ``D / (D + tau)``. 
 the paper's identity on every candidate, it is not a constant on binary points: two targets
 on one grouping edge pay 0 for keeping their formation, 1 (tau 0) or 0.5 (tau 1) for
 breaking it on one side and 0 for breaking it on both, where the paper's form pays 0, 2, 2
-(a departure found by an audit; the README says why it is not mended yet).
+(a departure found by an audit; the README says why it stays the default).
+``BQPParams.laplacian_identity = "every"`` gives the paper's binary objective: the tracker
+takes this matrix's diagonal off the linear cost.
 
 The matrix is written by compiled kernels, one pass each, with no Python loop over targets:
 the linked pairs are counted (:func:`_pair_entries`), their Gaussians evaluated (from tables
