@@ -150,7 +150,7 @@ class BQPParams:
         off the linear cost, which gives the paper's objective on every binary point and keeps
         the relaxation's curvature (the paper's ``I`` in the relaxation would add ``|x|^2``
         on every simplex, pulling the relaxed optimum further inside them). Measured on the
-        full ``ucf9`` with ``neighbour_set="group"`` too (README, "Departures"): mean acc@15
+        full ``ucf9`` with ``neighbour_set="group"`` too (the README's "paper's forms, measured"): mean acc@15
         92.0 against 92.9 % (KCF), 86.1 against 87.6 (NCC); in Table 3 the grouping term
         no longer costs (-0.15 / -0.31 points against -1.6 / -1.6) and the proximity term
         does (-1.1 / -0.5 against +0.6 / +0.2).
