@@ -150,10 +150,10 @@ class BQPParams:
         off the linear cost, which gives the paper's objective on every binary point and keeps
         the relaxation's curvature (the paper's ``I`` in the relaxation would add ``|x|^2``
         on every simplex, pulling the relaxed optimum further inside them). Measured on the
-        full ``ucf9`` with ``neighbour_set="group"`` too (the README's "paper's forms, measured"): mean acc@15
-        92.0 against 92.9 % (KCF), 86.1 against 87.6 (NCC); in Table 3 the grouping term
-        no longer costs (-0.15 / -0.31 points against -1.6 / -1.6) and the proximity term
-        does (-1.1 / -0.5 against +0.6 / +0.2).
+        full ``ucf9`` with ``neighbour_set="group"`` too (the README's "paper's forms,
+        measured"): mean acc@15 92.0 against 92.9 % (KCF), 86.1 against 87.6 (NCC); in
+        Table 3 the grouping term no longer costs (-0.15 / -0.31 points against -1.6 /
+        -1.6) and the proximity term does (-1.1 / -0.5 against +0.6 / +0.2).
     group_offsets : bool
         Grouping term on relative positions ``e_ij = p_i - p_j`` (2-vectors) instead of the
         distances ``|p_i - p_j|`` of Eq. 10; see :func:`tracker.bqp.quadratic.grouping_matrix`.
