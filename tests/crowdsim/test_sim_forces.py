@@ -18,8 +18,9 @@ from crowdsim.params import SocialForceParams
 from crowdsim.world import polyline, rectangle
 
 
-def reference_hm95(pos, vel, e, v0, walls, p: SocialForceParams) -> np.ndarray:
-    """Helbing & Molnár (1995) Eqs. 2-8 written pair by pair (no headway, no cap, no groups)."""
+def reference_hm95(pos, vel, e, v0, walls, p: SocialForceParams, period=0.0) -> np.ndarray:
+    """Helbing & Molnár (1995) Eqs. 2-8 written pair by pair (no headway, no cap, no groups);
+    with ``period``, x is periodic and each pair interacts across the nearer way round."""
     n = len(pos)
     acc = (v0[:, None] * e - vel) / p.tau
     cos_phi = math.cos(math.radians(p.fov_deg / 2))
@@ -28,6 +29,8 @@ def reference_hm95(pos, vel, e, v0, walls, p: SocialForceParams) -> np.ndarray:
             if i == j:
                 continue
             r = pos[i] - pos[j]
+            if period:
+                r[0] -= period * round(r[0] / period)
             d = np.linalg.norm(r)
             if d >= p.cutoff:
                 continue
@@ -38,7 +41,7 @@ def reference_hm95(pos, vel, e, v0, walls, p: SocialForceParams) -> np.ndarray:
             b = max(b, p.b_min)
             grad_b = (d + dq) / (4 * b) * (r / d + q / dq)
             f = p.V0 / p.sigma * math.exp(-b / p.sigma) * grad_b
-            seen = e[i] @ (pos[j] - pos[i]) >= d * cos_phi
+            seen = e[i] @ (-r) >= d * cos_phi
             acc[i] += f if seen else p.c * f
         for x0, y0, x1, y1, th in walls:
             a, u = np.array([x0, y0]), np.array([x1 - x0, y1 - y0])
@@ -64,6 +67,28 @@ def test_kernel_matches_pairwise_reference(seed):
     got = social_force(pos, vel, np.full(n, 0.22), v0, e, np.full(n, -1), walls, p)
     want = reference_hm95(pos, vel, e, v0, walls, p)
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_kernel_matches_pairwise_reference_across_a_periodic_seam(seed):
+    """A periodic corridor short enough that most pairs near the seam interact only the
+    short way round: the kernel's ghosts must give the minimum-image forces."""
+    rng = np.random.default_rng(seed)
+    p = SocialForceParams(headway_time=0.0, speed_cap=1000.0)
+    period = 3.0 * p.cutoff + 0.5
+    n = 40
+    pos = np.column_stack([rng.uniform(0, period, n), rng.uniform(0.5, 3.5, n)])
+    pos[:4, 0] = [0.05, period - 0.05, 0.3, period - 0.4]  # pairs straddling the seam
+    vel = rng.normal(0, 0.8, (n, 2))
+    ang = rng.uniform(0, 2 * np.pi, n)
+    e = np.column_stack([np.cos(ang), np.sin(ang)])
+    v0 = rng.uniform(0.8, 1.6, n)
+    walls = np.zeros((0, 5))
+    got = social_force(pos, vel, np.full(n, 0.22), v0, e, np.full(n, -1), walls, p, period=period)
+    want = reference_hm95(pos, vel, e, v0, walls, p, period=period)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+    flat = reference_hm95(pos, vel, e, v0, walls, p)
+    assert np.abs(flat[:4] - want[:4]).max() > 0.1  # the seam pairs do interact across it
 
 
 def test_wall_grid_gives_the_same_forces_as_one_cell_with_every_wall():
