@@ -76,8 +76,9 @@ def add_table_arguments(
         "--out",
         required=True,
         metavar="DIR",
-        help="output folder: sequences/ (generated; not with --sequences), cells.json "
-        "(resume), table.md, table.csv, "
+        help="output folder: sequences/ (generated"
+        + ("; not with --sequences" if sequences else "")
+        + "), cells.json (resume), table.md, table.csv, "
         f"curves/*.png{writes} and outputs.json (their digests: a rerun replaces only those)",
     )
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 
 
@@ -50,7 +51,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "calibrate",
         help="calibrate a suite's difficulty to a paper row (into a new suite folder)",
         description=__doc__.split("\n\n")[0].replace("``", ""),
-        epilog="\n\n".join(__doc__.split("\n\n")[2:]).replace("``", ""),
+        # the docstring's Sphinx roles read as plain names in --help
+        epilog=re.sub(r":mod:`([^`]+)`", r"\1", "\n\n".join(__doc__.split("\n\n")[2:])).replace(
+            "``", ""
+        ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(

@@ -259,7 +259,12 @@ def calibrate_spec(
                 f"cannot open study {name!r} in {storage}: {type(exc).__name__}: "
                 f"{(str(exc).splitlines() or [''])[0]}"
             ) from None
-        mark = {"sequence": spec.name, "digest": spec.digest(), "anchor": anchor}
+        mark = {
+            "sequence": spec.name,
+            "digest": spec.digest(),
+            "anchor": anchor,
+            "tracker": tracker_digest(anchor),
+        }
         old = study.user_attrs.get(STUDY_ATTR)
         if old is None:
             if study.trials:
@@ -320,8 +325,22 @@ def calibrate_spec(
 
 
 def study_name(spec: Any, anchor: str = DEFAULT_ANCHOR) -> str:
-    """The study of a spec: the anchor, its name and the digest of its uncalibrated rendering."""
-    return f"calibrate-{anchor}-{spec.name}-{spec.digest()[:12]}"
+    """The study of a spec: the anchor, its name, the digest of its uncalibrated rendering and
+    that of the anchor's tracker parameters (:func:`tracker_digest`), so that a changed
+    tracker default is a new study, never one whose trials another tracker scored."""
+    return f"calibrate-{anchor}-{spec.name}-{spec.digest()[:12]}-{tracker_digest(anchor)}"
+
+
+def tracker_digest(anchor: str = DEFAULT_ANCHOR) -> str:
+    """SHA-256 (12 hex digits) of the complete parameters of ``anchor``'s tracker, as
+    ``crowdsim compare`` keys its cells (:func:`crowdsim.lab.experiments.cell_key`)."""
+    import dataclasses
+
+    from tracker.registry import get
+
+    a = anchor_of(anchor)
+    params = dataclasses.asdict(get(a.tracker).make_params(**a.overrides))
+    return _sha256(json.dumps(params, sort_keys=True).encode())[:12]
 
 
 def check_study_file(path: str | os.PathLike[str]) -> None:
@@ -654,6 +673,8 @@ def calibrate_suite(
             "(add --update-suite to change the suite as well)"
         )
     require_output_dir("--out", out)
+    if out.is_dir() and not os.access(out, os.W_OK | os.X_OK):  # read-only: refused up front
+        raise ValueError(f"--out {out}: the folder is not writable")
     where = source_dir.resolve()  # a built-in suite by name, also when given as its folder
     source = next((n for n in SUITE_NAMES if suite_dir(n).resolve() == where), str(where))
     folder = OutputFolder(out, source)
@@ -669,6 +690,10 @@ def calibrate_suite(
             raise ValueError(f"--study must be an SQLite file (a path), got {str(study)!r}")
         if not study_path.parent.is_dir():
             raise ValueError(f"--study {study_path}: no such folder {study_path.parent}")
+        if not os.access(study_path.parent, os.W_OK | os.X_OK):  # SQLite writes beside it
+            raise ValueError(
+                f"--study {study_path}: the folder {study_path.parent} is not writable"
+            )
     check_study_file(study_path)
     if update_suite:
         for s in specs:

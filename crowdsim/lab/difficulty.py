@@ -1,7 +1,7 @@
 """Which difficulty costs which tracker: ``crowdsim difficulty``.
 
 The calibration (:mod:`crowdsim.lab.calibration`) moves all appearance and camera knobs of a
-sequence together until the NCC tracker scores the paper's figure. It says nothing about which
+sequence together until the anchor's tracker scores the paper's figure. It says nothing about which
 of them makes a tracker fail. :func:`attribute` answers that: for each sequence it generates
 the calibrated spec, the spec with one *group* of knobs (:data:`DIFFICULTY_GROUPS`) put back to
 its uncalibrated value, for every group in turn, and the fully uncalibrated spec, then tracks
@@ -154,7 +154,18 @@ def attribute(
         raise ValueError("--trackers: name at least one tracker")
     if len(set(trackers)) != len(trackers):
         raise ValueError(f"--trackers: {', '.join(trackers)} names a tracker twice")
-    specs = [s for s in suite_specs(suite, list(only) if only else None) if s.calibration]
+    from crowdsim.lab.calibration import uncalibrated_values
+
+    listed = suite_specs(suite, list(only) if only else None)
+    # every calibrated sequence (base_* values recorded); a sequence named in --only is
+    # attributed or refused by name, one never calibrated (a spec that only records the
+    # papers' figures, such as calibrate --only copies) is left out of the whole suite
+    specs = [s for s in listed if s.calibration] if only else []
+    if not only:
+        specs = [s for s in listed if uncalibrated_values(s)]
+        skipped = [s.name for s in listed if s.calibration and not uncalibrated_values(s)]
+        if specs and skipped:
+            log(f"not calibrated, left out: {', '.join(skipped)}")
     if not specs:
         raise ValueError(f"suite {str(suite)!r}: no calibrated sequence to attribute")
     variants = {s.name: variant_specs(s, chosen) for s in specs}

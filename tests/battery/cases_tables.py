@@ -235,6 +235,32 @@ case(
     files=(("o/calibrate.json", _record()), ("o/calibration.db", "a text file\n")),
 )
 
+case(
+    "tables-cal-out-readonly",
+    "calibrate --out {ro}",
+    "--out {ro}: the folder is not writable",
+    needs="ro",
+)
+case(
+    "tables-cal-out-under-readonly",
+    "calibrate --out {ro}/o",
+    "--out {ro}/o: the folder {ro} is not writable",
+    needs="ro",
+)
+case(
+    # it had copied the suite into --out, then failed on SQLite's file (naming no flag)
+    "tables-cal-study-readonly",
+    f"{CAL} --study {{ro}}/s.db",
+    "--study {ro}/s.db: the folder {ro} is not writable",
+    needs="ro",
+)
+case(
+    "tables-cal-suite-broken-yaml",
+    f"{CAL} --suite {{w}}/s",
+    "x.yaml: invalid YAML",
+    files=(("s/tiny.toml", PAPER_SPEC), ("s/x.yaml", "name: [\n")),
+)
+
 # --- compare, ablation, difficulty ----------------------------------------------------------
 CMP = "compare --out {w}/o"
 for command in ("compare", "ablation", "difficulty"):
@@ -467,6 +493,48 @@ case(
     "difficulty --suite {w}/s --out {w}/o",
     "no calibrated sequence to attribute",
     files=(("s/tiny.toml", SPEC),),
+)
+
+DIF = "difficulty --out {w}/o"
+case(
+    "tables-diff-frames-negative", f"{DIF} --frames -5", "--frames must be an integer >= 2, got -5"
+)
+case("tables-diff-frames-0", f"{DIF} --frames 0", "--frames must be an integer >= 2, got 0")
+case(
+    "tables-diff-only-unknown", f"{DIF} --only seq99", "--only: no sequence 'seq99' in suite 'ucf9'"
+)
+case(
+    "tables-diff-out-is-file", "difficulty --out {afile}", "--out {afile}: is a file, not a folder"
+)
+case(
+    "tables-diff-out-readonly",
+    "difficulty --out {ro}",
+    "--out {ro}: the folder is not writable",
+    needs="ro",
+)
+case(
+    "tables-diff-out-under-readonly",
+    "difficulty --out {ro}/o",
+    "--out {ro}/o: the folder {ro} is not writable",
+    needs="ro",
+)
+case(
+    "tables-diff-suite-broken-toml",
+    "difficulty --suite {w}/s --out {w}/o",
+    "x.toml: invalid TOML",
+    files=(("s/tiny.toml", PAPER_SPEC), ("s/x.toml", "name = [\n")),
+)
+case(
+    "tables-diff-suite-broken-yaml",
+    "difficulty --suite {w}/s --out {w}/o",
+    "x.yaml: invalid YAML",
+    files=(("s/tiny.toml", PAPER_SPEC), ("s/x.yaml", "name: [\n")),
+)
+case(
+    "tables-diff-only-not-calibrated",
+    "difficulty --suite {w}/s --only tiny --out {w}/o",
+    "tiny: not calibrated (no base_* values in [calibration])",
+    files=(("s/tiny.toml", PAPER_SPEC),),
 )
 
 # --- evaluate -------------------------------------------------------------------------------

@@ -397,3 +397,33 @@ def test_ucf9_drone_is_ucf9_with_the_drone_camera_and_nothing_else():
         assert {k: spec.camera[k] for k in drone} == drone, spec.name
         camera = {k: v for k, v in spec.camera.items() if k not in drone}
         assert replace(spec, camera=camera, source="") == replace(base[spec.name], source="")
+
+
+def test_a_changed_anchor_tracker_is_a_new_study_not_a_resumed_one(
+    suite, tmp_path, scored, monkeypatch
+):
+    """The study's key holds the anchor tracker's complete parameters, as a compare cell's
+    does: trials scored with other parameters (a changed default) are never reused."""
+    from dataclasses import replace
+
+    (spec,) = suite_specs(suite, ["a"])
+    storage = f"sqlite:///{tmp_path / 's.db'}"
+    first = calibration.calibrate_spec(spec, 60.0, trials=2, storage=storage, log=lambda m: None)
+    assert first["trials"] == 2 and scored == [0.0, 1.0]
+    scored.clear()
+    again = calibration.calibrate_spec(spec, 60.0, trials=2, storage=storage, log=lambda m: None)
+    assert again == first and scored == []  # resumed: nothing rescored
+    a = calibration.ANCHORS["b-ncc"]
+    other = replace(a, overrides={**a.overrides, "w_g": 0.5})
+    before = calibration.study_name(spec)
+    monkeypatch.setitem(calibration.ANCHORS, "b-ncc", other)
+    assert calibration.study_name(spec) != before
+    new = calibration.calibrate_spec(spec, 60.0, trials=1, storage=storage, log=lambda m: None)
+    assert scored == [0.0] and new["trials"] == 1  # a fresh study, the old trials unused
+
+
+def test_help_reads_without_sphinx_roles(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["calibrate", "--help"])
+    out = capsys.readouterr().out
+    assert exc.value.code == 0 and ":mod:" not in out and "crowdsim.lab.calibration)" in out

@@ -140,3 +140,39 @@ def test_cli_refuses_an_unknown_tracker(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "nosuch" in err and "Traceback" not in err
     assert not any(tmp_path.iterdir())  # nothing generated
+
+
+def test_a_suite_folder_with_never_calibrated_specs_attributes_the_calibrated_ones(
+    tmp_path, monkeypatch
+):
+    """A folder such as ``calibrate --only seq9`` writes (the other specs copied with only
+    their papers' figures) attributes its calibrated sequences; it had refused the whole
+    suite, naming the uncalibrated copy. A sequence named in ``--only`` is still refused."""
+    import shutil
+
+    import crowdsim.lab.experiments as experiments
+    from synth_data.suites import suite_dir
+
+    suite = tmp_path / "s"
+    suite.mkdir()
+    shutil.copy(suite_dir("ucf9") / "seq9.toml", suite / "seq9.toml")
+    text = (suite_dir("ucf9") / "seq2.toml").read_text()
+    head = text[: text.index("[calibration]")]
+    (suite / "seq2.toml").write_text(head + "[calibration]\npaper_b_ncc_15px = 98.54\n")
+    ran = []
+    monkeypatch.setattr(experiments, "run_table", lambda rows, specs, *a, **k: ran.extend(specs))
+    said = []
+    doc = attribute(suite, tmp_path / "o", trackers=["ncc"], groups=["shake"], log=said.append)
+    assert doc["groups"] == {"shake": DIFFICULTY_GROUPS["shake"]}
+    assert {s.name.split(".")[0] for s in ran} == {"seq9"}
+    assert any("not calibrated, left out: seq2" in m for m in said)
+    with pytest.raises(ValueError, match="seq2: not calibrated"):
+        attribute(suite, tmp_path / "o", only=["seq2"], trackers=["ncc"], log=said.append)
+
+
+def test_help_names_no_flag_difficulty_lacks(capsys):
+    """difficulty has no --sequences; its --out help had said 'not with --sequences'."""
+    with pytest.raises(SystemExit) as exc:
+        main(["difficulty", "--help"])
+    out = capsys.readouterr().out
+    assert exc.value.code == 0 and "--sequences" not in out and "attribution.md" in out
