@@ -38,7 +38,15 @@ def plot_trajectories(
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"plot file must end in .png, got {str(path)!r}")
-    fig, ax = new_figure(figsize=(8, 6))
+    # the figure takes the scene's shape (equal axes): a long corridor in an 8 x 6 figure
+    # filled half of it with white
+    ends = np.asarray(walls, dtype=np.float64).reshape(-1, 5)[:, :4].reshape(-1, 2)
+    pts = traj.positions.reshape(-1, 2)  # a view: fmin/fmax skip NaN without a copy
+    lo = np.fmin.reduce(np.vstack([ends, np.fmin.reduce(pts, axis=0)[None]]), axis=0)
+    hi = np.fmax.reduce(np.vstack([ends, np.fmax.reduce(pts, axis=0)[None]]), axis=0)
+    span = hi - lo
+    aspect = float(span[1] / span[0]) if span[0] > 0 and span[1] > 0 else 0.75
+    fig, ax = new_figure(figsize=(8, float(np.clip(8 * aspect + 1.2, 2.8, 8))))
     for x0, y0, x1, y1, _ in np.asarray(walls).reshape(-1, 5):
         ax.plot([x0, x1], [y0, y1], "k-", lw=1.5)
     pos = traj.positions
@@ -52,6 +60,7 @@ def plot_trajectories(
     last = pos[-1][traj.present[-1]]
     ax.scatter(last[:, 0], last[:, 1], s=4, c="k", zorder=3, label="last positions")
     ax.set_aspect("equal")
+    ax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), fontsize="small", frameon=False)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title(title or f"{traj.n_agents} agents, {(traj.n_steps - 1) * traj.dt:g} s")

@@ -848,8 +848,11 @@ class TuneResult:
     files: dict[str, str] = field(default_factory=dict)
 
 
-def plot_history(study: Any, path: Path) -> Path:
-    """Every complete trial's accuracy and the best so far, PNG."""
+def plot_history(study: Any, path: Path, threshold_px: float | None = None) -> Path:
+    """Every complete trial's accuracy (at ``threshold_px``, named on the axis where given)
+    and the best so far, PNG."""
+    from matplotlib.ticker import MaxNLocator
+
     from crowdsim.plotting import new_figure, save_figure
 
     ts = sorted(complete_trials(study), key=lambda t: t.number)
@@ -863,7 +866,9 @@ def plot_history(study: Any, path: Path) -> Path:
         if d:
             ax.axhline(d[0].value, color="0.4", ls="--", lw=1, label="paper defaults")
     ax.set_xlabel("trial")
-    ax.set_ylabel("accuracy at T px on the tuning sequences (%)")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # trials are numbered, not 0.5
+    at = "T" if threshold_px is None else f"{threshold_px:g}"
+    ax.set_ylabel(f"accuracy at {at} px on the tuning sequences (%)")
     ax.set_title("optimisation history")
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right")
@@ -1096,7 +1101,7 @@ def _tune_locked(
             "best_params.json",
             doc,
             {
-                "history.png": lambda p: plot_history(st, p),
+                "history.png": lambda p: plot_history(st, p, objective.threshold_px),
                 "importance.png": lambda p: plot_importances(st, p, importances),
             },
         )

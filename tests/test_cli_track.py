@@ -446,3 +446,16 @@ def test_evaluate_reads_body_box_results_as_body_box_ground_truth_is(tmp_path, s
     got = capsys.readouterr()
     assert json.loads(got.out)["acc@15"] == 100.0
     assert "holds body boxes, as tiny's ground truth does" in got.err
+
+
+def test_demo_help_names_the_files_it_writes(capsys):
+    """``crowdsim demo --help`` said only "output folder": a user looking for the curve or the
+    overlay had to read the source or the README."""
+    from crowdsim.commands.demo import demo_files
+
+    with pytest.raises(SystemExit):
+        main(["demo", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for name in ("accuracy_curve.png", "overlay_bqp.mp4", "summary.json", "sequences/"):
+        assert name in text
+    assert all(f.startswith("results_") or f in text for f in demo_files())

@@ -484,8 +484,10 @@ def plot_accuracy(
         )
     ax.set_xlabel("pixel threshold T (px)")
     ax.set_ylabel("tracking accuracy (%)")
-    ax.set_xlim(0, THRESHOLDS[-1])
-    ax.set_ylim(0, 100)
+    # a little room past 0-25 px and 0-100 %: a curve at 100 % (or its first and last
+    # markers) would otherwise lie on the axes' frame, half hidden and unreadable
+    ax.set_xlim(-0.5, THRESHOLDS[-1] + 0.5)
+    ax.set_ylim(-1.5, 101.5)
     ax.grid(alpha=0.3)
     if beside:
         ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize="small")

@@ -1,6 +1,8 @@
 """Overlay video: ground truth in green, tracks in yellow, as in the papers' figures.
 
-Each point is drawn as its head box (template size) with a short tail of its last positions.
+Each point is drawn as its head box (template size) with a short tail of its last positions;
+a caption at the top left gives the frame number (1-based, as the MOT files count frames) and
+the colour legend.
 Written with ``cv2.VideoWriter`` (MPEG-4 part 2, ``mp4v``) to a temporary file, then renamed,
 so that an interrupted run never leaves a truncated video that looks complete.
 """
@@ -18,6 +20,7 @@ from crowdsim.atomic import atomic_path, require_whole_video
 
 GREEN = (0, 255, 0)
 YELLOW = (0, 255, 255)
+WHITE = (255, 255, 255)
 TAIL = 8
 """Frames of trajectory drawn behind each point."""
 
@@ -48,6 +51,22 @@ def draw_points(
                 cv2.polylines(frame, [np.rint(pts).astype(np.int32)], False, colour, 1)
 
 
+def draw_caption(frame: np.ndarray, t: int, legend: Iterable[tuple[str, tuple]]) -> None:
+    """Draw, in place on ``frame``, ``frame {t + 1}`` and each ``(label, colour)`` of
+    ``legend`` in its colour, on a darkened strip at the top left."""
+    font, scale, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1
+    parts = [(f"frame {t + 1}", WHITE), *legend]
+    sizes = [cv2.getTextSize(text, font, scale, thick)[0] for text, _ in parts]
+    gap = 8
+    h = min(frame.shape[0], max(s[1] for s in sizes) + 8)
+    w = min(frame.shape[1], sum(s[0] for s in sizes) + gap * (len(parts) - 1) + 6)
+    frame[:h, :w] //= 3  # darkened, not hidden: the people under it stay visible
+    x = 3
+    for (text, colour), (tw, _) in zip(parts, sizes, strict=True):
+        cv2.putText(frame, text, (x, h - 4), font, scale, colour, thick, cv2.LINE_AA)
+        x += tw + gap
+
+
 def write_overlay(
     path: str | os.PathLike[str],
     frames: Iterable[np.ndarray],
@@ -56,12 +75,14 @@ def write_overlay(
     ground_truth: np.ndarray | None = None,
     fps: float = 25.0,
     tail: int = TAIL,
+    caption: bool = True,
 ) -> Path:
     """Write ``frames`` with ground truth (green) and tracks (yellow) drawn on top.
 
     Parameters
     ----------
-    path : output ``.mp4``
+    path : output ``.mp4``, of the frames' size (an odd side gets a black column or row more:
+        MPEG-4 needs even sides)
     frames : iterable of (H, W, 3) uint8 BGR
     template_size : int
         Side of the drawn head boxes, px.
@@ -69,26 +90,46 @@ def write_overlay(
         Pixel positions, NaN where absent (frames beyond their length are drawn bare).
     fps : float
         Frame rate of the video.
+    caption : bool
+        Draw the frame number and the legend (``ground truth`` green, ``tracks`` yellow, each
+        where given) at the top left.
     """
     path = Path(path)
     if not fps > 0:
         raise ValueError(f"fps must be > 0, got {fps!r}")
+    legend = [
+        (label, colour)
+        for label, colour, points in (
+            ("ground truth", GREEN, ground_truth),
+            ("tracks", YELLOW, tracks),
+        )
+        if points is not None
+    ]
     writer = None
     with atomic_path(path, suffix=path.suffix or ".mp4") as tmp:
         try:
             for t, frame in enumerate(frames):
+                h, w = frame.shape[:2]
                 if writer is None:
-                    h, w = frame.shape[:2]
+                    # MPEG-4 frames have even sides: an odd last column or row would be cut
+                    # off in silence, so it is kept and a black one added beside it
+                    size = (w + w % 2, h + h % 2)
                     writer = cv2.VideoWriter(
-                        os.fspath(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h)
+                        os.fspath(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), size
                     )
                     if not writer.isOpened():
                         raise ValueError(f"{path}: OpenCV cannot write an MP4 video here")
                 img = np.ascontiguousarray(frame).copy()
+                if (w, h) != size and (w + w % 2, h + h % 2) == size:
+                    img = cv2.copyMakeBorder(
+                        img, 0, size[1] - h, 0, size[0] - w, cv2.BORDER_CONSTANT
+                    )
                 if ground_truth is not None and t < len(ground_truth):
                     draw_points(img, ground_truth, t, template_size, GREEN, tail)
                 if tracks is not None and t < len(tracks):
                     draw_points(img, tracks, t, template_size, YELLOW, tail)
+                if caption:
+                    draw_caption(img, t, legend)
                 writer.write(img)
         finally:
             if writer is not None:

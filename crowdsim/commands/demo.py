@@ -87,7 +87,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=path_arg,
         default=Path("demo_out"),
         metavar="DIR",
-        help="output folder (default ./demo_out)",
+        help="output folder (default ./demo_out): accuracy_curve.png, overlay_bqp.mp4 (ground "
+        "truth green, BQP tracks yellow), results_<tracker>.txt, marathon.npz, summary.json, "
+        "demo.json (their digests) and the sequence in sequences/",
     )
     p.add_argument(
         "--frames",

@@ -88,7 +88,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=_size,
         default=None,
         metavar="WxH",
-        help=f"frame size, sides {MIN_SIDE_PX}..{MAX_SIDE_PX} px",
+        help=f"frame size, sides {MIN_SIDE_PX}..{MAX_SIDE_PX} px (even with --video)",
     )
     p.add_argument(
         "--template-px",
@@ -98,7 +98,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="person template size in pixels, 4..64 (default 12)",
     )
     p.add_argument("--seed", type=int, default=0, metavar="K", help="rendering seed")
-    p.add_argument("--video", action="store_true", help="also write video.mp4")
+    p.add_argument(
+        "--video",
+        action="store_true",
+        help="also write SEQ_DIR/video.mp4, the frames of img1/ as one video",
+    )
     p.add_argument(
         "--overwrite",
         action="store_true",
@@ -126,6 +130,10 @@ def _check_flags(args: argparse.Namespace) -> None:
                 f"--size must be between {MIN_SIDE_PX}x{MIN_SIDE_PX} and "
                 f"{MAX_SIDE_PX}x{MAX_SIDE_PX}, got {w}x{h}"
             )
+        if args.video and (w % 2 or h % 2):
+            # MPEG-4 frames have even sides: OpenCV's writer cut the odd column and row off
+            # in silence, and video.mp4 held other frames than img1/ and seqinfo.ini's size
+            raise ValueError(f"--size must have even sides for --video, got {w}x{h}")
     if not 4 <= args.template_px <= 64:
         raise ValueError(f"--template-px must be in [4, 64], got {args.template_px}")
 

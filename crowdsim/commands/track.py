@@ -87,7 +87,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="T",
         help="head detector threshold in (0, 1) (default: the detector's)",
     )
-    p.add_argument("--video", help="write an overlay MP4 (gt green, tracks yellow)")
+    p.add_argument(
+        "--video",
+        metavar="OVERLAY.mp4",
+        help="also write an overlay MP4 of the frames tracked: ground truth green (a MOT "
+        "folder's), tracks yellow, the frame number and legend at the top left",
+    )
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument(
         "--evaluate",

@@ -382,3 +382,17 @@ def test_a_public_data_set_csv_reads_and_maps_back(tmp_path, capsys):
     assert meta["csv_id_of_mot_id"] == {"1": -3, "2": 5}
     assert _main([*argv, "--frame-step", "3", "--overwrite"]) == 2
     assert "frame 10 is not a multiple of --frame-step 3" in capsys.readouterr().err
+
+
+def test_render_video_with_odd_size_is_refused_before_any_work(tmp_path, capsys):
+    """An odd --size with --video wrote a video.mp4 one column and one row smaller than
+    img1/ and seqinfo.ini (OpenCV's MPEG-4 writer drops them in silence)."""
+    csv = _traj().to_csv(tmp_path / "walk.csv")
+    out = tmp_path / "seq"
+    base = ["render", "--trajectories", str(csv), "--fps", "10", "--out", str(out)]
+    assert _main([*base, "--size", "161x120", "--video"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["crowdsim render: error: --size must have even sides for --video, got 161x120"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.csv"]
+    assert _main([*base, "--size", "161x121"]) == 0  # images alone take any size
+    assert read_sequence(out).width == 161

@@ -243,3 +243,35 @@ def test_outputs_stay_provable_when_a_run_dies_between_record_and_renames(tmp_pa
     (tmp_path / "a.md").write_text("mine\n")
     with pytest.raises(ValueError, match="a.md exists and was not written by t"):
         check_outputs(tmp_path, "r.json", ("a.md",), ours, "t")
+
+
+def test_heldout_plot_title_fits_the_narrowest_figure(tmp_path, monkeypatch):
+    """With one family (and "all") the figure is 5 in wide and its one-line title ran past
+    both edges of the PNG, cut off."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    import crowdsim.plotting as plotting
+    from envs.heldout import plot_heldout
+
+    cell = {"mean": 99.7, "std": 0.0, "n": 1}
+    block = {label: {"acc@5": cell} for label in ("defaults", "tuned")}
+    result = {
+        "labels": ["defaults", "tuned"],
+        "families": {"seq8": block},
+        "summary": block,
+        "seeds_per_family": 1,
+    }
+    figs = []
+    real = plotting.save_figure
+    monkeypatch.setattr(
+        plotting, "save_figure", lambda fig, path, dpi=120: figs.append(fig) or real(fig, path, dpi)
+    )
+    plot_heldout(result, tmp_path / "heldout.png")
+    fig = figs[0]
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.tight_layout()
+    (ax,) = fig.axes
+    box = ax.title.get_window_extent(renderer)
+    assert 0 <= box.x0 and box.x1 <= fig.bbox.width
+    assert "1 seed per family" in ax.get_title()
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["defaults", "tuned"]

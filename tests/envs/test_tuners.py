@@ -481,3 +481,28 @@ def test_a_study_storage_that_fills_mid_run_is_one_os_error(tmp_path, monkeypatc
     ):
         tune(objective(), trials=4, out=tmp_path / "t", heldout=0, progress=False)
     assert [state for _, state, _ in trials_of(tmp_path / "t")] == ["COMPLETE", "RUNNING"]
+
+
+def test_history_plot_names_its_threshold_and_numbers_trials_whole(tmp_path, monkeypatch):
+    """history.png's axis read "accuracy at T px" whatever --threshold was, and its trial
+    axis was ticked at 0.5, 1.5, ... for a few trials."""
+    optuna = pytest.importorskip("optuna")
+    import crowdsim.plotting as plotting
+    from envs import tuners
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study = optuna.create_study(direction="maximize")
+    study.optimize(lambda t: 100 * t.suggest_float("x", 0, 1), n_trials=4)
+    figs = []
+    real = plotting.save_figure
+    monkeypatch.setattr(
+        plotting, "save_figure", lambda fig, path, dpi=120: figs.append(fig) or real(fig, path, dpi)
+    )
+    tuners.plot_history(study, tmp_path / "history.png", 15.0)
+    (ax,) = figs[0].axes
+    assert ax.get_ylabel() == "accuracy at 15 px on the tuning sequences (%)"
+    lo, hi = ax.get_xlim()
+    ticks = [t for t in ax.get_xticks() if lo <= t <= hi]
+    assert ticks and all(float(t).is_integer() for t in ticks)
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["trial", "best so far"]
+    assert (tmp_path / "history.png").read_bytes()[:4] == b"\x89PNG"

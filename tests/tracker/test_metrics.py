@@ -539,3 +539,28 @@ def test_auto_mapping_needs_more_than_the_agreement_share():
     two = [0, 1, 3, 4, 5, 6, 7, 8, 9, 2]
     assert resolve_id_mapping(ids, ids, "auto", gt, gt[:, one]) == "majority"
     assert resolve_id_mapping(ids, ids, "auto", gt, gt[:, two]) == "same"
+
+
+def test_accuracy_plot_shows_a_curve_at_100_percent_inside_its_frame(tmp_path, monkeypatch):
+    """A tracker at 100 % (every curve of an easy sequence past a few px) and the markers at
+    T = 0 and 25 px lay on the axes' frame, half hidden; every point now lies inside it, the
+    axes are labelled and the legend names each curve."""
+    from tracker import metrics
+
+    drawn = []
+    real = metrics.save_figure
+    monkeypatch.setattr(
+        metrics, "save_figure", lambda fig, path, dpi: drawn.append(fig) or real(fig, path, dpi)
+    )
+    curves = {"perfect": np.full(26, 100.0), "ncc": np.linspace(0, 90, 26)}
+    plot_accuracy(curves, tmp_path / "curve.png")
+    (ax,) = drawn[0].axes
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    for line in ax.get_lines():
+        x, y = line.get_data()
+        assert x0 < np.min(x) and np.max(x) < x1
+        assert y0 < np.min(y) and np.max(y) < y1
+    assert ax.get_xlabel() == "pixel threshold T (px)"
+    assert ax.get_ylabel() == "tracking accuracy (%)"
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["perfect", "ncc"]
+    assert [t for t in ax.get_yticks() if y0 <= t <= y1] == [0, 20, 40, 60, 80, 100]

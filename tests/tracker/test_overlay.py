@@ -60,3 +60,70 @@ def test_a_disk_that_fills_during_the_video_leaves_no_video(tmp_path):
     finally:
         with contextlib.suppress(OSError):
             subprocess.run(["umount", "-l", str(disk)], check=False)
+
+
+def _read_all(path) -> list[np.ndarray]:
+    cap = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        frames.append(frame)
+    cap.release()
+    return frames
+
+
+def _coloured(region: np.ndarray, bgr) -> int:
+    """Pixels of ``region`` within 100 grey levels of ``bgr`` in every channel (MPEG-4's
+    halved chroma smears thin coloured text)."""
+    return int((np.abs(region.astype(int) - np.array(bgr)) < 100).all(-1).sum())
+
+
+def test_the_overlay_carries_its_frame_number_and_legend(tmp_path):
+    """Without a caption a viewer cannot tell which colour is the ground truth nor which
+    frame of the results file is shown: each frame names its number and the colours drawn."""
+    n, h, w = 3, 120, 320
+    frames = [np.full((h, w, 3), 90, np.uint8) for _ in range(n)]
+    pts = np.full((n, 1, 2), [250.0, 90.0])  # far from the caption
+    path = overlay.write_overlay(
+        tmp_path / "v.mp4", frames, 12, tracks=pts, ground_truth=pts + 20, fps=25.0
+    )
+    got = _read_all(path)
+    assert len(got) == n
+    strip = [f[:14] for f in got]
+    assert _coloured(strip[0], overlay.GREEN) > 10  # "ground truth" in green
+    assert _coloured(strip[0], overlay.YELLOW) > 10  # "tracks" in yellow
+    assert _coloured(strip[0], overlay.WHITE) > 10  # "frame 1"
+    # the counter moves: the frame numbers differ where the legend does not
+    assert np.abs(strip[0].astype(int) - strip[1]).max() > 60
+    # only what is drawn is in the legend; caption=False leaves the frame bare
+    bare = overlay.write_overlay(tmp_path / "t.mp4", frames, 12, tracks=pts, fps=25.0)
+    assert _coloured(_read_all(bare)[0][:14], overlay.GREEN) == 0
+    off = overlay.write_overlay(tmp_path / "o.mp4", frames, 12, fps=25.0, caption=False)
+    assert np.abs(_read_all(off)[0][:14].astype(int) - 90).max() < 20
+
+
+def test_overlay_boxes_sit_on_the_points_of_the_results(tmp_path):
+    """The drawn box is centred on the tracked point (the MOT row's box centre)."""
+    frames = [np.zeros((100, 160, 3), np.uint8)]
+    pts = np.array([[[80.0, 60.0]]])
+    path = overlay.write_overlay(tmp_path / "v.mp4", frames, 12, tracks=pts, fps=25.0)
+    frame = _read_all(path)[0]
+    yellow = (frame[20:, :, 1] > 150) & (frame[20:, :, 2] > 150)
+    rows, cols = np.nonzero(yellow)
+    assert abs((cols.min() + cols.max()) / 2 - 80) <= 0.5
+    assert abs((rows.min() + rows.max()) / 2 + 20 - 60) <= 0.5
+
+
+def test_an_odd_sized_frame_keeps_its_last_column_and_row(tmp_path):
+    """MPEG-4 frames have even sides: OpenCV cut a 161x121 overlay to 160x120 in silence,
+    with whatever was drawn on the last column and row; they are kept, a black one added."""
+    frames = [np.full((121, 161, 3), 90, np.uint8) for _ in range(2)]
+    pts = np.full((2, 1, 2), [155.0, 115.0])  # its box's right, bottom edges: x 160, y 120
+    path = overlay.write_overlay(tmp_path / "v.mp4", frames, 10, tracks=pts, fps=25.0)
+    got = _read_all(path)
+    assert len(got) == 2 and got[0].shape == (122, 162, 3)
+    yellow = (got[0][:, :, 1] > 150) & (got[0][:, :, 2] > 150) & (got[0][:, :, 0] < 120)
+    assert yellow[110:121, 160].sum() >= 8 and yellow[120, 150:161].sum() >= 8
+    assert np.abs(got[0][20:110, 10:150].astype(int) - 90).max() < 20  # the frame itself
