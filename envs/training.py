@@ -216,7 +216,9 @@ def train(
         doc,
         {
             "model.zip": save_model,
-            "learning_curve.png": lambda p: plot_learning_curve(curve, p, title=title),
+            "learning_curve.png": lambda p: plot_learning_curve(
+                curve, p, title=title, threshold_px=probe.threshold_px
+            ),
         },
     )
     log(
@@ -246,8 +248,11 @@ def _subprocess_env(parent_pid: int, **env_kwargs: Any) -> Any:
     return TrackerTuningEnv(**env_kwargs)
 
 
-def plot_learning_curve(curve: Sequence[dict[str, float]], path: Path, title: str = "") -> Path:
-    """Mean step reward (%) per finished episode and its running mean, PNG."""
+def plot_learning_curve(
+    curve: Sequence[dict[str, float]], path: Path, title: str = "", threshold_px: float = 5.0
+) -> Path:
+    """Mean step reward (%) per finished episode and its running mean, PNG; the reward is the
+    accuracy at ``threshold_px`` (the environment's)."""
     from crowdsim.plotting import new_figure, save_figure
 
     fig, ax = new_figure(figsize=(6, 3.8))
@@ -262,7 +267,7 @@ def plot_learning_curve(curve: Sequence[dict[str, float]], path: Path, title: st
     else:
         ax.text(0.5, 0.5, "no finished episode", ha="center", va="center")
     ax.set_xlabel("environment steps")
-    ax.set_ylabel("mean step reward: accuracy at T px (%)")
+    ax.set_ylabel(f"mean step reward: accuracy at {threshold_px:g} px (%)")
     ax.set_title(title or "learning curve")
     ax.grid(alpha=0.3)
     return save_figure(fig, path, dpi=110)

@@ -171,3 +171,23 @@ def test_damaged_policies_are_refused_naming_the_file(policy_zip, tmp_path, dama
     msg = str(info.value)
     assert msg.startswith(str(bad)) and needle in msg and "\n" not in msg
     load_policy(policy_zip)  # the sound one still loads
+
+
+def test_the_learning_curve_names_its_reward_threshold(tmp_path, monkeypatch):
+    """The y label read "accuracy at T px" whatever the environment's threshold was."""
+    import matplotlib.pyplot as plt
+
+    from envs.training import plot_learning_curve
+
+    curve = [{"steps": s, "reward_per_step": 50.0 + s / 10} for s in range(0, 100, 10)]
+    seen = {}
+    real = plt.Figure.savefig
+
+    def spy(fig, *args, **kwargs):
+        seen["ylabel"] = fig.axes[0].get_ylabel()
+        return real(fig, *args, **kwargs)
+
+    monkeypatch.setattr(plt.Figure, "savefig", spy)
+    path = plot_learning_curve(curve, tmp_path / "lc.png", threshold_px=15.0)
+    assert path.stat().st_size > 0
+    assert seen["ylabel"] == "mean step reward: accuracy at 15 px (%)"
