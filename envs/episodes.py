@@ -430,17 +430,27 @@ def folder_sequence(path: str | os.PathLike[str], frames: int | None = None) -> 
     return seq
 
 
-def mot_folders(path: str | os.PathLike[str]) -> list[Path]:
+def mot_folders(path: str | os.PathLike[str], only: Sequence[str] | None = None) -> list[Path]:
     """The MOT sequence folders of ``path``: ``[path]`` when it is one itself (it has a
-    ``seqinfo.ini``), else its sub-folders that have one, sorted by name. Raises
-    ``ValueError`` naming ``path`` when there is none (what ``tune``, ``heldout`` and
+    ``seqinfo.ini``), else its sub-folders that have one, sorted by name; with ``only``, those
+    named in it (``--only``). Raises ``ValueError`` naming ``path`` when there is none, and
+    naming an ``only`` name it does not hold (what ``tune``, ``heldout`` and
     ``compare --sequences`` read)."""
     path = Path(path)
     if (path / "seqinfo.ini").is_file():
-        return [path]
-    folders = sorted(p for p in path.iterdir() if (p / "seqinfo.ini").is_file())
-    if not folders:
-        raise ValueError(f"{path}: no MOT sequence folders (sub-folders with seqinfo.ini)")
+        folders = [path]
+    else:
+        folders = sorted(p for p in path.iterdir() if (p / "seqinfo.ini").is_file())
+        if not folders:
+            raise ValueError(f"{path}: no MOT sequence folders (sub-folders with seqinfo.ini)")
+    if only:
+        known = [p.name for p in folders]
+        unknown = [o for o in only if o not in known]
+        if unknown:
+            raise ValueError(
+                f"--only: no sequence {unknown[0]!r} in {path}; choose from {', '.join(known)}"
+            )
+        folders = [p for p in folders if p.name in only]
     return folders
 
 
@@ -962,15 +972,7 @@ class SuiteEpisodes(EpisodeSource):
             raise ValueError(
                 "reseed applies to built-in suites only (a folder on disk has fixed sequences)"
             )
-        folders = mot_folders(path)
-        if only:
-            known = [p.name for p in folders]
-            unknown = [o for o in only if o not in known]
-            if unknown:
-                raise ValueError(
-                    f"--only: no sequence {unknown[0]!r} in {path}; choose from {', '.join(known)}"
-                )
-            folders = [p for p in folders if p.name in only]
+        folders = mot_folders(path, only)
         from synth_data.sequence import open_sequence
 
         for folder in folders:  # before any work: a damaged frame is named, not tracked

@@ -495,11 +495,13 @@ class ParamSpace:
         return f"{self.params_class.__name__};{own}"
 
 
-def tunable_trackers() -> tuple[str, ...]:
-    """Registry names whose family has a row of :data:`TUNABLES`."""
+def tunable_trackers(plugins: bool = True) -> tuple[str, ...]:
+    """Registry names whose family has a row of :data:`TUNABLES` (``plugins=False``: without
+    importing the installed plug-ins, for ``--help``; one built on a tunable family's
+    parameters is tunable all the same)."""
     from tracker.registry import entries
 
-    return tuple(n for n, e in entries().items() if e.params in TUNABLES)
+    return tuple(n for n, e in entries(plugins).items() if e.params in TUNABLES)
 
 
 def require_tunable(tracker: Any, flag: str = "--tracker") -> str:
@@ -507,12 +509,10 @@ def require_tunable(tracker: Any, flag: str = "--tracker") -> str:
     ``flag`` and the supported names otherwise (unknown names list every registered one)."""
     from tracker.registry import get
 
-    get(tracker)  # an unknown name lists the registered trackers
-    supported = tunable_trackers()
-    if tracker not in supported:
+    if get(tracker).params not in TUNABLES:  # an unknown name lists the registered trackers
         raise ValueError(
             f"{flag} {tracker}: no row of tunables for this tracker in "
-            f"envs.param_space.TUNABLES (tunable: {', '.join(supported)})"
+            f"envs.param_space.TUNABLES (tunable: {', '.join(tunable_trackers())})"
         )
     return tracker
 

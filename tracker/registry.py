@@ -229,7 +229,15 @@ def _check_entry(e: Any, origin: str) -> TrackerEntry:
         raise ValueError(f"{origin}: target {e.target!r} is not a tracker.base.Tracker subclass")
     if not is_dataclass(e.params_class()):
         raise ValueError(f"{origin}: params {e.params!r} is not a dataclass")
-    e.make_params()  # its overrides name fields of its parameters, with valid values
+    try:  # its overrides name fields of its parameters, with valid values
+        e.make_params()
+    except ValueError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a required field, a TypeError in a check: named
+        raise ValueError(
+            f"{origin}: params {e.params!r} do not build from their defaults: "
+            f"{type(exc).__name__}: {exc}"
+        ) from None
     return e
 
 
@@ -297,9 +305,12 @@ def get(name: str) -> TrackerEntry:
     raise ValueError(f"unknown tracker {name!r}; valid trackers: {', '.join(names())}")
 
 
-def entries() -> Mapping[str, TrackerEntry]:
+def entries(plugins: bool = True) -> Mapping[str, TrackerEntry]:
     """Every tracker's entry by name (:func:`names`' order), plug-ins that do not load left
-    out (:func:`get` names them and why)."""
+    out (:func:`get` names them and why); ``plugins=False``: the built-ins and
+    :func:`register`'s alone, no installed plug-in imported."""
+    if not plugins:
+        return MappingProxyType({**TRACKERS, **_REGISTERED})
     out = {}
     for n in names():
         try:
@@ -310,14 +321,14 @@ def entries() -> Mapping[str, TrackerEntry]:
 
 
 def listing() -> str:
-    """``"name: summary; ..."`` of every tracker, for ``--help`` (a plug-in that does not load
-    is listed as such, so the help itself never fails)."""
-    parts = []
-    for n in names():
-        try:
-            parts.append(f"{n}: {get(n).summary}")
-        except ValueError:
-            parts.append(f"{n}: (a plug-in that does not load: --tracker {n} says why)")
+    """``"name: summary; ..."`` of every tracker, for ``--help``. Installed plug-ins are named
+    with their distribution, never imported: every command builds its help, and a plug-in's
+    import (slow, broken or with side effects) is for the command that asks for it."""
+    parts = [f"{n}: {e.summary}" for n, e in entries(plugins=False).items()]
+    for n, ep in _plugins().items():
+        if n not in _REGISTERED:
+            dist = getattr(getattr(ep, "dist", None), "name", None) or "an installed package"
+            parts.append(f"{n}: a plug-in of {dist}")
     return "; ".join(parts)
 
 

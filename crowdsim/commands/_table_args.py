@@ -162,7 +162,8 @@ def add_tracker_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--tracker",
         default="bqp",
-        help=f"tunable tracker from the registry ({', '.join(tunable_trackers())}; default bqp)",
+        help=f"tunable tracker from the registry ({', '.join(tunable_trackers(plugins=False))}; "
+        "or a plug-in built on one's parameters; default bqp)",
     )
 
 

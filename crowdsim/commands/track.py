@@ -174,8 +174,8 @@ def _overrides(args: argparse.Namespace, name: str) -> dict:
         if given and field not in own:
             having = [n for n, e in entries().items() if field in e.field_names()]
             raise ValueError(
-                f"{flag} sets a parameter of the BQP trackers ({', '.join(having)}), "
-                f"not of --tracker {name}"
+                f"{flag} sets a parameter that --tracker {name} does not have (trackers "
+                f"with it: {', '.join(having)})"
             )
     if args.appearance is not None:
         if "appearance" in over and over["appearance"] != args.appearance:

@@ -333,14 +333,11 @@ def study_name(spec: Any, anchor: str = DEFAULT_ANCHOR) -> str:
 
 def tracker_digest(anchor: str = DEFAULT_ANCHOR) -> str:
     """SHA-256 (12 hex digits) of the complete parameters of ``anchor``'s tracker, as
-    ``crowdsim compare`` keys its cells (:func:`crowdsim.lab.experiments.cell_key`)."""
-    import dataclasses
-
-    from tracker.registry import get
+    ``crowdsim compare`` keys its cells (:func:`crowdsim.lab.experiments.params_digest`)."""
+    from crowdsim.lab.experiments import params_digest
 
     a = anchor_of(anchor)
-    params = dataclasses.asdict(get(a.tracker).make_params(**a.overrides))
-    return _sha256(json.dumps(params, sort_keys=True).encode())[:12]
+    return params_digest(a.tracker, a.overrides)
 
 
 def check_study_file(path: str | os.PathLike[str]) -> None:

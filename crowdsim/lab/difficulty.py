@@ -158,9 +158,10 @@ def attribute(
 
     listed = suite_specs(suite, list(only) if only else None)
     # every calibrated sequence (base_* values recorded); a sequence named in --only is
-    # attributed or refused by name, one never calibrated (a spec that only records the
-    # papers' figures, such as calibrate --only copies) is left out of the whole suite
-    specs = [s for s in listed if s.calibration] if only else []
+    # attributed or refused by name (variant_specs), also one with no [calibration] at all;
+    # one never calibrated (a spec that only records the papers' figures, such as
+    # calibrate --only copies) is left out of the whole suite
+    specs = list(listed) if only else []
     if not only:
         specs = [s for s in listed if uncalibrated_values(s)]
         skipped = [s.name for s in listed if s.calibration and not uncalibrated_values(s)]

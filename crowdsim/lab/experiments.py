@@ -426,15 +426,13 @@ def user_sequences(
             f"--out {out}: inside --sequences {root}; a table run never writes into your "
             "sequences: choose an --out outside it"
         )
-    folders = mot_folders(root)
-    if only:
-        known = [p.name for p in folders]
-        unknown = [o for o in only if o not in known]
-        if unknown:
+    folders = mot_folders(root, only)
+    for path in folders:  # a sequence linked in from elsewhere is never written into either
+        if target.is_relative_to(path.resolve()):
             raise ValueError(
-                f"--only: no sequence {unknown[0]!r} in {root}; choose from {', '.join(known)}"
+                f"--out {out}: inside sequence {path} (-> {path.resolve()}); a table run "
+                "never writes into your sequences: choose an --out outside it"
             )
-        folders = [p for p in folders if p.name in only]
     seqs, notes = [], []
     for path in folders:
         seq = open_sequence(path)  # names a bad seqinfo.ini or gt.txt
@@ -457,21 +455,21 @@ def user_sequences(
     return seqs
 
 
-def cell_key(seq: Any, row: Row, frames: int | None) -> str:
-    """The manifest key of a cell: sequence, tracker, its complete parameters and, for a
-    tracker fed detections, its complete detector (a digest, so that a changed default is not
-    mistaken for a finished cell) and the frame count. ``seq`` is the sequence's spec (its
-    name and the digest of what it renders: another suite's ``seq8``, or an edited spec, is
-    another cell), a :class:`UserSequence` (its name and :func:`sequence_digest`: an edited
-    or replaced sequence is another cell) or, for a caller without one, its name."""
+def params_digest(tracker: str, overrides: Any = (), detections: Any = None) -> str:
+    """SHA-256 (12 hex digits) of tracker ``tracker``'s complete parameters with
+    ``overrides`` and, for a tracker fed detections, its complete detector (``detections``,
+    default :class:`synth_data.detections.DetectionParams`; a trained detector with its
+    weights' digest): what :func:`cell_key` and the calibration's study key
+    (:func:`crowdsim.lab.calibration.tracker_digest`) hold, so a changed default is another
+    key."""
     import dataclasses
     import hashlib
 
     from tracker.registry import get
 
-    params: dict[str, Any] = dataclasses.asdict(get(row.tracker).make_params(**row.overrides))
-    if takes_detections(row.tracker):
-        detector = row.detections if row.detections is not None else DetectionParams()
+    params: dict[str, Any] = dataclasses.asdict(get(tracker).make_params(**dict(overrides)))
+    if takes_detections(tracker):
+        detector = detections if detections is not None else DetectionParams()
         params = {"tracker": params, "detections": dataclasses.asdict(detector)}
         if isinstance(detector, DetectorParams):  # new weights are a new detector
             from tracker.detect.inference import weights_digest
@@ -480,7 +478,17 @@ def cell_key(seq: Any, row: Row, frames: int | None) -> str:
                 "trained": params["detections"],
                 "weights": weights_digest(detector),
             }
-    digest = hashlib.sha256(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
+    return hashlib.sha256(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def cell_key(seq: Any, row: Row, frames: int | None) -> str:
+    """The manifest key of a cell: sequence, tracker, its complete parameters and, for a
+    tracker fed detections, its complete detector (a digest, so that a changed default is not
+    mistaken for a finished cell) and the frame count. ``seq`` is the sequence's spec (its
+    name and the digest of what it renders: another suite's ``seq8``, or an edited spec, is
+    another cell), a :class:`UserSequence` (its name and :func:`sequence_digest`: an edited
+    or replaced sequence is another cell) or, for a caller without one, its name."""
+    digest = params_digest(row.tracker, row.overrides, row.detections)
     name = seq if isinstance(seq, str) else f"{seq.name}@{seq.digest()[:12]}"
     return f"{name}|{row.tracker}|params={digest}|frames={frames or 'all'}"
 

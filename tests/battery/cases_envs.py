@@ -455,7 +455,8 @@ case(
 case(
     "envs-track-dense-ncc",
     f"{TRACK} --tracker ncc --dense",
-    "--dense sets a parameter of the BQP trackers (bqp, bqp-ncc, bqp-dense), not of --tracker ncc",
+    "--dense sets a parameter that --tracker ncc does not have (trackers with it: bqp, "
+    "bqp-ncc, bqp-dense)",
 )
 case(
     "envs-track-appearance-clash",

@@ -27,9 +27,9 @@ def wide_ncc():
 
 def test_a_registered_tracker_is_found_made_and_listed(wide_ncc):
     assert get("ncc-wide") is wide_ncc
-    assert names()[-1] == "ncc-wide" and names()[: len(registry.TRACKERS)] == tuple(
-        registry.TRACKERS
-    )
+    assert names()[: len(registry.TRACKERS)] == tuple(registry.TRACKERS)
+    assert names()[len(registry.TRACKERS)] == "ncc-wide"  # then register's, then plug-ins'
+    assert "ncc-wide" in registry.entries(plugins=False)
     trk = make_tracker("ncc-wide", max_lost=7)
     assert (trk.name, trk.params.search_factor, trk.params.max_lost) == ("ncc-wide", 3.0, 7)
     assert "ncc-wide: NCC with a wider search" in registry.listing()
@@ -107,7 +107,8 @@ def test_an_entry_point_plugin_is_a_tracker_of_every_process(tmp_path):
     code = """
 import sys
 from tracker.registry import get, make_tracker, names, listing
-assert "myplug" not in sys.modules, "listing names must not import a plug-in"
+text = listing()
+assert "myplug" not in sys.modules, "naming and listing the trackers imports no plug-in"
 print(names())
 trk = make_tracker("mine")
 print(trk.name, trk.params.search_factor, get("bqp").target)
@@ -116,7 +117,7 @@ for bad in ("broken", "misnamed"):
         get(bad)
     except ValueError as exc:
         print(exc)
-print(listing())
+print(text)
 """
     run = _python(env, code)
     assert run.returncode == 0, run.stderr
@@ -128,8 +129,8 @@ print(listing())
         "ModuleNotFoundError"
     )
     assert out[3].endswith("names itself 'other'; the two must agree")
-    assert (
-        "; broken: (a plug-in that does not load: --tracker broken says why); misnamed:" in out[4]
+    assert out[4].endswith(
+        "; mine: a plug-in of myplug; broken: a plug-in of myplug; misnamed: a plug-in of myplug"
     )
 
 
@@ -185,4 +186,52 @@ def test_the_cli_tracks_with_a_plugin_and_names_a_broken_one(tmp_path):
     err = run.stderr.strip().splitlines()
     assert len(err) == 1 and "tracker plug-in 'broken'" in err[0] and "does not load" in err[0], err
     run = crowdsim("track", "--help")
-    assert run.returncode == 0 and "mine: my NCC variant" in " ".join(run.stdout.split())
+    assert run.returncode == 0 and "mine: a plug-in of myplug" in " ".join(run.stdout.split())
+
+
+REQUIRED = """
+from dataclasses import dataclass
+
+from tracker.registry import entry
+
+
+@dataclass(frozen=True)
+class NeedsOne:
+    needed: int
+
+
+ENTRY = entry("req", "tracker.baselines.ncc:NCCTracker", "myplug.req:NeedsOne", "needs a field")
+"""
+
+
+def test_a_plugin_whose_params_do_not_build_is_named_and_breaks_no_other_command(tmp_path):
+    """A plug-in whose parameter class has a required field (``TypeError`` when built from its
+    defaults) is a plug-in that does not load, named, like one that does not import: the help
+    of every command, which lists the trackers, still works."""
+    env = _plugin_env(tmp_path, "req = myplug.req:ENTRY")
+    (tmp_path / "site" / "myplug" / "req.py").write_text(REQUIRED)
+    code = """
+from tracker.registry import entries, get, listing
+print("req" in entries())
+print(listing().split("; ")[-1])
+try:
+    get("req")
+except ValueError as exc:
+    print(exc)
+"""
+    run = _python(env, code)
+    assert run.returncode == 0, run.stderr
+    out = run.stdout.splitlines()
+    assert out[0] == "False"
+    assert out[1] == "req: a plug-in of myplug"
+    assert out[2].startswith("tracker plug-in 'req' (myplug.req:ENTRY, entry point of myplug)")
+    assert "do not build from their defaults: TypeError" in out[2]
+    # every command's help lists the trackers: it imports no plug-in, so none can break it
+    (tmp_path / "site" / "myplug" / "__init__.py").write_text("raise SystemExit('imported')")
+    run = subprocess.run(
+        [sys.executable, "-m", "crowdsim", "simulate", "--help"],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr

@@ -176,3 +176,24 @@ def test_help_names_no_flag_difficulty_lacks(capsys):
         main(["difficulty", "--help"])
     out = capsys.readouterr().out
     assert exc.value.code == 0 and "--sequences" not in out and "attribution.md" in out
+
+
+def test_only_naming_a_spec_without_a_calibration_section_refuses_it(tmp_path, monkeypatch):
+    """``--only`` naming a spec with no ``[calibration]`` at all (a spec of one's own) beside a
+    calibrated one refuses it by name, as one with only the papers' figures is; it had been
+    dropped in silence and the table ran without it."""
+    import shutil
+
+    import crowdsim.lab.experiments as experiments
+    from synth_data.suites import suite_dir
+
+    suite = tmp_path / "s"
+    suite.mkdir()
+    shutil.copy(suite_dir("ucf9") / "seq9.toml", suite / "seq9.toml")
+    text = (suite_dir("ucf9") / "seq2.toml").read_text()
+    (suite / "seq2.toml").write_text(text[: text.index("[calibration]")])
+    monkeypatch.setattr(experiments, "run_table", lambda *a, **k: None)
+    with pytest.raises(ValueError, match="seq2: not calibrated"):
+        attribute(
+            suite, tmp_path / "o", only=["seq9", "seq2"], trackers=["ncc"], log=lambda m: None
+        )

@@ -831,6 +831,25 @@ def test_compare_sequences_refuses_bad_flags(generated, tmp_path, capsys):
     assert not (tmp_path / "o").exists() and not (mine / "o").exists()
 
 
+def test_compare_sequences_never_writes_into_a_sequence_linked_in(generated, tmp_path, capsys):
+    """An ``--out`` inside a sequence that the ``--sequences`` folder holds as a symbolic link
+    (a folder of links to one's footage) is refused like one inside the folder itself."""
+    from crowdsim.cli import main
+
+    mine = _user_folder(generated, tmp_path)
+    links = tmp_path / "links"
+    links.mkdir()
+    (links / "a").symlink_to(mine / "a", target_is_directory=True)
+    before = _snapshot(mine)
+    capsys.readouterr()
+    out = mine / "a" / "res"
+    argv = ["compare", "--sequences", str(links), "--trackers", "ncc", "--no-progress"]
+    assert main([*argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {out}: inside sequence {links / 'a'}" in err, err
+    assert not out.exists() and _snapshot(mine) == before
+
+
 def test_a_sequences_digest_follows_its_files_without_decoding_them(generated, tmp_path):
     """:func:`~crowdsim.lab.experiments.sequence_digest`: the same folder read twice is the
     same digest; an edited seqinfo.ini, a frame copied over with another of the same size
