@@ -271,11 +271,15 @@ def _plugins() -> Mapping[str, Any]:
     )
 
 
+def _dist(ep: Any) -> str:
+    """The name of the distribution that declares the entry point ``ep``."""
+    return getattr(getattr(ep, "dist", None), "name", None) or "an installed package"
+
+
 @functools.cache
 def _plugin(name: str) -> TrackerEntry:
     ep = _plugins()[name]
-    dist = getattr(getattr(ep, "dist", None), "name", None) or "an installed package"
-    origin = f"tracker plug-in {name!r} ({ep.value}, entry point of {dist})"
+    origin = f"tracker plug-in {name!r} ({ep.value}, entry point of {_dist(ep)})"
     try:
         obj = ep.load()
     except Exception as exc:  # noqa: BLE001 - any import failure, named
@@ -327,8 +331,7 @@ def listing() -> str:
     parts = [f"{n}: {e.summary}" for n, e in entries(plugins=False).items()]
     for n, ep in _plugins().items():
         if n not in _REGISTERED:
-            dist = getattr(getattr(ep, "dist", None), "name", None) or "an installed package"
-            parts.append(f"{n}: a plug-in of {dist}")
+            parts.append(f"{n}: a plug-in of {_dist(ep)}")
     return "; ".join(parts)
 
 
