@@ -236,11 +236,15 @@ def require_output_file(flag: str, path: str | os.PathLike[str]) -> Path:
     return require_output_dir(flag, p)
 
 
-def require_output_dir(flag: str, path: str | os.PathLike[str]) -> Path:
+def require_output_dir(flag: str, path: str | os.PathLike[str], writable: bool = False) -> Path:
     """Like :func:`require_output_file` for a folder to be created at ``path``: refuses an
     ancestor that is a regular file (``"--out a/seq: a is a file, not a folder"``) and an
-    unwritable nearest existing ancestor. ``path`` itself may exist (callers decide)."""
+    unwritable nearest existing ancestor. ``path`` itself may exist (callers decide); with
+    ``writable``, a folder already there must be writable (``"--out X: the folder is not
+    writable"``), so a read-only one is refused before any work."""
     p = Path(path)
+    if writable and p.is_dir() and not os.access(p, os.W_OK | os.X_OK):
+        raise ValueError(f"{flag} {p}: the folder is not writable")
     for parent in p.parents:
         if parent.exists():
             if not parent.is_dir():

@@ -79,11 +79,9 @@ def check_outputs(
     ``earlier(out)``: where there is no record, whether ``out`` is a folder that a release
     from before the record wrote (its own files then vouch for the outputs beside them, as a
     record that lists no files does)."""
-    out = require_output_dir(flag, out)
+    out = require_output_dir(flag, out, writable=True)
     if out.exists() and not out.is_dir():
         raise ValueError(f"{flag} {out}: is a file, not a folder")
-    if out.is_dir() and not os.access(out, os.W_OK | os.X_OK):
-        raise ValueError(f"{flag} {out}: the folder is not writable")
     rec_path = out / record
     if rec_path.is_dir():
         raise ValueError(f"{flag}: {rec_path} is a folder, not a file")

@@ -669,9 +669,7 @@ def calibrate_suite(
             f"--out {out}: is the suite folder itself; calibrate writes a new suite folder "
             "(add --update-suite to change the suite as well)"
         )
-    require_output_dir("--out", out)
-    if out.is_dir() and not os.access(out, os.W_OK | os.X_OK):  # read-only: refused up front
-        raise ValueError(f"--out {out}: the folder is not writable")
+    require_output_dir("--out", out, writable=True)  # read-only: refused up front
     where = source_dir.resolve()  # a built-in suite by name, also when given as its folder
     source = next((n for n in SUITE_NAMES if suite_dir(n).resolve() == where), str(where))
     folder = OutputFolder(out, source)
@@ -687,10 +685,7 @@ def calibrate_suite(
             raise ValueError(f"--study must be an SQLite file (a path), got {str(study)!r}")
         if not study_path.parent.is_dir():
             raise ValueError(f"--study {study_path}: no such folder {study_path.parent}")
-        if not os.access(study_path.parent, os.W_OK | os.X_OK):  # SQLite writes beside it
-            raise ValueError(
-                f"--study {study_path}: the folder {study_path.parent} is not writable"
-            )
+        require_output_dir("--study", study_path)  # SQLite writes beside it
     check_study_file(study_path)
     if update_suite:
         for s in specs:
