@@ -44,6 +44,7 @@ from __future__ import annotations
 import functools
 import importlib
 import re
+import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from types import MappingProxyType
@@ -197,6 +198,9 @@ PLUGIN_GROUP = "crowdsim.trackers"
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}")
 _TARGET = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_][\w.]*")
 _REGISTERED: dict[str, TrackerEntry] = {}
+_REGISTERING = threading.Lock()
+"""Held while :func:`register` checks a name and adds it, and while :func:`unregister` drops
+one: two threads registering one name never both succeed."""
 
 
 def _check_entry(e: Any, origin: str) -> TrackerEntry:
@@ -248,16 +252,23 @@ def register(e: TrackerEntry) -> None:
     taken by a built-in, an entry point or an earlier :func:`register` is refused.
     """
     _check_entry(e, f"register({getattr(e, 'name', e)!r})")
-    if e.name in _REGISTERED or e.name in _plugins():
-        raise ValueError(f"register: tracker {e.name!r} is already registered; unregister it first")
-    _REGISTERED[e.name] = e
+    global _REGISTERED
+    with _REGISTERING:
+        if e.name in _REGISTERED or e.name in _plugins():
+            raise ValueError(
+                f"register: tracker {e.name!r} is already registered; unregister it first"
+            )
+        # a new dict, never one changed in place: names() in another thread reads a whole one
+        _REGISTERED = {**_REGISTERED, e.name: e}
 
 
 def unregister(name: str) -> None:
     """Forget a tracker added with :func:`register` (built-ins and entry points stay)."""
-    if name not in _REGISTERED:
-        raise ValueError(f"unregister: {name!r} was not added with register()")
-    del _REGISTERED[name]
+    global _REGISTERED
+    with _REGISTERING:
+        if name not in _REGISTERED:
+            raise ValueError(f"unregister: {name!r} was not added with register()")
+        _REGISTERED = {n: e for n, e in _REGISTERED.items() if n != name}
 
 
 @functools.cache
@@ -293,7 +304,8 @@ def _plugin(name: str) -> TrackerEntry:
 def names() -> tuple[str, ...]:
     """Registered tracker names: the built-ins, then :func:`register`'s, then the installed
     plug-ins' (read without importing them)."""
-    return (*TRACKERS, *_REGISTERED, *(n for n in _plugins() if n not in _REGISTERED))
+    reg = _REGISTERED  # one snapshot: register() swaps in a new dict
+    return (*TRACKERS, *reg, *(n for n in _plugins() if n not in reg))
 
 
 def get(name: str) -> TrackerEntry:
@@ -302,8 +314,9 @@ def get(name: str) -> TrackerEntry:
     if isinstance(name, str):
         if name in TRACKERS:
             return TRACKERS[name]
-        if name in _REGISTERED:
-            return _REGISTERED[name]
+        reg = _REGISTERED
+        if name in reg:
+            return reg[name]
         if name in _plugins():
             return _plugin(name)
     raise ValueError(f"unknown tracker {name!r}; valid trackers: {', '.join(names())}")
@@ -328,9 +341,10 @@ def listing() -> str:
     """``"name: summary; ..."`` of every tracker, for ``--help``. Installed plug-ins are named
     with their distribution, never imported: every command builds its help, and a plug-in's
     import (slow, broken or with side effects) is for the command that asks for it."""
-    parts = [f"{n}: {e.summary}" for n, e in entries(plugins=False).items()]
+    own = entries(plugins=False)
+    parts = [f"{n}: {e.summary}" for n, e in own.items()]
     for n, ep in _plugins().items():
-        if n not in _REGISTERED:
+        if n not in own:
             parts.append(f"{n}: a plug-in of {_dist(ep)}")
     return "; ".join(parts)
 
