@@ -19,9 +19,10 @@ A tracker of your own, outside this package, is registered in one of two ways:
   where ``ENTRY = tracker.registry.entry("mine", "my_package.crowd:MyTracker",
   "my_package.crowd:MyParams", "one line for --help")``. Once the package is installed,
   ``crowdsim track --tracker mine``, ``crowdsim compare --trackers mine`` and
-  :func:`make_tracker` find it in every process, pool workers and Ray tasks included. Its
-  module is imported only when the tracker is asked for, so a broken plug-in fails naming
-  itself, never another command.
+  :func:`make_tracker` find it in every process of an environment it is installed in
+  (local pool workers; Ray tasks where the cluster's environment has it). Its module is
+  imported only when the tracker is asked for (``--help`` lists it by name), so a broken
+  plug-in fails naming itself, never another command.
 * **:func:`register`**, for this Python process alone (a notebook, a script that calls
   :func:`tracker.runner.run_tracker` or builds the tuning environment in process). Spawned
   worker processes do not see it: give jobs with several workers an entry point.
