@@ -171,6 +171,23 @@ def require_choice(owner: str, name: str, value: Any, choices: tuple[Any, ...]) 
         raise ValueError(f"{where} must be one of {choices}, got {value!r}")
 
 
+def require_sequences(flag: str, wanted: Any, known: list[str], where: str) -> None:
+    """Raise ``ValueError`` naming ``flag``, the first of ``wanted`` that is not one of the
+    ``known`` sequence names, ``where`` they were looked for and the names to choose from
+    (``--only`` of a suite or a folder, ``--heldout-only``).
+
+    >>> require_sequences("--only", ["seq2", "seq9"], ["seq1", "seq2"], "suite 'mine'")
+    Traceback (most recent call last):
+    ...
+    ValueError: --only: no sequence 'seq9' in suite 'mine'; choose from seq1, seq2
+    """
+    unknown = [o for o in wanted if o not in known]
+    if unknown:
+        raise ValueError(
+            f"{flag}: no sequence {unknown[0]!r} in {where}; choose from {', '.join(known)}"
+        )
+
+
 MEMORY_LIMIT_BYTES: int = 12 * 2**30
 """Largest working set (bytes) one command may plan to allocate: half of a 24 GiB machine.
 

@@ -51,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from crowdsim.checks import require_number
+from crowdsim.checks import require_number, require_sequences
 
 DEFAULT_SCENARIOS: tuple[str, ...] = (
     "marathon",
@@ -444,12 +444,7 @@ def mot_folders(path: str | os.PathLike[str], only: Sequence[str] | None = None)
         if not folders:
             raise ValueError(f"{path}: no MOT sequence folders (sub-folders with seqinfo.ini)")
     if only:
-        known = [p.name for p in folders]
-        unknown = [o for o in only if o not in known]
-        if unknown:
-            raise ValueError(
-                f"--only: no sequence {unknown[0]!r} in {path}; choose from {', '.join(known)}"
-            )
+        require_sequences("--only", only, [p.name for p in folders], str(path))
         folders = [p for p in folders if p.name in only]
     return folders
 

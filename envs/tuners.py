@@ -35,7 +35,7 @@ from crowdsim.atomic import (
     sha256_file,
     study_storage,
 )
-from crowdsim.checks import require_choice, require_number, require_workers
+from crowdsim.checks import require_choice, require_number, require_sequences, require_workers
 from crowdsim.jobs import read_manifest
 from crowdsim.optional import DependencyNotInstalled, require
 from envs.episodes import (
@@ -136,12 +136,7 @@ class Objective:
                     "name held-out sequences with --heldout-only"
                 )
             known = SuiteEpisodes.folder_names(self.suite)
-            unknown = [n for n in self.heldout_only if n not in known]
-            if unknown:
-                raise ValueError(
-                    f"--heldout-only: no sequence {unknown[0]!r} in {self.suite}; "
-                    f"choose from {', '.join(known)}"
-                )
+            require_sequences("--heldout-only", self.heldout_only, known, str(self.suite))
             return make_episodes(
                 suite=self.suite,
                 only=self.heldout_only,

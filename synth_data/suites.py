@@ -38,6 +38,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from crowdsim.checks import require_sequences
 from synth_data.spec import SequenceSpec, load_spec
 
 SPEC_PATTERNS: tuple[str, ...] = ("*.toml", "*.yaml", "*.yml")
@@ -149,13 +150,7 @@ def suite_specs(suite: str | os.PathLike[str], only: list[str] | None = None) ->
             )
         seen[s.name] = s.source
     if only:
-        known = [s.name for s in specs]
-        unknown = [o for o in only if o not in known]
-        if unknown:
-            raise ValueError(
-                f"--only: no sequence {unknown[0]!r} in suite {str(suite)!r}; "
-                f"choose from {', '.join(known)}"
-            )
+        require_sequences("--only", only, [s.name for s in specs], f"suite {str(suite)!r}")
         specs = [s for s in specs if s.name in only]
     return specs
 
