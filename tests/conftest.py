@@ -103,3 +103,38 @@ def study_disk_full():
     """A function raising what an Optuna study's commit raises on a full disk (Optuna's
     ``StorageInternalError`` over SQLAlchemy over ``sqlite3``), as seen on a filled tmpfs."""
     return _study_disk_full
+
+
+def _write_scene_folder(scene, folder: Path) -> Path:
+    import cv2
+
+    from synth_data.mot import write_mot, write_seqinfo
+    from tracker.mot_io import tracks_to_mot_rows
+
+    (folder / "img1").mkdir(parents=True)
+    (folder / "gt").mkdir()
+    for i, f in enumerate(scene.frames, start=1):
+        cv2.imwrite(str(folder / "img1" / f"{i:06d}.png"), f)
+    h, w = scene.frames[0].shape[:2]
+    write_seqinfo(
+        folder,
+        name="tiny",
+        frame_rate=25,
+        length=len(scene.frames),
+        width=w,
+        height=h,
+        template_size=scene.template_size,
+        im_ext=".png",
+    )
+    rows = tracks_to_mot_rows(scene.ids, scene.points, scene.template_size)
+    rows[:, 7] = 1  # class: pedestrian
+    rows[:, 8] = 1  # visibility
+    write_mot(folder / "gt" / "gt.txt", rows[:, :9])
+    return folder
+
+
+@pytest.fixture()
+def scene_folder():
+    """``write(scene, folder) -> folder``: a hand-built scene (:func:`tracker.testing.
+    make_scene`) as a MOT sequence folder named ``tiny``: PNG frames, its ground truth."""
+    return _write_scene_folder

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from crowdsim.cli import main
-from synth_data.mot import write_mot, write_seqinfo
+from synth_data.mot import write_mot
 from tracker.mot_io import tracks_to_mot_rows
 from tracker.testing import make_scene
 
@@ -22,28 +22,8 @@ def scene():
 
 
 @pytest.fixture
-def seq(tmp_path, scene):
-    d = tmp_path / "seq"
-    (d / "img1").mkdir(parents=True)
-    (d / "gt").mkdir()
-    for i, f in enumerate(scene.frames, start=1):
-        cv2.imwrite(str(d / "img1" / f"{i:06d}.png"), f)
-    h, w = scene.frames[0].shape[:2]
-    write_seqinfo(
-        d,
-        name="tiny",
-        frame_rate=25,
-        length=len(scene.frames),
-        width=w,
-        height=h,
-        template_size=scene.template_size,
-        im_ext=".png",
-    )
-    rows = tracks_to_mot_rows(scene.ids, scene.points, scene.template_size)
-    rows[:, 7] = 1  # class: pedestrian
-    rows[:, 8] = 1  # visibility
-    write_mot(d / "gt" / "gt.txt", rows[:, :9])
-    return d
+def seq(tmp_path, scene, scene_folder):
+    return scene_folder(scene, tmp_path / "seq")
 
 
 def _error_line(capsys, command):

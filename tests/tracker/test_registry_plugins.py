@@ -134,34 +134,11 @@ print(text)
     )
 
 
-def test_the_cli_tracks_with_a_plugin_and_names_a_broken_one(tmp_path):
-    import cv2
-
-    from synth_data.mot import write_mot, write_seqinfo
-    from tracker.mot_io import tracks_to_mot_rows
+def test_the_cli_tracks_with_a_plugin_and_names_a_broken_one(tmp_path, scene_folder):
     from tracker.testing import make_scene
 
     sc = make_scene([[20, 20], [90, 20], [100, 75]], [[2, 1], [-2, 1], [-2, 0]], n_frames=6)
-    d = tmp_path / "seq"
-    (d / "img1").mkdir(parents=True)
-    (d / "gt").mkdir()
-    for i, f in enumerate(sc.frames, start=1):
-        cv2.imwrite(str(d / "img1" / f"{i:06d}.png"), f)
-    h, w = sc.frames[0].shape[:2]
-    write_seqinfo(
-        d,
-        name="tiny",
-        frame_rate=25,
-        length=len(sc.frames),
-        width=w,
-        height=h,
-        template_size=sc.template_size,
-        im_ext=".png",
-    )
-    rows = tracks_to_mot_rows(sc.ids, sc.points, sc.template_size)
-    rows[:, 7] = 1
-    rows[:, 8] = 1
-    write_mot(d / "gt" / "gt.txt", rows[:, :9])
+    d = scene_folder(sc, tmp_path / "seq")
     env = _plugin_env(tmp_path, "mine = myplug:ENTRY\nbroken = myplug_missing:ENTRY")
 
     def crowdsim(*args):
