@@ -22,16 +22,31 @@ import json
 import sys
 from pathlib import Path
 
+TRACKER_LIST = "<the registered trackers>"
+"""Stands in ``--tracker``'s help for :func:`tracker.registry.listing`, filled in only when
+the help is printed: listing the installed plug-ins reads every installed distribution's
+entry points (about 50 ms), which no other command, and no run of this one, should pay."""
+
+
+class _ListingFormatter(argparse.HelpFormatter):
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = super()._get_help_string(action) or ""
+        if TRACKER_LIST in text:
+            from tracker.registry import listing
+
+            text = text.replace(TRACKER_LIST, listing().replace("%", "%%"))
+        return text
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     from crowdsim.atomic import OVERWRITE_HELP
     from tracker.base import MAX_TEMPLATE_PX
-    from tracker.registry import listing
 
     p = sub.add_parser(
         "track",
         help="track a sequence or video with any registered tracker, write MOT results",
         description=__doc__.splitlines()[0].replace("``", ""),
+        formatter_class=_ListingFormatter,
     )
     p.add_argument("input", help="MOT sequence folder or video file")
     p.add_argument(
@@ -39,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="NAME",
         help="registered tracker (default bqp; with --params or --policy: the tracker the file "
-        f"names). {listing()}",
+        f"names). {TRACKER_LIST}",
     )
     p.add_argument(
         "--set",
