@@ -374,7 +374,8 @@ def interrupt_in(exc: BaseException) -> KeyboardInterrupt | None:
 def ray_init(ray: Any, address: str | None) -> None:
     """Start (or join) Ray unless it runs, keeping this process's SIGINT and SIGTERM handlers:
     ``ray.init`` installs its own, and a SIGTERM then ended a run with exit 15 and Ray's stack
-    dump instead of the one line and 143 (:func:`interruptible`)."""
+    dump instead of the one line and 143 (:func:`interruptible`). A SIGTERM while Ray starts
+    (its handler exits with 15) raises :class:`Interrupted` too."""
     import signal
 
     if ray.is_initialized():
@@ -383,6 +384,10 @@ def ray_init(ray: Any, address: str | None) -> None:
     saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
     try:
         ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+    except SystemExit as exc:  # a SIGTERM while it starts: Ray's handler calls sys.exit(15)
+        if exc.code != signal.SIGTERM:
+            raise
+        raise Interrupted("SIGTERM") from None
     finally:
         for sig, handler in saved.items():
             if handler is not None:

@@ -21,7 +21,8 @@ import logging
 import os
 import sqlite3
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,7 @@ from crowdsim.atomic import (
     study_storage,
 )
 from crowdsim.checks import require_choice, require_number, require_sequences, require_workers
-from crowdsim.jobs import read_manifest
+from crowdsim.jobs import Interrupted, ray_init, read_manifest
 from crowdsim.optional import DependencyNotInstalled, require
 from envs.episodes import (
     EpisodeSource,
@@ -733,9 +734,7 @@ def _run_ray(
     done = len(complete_trials(study))
     if done >= trials:
         return study
-    if not ray.is_initialized():  # Ray keeps its SIGTERM handler: ours, raised inside Ray
-        # Tune, left its shutdown waiting a minute for a lost GCS
-        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+    ray_init(ray, address)  # keeps our handlers: Ray's own ended a SIGTERM with exit 134
 
     def trainable(config: dict[str, float]) -> dict[str, float]:
         value, _ = _scorer(objective)({k: float(config[k]) for k in space.names})
@@ -770,7 +769,8 @@ def _run_ray(
             name=name, storage_path=str((out / "ray").resolve()), verbose=int(progress)
         ),
     )
-    results = tuner.fit()  # Ray Tune's own SIGINT handler ends it early, gracefully
+    with _sigterm_stops_tune() as stopped_by:  # Ray Tune's SIGINT handler ends it early
+        results = tuner.fit()
     dists = space.optuna_distributions()
     for r in results:
         if r.error is None and r.metrics and "accuracy" in r.metrics:
@@ -787,14 +787,49 @@ def _run_ray(
                 )
             )
     ended = sum(1 for r in results if r.error is not None or "accuracy" in (r.metrics or {}))
-    if ended < trials - done:  # stopped early: a Ctrl-C, which Ray Tune takes itself
-        from crowdsim.jobs import Interrupted
-
+    if ended < trials - done:  # stopped early: a Ctrl-C or SIGTERM, which Ray Tune takes
         kept = len(complete_trials(study))
         raise Interrupted(
-            "SIGINT", f"the study keeps its {kept} finished trial(s); the same command resumes"
+            stopped_by[0] if stopped_by else "SIGINT",
+            f"the study keeps its {kept} finished trial(s); the same command resumes",
         )
     return study
+
+
+@contextmanager
+def _sigterm_stops_tune() -> Iterator[list[str]]:
+    """While inside (in the main thread), a SIGTERM stops Ray Tune as its own SIGINT handler
+    does, gracefully (finished trials kept), and is noted in the yielded list.
+
+    Ray Tune installs a SIGINT handler for the length of ``Tuner.fit``, and nothing for
+    SIGTERM: Ray's core handler ended the run with its stack dump and exit 134, and
+    :func:`crowdsim.jobs.interruptible`'s, raising inside Ray Tune, left its shutdown
+    waiting a minute for a lost GCS. So a SIGTERM calls the SIGINT handler in place at the
+    time, Ray Tune's (which it puts back after the first signal), and :func:`_run_ray` reports
+    it as SIGTERM: one line and exit 143. Otherwise it raises :class:`~crowdsim.jobs.
+    Interrupted` as :func:`~crowdsim.jobs.interruptible` would."""
+    import signal
+    import threading
+
+    seen: list[str] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield seen
+        return
+
+    ours = signal.getsignal(signal.SIGINT)
+
+    def forward(signum: int, frame: Any) -> None:
+        seen.append("SIGTERM")
+        handler = signal.getsignal(signal.SIGINT)
+        if handler is ours or not callable(handler):  # not Ray Tune's (a second signal)
+            raise Interrupted("SIGTERM")
+        handler(signal.SIGINT, frame)
+
+    saved = signal.signal(signal.SIGTERM, forward)
+    try:
+        yield seen
+    finally:
+        signal.signal(signal.SIGTERM, saved)
 
 
 # ---------------------------------------------------------------------------- results

@@ -374,6 +374,43 @@ def test_ray_backend_on_a_local_instance(tmp_path):
             ray.shutdown()
 
 
+@pytest.mark.skipif(os.name != "posix", reason="POSIX signals")
+@pytest.mark.parametrize("when", ["starting", "tuning"])
+def test_sigterm_under_ray_ends_with_one_line_and_143(tmp_path, when):
+    """SIGTERM to ``tune --backend ray`` while Ray starts or while Ray Tune runs trials: one
+    line and exit 143, as every command (Ray's own handlers gave exit 15 without a word, or
+    exit 134 with a stack dump)."""
+    pytest.importorskip("ray", reason="Ray is the distributed extra (in dev since issue 13)")
+    pytest.importorskip("ray.tune")
+    out = tmp_path / "r"
+    spec = tmp_path / "tiny.json"
+    spec.write_text(json.dumps(TINY))
+    cmd = [sys.executable, "-c", "import sys; from crowdsim.cli import main; sys.exit(main())"]
+    cmd += ["tune", "--scenarios", str(spec), "--trials", "40", "--train-episodes", "1"]
+    cmd += ["--backend", "ray", "--heldout", "0", "--no-progress", "--out", str(out)]
+    env = {**os.environ, "RAY_AUTH_MODE": "disabled"}
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env
+    )
+    started = out / "ray" / "crowdsim-tune"
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 120:
+        time.sleep(0.1)
+        if when == "starting" and (out / "study.db").exists():
+            time.sleep(2.0)  # the study is open: Ray starts (it takes some 5 s)
+            break
+        if when == "tuning" and started.is_dir() and any(p.is_dir() for p in started.iterdir()):
+            time.sleep(1.0)  # a trial runs
+            break
+        assert proc.poll() is None, proc.stderr.read()[-2000:]
+    os.kill(proc.pid, signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err[-2000:]
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("crowdsim tune: interrupted by SIGTERM"), err[-2000:]
+    assert "Traceback" not in err and "SIGTERM received" not in err
+
+
 def test_interrupted_trial_prints_no_optuna_traceback(tmp_path, capsys, monkeypatch):
     """Ctrl-C (or SIGTERM, raised as jobs.Interrupted) in a trial: the trial is marked failed,
     Optuna logs nothing about it, and the interrupt reaches the caller unchanged."""
