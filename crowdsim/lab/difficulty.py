@@ -135,7 +135,7 @@ def attribute(
     """
     import json
 
-    from crowdsim.lab.experiments import Row, cell_key, cut_spec, run_table
+    from crowdsim.lab.experiments import Row, cell_key, cut_spec, key_frames, run_table
     from synth_data.suites import suite_specs
     from tracker.registry import get
 
@@ -183,10 +183,11 @@ def attribute(
         for seq, vs in variants.items():
             per = {}
             for row in rows:
-                acc = {
-                    label: float(cells[cell_key(cut_spec(sp, frames), row, frames)]["acc@15"])
+                keys = {
+                    label: cell_key(cut_spec(sp, frames), row, key_frames(frames, sp))
                     for label, sp in vs
                 }
+                acc = {label: float(cells[key]["acc@15"]) for label, key in keys.items()}
                 per[row.label] = {
                     "calibrated": acc["calibrated"],
                     "uncalibrated": acc["uncalibrated"],

@@ -328,15 +328,17 @@ class UserSequence:
     """A MOT sequence folder of the user's (``--sequences``), as a table runs it.
 
     ``name`` is the folder's name (its row of the table, its curve's file name), ``frames``
-    the frames its cells track (its length, or ``--frames`` when shorter) and ``content``
-    :func:`sequence_digest` of the folder. It has what :func:`cell_key` reads of a spec
-    (``name``, ``digest()``), so an edited or replaced sequence is another cell.
+    the frames its cells track (its length, or ``--frames`` when shorter), ``content``
+    :func:`sequence_digest` of the folder and ``length`` its whole length. It has what
+    :func:`cell_key` reads of a spec (``name``, ``digest()``), so an edited or replaced
+    sequence is another cell.
     """
 
     name: str
     path: Path
     frames: int
     content: str
+    length: int
 
     def digest(self) -> str:
         return self.content
@@ -449,7 +451,7 @@ def user_sequences(
         if square:
             notes.append(f"note: {path}: {square}")
         n = seq.length if frames is None else min(frames, seq.length)
-        seqs.append(UserSequence(path.name, path, n, sequence_digest(seq)))
+        seqs.append(UserSequence(path.name, path, n, sequence_digest(seq), seq.length))
     for note in notes:  # once every sequence passed: a refusal is one line
         log(note)
     return seqs
@@ -479,6 +481,17 @@ def params_digest(tracker: str, overrides: Any = (), detections: Any = None) -> 
                 "weights": weights_digest(detector),
             }
     return hashlib.sha256(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def key_frames(frames: int | None, whole: Any) -> int | None:
+    """The frame count a cell's key holds for ``--frames`` ``frames`` on sequence ``whole``
+    (a spec before :func:`cut_spec`, or a :class:`UserSequence`): ``None`` (all) where
+    ``frames`` does not cut it, so that ``--frames`` at or past a sequence's length finds
+    the cells of a run without it, the same work."""
+    length = getattr(whole, "length", None) or getattr(whole, "frames", None)
+    if frames is not None and isinstance(length, int) and frames >= length:
+        return None
+    return frames
 
 
 def cell_key(seq: Any, row: Row, frames: int | None) -> str:
@@ -582,6 +595,7 @@ def run_table(
             raise ValueError(f"--only: no sequence {unknown[0]!r} among the specs")
         specs = [sp for sp in specs if not only or sp.name in only]
         suite, paper = "specs", {}
+    whole = list(specs)
     if sequences is None:
         specs = [cut_spec(s, frames) for s in specs]
     if frames is not None:  # never beside the papers' whole-sequence figures unsaid
@@ -589,7 +603,11 @@ def run_table(
     labels = [r.label for r in rows]
     if len(set(labels)) != len(labels):
         raise ValueError(f"{title}: two rows share the label {_first_dup(labels)!r}")
-    keys = {(s.name, r.label): cell_key(s, r, frames) for s in specs for r in rows}
+    keys = {
+        (s.name, r.label): cell_key(s, r, key_frames(frames, w))
+        for s, w in zip(specs, whole, strict=True)
+        for r in rows
+    }
     if len(set(keys.values())) != len(keys):
         dup = _first_dup(list(keys.values()))
         same = [label for (_, label), key in keys.items() if key == dup]

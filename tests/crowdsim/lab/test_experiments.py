@@ -58,6 +58,24 @@ def test_table_cells_files_and_resume(tmp_path, monkeypatch):
     assert again == text
 
 
+def test_frames_at_or_past_a_sequences_length_resume_the_whole_sequences_cells(
+    tmp_path, monkeypatch
+):
+    """``--frames`` that cuts nothing is the same work as none: the cells are found again
+    (they were keyed ``frames=N`` and rerun); a cut is still its own cell."""
+    out = tmp_path / "t"
+    quiet = {"progress": False, "log": lambda m: None}
+    run_table(ROWS, [tiny("a")], out, **quiet)
+    monkeypatch.setattr(experiments, "run_cell", lambda *a: pytest.fail("cell rerun"))
+    for frames in (8, 50):
+        text = run_table(ROWS, [tiny("a")], out, frames=frames, **quiet)
+        assert f"first {frames} frames" in text  # the title still says what was asked
+    keys = json.loads((out / "cells.json").read_text())["cells"]
+    assert [k.rsplit("|", 1)[1] for k in keys] == ["frames=all"] * 2
+    assert experiments.key_frames(7, tiny("a")) == 7  # a cut: its own cells
+    assert experiments.key_frames(None, tiny("a")) is None
+
+
 def test_bad_rows_fail_before_any_work(tmp_path):
     with pytest.raises(ValueError, match="no parameter"):
         run_table((Row("x", "bqp", {"zetaa": 1.0}),), [tiny()], tmp_path / "t", progress=False)
@@ -705,6 +723,13 @@ def test_compare_runs_every_row_on_a_folder_of_mot_sequences(generated, tmp_path
     assert main(argv) == 0
     assert ran == [str(mine / "b")] * 4
     assert len(json.loads((out / "cells.json").read_text())["cells"]) == 12
+
+    # --frames past the sequences' 10 frames finds the cells of a run without it
+    monkeypatch.undo()
+    whole = [a for a in argv if a not in ("--frames", "8")]
+    assert main(whole) == 0
+    monkeypatch.setattr(experiments, "run_cell", lambda *a: pytest.fail("cell rerun"))
+    assert main([*whole, "--frames", "12"]) == 0
 
 
 def test_compare_sequences_reads_a_video_sequence_and_one_sequence_folder(generated, tmp_path):
