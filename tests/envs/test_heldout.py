@@ -245,16 +245,22 @@ def test_outputs_stay_provable_when_a_run_dies_between_record_and_renames(tmp_pa
         check_outputs(tmp_path, "r.json", ("a.md",), ours, "t")
 
 
-def test_heldout_plot_title_fits_the_narrowest_figure(tmp_path, monkeypatch):
-    """With one family (and "all") the figure is 5 in wide and its one-line title ran past
-    both edges of the PNG, cut off."""
+def test_heldout_plot_shows_both_thresholds_and_its_title_fits(tmp_path, monkeypatch):
+    """One panel per threshold the record holds (acc@5 alone was drawn before, whatever the
+    table said), and with one family (and "all") the title fits the figure (a one-line
+    title ran past both edges of the narrowest PNG)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     import crowdsim.plotting as plotting
     from envs.heldout import plot_heldout
 
-    cell = {"mean": 99.7, "std": 0.0, "n": 1}
-    block = {label: {"acc@5": cell} for label in ("defaults", "tuned")}
+    def cell(mean):
+        return {"mean": mean, "std": 0.0, "n": 1}
+
+    block = {
+        label: {"acc@5": cell(60.0 + i), "acc@15": cell(90.0 + i), "hota": cell(50.0)}
+        for i, label in enumerate(("defaults", "tuned"))
+    }
     result = {
         "labels": ["defaults", "tuned"],
         "families": {"seq8": block},
@@ -270,8 +276,11 @@ def test_heldout_plot_title_fits_the_narrowest_figure(tmp_path, monkeypatch):
     fig = figs[0]
     renderer = FigureCanvasAgg(fig).get_renderer()
     fig.tight_layout()
-    (ax,) = fig.axes
-    box = ax.title.get_window_extent(renderer)
+    box = fig._suptitle.get_window_extent(renderer)
     assert 0 <= box.x0 and box.x1 <= fig.bbox.width
-    assert "1 seed per family" in ax.get_title()
-    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["defaults", "tuned"]
+    assert "1 seed per family" in fig._suptitle.get_text()
+    assert [ax.get_ylabel() for ax in fig.axes] == ["acc@5 (%)", "acc@15 (%)"]
+    heights = [[round(b.get_height(), 1) for b in ax.patches] for ax in fig.axes]
+    assert heights == [[60.0, 60.0, 61.0, 61.0], [90.0, 90.0, 91.0, 91.0]]
+    legend = fig.axes[-1].get_legend()
+    assert [t.get_text() for t in legend.get_texts()] == ["defaults", "tuned"]
