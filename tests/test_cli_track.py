@@ -439,3 +439,22 @@ def test_demo_help_names_the_files_it_writes(capsys):
     for name in ("accuracy_curve.png", "overlay_bqp.mp4", "summary.json", "sequences/"):
         assert name in text
     assert all(f.startswith("results_") or f in text for f in demo_files())
+
+
+def test_track_video_ids_draws_the_tracks_ids(tmp_path, seq):
+    """``--video-ids`` writes each track's id beside its box: the overlay differs from the
+    one without."""
+    base = ["track", str(seq), "--tracker", "ncc", "--frames", "3", "--no-progress"]
+    videos = {}
+    for name, extra in (("plain", []), ("ids", ["--video-ids"])):
+        videos[name] = tmp_path / f"{name}.mp4"
+        argv = [*base, "--out", str(tmp_path / f"{name}.txt"), "--video", str(videos[name])]
+        assert main([*argv, *extra]) == 0
+    frames = {}
+    for name, path in videos.items():
+        cap = cv2.VideoCapture(str(path))
+        ok, frames[name] = cap.read()
+        cap.release()
+        assert ok
+    diff = np.abs(frames["ids"].astype(int) - frames["plain"]).max(-1) > 60
+    assert diff.sum() > 20  # the ids' strokes

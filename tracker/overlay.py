@@ -1,8 +1,9 @@
 """Overlay video: ground truth in green, tracks in yellow, as in the papers' figures.
 
-Each point is drawn as its head box (template size) with a short tail of its last positions;
-a caption at the top left gives the frame number (1-based, as the MOT files count frames) and
-the colour legend.
+Each point is drawn as its head box (template size) with a short tail of its last positions
+(not joined across frames it was absent from), tracks optionally with their ids; a caption
+at the top left gives the frame number (1-based, as the MOT files count frames) and the
+colour legend.
 Written with ``cv2.VideoWriter`` (MPEG-4 part 2, ``mp4v``) to a temporary file, then renamed,
 so that an interrupted run never leaves a truncated video that looks complete.
 """
@@ -26,13 +27,24 @@ TAIL = 8
 
 
 def draw_points(
-    frame: np.ndarray, points: np.ndarray, t: int, size: int, colour, tail: int = TAIL
+    frame: np.ndarray,
+    points: np.ndarray,
+    t: int,
+    size: int,
+    colour,
+    tail: int = TAIL,
+    ids: np.ndarray | None = None,
 ) -> None:
     """Draw, in place on ``frame`` (H, W, 3) uint8 BGR, a ``size`` px box around each point of
-    frame ``t`` of ``points`` (T, N, 2) px (NaN = absent) and its last ``tail`` frames."""
+    frame ``t`` of ``points`` (T, N, 2) px (NaN = absent) and its last ``tail`` frames, and,
+    with ``ids`` ((N,) ints), each point's id at its box's top right corner.
+
+    A tail is the point's last frames without a gap: a target that was absent is not joined
+    across the frames it missed (its tail starts again where it came back)."""
     cur = points[t]
     ok = np.isfinite(cur).all(1)
     half = size / 2.0
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.3
     for i in np.flatnonzero(ok):
         x, y = cur[i]
         cv2.rectangle(
@@ -42,13 +54,18 @@ def draw_points(
             colour,
             1,
         )
+        if ids is not None:
+            at = (int(round(x + half)) + 1, int(round(y - half)) + 3)
+            cv2.putText(frame, str(int(ids[i])), at, font, scale, colour, 1, cv2.LINE_AA)
     if tail > 1 and t > 0:
         seg = points[max(0, t - tail) : t + 1]
         good = np.isfinite(seg).all(-1)
-        for i in np.flatnonzero(ok):
-            pts = seg[good[:, i], i]
-            if len(pts) > 1:
-                cv2.polylines(frame, [np.rint(pts).astype(np.int32)], False, colour, 1)
+        # each point's frames present without a break up to t (the last row)
+        back = good[::-1]
+        run = np.where(back.all(0), len(seg), np.argmin(back, axis=0))
+        for i in np.flatnonzero(ok & (run > 1)):
+            pts = seg[len(seg) - run[i] :, i]
+            cv2.polylines(frame, [np.rint(pts).astype(np.int32)], False, colour, 1)
 
 
 def draw_caption(frame: np.ndarray, t: int, legend: Iterable[tuple[str, tuple]]) -> None:
@@ -76,6 +93,7 @@ def write_overlay(
     fps: float = 25.0,
     tail: int = TAIL,
     caption: bool = True,
+    track_ids: np.ndarray | None = None,
 ) -> Path:
     """Write ``frames`` with ground truth (green) and tracks (yellow) drawn on top.
 
@@ -93,10 +111,15 @@ def write_overlay(
     caption : bool
         Draw the frame number and the legend (``ground truth`` green, ``tracks`` yellow, each
         where given) at the top left.
+    track_ids : (N,) int, optional
+        The tracks' ids (the MOT file's), drawn beside their boxes.
     """
     path = Path(path)
     if not fps > 0:
         raise ValueError(f"fps must be > 0, got {fps!r}")
+    if track_ids is not None and (tracks is None or len(track_ids) != tracks.shape[1]):
+        got = "no tracks" if tracks is None else f"{tracks.shape[1]} tracks"
+        raise ValueError(f"track_ids: {len(track_ids)} ids for {got}")
     legend = [
         (label, colour)
         for label, colour, points in (
@@ -127,7 +150,7 @@ def write_overlay(
                 if ground_truth is not None and t < len(ground_truth):
                     draw_points(img, ground_truth, t, template_size, GREEN, tail)
                 if tracks is not None and t < len(tracks):
-                    draw_points(img, tracks, t, template_size, YELLOW, tail)
+                    draw_points(img, tracks, t, template_size, YELLOW, tail, track_ids)
                 if caption:
                     draw_caption(img, t, legend)
                 writer.write(img)

@@ -108,6 +108,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="also write an overlay MP4 of the frames tracked: ground truth green (a MOT "
         "folder's), tracks yellow, the frame number and legend at the top left",
     )
+    p.add_argument(
+        "--video-ids",
+        action="store_true",
+        help="with --video: draw each track's id (the --out file's) beside its box",
+    )
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument(
         "--evaluate",
@@ -354,6 +359,8 @@ def run(args: argparse.Namespace) -> int:
     is_folder = Path(args.input).is_dir()
     if args.evaluate and not is_folder:
         raise ValueError("--evaluate needs a sequence folder with ground truth as INPUT")
+    if args.video_ids and not args.video:
+        raise ValueError("--video-ids needs --video OVERLAY.mp4")
     inputs = {
         "INPUT": args.input,
         "--init": args.init if args.init != "detect" else None,
@@ -440,6 +447,7 @@ def run(args: argparse.Namespace) -> int:
                 tracks=result.positions,
                 ground_truth=gt_pts,
                 fps=getattr(src, "frame_rate", 25.0),
+                track_ids=result.ids if args.video_ids else None,
             )
     stages = ", ".join(f"{k} {v:.1f} ms" for k, v in run.stage_ms.items())
     speed = f"{run.fps:.1f} frames/s" + (f" ({stages} per frame)" if stages else "")

@@ -728,6 +728,7 @@ case(
     f"{T} --out {{w}}/r.txt --video {{afile}}/o.mp4",
     "afile&&is a file, not a folder",
 )
+case("track-video-ids-alone", f"{T} --out {{w}}/r.txt --video-ids", "--video-ids needs --video")
 case(
     "track-evaluate-video",
     "track {w}/v.mp4 --evaluate --out {w}/r.txt",

@@ -127,3 +127,38 @@ def test_an_odd_sized_frame_keeps_its_last_column_and_row(tmp_path):
     yellow = (got[0][:, :, 1] > 150) & (got[0][:, :, 2] > 150) & (got[0][:, :, 0] < 120)
     assert yellow[110:121, 160].sum() >= 8 and yellow[120, 150:161].sum() >= 8
     assert np.abs(got[0][20:110, 10:150].astype(int) - 90).max() < 20  # the frame itself
+
+
+def test_a_tail_is_not_joined_across_frames_its_target_missed():
+    """A target absent for a frame and back 80 px on: its tail starts again where it came
+    back (a line was drawn across the frames it missed, as if it had walked there)."""
+    pts = np.full((6, 1, 2), np.nan)
+    pts[:3, 0] = [[20.0, 50.0], [22.0, 50.0], [24.0, 50.0]]
+    pts[4:, 0] = [[100.0, 50.0], [102.0, 50.0]]
+    img = np.zeros((100, 160, 3), np.uint8)
+    overlay.draw_points(img, pts, 5, 6, overlay.YELLOW)
+    drawn = img.any(-1)
+    assert not drawn[:, 30:95].any()  # nothing between where it left and where it came back
+    assert drawn[50, 100:103].all()  # its tail since it came back
+    whole = pts.copy()
+    whole[3, 0] = [60.0, 50.0]  # present throughout: the whole tail is drawn
+    img[:] = 0
+    overlay.draw_points(img, whole, 5, 6, overlay.YELLOW)
+    assert img[50, 30:95].any(-1).all()
+
+
+def test_track_ids_are_drawn_beside_their_boxes(tmp_path):
+    """``track_ids`` writes each track's id at its box's top right corner; without them
+    nothing is drawn there. A count that does not match the tracks is refused by name."""
+    pts = np.array([[[40.0, 50.0]]])
+    bare = np.zeros((100, 160, 3), np.uint8)
+    overlay.draw_points(bare, pts, 0, 12, overlay.YELLOW)
+    named = bare.copy()
+    overlay.draw_points(named, pts, 0, 12, overlay.YELLOW, ids=np.array([47]))
+    beside = np.s_[36:50, 47:70]  # right of the box's top edge (x 46, y 44)
+    assert not bare[beside].any() and named[beside].any(-1).sum() > 10
+    assert np.array_equal(named[:, :46], bare[:, :46])  # the box itself is the same
+    frames = [np.zeros((100, 160, 3), np.uint8)]
+    with pytest.raises(ValueError, match="track_ids: 2 ids for 1 tracks"):
+        overlay.write_overlay(tmp_path / "v.mp4", frames, 12, tracks=pts, track_ids=[1, 2])
+    assert not (tmp_path / "v.mp4").exists()
