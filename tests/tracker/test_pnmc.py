@@ -323,6 +323,47 @@ def test_flow_select_last_takes_every_patch_within_the_radius_at_t_minus_1():
         flow.near_many(centres, 9.0, "first")
 
 
+def _one_visit(wts: np.ndarray, weight_scale: float) -> np.ndarray:
+    """Target 0's new position after one visit of Algorithm 1 (:func:`_propagate`) on a flat
+    likelihood, its neighbours 1 and 2 already updated: 1 was 10 px away and moved 3 px
+    away from it, 2 was 10.5 px away and moved 3 px towards it."""
+    from tracker.pnmc.tracker import _propagate
+
+    prev = np.array([[50.0, 50.0], [60.0, 50.0], [50.0, 39.5]])
+    new = prev.copy()
+    new[1] += [3.0, 0.0]
+    new[2] += [0.0, 3.0]
+    k = 21
+    d = np.arange(k, dtype=np.float64) - k // 2
+    lik = np.ones((3, k, k))
+    gx = prev[:, :1] + d[None]
+    gy = prev[:, 1:] + d[None]
+    updated = np.array([False, True, True])
+    queued = np.array([True, False, False])
+    queue = np.zeros(3, np.int64)
+    cursor = np.array([0, 1, 0, 2], np.int64)
+    _propagate(
+        lik, gx, gy, prev.copy(), prev, np.full(3, 1e-9), np.array([0, 2, 2, 2]),
+        np.array([1, 2]), wts, weight_scale, np.zeros(3, np.bool_), np.arange(3), 2.0,
+        False, np.zeros(3, np.bool_), np.full(3, -1), np.full(3, -1.0), new, np.zeros(3),
+        np.full(3, 0.5), updated, queued, np.zeros(3, np.int64), np.zeros(3, np.bool_),
+        np.zeros(3, np.int64), queue, cursor,
+    )  # fmt: skip
+    assert updated.all()
+    return new[0]
+
+
+def test_neighbour_weights_updated_measures_the_neighbours_at_t():
+    """Eq. 3 at ``t - 1`` (the default) weighs neighbour 1 (10 px then) over 2 (10.5 px): the
+    target takes 1's motion. The paper's form measures the updated neighbours at ``t``: 2,
+    now 7.5 px from the target's last position against 1's 13, takes the weight."""
+    e = np.exp(-np.array([0.0, 0.5]))  # PNMCTracker._graph's weights, weight_scale 1
+    assert np.array_equal(_one_visit(e / e.sum(), 0.0), [53.0, 50.0])
+    assert np.array_equal(_one_visit(e / e.sum(), 1.0), [50.0, 53.0])
+    # the weights of the paper's form do not come from the graph's
+    assert np.array_equal(_one_visit(np.array([1.0, 0.0]), 1.0), [50.0, 53.0])
+
+
 def test_flow_recovers_a_translation():
     rng = np.random.default_rng(0)
     tex = rng.integers(0, 255, (80, 100, 3)).astype(np.uint8)
@@ -470,6 +511,7 @@ CHANGES = {
     "prior_sigma": 0.2,
     "weight_scale": 20.0,
     "neighbour_radius": 1.0,
+    "neighbour_weights": "updated",
     "use_neighbours": False,
     "use_flow": False,
     "n_clusters": 3,
@@ -625,6 +667,7 @@ def test_births_reselect_queens_and_copy_is_independent():
         ("flow_frames", 1),
         ("weight_scale", float("nan")),
         ("flow_select", "first"),
+        ("neighbour_weights", "now"),
         ("update_every", 0),
         ("seed", -1),
     ],

@@ -14,6 +14,8 @@ from tracker.pnmc.flow import SELECT_BY
 from tracker.pnmc.queens import QUEEN_ORDERS
 
 QUEEN_MODES: tuple[str, ...] = ("prominence", "random")
+NEIGHBOUR_WEIGHTS: tuple[str, ...] = ("previous", "updated")
+"""The positions Eq. 3's weights measure (``PNMCParams.neighbour_weights``)."""
 """How queens are chosen: Algorithm 1, or at random in the same number (the paper's Fig. 13
 ablation "NMC with randomly initialised queens")."""
 
@@ -40,6 +42,15 @@ class PNMCParams:
     neighbour_radius : float
         Radius of the neighbour graph ``G = (V, E)`` (Sec. 3.4, "neighbours within a fixed
         radius"), template sizes.
+    neighbour_weights : str
+        Which positions Eq. 3's weights ``w_j`` of the neighbours' Gaussians in ``p_N``
+        measure. ``"previous"`` (default, kept so no figure moves): every neighbour's and the
+        target's at ``t - 1``, once a frame, normalised over the target's neighbours.
+        ``"updated"``: the paper's form (Sec. 3.2, Fig. 4: the target "at time t-1 ... its
+        updated neighbors ... at time t"), ``||x_j^t - x_i^{t-1}||`` for each neighbour
+        already updated, normalised over all its neighbours, those not yet updated at
+        ``t - 1``. At ``weight_scale = 1`` px the weight goes mostly to the nearest
+        neighbour, so the two can pick different neighbours to follow.
     use_neighbours : bool
         Use ``p_N`` (Eq. 2, 5). ``False``: every target is predicted by ``p_S`` alone (the
         paper's Fig. 13 "self component only").
@@ -137,6 +148,7 @@ class PNMCParams:
     prior_sigma: float = 0.5
     weight_scale: float = 1.0
     neighbour_radius: float = 2.5
+    neighbour_weights: str = "previous"
     use_neighbours: bool = True
     use_flow: bool = True
     n_clusters: int = 100
@@ -171,6 +183,7 @@ class PNMCParams:
         require_number(o, "prior_sigma", self.prior_sigma, lo=0, lo_open=True, hi=20)
         require_number(o, "weight_scale", self.weight_scale, lo=0, lo_open=True)
         require_number(o, "neighbour_radius", self.neighbour_radius, lo=0, hi=20)
+        require_choice(o, "neighbour_weights", self.neighbour_weights, NEIGHBOUR_WEIGHTS)
         require_choice(o, "use_neighbours", self.use_neighbours, (True, False))
         require_choice(o, "use_flow", self.use_flow, (True, False))
         require_number(o, "n_clusters", self.n_clusters, lo=1, hi=1_000, integer=True)

@@ -188,6 +188,7 @@ def _propagate(
     indptr,
     nbr,
     wts,
+    weight_scale,
     queens,
     seeds,
     sig2,
@@ -214,7 +215,9 @@ def _propagate(
     confident and the first falls short of ``tau`` (Eq. 9), and is updated once its
     confidence reaches its ``tau`` or it has waited ``len(neighbours) + 2`` visits; else its
     ``tau`` drops to its confidence and it queues again. Updated targets queue their
-    unqueued neighbours.
+    unqueued neighbours. The neighbours' weights are ``wts`` (Eq. 3 at ``t - 1``) when
+    ``weight_scale`` is 0, else Eq. 3 on their positions at the visit with that length unit
+    (``PNMCParams.neighbour_weights = "updated"``).
 
     Returns -1 when every target is updated, or a target whose flow prior is needed and not
     known yet (``flow_done`` false), without changing any state: the caller fills
@@ -247,13 +250,33 @@ def _propagate(
         mus[0, 1] = pred[i, 1]
         ws[0] = ws_self[i]
         if m > 1:
+            if weight_scale > 0.0:  # Eq. 3 on the neighbours' positions now (``new``: the
+                # updated ones' at t, the others' still at t - 1), normalised over them all
+                near = np.inf
+                for q in range(a, z):
+                    j = nbr[q]
+                    dx = new[j, 0] - prev[i, 0]
+                    dy = new[j, 1] - prev[i, 1]
+                    near = min(near, np.sqrt(dx * dx + dy * dy))
+                total = 0.0
+                for q in range(a, z):
+                    j = nbr[q]
+                    dx = new[j, 0] - prev[i, 0]
+                    dy = new[j, 1] - prev[i, 1]
+                    total += np.exp(-(np.sqrt(dx * dx + dy * dy) - near) / weight_scale)
             r = 1
             for q in range(a, z):
                 j = nbr[q]
                 if updated[j]:
                     mus[r, 0] = prev[i, 0] + (new[j, 0] - prev[j, 0])
                     mus[r, 1] = prev[i, 1] + (new[j, 1] - prev[j, 1])
-                    ws[r] = wts[q]
+                    if weight_scale > 0.0:
+                        dx = new[j, 0] - prev[i, 0]
+                        dy = new[j, 1] - prev[i, 1]
+                        d = np.sqrt(dx * dx + dy * dy)
+                        ws[r] = np.exp(-(d - near) / weight_scale) / total
+                    else:
+                        ws[r] = wts[q]
                     r += 1
         b = _map_cell(lik[i], gx[i], gy[i], mus, ws, sig2)
         c = lik[i, b // k, b % k]
@@ -555,7 +578,9 @@ class PNMCTracker(Tracker):
         queued[queens] = True
         cursor = np.array([0, len(queens), 0, 0], np.int64)  # head, size, seed, updated
         seeds = np.argsort(-peak, kind="stable")
-        args = (lik, gxf, gyf, pred, prev, ws_self, indptr, nbr, wts, self.queens, seeds, sig2)
+        scale = p.weight_scale if p.neighbour_weights == "updated" else 0.0
+        args = (lik, gxf, gyf, pred, prev, ws_self, indptr, nbr, wts, scale)
+        args += (self.queens, seeds, sig2)
         state = (new, conf, tau, updated, queued, visits, used_flow, order, queue, cursor)
         while True:
             i = _propagate(*args, bool(p.use_flow), flow_done, flow_cell, flow_conf, *state)
