@@ -78,11 +78,58 @@ def atomic_path(path: str | os.PathLike[str], suffix: str | None = None) -> Iter
     try:
         yield tmp
         os.chmod(tmp, _MODE)
+        _require_unchanged_since_checked(path)
         os.replace(tmp, path)
+        _note_replaced(path)
     except OSError as exc:
         raise _retarget(exc, tmp, path) from None
     finally:
         tmp.unlink(missing_ok=True)
+
+
+_CHECKED: dict[Path, tuple[int, int, int] | None] = {}
+"""The outputs :func:`require_replaceable` let this process write, with their state then
+(``None``: no file); :func:`atomic_path` replaces one only while it is still so."""
+_KEPT: set[Path] = set()
+"""Outputs a file appeared at (or changed) after the check: kept, never noted as ours."""
+
+
+def _require_unchanged_since_checked(path: Path) -> None:
+    """Refuse (``FileExistsError`` naming ``path``) to replace a checked output whose file
+    appeared or changed since :func:`require_replaceable` allowed it: a file the user put
+    there while the work ran is theirs, and is kept."""
+    key = path.absolute()
+    if key in _CHECKED and _stamp(key) != _CHECKED[key]:
+        _KEPT.add(key)
+        raise FileExistsError(  # no errno: the message is whole (describe_os_error)
+            f"{path}: a file appeared there (or changed) while crowdsim ran; it is kept and "
+            "this output is not written (choose another path, or move that file and run again)"
+        )
+
+
+def note_checked(*paths: str | os.PathLike[str]) -> None:
+    """Note that a check before the work let this process replace ``paths`` as they are now
+    (:func:`envs.outputs.check_outputs` does, for a folder's outputs): :func:`atomic_path`
+    then refuses to replace one whose file appeared or changed meanwhile."""
+    for path in paths:
+        key = Path(path).absolute()
+        _CHECKED[key] = _stamp(key)
+
+
+def require_unchanged(*paths: str | os.PathLike[str]) -> None:
+    """Refuse (``FileExistsError`` naming the path) when one of ``paths`` was checked and a
+    file appeared there or changed since: for a writer that must know before it commits
+    (:func:`envs.outputs.write_outputs` writes its record before its renames)."""
+    for path in paths:
+        _require_unchanged_since_checked(Path(path))
+
+
+def _note_replaced(path: Path) -> None:
+    """After this process renamed its file into place at a checked output: that file is the
+    state the next write of the same output may replace."""
+    key = path.absolute()
+    if key in _CHECKED:
+        _CHECKED[key] = _stamp(key)
 
 
 def _retarget(exc: OSError, tmp: Path | None, path: Path) -> OSError:
@@ -195,15 +242,24 @@ def require_replaceable(flag: str, path: str | os.PathLike[str], overwrite: bool
     """Check, before any work, that the file the user named with ``flag`` may be written:
     it can be written (:func:`crowdsim.checks.require_output_file`), and it is new, or
     crowdsim wrote it (its digest is in the folder's :data:`LEDGER`), or ``overwrite``.
-    Raises ``ValueError`` naming ``flag`` and the path otherwise; returns the path."""
+    Raises ``ValueError`` naming ``flag`` and the path otherwise; returns the path.
+
+    Without ``overwrite`` the check holds until the write: :func:`atomic_path` refuses to
+    replace the file if one appeared there, or it changed, while the work ran (the user's,
+    then, and kept)."""
     from crowdsim.checks import require_output_file
 
     p = require_output_file(flag, path)
-    if overwrite or not os.path.lexists(p):
+    if overwrite:
+        _CHECKED.pop(p.absolute(), None)
+        return p
+    if not os.path.lexists(p):
+        _CHECKED[p.absolute()] = None
         return p
     if p.is_file():
         listed = (_ledger(p.parent) or {}).get(p.name)
         if listed is not None and listed == sha256_file(p):
+            _CHECKED[p.absolute()] = _stamp(p)
             return p
     raise ValueError(
         f"{flag} {p}: the file exists and crowdsim cannot prove it wrote it; refusing to "
@@ -332,13 +388,18 @@ def recorded(*paths: str | os.PathLike[str]) -> Iterator[None]:
     So a Ctrl-C, SIGTERM or error after one output was renamed into place (before the next
     was written) never leaves a file crowdsim wrote but cannot prove it wrote; the outputs
     were checked with :func:`require_replaceable` before the work, so whatever changed there
-    is this run's. The notes are taken with the signals held (:func:`signals_held`)."""
+    is this run's, but for a file that appeared there meanwhile, which :func:`atomic_path`
+    kept. The notes are taken with the signals held (:func:`signals_held`)."""
     files = [Path(p) for p in paths]
     before = [_stamp(p) for p in files]
     try:
         yield
     finally:
-        changed = [p for p, b in zip(files, before, strict=True) if _stamp(p) not in (None, b)]
+        changed = [
+            p
+            for p, b in zip(files, before, strict=True)
+            if _stamp(p) not in (None, b) and p.absolute() not in _KEPT
+        ]
         if changed:
             with signals_held():
                 record_written(*changed)

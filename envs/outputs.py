@@ -38,7 +38,14 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
-from crowdsim.atomic import atomic_path, sha256_file, signals_held, write_text_atomic
+from crowdsim.atomic import (
+    atomic_path,
+    note_checked,
+    require_unchanged,
+    sha256_file,
+    signals_held,
+    write_text_atomic,
+)
 from crowdsim.checks import require_output_dir
 
 
@@ -74,7 +81,9 @@ def check_outputs(
     """Refuse (``ValueError`` naming ``flag`` and the file) to go on when ``out`` holds
     ``record`` or one of ``owned`` that this program cannot prove it wrote (see the module
     docstring); a folder that cannot be made or written (under a regular file, read-only)
-    and a folder where a file is expected are refused too. Reads only.
+    and a folder where a file is expected are refused too. Reads only; what it vouched for
+    holds until :func:`write_outputs` (:func:`crowdsim.atomic.note_checked`): a file put at
+    one of those paths while the work runs is kept, and the write refused naming it.
 
     ``earlier(out)``: where there is no record, whether ``out`` is a folder that a release
     from before the record wrote (its own files then vouch for the outputs beside them, as a
@@ -103,6 +112,8 @@ def check_outputs(
             continue
         if doc is None or sha256_file(p) not in listed.get(name, set()):
             raise _refuse(p, what, flag)
+    # what was vouched for holds until the write: a file put there meanwhile is kept
+    note_checked(rec_path, *(out / name for name in owned))
 
 
 def claim_folder(
@@ -164,6 +175,7 @@ def write_outputs(
         # from the record to the last rename, a Ctrl-C or SIGTERM waits: the record is
         # never left without the outputs it lists
         held.enter_context(signals_held())
+        require_unchanged(*(out / name for name in outputs))  # before the record commits
         write_text_atomic(out / record, json.dumps(full, indent=2) + "\n")
     # leaving the stack renamed every output into place (the record already lists them)
     return {name: out / name for name in (*outputs, record)}

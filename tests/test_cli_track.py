@@ -458,3 +458,38 @@ def test_track_video_ids_draws_the_tracks_ids(tmp_path, seq):
         assert ok
     diff = np.abs(frames["ids"].astype(int) - frames["plain"]).max(-1) > 60
     assert diff.sum() > 20  # the ids' strokes
+
+
+@pytest.mark.parametrize("before", ["none", "ours"])
+def test_a_file_put_at_out_while_tracking_is_kept(tmp_path, seq, capsys, monkeypatch, before):
+    """``--out`` is checked before the work; a file the user puts there (or an edit of
+    crowdsim's own) while the frames are tracked is theirs: kept, the run ends with one
+    line and exit 2, and the ledger does not vouch for it."""
+    import tracker.runner
+    from crowdsim.atomic import LEDGER, sha256_file
+
+    out = tmp_path / "res.txt"
+    argv = ["track", str(seq), "--tracker", "ncc", "--frames", "3", "--no-progress"]
+    argv += ["--out", str(out)]
+    if before == "ours":
+        assert main(argv) == 0
+    real = tracker.runner.run_tracker
+
+    def tracked_while_the_user_writes(*a, **k):
+        run = real(*a, **k)
+        out.write_text("my notes\n")
+        return run
+
+    monkeypatch.setattr(tracker.runner, "run_tracker", tracked_while_the_user_writes)
+    capsys.readouterr()
+    assert main(argv) == 2
+    line = _error_line(capsys, "track")
+    assert "res.txt" in line and "appeared there (or changed) while crowdsim ran" in line
+    assert out.read_text() == "my notes\n"
+    ledger = tmp_path / LEDGER
+    listed = json.loads(ledger.read_text())["files"] if ledger.exists() else {}
+    assert listed.get("res.txt") != sha256_file(out)
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".res")] == []
+    monkeypatch.undo()
+    assert main(argv) == 2  # and a rerun still cannot prove it wrote it
+    assert "cannot prove it wrote it" in _error_line(capsys, "track")

@@ -183,3 +183,27 @@ def test_a_folder_holding_only_a_killed_writes_temporary_files_counts_as_empty(t
     assert not holds_only_leftovers(tmp_path)
     with pytest.raises(ValueError, match="did not make"):
         _check_out(tmp_path, TrainConfig())
+
+
+def test_a_checked_output_is_replaced_only_while_it_is_as_checked(tmp_path):
+    """``require_replaceable`` vouches for the state of the output at the check: this run may
+    write it (again and again: each write is the state the next may replace), but a file
+    that appears there, or an edit, in between is kept and the write refused by name."""
+    out = tmp_path / "table.md"
+    require_replaceable("--out", out)
+    write_text_atomic(out, "one")
+    write_text_atomic(out, "two")  # the run's own file, rewritten
+    out.write_text("my edit")
+    with pytest.raises(FileExistsError, match="table.md: a file appeared there"):
+        write_text_atomic(out, "three")
+    assert out.read_text() == "my edit"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["table.md"]  # no temporary left
+    new = tmp_path / "new.md"
+    require_replaceable("--out", new)
+    new.write_text("mine")  # appeared during the work
+    with pytest.raises(FileExistsError, match="new.md: a file appeared there"):
+        write_text_atomic(new, "ours")
+    assert new.read_text() == "mine"
+    require_replaceable("--out", new, overwrite=True)  # the user says replace it
+    write_text_atomic(new, "ours")
+    assert new.read_text() == "ours"

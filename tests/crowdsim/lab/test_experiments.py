@@ -898,3 +898,24 @@ def test_a_sequences_digest_follows_its_files_without_decoding_them(generated, t
     assert third not in (first, second)
     (seq / "img1" / "000010.jpg").unlink()
     assert sequence_digest(read_sequence(seq)) not in (first, second, third)
+
+
+def test_a_table_put_at_out_while_cells_run_is_kept(tmp_path, monkeypatch):
+    """The outputs are checked before the work; a ``table.md`` the user puts there while the
+    cells run is theirs: kept, the run refused by name before its record commits, and the
+    record never vouches for it."""
+    out = tmp_path / "t"
+    real = experiments.run_cell
+
+    def cell_while_the_user_writes(*a, **k):
+        (out / "table.md").write_text("my notes\n")
+        return real(*a, **k)
+
+    monkeypatch.setattr(experiments, "run_cell", cell_while_the_user_writes)
+    with pytest.raises(FileExistsError, match="table.md: a file appeared there"):
+        run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
+    assert (out / "table.md").read_text() == "my notes\n"
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".table")]
+    monkeypatch.undo()
+    with pytest.raises(ValueError, match="table.md exists and was not written by"):
+        run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
