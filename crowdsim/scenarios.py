@@ -153,8 +153,10 @@ def _check_type(scenario: str, name: str, value: Any, default: Any) -> None:
         if not math.isfinite(value):
             raise ValueError(f"{where} must be finite, got {value!r}")
     elif isinstance(default, tuple):
-        if not isinstance(value, tuple) or len(value) == 0:
+        if not isinstance(value, tuple):
             raise ValueError(f"{where} must be a list, got {value!r}")
+        if len(value) == 0:  # a list it is (an empty one): "must be a list, got ()" misled
+            raise ValueError(f"{where} must be a non-empty list, got []")
         if isinstance(default[0], str):
             if not all(isinstance(v, str) for v in value):
                 raise ValueError(f"{where} must be a list of names, got {value!r}")

@@ -102,12 +102,27 @@ def births_from_points(frames: np.ndarray, ids: np.ndarray, points: np.ndarray) 
     return init, births
 
 
-def births_from_ground_truth(ids: np.ndarray, points: np.ndarray) -> Births:
+def births_from_ground_truth(
+    ids: np.ndarray, points: np.ndarray, size: tuple[int, int] | None = None
+) -> Births:
     """Initial targets and births from ground-truth tracks ``points (T, N, 2)``, ``ids (N,)``.
 
-    Each id is born at its first present frame, at its ground-truth position there.
+    Each id is born at its first present frame, at its ground-truth position there. With
+    ``size`` (the frames' width and height), at its first frame inside the image: a real MOT
+    file annotates people partly outside it (a body box past the left edge puts its head
+    point at x < 0), and a tracker refuses a target that starts outside the image, so such a
+    person is born when the point enters (never, if it stays outside).
     """
     present = np.isfinite(points).all(-1)
+    if size is not None:
+        w, h = size
+        with np.errstate(invalid="ignore"):
+            present &= (
+                (points[..., 0] >= 0)
+                & (points[..., 0] <= w - 1)
+                & (points[..., 1] >= 0)
+                & (points[..., 1] <= h - 1)
+            )
     has = present.any(0)
     first = np.where(has, present.argmax(0), -1)
     init_sel = first == 0

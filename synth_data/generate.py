@@ -190,6 +190,12 @@ def generate(
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out must be a folder, got the file {str(out)!r}")
+    for folder in (out, *out.absolute().parents):  # a manifest, its lock and sequences put
+        if (folder / "seqinfo.ini").is_file():  # into a sequence made it no longer ours
+            raise ValueError(
+                f"--out {str(out)!r} lies in a sequence folder, {str(folder)!r} (it holds "
+                "seqinfo.ini); give a folder of its own, beside the sequences"
+            )
     read_manifest_of(out)  # a manifest.json that is not crowdsim's: refused before any work
     fresh = (
         not out.exists(),

@@ -551,7 +551,7 @@ class MotSequence:
                 "points.csv (rows frame,id,x,y), or --init detect to start from the heads "
                 "the detector finds"
             )
-        return births_from_ground_truth(gt_ids, gt_pts)
+        return births_from_ground_truth(gt_ids, gt_pts, (self.width, self.height))
 
     def agents(self) -> dict[str, np.ndarray]:
         """Columns of ``gt/agents.csv`` as int64 arrays (empty dict when absent)."""

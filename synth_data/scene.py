@@ -23,6 +23,10 @@ EXTENT_PERCENTILE = 1.0
 """The camera frames the 1st to 99th percentile of the crowd's positions on each axis."""
 SETTLE_S = 3.0
 """Seconds after entering and before leaving during which positions do not set the frame."""
+BYTES_PER_AGENT_STEP = 80
+"""Working set of a spec per (simulated step, person): the recorder's rows (24 B), the dense
+trajectories (16 B), the kept frames' copy (16 B), the camera's pixel tracks (16 B) and the
+drawn visibility (8 B)."""
 
 
 def simulate(spec: SequenceSpec) -> Any:
@@ -39,6 +43,7 @@ def simulate(spec: SequenceSpec) -> Any:
     if abs(sf.dt - 1.0 / spec.fps) > 1e-12:
         sf = replace(sf, dt=1.0 / spec.fps)
     sim = Simulation(scenario, seed=spec.seed, params=sf)
+    check_memory(spec, sim)
     crowd = of_kind(spec.events, CROWD_EVENTS)
     if crowd:
         traj = _run_with_events(sim, spec, crowd)
@@ -54,6 +59,34 @@ def simulate(spec: SequenceSpec) -> Any:
         dt=traj.dt,
         attributes={k: v[keep] for k, v in traj.attributes.items()},
         meta=meta,
+    )
+
+
+def check_memory(spec: SequenceSpec, sim: Any) -> None:
+    """Refuse, before the first step, a spec whose trajectories cannot fit in memory: they
+    are dense, one column per person ever present (a spec of 1,000,000 frames and 2,000
+    people was simulated for hours, its memory growing, before any check). People the
+    scenario's inflow brings count, at the strongest surge's rate."""
+    from crowdsim.checks import require_memory
+
+    steps = spec.warmup_steps + spec.frames
+    seconds = steps * sim.params.dt
+    factor = np.ones(spec.frames)  # the surges' product on each frame
+    for e in spec.events:
+        if e.kind == "surge":
+            factor[e.mask(spec.frames)] *= e.magnitude
+    surge = float(factor.max())
+    arrivals = surge * sum(
+        float(src.rate) * max(0.0, min(float(src.stop), seconds) - max(float(src.start), 0.0))
+        for src in sim.sources
+    )
+    people = len(sim.state.ids) + arrivals
+    inflow = f", about {arrivals:,.0f} more from the inflow" if arrivals > 0 else ""
+    require_memory(
+        f"{spec.source or spec.name}: frames = {spec.frames} (+ warmup_steps = "
+        f"{spec.warmup_steps}) with scenario.n_agents = {spec.scenario.get('n_agents')}"
+        f"{inflow} ({people:,.0f} people)",
+        float(BYTES_PER_AGENT_STEP) * steps * people,
     )
 
 

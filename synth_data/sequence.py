@@ -393,7 +393,7 @@ class InMemorySequence:
             return self._init
         if len(self._ids) == 0:
             raise ValueError(f"{self.name}: no ground truth to start the targets from")
-        return births_from_ground_truth(self._ids, self._points)
+        return births_from_ground_truth(self._ids, self._points, (self.width, self.height))
 
 
 # ---------------------------------------------------------------------------- factories

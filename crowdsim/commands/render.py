@@ -210,6 +210,12 @@ def run(args: argparse.Namespace) -> int:
     if not out.name or out.name in (".", ".."):
         raise ValueError(f"--out must name a folder, got {args.out!r}")
     require_output_dir("--out", out)
+    for folder in out.absolute().parents:  # a sequence in a sequence: the outer one is no
+        if (folder / "seqinfo.ini").is_file():  # longer provably ours, nor plain MOT
+            raise ValueError(
+                f"--out {args.out!r} lies in a sequence folder, {str(folder)!r} (it holds "
+                "seqinfo.ini); give a folder of its own, beside that sequence"
+            )
     # first the leftovers of killed renders: a sequence a killed --overwrite had moved aside
     # takes its name back before the name is checked
     for p in clean_stale_tmp(out.parent):

@@ -58,6 +58,11 @@ case(
     SIM1.format("station", "pillar_spacing=0.01"),
     "station.pillar_spacing must be 0 (no pillars) or >= 1.4 m",
 )
+case(  # the list given is a list, an empty one: "must be a list, got ()" misled
+    "sim-kinds-empty",
+    SIM1.format("anomalies", "kinds=[]"),
+    "anomalies.kinds must be a non-empty list, got []",
+)
 case(
     "sim-speed-huge",
     SIM1.format("circulation", "speed_mean=1e9"),
@@ -223,6 +228,11 @@ case(
     "render-seed-neg",
     "render --trajectories {csv} --fps 10 --seed -1 --out {w}/seq",
     "--seed must be in [0, 2**63), got -1",
+)
+case(  # a sequence written into another one: the outer one no longer provably crowdsim's
+    "render-out-in-sequence",
+    "render --trajectories {csv} --fps 10 --out {seq}/gt/inner",
+    "lies in a sequence folder",
 )
 case("render-seed-huge", "render --trajectories {csv} --fps 10 --seed 1e3 --out {w}/seq", "'1e3'")
 case(
@@ -839,6 +849,11 @@ spec_case(
     "must be in [8, 8192], got 16384",
 )
 spec_case("gen-toml-broken", _sub("seed = 1", "seed = = 1"), "s.toml")
+spec_case(  # dense trajectories of 1e6 frames x 2000 people: refused, not simulated for hours
+    "gen-frames-agents-memory",
+    lambda t: _sub("n_agents = 6", "n_agents = 2000")(_sub("frames = 4", "frames = 1000000")(t)),
+    "s.toml: frames = 1000000 (+ warmup_steps = 0) with scenario.n_agents = 2000",
+)
 spec_case(
     "gen-ppm-1e9",
     _sub("[camera]", "[camera]\npx_per_m = 1e9"),
@@ -883,6 +898,11 @@ case(
 )
 case(
     "gen-out-under-file", "generate --spec {spec} --out {afile}/x", "afile is a file, not a folder"
+)
+case(  # a manifest, its lock and a sequence written into a sequence: no longer provably ours
+    "gen-out-in-sequence",
+    "generate --spec {spec} --out {seq} --workers 1 --no-progress",
+    "lies in a sequence folder",
 )
 case("gen-out-sysfs", "generate --spec {spec} --out /sys/crowdsim-battery", "/sys/crowdsim-battery")
 case(
