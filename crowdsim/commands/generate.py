@@ -69,6 +69,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import sys
+    from pathlib import Path
 
     from crowdsim.jobs import Interrupted
     from synth_data.generate import GenerationError, clean_stale_tmp, generate
@@ -81,6 +82,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
     if args.address and args.backend != "ray":
         raise ValueError(f"--address needs --backend ray, got --address {args.address!r}")
+    for f in args.spec or ():
+        if Path(f).is_dir():  # a folder of spec files is a suite
+            raise ValueError(f"--spec {f}: is a folder; a folder of spec files is --suite {f}")
     specs = suite_specs(args.suite, args.only) if args.suite else [load_spec(f) for f in args.spec]
     specs = [s.truncated(args.frames) for s in specs]
     workers = args.workers if args.workers is not None else min(os.cpu_count() or 1, len(specs))

@@ -897,6 +897,11 @@ case(
     "--out must be a folder, got the file",
 )
 case(
+    "gen-spec-folder",
+    "generate --spec {w} --out {w}/x",
+    "is a folder; a folder of spec files is --suite",
+)
+case(
     "gen-out-under-file", "generate --spec {spec} --out {afile}/x", "afile is a file, not a folder"
 )
 case(  # a manifest, its lock and a sequence written into a sequence: no longer provably ours
