@@ -84,7 +84,9 @@ class Objective:
     frames : int, optional
         Frames per sequence.
     train_episodes : int
-        Episodes every trial is scored on (the first ones of stream 0; all of a suite's).
+        Episodes every trial is scored on: the first ones of stream 0, or of the suite's
+        sequences (a suite of more is scored on its first ``train_episodes``, which
+        :func:`tune` says).
     threshold_px : float
         Accuracy threshold T, px.
     extended : bool
@@ -124,6 +126,8 @@ class Objective:
             object.__setattr__(self, "scenarios", ScenarioDistribution.from_dict(self.scenarios))
         if self.suite is not None:
             object.__setattr__(self, "suite", _resolved_suite(str(self.suite)))
+        if isinstance(self.scenarios, str):
+            object.__setattr__(self, "scenarios", _resolved_scenarios(self.scenarios))
 
     def episodes(self, heldout: bool = False, cache: int = 0) -> EpisodeSource:
         """Training (stream 0) or held-out episodes."""
@@ -248,6 +252,13 @@ def storage_url(study: str | None, out: Path) -> str:
     s = str(study)
     if s.startswith("journal:"):
         return s
+    if s.split("?", 1)[0] in ("sqlite://", "sqlite:///", "sqlite:///:memory:"):
+        # each connection would get its own empty database: the workers and the heartbeat
+        # thread would see no study, and nothing would be left to resume
+        raise ValueError(
+            f"--study {s}: an in-memory SQLite study cannot be shared with the trial workers "
+            "or resumed; give a file (sqlite:///study.db)"
+        )
     if "://" in s:
         return s
     if s.endswith((".log", ".journal", ".jsonl")):
@@ -262,6 +273,8 @@ def storage_url(study: str | None, out: Path) -> str:
 
 def _check_sqlite(path: Path) -> None:
     """Refuse a file that is not SQLite, or an SQLite database that is not an Optuna study."""
+    if path.is_dir():  # SQLite would only say "disk I/O error"
+        raise ValueError(f"--study {path}: is a folder, not an SQLite file")
     if not path.exists() or path.stat().st_size == 0:
         return
     try:
@@ -478,6 +491,8 @@ def _comparable(signature: Any) -> Any:
     if isinstance(objective.get("suite"), str):
         # a study from before suite folders were stored resolved holds the path as typed
         objective["suite"] = _resolved_suite(objective["suite"])
+    if isinstance(objective.get("scenarios"), str):  # and scenarios files likewise
+        objective["scenarios"] = _resolved_scenarios(objective["scenarios"])
     return {**signature, "objective": objective}
 
 
@@ -490,6 +505,15 @@ def _resolved_suite(suite: str) -> str:
     if suite not in SUITE_NAMES and Path(suite).is_dir():
         return str(Path(suite).resolve())
     return suite
+
+
+def _resolved_scenarios(scenarios: str) -> str:
+    """A scenarios file's absolute path, as :func:`_resolved_suite` does for suite folders:
+    ``d.json`` and ``./d.json``, or the file named from another working folder, are one
+    objective (a resume had been refused as "another objective"), and Ray Tune, which runs
+    each trial in a folder of its own, finds it. Names and comma lists stay as they are."""
+    path = Path(scenarios.strip())
+    return str(path.resolve()) if path.is_file() else scenarios
 
 
 def _requeue_defaults(study: Any, space: ParamSpace) -> None:
@@ -793,6 +817,12 @@ def _run_ray(
             stopped_by[0] if stopped_by else "SIGINT",
             f"the study keeps its {kept} finished trial(s); the same command resumes",
         )
+    errors = [r.error for r in results if r.error is not None]
+    if errors and not complete_trials(study):  # else the caller fails on an empty max()
+        first = str(errors[0]).strip().splitlines() or [type(errors[0]).__name__]
+        raise ValueError(
+            f"--backend ray: no trial finished ({len(errors)} failed; the first: {first[-1]})"
+        )
     return study
 
 
@@ -1000,7 +1030,16 @@ def tune(
         raise ValueError(f"--out {out}: is a file, not a folder")
     url = storage_url(study, out)
     space = objective.space()
-    objective.episodes()  # validate suite / scenarios / --only before any work
+    source = objective.episodes()  # validate suite / scenarios / --only before any work
+    if objective.suite is not None and objective.n_train(source) < len(source):
+        # said, never in silence: --only seq1 .. seq9 had tuned on the first three alone
+        names = [str(getattr(source.spec(i), "name", i)) for i in range(len(source))]
+        n = objective.n_train(source)
+        log(
+            f"--train-episodes {n}: each trial scores the first {n} of the suite's "
+            f"{len(source)} sequences ({', '.join(names[:n])}; not {', '.join(names[n:])}); "
+            "raise --train-episodes to score them all"
+        )
     if heldout:
         objective.episodes(heldout=True)  # a suite folder needs --heldout-only: say it now
         _require_unseen(objective)

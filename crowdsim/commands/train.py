@@ -32,6 +32,9 @@ SCENE_EPISODES = 40
 """``--algo scene``'s training episodes by default."""
 SCENE_CANDIDATES = 17
 """``--algo scene``'s candidate settings by default (as ``crowdsim headroom``)."""
+PPO_STEPS = 2048
+"""``--algo ppo`` / ``sac``'s environment steps by default (``None`` on the parser, so that
+``--algo scene``, which has no steps, can tell a given ``--steps`` from the default)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -75,9 +78,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--steps",
         type=int,
-        default=2048,
+        default=None,
         metavar="N",
-        help="environment steps in total (each tracks --k frames)",
+        help=f"ppo / sac: environment steps in total (each tracks --k frames; {PPO_STEPS})",
     )
     src = p.add_mutually_exclusive_group()
     src.add_argument(
@@ -132,7 +135,11 @@ def run(args: argparse.Namespace) -> int:
             args.candidates = SCENE_CANDIDATES
         require_number("", "--candidates", args.candidates, lo=1, hi=1024, integer=True)
         require_number("", "--episodes", args.episodes, lo=1, integer=True)
+        if args.steps is not None:  # it had been ignored in silence
+            raise ValueError("--steps is for --algo ppo / sac (scene tracks --episodes episodes)")
     else:
+        if args.steps is None:
+            args.steps = PPO_STEPS
         for flag in ("--episodes", "--candidates"):
             if getattr(args, flag[2:]) is not None:
                 raise ValueError(f"{flag} is for --algo scene (ppo / sac learn from --steps)")

@@ -66,7 +66,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=int,
         default=3,
         metavar="N",
-        help="scenario sequences each trial is scored on (default 3)",
+        help="sequences each trial is scored on: the first N of the scenario stream or of "
+        "the suite's sequences (default 3)",
     )
     p.add_argument(
         "--heldout",

@@ -176,6 +176,18 @@ tune_case(
     "study.db: an SQLite database that is not an Optuna study (tables people)",
     setup=_study_db(None),
 )
+for url in ("sqlite://", "sqlite:///:memory:"):  # each connection its own empty database
+    tune_case(
+        f"study-in-memory-{url.count('/')}",
+        f"--study {url}",
+        f"--study {url}: an in-memory SQLite study cannot be shared",
+    )
+tune_case(
+    "study-sqlite-folder",
+    "--study sqlite:///{w}/s.db",
+    "s.db: is a folder, not an SQLite file",
+    files=(*D, ("s.db/x", "")),
+)
 tune_case(
     "study-journal-broken",
     "--study {w}/j.log",
@@ -864,3 +876,10 @@ for flag in ("--episodes", "--candidates"):
         f"{flag} is for --algo scene",
         files=D,
     )
+
+case(  # --algo ppo / sac's flag: never ignored in silence by --algo scene
+    "envs-train-scene--steps",
+    ["train", "--algo", "scene", "--scenarios", "{w}/d.json", "--steps", "3", "--out", "{w}/o"],
+    "--steps is for --algo ppo / sac",
+    files=D,
+)

@@ -374,6 +374,50 @@ def test_ray_backend_on_a_local_instance(tmp_path):
             ray.shutdown()
 
 
+def test_a_scenarios_file_named_another_way_resumes_its_study(tmp_path, monkeypatch):
+    """``--scenarios d.json``, then ``./d.json`` or the same file from another working folder:
+    one objective (as a suite folder is), never refused as "made for another objective"."""
+    monkeypatch.chdir(tmp_path)
+    Path("d.json").write_text(json.dumps(TINY))
+    kw = dict(out=tmp_path / "o", heldout=0, progress=False, log=lambda m: None)
+    assert tune(Objective(scenarios="d.json", train_episodes=1), trials=1, **kw).trials == 1
+    assert tune(Objective(scenarios="./d.json", train_episodes=1), trials=2, **kw).trials == 2
+    (tmp_path / "sub").mkdir()
+    monkeypatch.chdir(tmp_path / "sub")
+    assert tune(Objective(scenarios="../d.json", train_episodes=1), trials=3, **kw).trials == 3
+
+
+def test_a_suite_of_more_sequences_than_train_episodes_is_said(tmp_path):
+    """``--suite ucf9 --only seq4 seq5 seq6`` with ``--train-episodes 2``: the trials score
+    seq4 and seq5 alone, and tune says so (it had dropped seq6 in silence)."""
+    said: list[str] = []
+    obj = Objective(suite="ucf9", only=("seq4", "seq5", "seq6"), frames=3, train_episodes=2)
+    tune(obj, trials=1, out=tmp_path / "o", heldout=0, progress=False, log=said.append)
+    assert any(
+        "the first 2 of the suite's 3 sequences (seq4, seq5; not seq6)" in m for m in said
+    ), said
+
+
+def test_ray_backend_with_a_relative_scenarios_file(tmp_path, monkeypatch):
+    """Ray Tune runs each trial in a folder of its own: ``--scenarios d.json`` named relative
+    to the working folder had failed every trial, and the run had ended in "max() arg is an
+    empty sequence"."""
+    ray = pytest.importorskip("ray", reason="Ray is the distributed extra (in dev since issue 13)")
+    pytest.importorskip("ray.tune")
+    monkeypatch.chdir(tmp_path)
+    Path("d.json").write_text(json.dumps(TINY))
+    started = not ray.is_initialized()
+    if started:
+        ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    try:
+        obj = Objective(scenarios="d.json", train_episodes=1)
+        res = tune(obj, trials=1, out="o", backend="ray", heldout=0, progress=False)
+        assert res.trials == 1
+    finally:
+        if started:
+            ray.shutdown()
+
+
 @pytest.mark.skipif(os.name != "posix", reason="POSIX signals")
 @pytest.mark.parametrize("when", ["starting", "tuning"])
 def test_sigterm_under_ray_ends_with_one_line_and_143(tmp_path, when):
