@@ -1114,7 +1114,17 @@ def _tune_locked(
                 url, study_name, objective, sampler, seed, trials, workers, address, out, progress
             )
         else:
-            _run_local(url, study_name, objective, sampler, seed, trials, workers, progress, out)
+            try:
+                _run_local(
+                    url, study_name, objective, sampler, seed, trials, workers, progress, out
+                )
+            except Interrupted as exc:  # say what is kept, as a Ray run does
+                if not exc.detail:
+                    kept = len(complete_trials(st))
+                    exc.detail = (
+                        f"the study keeps its {kept} finished trial(s); the same command resumes"
+                    )
+                raise
             st = open_study(url, study_name, objective, sampler, seed, trials)
         ts = complete_trials(st)
         best = max(ts, key=lambda t: t.value)

@@ -201,6 +201,36 @@ def test_killed_run_resumes_without_losing_finished_trials(tmp_path):
     assert json.loads((out / "best_params.json").read_text())["trials"] == len(complete)
 
 
+@pytest.mark.skipif(os.name != "posix", reason="POSIX signals")
+def test_a_stopped_local_run_says_what_the_study_keeps(tmp_path):
+    """SIGTERM to a local ``tune``: one line saying the finished trials are kept and the
+    same command resumes (as a Ray run says; it said only "interrupted by SIGTERM")."""
+    out = tmp_path / "s"
+    spec = tmp_path / "tiny.json"
+    spec.write_text(json.dumps(TINY))
+    cmd = [sys.executable, "-c", "import sys; from crowdsim.cli import main; sys.exit(main())"]
+    cmd += ["tune", "--scenarios", str(spec), "--trials", "40", "--train-episodes", "1"]
+    cmd += ["--heldout", "0", "--no-progress", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 120:
+        time.sleep(0.2)
+        try:
+            if (out / "study.db").exists() and any(r[1] == "COMPLETE" for r in trials_of(out)):
+                break
+        except sqlite3.OperationalError:
+            continue
+        assert proc.poll() is None, proc.stderr.read()[-2000:]
+    os.kill(proc.pid, signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err[-2000:]
+    kept = sum(r[1] == "COMPLETE" for r in trials_of(out))
+    assert err.strip().splitlines()[-1] == (
+        f"crowdsim tune: interrupted by SIGTERM; the study keeps its {kept} finished "
+        "trial(s); the same command resumes"
+    )
+
+
 def test_journal_storage_and_cmaes(tmp_path):
     journal = tmp_path / "shared" / "study.log"
     res = tune(
