@@ -16,6 +16,9 @@ from crowdsim.checks import require_choice, require_number
 POTENTIALS = ("elliptic", "exponential")
 DEFAULT_DT: float = 0.04
 """The time step ``contact_substeps`` is set for, s (:attr:`SocialForceParams.substeps`)."""
+MAX_PYMUNK_STEPS: int = 10_000
+"""Largest ``contact_substeps`` and ``solver_iterations``: 1e20 sub-steps ran for ever, and
+pymunk takes the iterations as a C int (3e9 raised ``OverflowError`` from its first step)."""
 
 
 @dataclass(frozen=True)
@@ -107,9 +110,9 @@ class SocialForceParams:
         contact, so one step can sink two walkers meeting head-on at 2.7 m/s 0.11 m deep;
         three sub-steps keep overlaps near 10 % of the radius (two: up to 19 %). That is
         at the default ``dt`` of 0.04 s: a longer ``dt`` takes this many for each started
-        0.04 s (:attr:`substeps`).
+        0.04 s (:attr:`substeps`). At most :data:`MAX_PYMUNK_STEPS`.
     solver_iterations : int
-        pymunk contact solver iterations per step.
+        pymunk contact solver iterations per step, at most :data:`MAX_PYMUNK_STEPS`.
     """
 
     dt: float = 0.04
@@ -177,7 +180,7 @@ class SocialForceParams:
         for name in nonneg:
             require_number(own, name, getattr(self, name), lo=0)
         for name in ("solver_iterations", "contact_substeps"):
-            require_number(own, name, getattr(self, name), lo=1, integer=True)
+            require_number(own, name, getattr(self, name), lo=1, hi=MAX_PYMUNK_STEPS, integer=True)
         require_number(own, "dt", self.dt, lo=0, hi=0.2, lo_open=True)  # stable integration
         require_number(own, "fov_deg", self.fov_deg, lo=0, hi=360, lo_open=True)
         require_number(own, "headway_depth", self.headway_depth, lo=0, hi=1, lo_open=True)

@@ -209,6 +209,8 @@ class Counterflow(Scenario):
     periodic: bool = False
     inflow: bool = True
     name: ClassVar[str] = "counterflow"
+    MIN_PERIOD: ClassVar[float] = 6.5
+    """Shortest periodic corridor, m: fewer people make it this long, not denser."""
 
     def validate(self) -> None:
         self._sizes("width")
@@ -220,7 +222,7 @@ class Counterflow(Scenario):
 
     def _length(self) -> float:
         length = lattice_length(self.n_agents, self.width, self.density)
-        return max(length, 6.5 if self.periodic else 4.0)
+        return max(length, self.MIN_PERIOD if self.periodic else 4.0)
 
     def build(self, rng: np.random.Generator) -> Setup:
         n, w = self.n_agents, self.width
@@ -677,6 +679,11 @@ class Station(Scenario):
     grew (seq7: 87 people on its first frame, 111 on its last; 73 people became about 145).
     With many people (150 at 0.5 /m^2) two-way flow through the 3 m doors still jams, and
     the population grows with either layout.
+
+    The initial people are thrown at random at least ``2 radius[1] + 0.05`` m apart: a dense
+    request that does not fit (1,000 people at 1.5 /m^2, 200 at 2 /m^2) raises
+    ``ValueError`` naming the density, where it had placed fewer people than ``n_agents``
+    in silence. About 1 /m^2 fits at any ``n_agents``.
     """
 
     n_agents: int = 73
@@ -781,7 +788,14 @@ class Station(Scenario):
                 ((cand + self.pillar_spacing / 2) % self.pillar_spacing) - self.pillar_spacing / 2
             )
             cand = cand[~np.all(near < 0.9, axis=1)]
-        pos = _thin_to_min_distance(cand, 2 * self.radius[1] + 0.05, n)
+        dmin = 2 * self.radius[1] + 0.05
+        pos = _thin_to_min_distance(cand, dmin, n)
+        if len(pos) < n:  # it had started the run with fewer people, the table saying n's density
+            raise ValueError(
+                f"station.density {self.density:g} /m² is too high for n_agents {n}: only "
+                f"{len(pos)} people fit in the hall at least {dmin:g} m apart, away from the "
+                "pillars; lower the density (about 1 /m² fits at any n_agents)"
+            )
         route = rng.integers(0, self.n_doors, len(pos))
         agents = AgentBatch.create(
             pos,

@@ -105,6 +105,11 @@ def random_mix_lane_order(
     )
 
 
+FD_SPEED_FRAME_STEP = 5
+"""PedPy's ``frame_step`` for the fundamental diagram's individual speeds: a speed needs
+frames ``t`` and ``t + 5``, so a measurement shorter than 6 frames has none."""
+
+
 @dataclass
 class FDPoint:
     """One point of the fundamental diagram."""
@@ -162,10 +167,20 @@ def fundamental_diagram(
     Each corridor walks ``warmup_s`` seconds, then ``measure_s`` seconds are recorded. PedPy
     computes the classic density and the mean individual speed (``frame_step`` 5) in a 4 m
     long measurement area in the middle of the corridor. Periodic wrapping is handled by
-    giving each lap of an agent its own PedPy id.
+    giving each lap of an agent its own PedPy id. A ``measure_s`` shorter than
+    ``FD_SPEED_FRAME_STEP + 1`` steps raises ``ValueError`` (it gave a NaN speed, or a
+    pandas error with no frame at all).
     """
     import pandas as pd
     import pedpy
+
+    dt = (params or SocialForceParams()).dt
+    frames = int(round(measure_s / dt))
+    if frames < FD_SPEED_FRAME_STEP + 1:
+        raise ValueError(
+            f"measure_s must cover at least {FD_SPEED_FRAME_STEP + 1} steps of {dt:g} s "
+            f"(PedPy's speeds span {FD_SPEED_FRAME_STEP}), got {measure_s:g} s ({frames} steps)"
+        )
 
     points = []
     it = densities
@@ -213,7 +228,7 @@ def fundamental_diagram(
         dens = pedpy.compute_classic_density(traj_data=traj, measurement_area=area)
         ind = pedpy.compute_individual_speed(
             traj_data=traj,
-            frame_step=5,
+            frame_step=FD_SPEED_FRAME_STEP,
             speed_calculation=pedpy.SpeedCalculation.BORDER_SINGLE_SIDED,
         )
         speed = pedpy.compute_mean_speed_per_frame(

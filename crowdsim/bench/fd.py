@@ -68,6 +68,22 @@ def run(args: argparse.Namespace) -> int:
         flag = f"--{name.replace('_', '-')}"
         require_number("", flag, getattr(args, name), lo=0, hi=hi, lo_open=True)
     require_number("", "--seed", args.seed, lo=0, integer=True)
+    from crowdsim.scenarios import Counterflow
+
+    # a shorter corridor was built 6.5 m long, and its density reported as the target's
+    require_number("", "--length", args.length, lo=Counterflow.MIN_PERIOD)
+    width = 2 * Counterflow.radius[1] + 0.2  # the corridor's own check named counterflow.width
+    require_number("", "--width", args.width, lo=width)
+    from crowdsim.params import SocialForceParams
+    from crowdsim.validation import FD_SPEED_FRAME_STEP
+
+    dt = SocialForceParams().dt  # fewer frames gave a NaN speed, or a pandas error
+    if round(args.measure / dt) < FD_SPEED_FRAME_STEP + 1:
+        raise ValueError(
+            f"--measure must be at least {(FD_SPEED_FRAME_STEP + 1) * dt:g} s "
+            f"({FD_SPEED_FRAME_STEP + 1} steps of {dt:g} s: PedPy's speeds span "
+            f"{FD_SPEED_FRAME_STEP}), got {args.measure:g}"
+        )
     crowd = max(densities) * args.length * args.width
     if crowd > MAX_AGENTS:
         raise ValueError(

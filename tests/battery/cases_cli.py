@@ -58,6 +58,11 @@ case(
     SIM1.format("station", "pillar_spacing=0.01"),
     "station.pillar_spacing must be 0 (no pillars) or >= 1.4 m",
 )
+case(  # the hall held 924 of the 1,000 people asked for, and the run went on with them
+    "sim-station-too-dense",
+    "simulate station --agents 1000 --density 1.5 --steps 1 --no-progress",
+    "station.density 1.5 /m² is too high for n_agents 1000: only 924 people fit",
+)
 case(  # the list given is a list, an empty one: "must be a list, got ()" misled
     "sim-kinds-empty",
     SIM1.format("anomalies", "kinds=[]"),
@@ -67,6 +72,16 @@ case(
     "sim-speed-huge",
     SIM1.format("circulation", "speed_mean=1e9"),
     "circulation.speed_mean must be a finite number in (0, 10], got 1000000000.0",
+)
+case(  # pymunk's iterations are a C int: OverflowError's traceback from the first step
+    "sim-param-iterations-huge",
+    f"{SIM} --param solver_iterations=3000000000",
+    "SocialForceParams.solver_iterations must be an integer in [1, 10000], got 3000000000",
+)
+case(  # 1e20 pymunk sub-steps a step: the run never ended
+    "sim-param-substeps-huge",
+    f"{SIM} --param contact_substeps=1e20",
+    "SocialForceParams.contact_substeps must be an integer in [1, 10000], got 1e+20",
 )
 case("sim-dt-neg", f"{SIM} --dt -0.04", "got -0.04")
 case("sim-dt-nan", f"{SIM} --dt nan", "got nan")
@@ -1043,6 +1058,22 @@ BENCH = (
         "--save-npz must end in .npz, got",
     ),
     ("bench-solver-eps-neg", "solver --eps -1", "--eps must be a finite number >= 0, got -1.0"),
+    (  # 5 steps gave a NaN speed (and NaN in fd.json), 0 a pandas "All arrays must be ..."
+        "bench-fd-measure-short",
+        "fd --densities 1 --measure 0.2 --out {w}/o",
+        "--measure must be at least 0.24 s (6 steps of 0.04 s: PedPy's speeds span 5), got 0.2",
+    ),
+    (  # it ran a 6.5 m corridor and printed the 1 /m² target beside a density of 0.06
+        "bench-fd-length-short",
+        "fd --densities 1 --length 1 --out {w}/o",
+        "--length must be a finite number >= 6.5, got 1.0",
+    ),
+    (  # named counterflow.width, a scenario the command line never mentions
+        "bench-fd-width-narrow",
+        "fd --densities 1 --width 0.3 --out {w}/o",
+        "--width must be a finite number >= 0.7, got 0.3",
+    ),
+    ("bench-fd-measure-none", "fd --densities 1 --measure 0.01 --out {w}/o", "got 0.01"),
     ("bench-render-seed-neg", "render --seed -1", "--seed must be an integer >= 0, got -1"),
     ("bench-render-template-1", "render --template-px 1", "--template-px must be an integer in"),
     ("bench-envs-vector-steps-0", "envs --vector-steps 0", "--vector-steps must be >= 1, got 0"),
@@ -1057,7 +1088,7 @@ for cid, argv, needle in BENCH:
     case(cid, f"bench {argv}", needle)
 case(  # the one wording of every command, not Python's "[Errno 28] ..."
     "bench-fd-full-disk",
-    "bench fd --densities 1 --length 6 --width 3 --warmup 0.2 --measure 0.2 --lane-seconds 0.2 "
+    "bench fd --densities 1 --length 6.5 --width 3 --warmup 0.2 --measure 0.24 --lane-seconds 0.2 "
     "--out {full}/b",
     "fd.png: no space left on the device",
     needs="full",

@@ -109,8 +109,8 @@ def test_bench_fd_failing_after_its_first_picture_lets_the_rerun_replace_it(tmp_
             raise OSError(28, "No space left on device", str(path))
         return real(fig, path, *args, **kwargs)
 
-    argv = ["bench", "fd", "--densities", "1", "--length", "6", "--width", "3", "--warmup"]
-    argv += ["0.2", "--measure", "0.2", "--lane-seconds", "0.2", "--out", str(tmp_path / "b")]
+    argv = ["bench", "fd", "--densities", "1", "--length", "6.5", "--width", "3", "--warmup"]
+    argv += ["0.2", "--measure", "0.24", "--lane-seconds", "0.2", "--out", str(tmp_path / "b")]
     monkeypatch.setattr(plotting, "save_figure", second_fails)
     assert main(argv) == 2
     assert (tmp_path / "b" / "fd.png").is_file()

@@ -87,7 +87,7 @@ def test_simulate_writes_npz_contract(tmp_path, capsys):
         (["simulate", "marathon", "--set", "n_agents=5"], "--set n_agents: use --agents instead"),
         (
             ["simulate", "marathon", "--param", "contact_substeps=2.5"],
-            "contact_substeps must be an integer >= 1, got 2.5",
+            "contact_substeps must be an integer in [1, 10000], got 2.5",
         ),
     ],
 )

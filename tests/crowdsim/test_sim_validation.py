@@ -31,6 +31,25 @@ def test_fundamental_diagram_small_case_within_20_percent_of_weidmann():
         assert p.max_overlap <= 0.2
 
 
+@pytest.mark.parametrize("measure_s", [0.2, 0.01])
+def test_fundamental_diagram_refuses_a_measurement_without_speeds(measure_s):
+    """PedPy's speeds span 5 frames: 5 frames gave a NaN speed, 0 a pandas error."""
+    with pytest.raises(
+        ValueError, match=rf"measure_s must cover at least 6 steps .* {measure_s:g} s"
+    ):
+        fundamental_diagram([1.0], length=8.0, width=3.0, warmup_s=0.0, measure_s=measure_s)
+
+
+def test_station_refuses_a_density_its_hall_cannot_hold():
+    """1,000 people at 1.5 /m² had started with about 920 in silence; 1 /m² fits them all."""
+    with pytest.raises(
+        ValueError, match=r"station.density 1.5 /m² is too high for n_agents 1000: only 9\d\d "
+    ):
+        make_scenario("station", n_agents=1000, density=1.5).build(np.random.default_rng(0))
+    agents = make_scenario("station", n_agents=1000, density=1.0).build(np.random.default_rng(0))
+    assert len(agents.agents) == 1000
+
+
 def test_pure_hm95_is_faster_than_weidmann_at_high_density():
     """Without the headway rule dense crowds stay far too fast: the rule is what calibrates."""
     (p,) = fundamental_diagram(
