@@ -79,8 +79,7 @@ def atomic_path(path: str | os.PathLike[str], suffix: str | None = None) -> Iter
         yield tmp
         os.chmod(tmp, _MODE)
         _require_unchanged_since_checked(path)
-        os.replace(tmp, path)
-        _note_replaced(path)
+        _replace_noted(tmp, path)
     except OSError as exc:
         raise _retarget(exc, tmp, path) from None
     finally:
@@ -90,8 +89,6 @@ def atomic_path(path: str | os.PathLike[str], suffix: str | None = None) -> Iter
 _CHECKED: dict[Path, tuple[int, int, int] | None] = {}
 """The outputs :func:`require_replaceable` let this process write, with their state then
 (``None``: no file); :func:`atomic_path` replaces one only while it is still so."""
-_KEPT: set[Path] = set()
-"""Outputs a file appeared at (or changed) after the check: kept, never noted as ours."""
 
 
 def _require_unchanged_since_checked(path: Path) -> None:
@@ -99,12 +96,18 @@ def _require_unchanged_since_checked(path: Path) -> None:
     appeared or changed since :func:`require_replaceable` allowed it: a file the user put
     there while the work ran is theirs, and is kept."""
     key = path.absolute()
-    if key in _CHECKED and _stamp(key) != _CHECKED[key]:
-        _KEPT.add(key)
+    if not _as_checked(key) and _stamp(key) is not None:  # a file gone leaves none to keep
         raise FileExistsError(  # no errno: the message is whole (describe_os_error)
             f"{path}: a file appeared there (or changed) while crowdsim ran; it is kept and "
             "this output is not written (choose another path, or move that file and run again)"
         )
+
+
+def _as_checked(path: Path) -> bool:
+    """Whether ``path`` is as the check (or this process's last write there) left it, or was
+    never checked: a file that is not is not this process's, to replace or to note."""
+    key = path.absolute()
+    return key not in _CHECKED or _stamp(key) == _CHECKED[key]
 
 
 def note_checked(*paths: str | os.PathLike[str]) -> None:
@@ -124,12 +127,23 @@ def require_unchanged(*paths: str | os.PathLike[str]) -> None:
         _require_unchanged_since_checked(Path(path))
 
 
-def _note_replaced(path: Path) -> None:
-    """After this process renamed its file into place at a checked output: that file is the
-    state the next write of the same output may replace."""
+def _replace_noted(tmp: Path, path: Path) -> None:
+    """Rename ``tmp`` over ``path``; at a checked output, the file renamed in is the state the
+    next write (and :func:`recorded`) takes for this process's. It is noted before the rename
+    (a rename keeps the inode, time and size), so a Ctrl-C just after it still finds it ours;
+    a rename that did not happen puts the note back."""
     key = path.absolute()
-    if key in _CHECKED:
-        _CHECKED[key] = _stamp(key)
+    if key not in _CHECKED:
+        os.replace(tmp, path)
+        return
+    before = _CHECKED[key]
+    _CHECKED[key] = _stamp(tmp)
+    try:
+        os.replace(tmp, path)
+    except BaseException:
+        if _stamp(key) != _CHECKED[key]:  # not renamed in
+            _CHECKED[key] = before
+        raise
 
 
 def _retarget(exc: OSError, tmp: Path | None, path: Path) -> OSError:
@@ -388,8 +402,9 @@ def recorded(*paths: str | os.PathLike[str]) -> Iterator[None]:
     So a Ctrl-C, SIGTERM or error after one output was renamed into place (before the next
     was written) never leaves a file crowdsim wrote but cannot prove it wrote; the outputs
     were checked with :func:`require_replaceable` before the work, so whatever changed there
-    is this run's, but for a file that appeared there meanwhile, which :func:`atomic_path`
-    kept. The notes are taken with the signals held (:func:`signals_held`)."""
+    is this run's, but for a file that appeared there (or changed) since the check and
+    that this run did not write: a user's, never noted. The notes are taken with the
+    signals held (:func:`signals_held`)."""
     files = [Path(p) for p in paths]
     before = [_stamp(p) for p in files]
     try:
@@ -398,7 +413,7 @@ def recorded(*paths: str | os.PathLike[str]) -> Iterator[None]:
         changed = [
             p
             for p, b in zip(files, before, strict=True)
-            if _stamp(p) not in (None, b) and p.absolute() not in _KEPT
+            if _stamp(p) not in (None, b) and _as_checked(p)
         ]
         if changed:
             with signals_held():

@@ -860,6 +860,9 @@ def _sigterm_stops_tune() -> Iterator[list[str]]:
         yield seen
     finally:
         signal.signal(signal.SIGTERM, saved)
+        # Ray Tune puts its SIGINT handler back only after a signal: after a whole run it
+        # stayed, and swallowed the first Ctrl-C of the held-out scoring that follows
+        signal.signal(signal.SIGINT, ours)
 
 
 # ---------------------------------------------------------------------------- results

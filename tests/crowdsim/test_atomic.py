@@ -207,3 +207,48 @@ def test_a_checked_output_is_replaced_only_while_it_is_as_checked(tmp_path):
     require_replaceable("--out", new, overwrite=True)  # the user says replace it
     write_text_atomic(new, "ours")
     assert new.read_text() == "ours"
+
+
+def test_a_file_kept_once_does_not_stop_a_later_run_from_noting_its_own(tmp_path):
+    """One process, two runs: the first finds a user's file at its output (kept, refused);
+    the user moves it away and runs again: that run's file is noted, so a third run may
+    replace it without ``--overwrite``."""
+    from crowdsim.atomic import recorded
+
+    out = tmp_path / "res.txt"
+    require_replaceable("--out", out)
+    out.write_text("user")
+    with pytest.raises(FileExistsError), recorded(out):
+        write_text_atomic(out, "ours")
+    out.unlink()
+    require_replaceable("--out", out)
+    with recorded(out):
+        write_text_atomic(out, "ours")
+    assert require_replaceable("--out", out) == out
+
+
+def test_recorded_never_notes_a_users_file_at_an_output_the_run_did_not_write(tmp_path):
+    """A Ctrl-C after the first output, while a user's file appeared at the second: the first
+    is noted, the user's file is not (a rerun must not replace it without ``--overwrite``)."""
+    from crowdsim.atomic import recorded
+
+    a, b = tmp_path / "a.txt", tmp_path / "b.txt"
+    require_replaceable("--out", a)
+    require_replaceable("--plot", b)
+    with pytest.raises(KeyboardInterrupt), recorded(a, b):
+        write_text_atomic(a, "ours")
+        b.write_text("mine")
+        raise KeyboardInterrupt
+    assert require_replaceable("--out", a) == a
+    with pytest.raises(ValueError, match="cannot prove it wrote it"):
+        require_replaceable("--plot", b)
+
+
+def test_an_output_deleted_since_the_check_is_written(tmp_path):
+    """The check vouched for a file that is gone by the write: nothing is there to keep."""
+    out = tmp_path / "c.txt"
+    require_replaceable("--out", out)
+    write_text_atomic(out, "1")
+    out.unlink()
+    write_text_atomic(out, "2")
+    assert out.read_text() == "2"

@@ -617,3 +617,18 @@ def test_history_plot_names_its_threshold_and_numbers_trials_whole(tmp_path, mon
     assert ticks and all(float(t).is_integer() for t in ticks)
     assert [t.get_text() for t in ax.get_legend().get_texts()] == ["trial", "best so far"]
     assert (tmp_path / "history.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_ray_tunes_sigint_handler_is_not_left_behind_after_a_whole_run():
+    """Ray Tune installs a SIGINT handler for ``Tuner.fit`` and leaves it after a run that no
+    signal stopped: the first Ctrl-C of the held-out scoring after it did nothing."""
+    import signal
+
+    from envs.tuners import _sigterm_stops_tune
+
+    ours = signal.getsignal(signal.SIGINT)
+    before = signal.getsignal(signal.SIGTERM)
+    with _sigterm_stops_tune():
+        signal.signal(signal.SIGINT, lambda s, f: None)  # what Tuner.fit does
+    assert signal.getsignal(signal.SIGINT) is ours
+    assert signal.getsignal(signal.SIGTERM) is before
