@@ -26,6 +26,9 @@ from crowdsim.commands._table_args import (
     episode_objective,
 )
 
+SEEDS = 5
+"""Held-out sequences per family by default (``--seeds``)."""
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -37,9 +40,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--seeds",
         type=int,
-        default=5,
+        default=None,
         metavar="S",
-        help="held-out sequences per family (default 5)",
+        help=f"held-out sequences per family (default {SEEDS}; a folder of MOT sequences is "
+        "scored once on its --heldout-only sequences)",
     )
     p.add_argument(
         "--params",
@@ -90,7 +94,22 @@ def run(args: argparse.Namespace) -> int:
     from envs.heldout import check_heldout_out, evaluate_heldout, heldout_table, write_heldout
     from envs.param_space import load_params
     from envs.training import load_policy, policy_meta
+    from synth_data.suites import is_spec_suite
 
+    if args.suite and not is_spec_suite(args.suite) and args.heldout_only:
+        # a folder's sequences are scored once each, as they are: these had been ignored
+        if args.seeds is not None:
+            raise ValueError(
+                f"--seeds: a folder of MOT sequences cannot be re-seeded; {args.suite} is "
+                "scored once on its --heldout-only sequences (drop --seeds)"
+            )
+        if args.only:
+            raise ValueError(
+                f"--only: {args.suite}'s held-out sequences are the --heldout-only ones "
+                "(drop --only)"
+            )
+    if args.seeds is None:
+        args.seeds = SEEDS
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
     out = Path(args.out)

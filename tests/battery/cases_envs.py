@@ -257,6 +257,16 @@ case(
     "--heldout-only: no sequence 'nope'",
     setup=seq_copy(lambda s: None, True),
 )
+for flag, needle in (  # a folder's sequences are scored once each: these had been ignored
+    ("--seeds 2", "--seeds: a folder of MOT sequences cannot be re-seeded"),
+    ("--only s", "--only: {w}/s's held-out sequences are the --heldout-only ones"),
+):
+    case(
+        f"envs-heldout-folder-{flag.split()[0][2:]}",
+        f"heldout --suite {{w}}/s --heldout-only s {flag} --out {{w}}/o",
+        needle,
+        setup=seq_copy(lambda s: None, True),
+    )
 
 
 def _tune_without_ray(w: Path, env: Env) -> None:
