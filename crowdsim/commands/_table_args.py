@@ -253,6 +253,13 @@ def episode_cache_kwargs(args: argparse.Namespace) -> dict:
         return {}
     out: dict = {"episode_cache": str(Path(args.episode_cache).absolute())}
     if getattr(args, "suite", None) is not None:
+        from synth_data.suites import is_spec_suite
+
+        if not is_spec_suite(args.suite):  # it had been ignored in silence
+            raise ValueError(
+                f"--episode-cache: {args.suite} holds MOT sequences, read from disk as they "
+                "are; nothing is rendered to keep (drop --episode-cache)"
+            )
         if args.pool is not None:
             raise ValueError("--pool draws from --scenarios; a --suite has its own sequences")
         return out

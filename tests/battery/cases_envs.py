@@ -257,6 +257,12 @@ case(
     "--heldout-only: no sequence 'nope'",
     setup=seq_copy(lambda s: None, True),
 )
+case(  # a folder's sequences are read from disk as they are: the cache had been ignored
+    "envs-train-folder-episode-cache",
+    "train --algo ppo --suite {w}/s --episode-cache {w}/c --steps 4 --out {w}/o",
+    "--episode-cache: {w}/s holds MOT sequences, read from disk as they are",
+    setup=seq_copy(lambda s: None, True),
+)
 for flag, needle in (  # a folder's sequences are scored once each: these had been ignored
     ("--seeds 2", "--seeds: a folder of MOT sequences cannot be re-seeded"),
     ("--only s", "--only: {w}/s's held-out sequences are the --heldout-only ones"),
