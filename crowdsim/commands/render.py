@@ -69,7 +69,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         default=None,
         metavar="F",
-        help="frame rate of the trajectories, (0, 1000] (required for CSV; .npz knows its dt)",
+        help="frame rate of the trajectories, (0, 1000] (required for CSV; a .npz knows its "
+        "dt, and F relabels its steps as F frames/s: the people move at F dt times their speed)",
     )
     p.add_argument(
         "--frame-step",
