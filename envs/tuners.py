@@ -812,11 +812,7 @@ def _run_ray(
             )
     ended = sum(1 for r in results if r.error is not None or "accuracy" in (r.metrics or {}))
     if ended < trials - done:  # stopped early: a Ctrl-C or SIGTERM, which Ray Tune takes
-        kept = len(complete_trials(study))
-        raise Interrupted(
-            stopped_by[0] if stopped_by else "SIGINT",
-            f"the study keeps its {kept} finished trial(s); the same command resumes",
-        )
+        raise Interrupted(stopped_by[0] if stopped_by else "SIGINT", _kept(study))
     errors = [r.error for r in results if r.error is not None]
     if errors and not complete_trials(study):  # else the caller fails on an empty max()
         first = str(errors[0]).strip().splitlines() or [type(errors[0]).__name__]
@@ -824,6 +820,13 @@ def _run_ray(
             f"--backend ray: no trial finished ({len(errors)} failed; the first: {first[-1]})"
         )
     return study
+
+
+def _kept(study: Any) -> str:
+    """What the line of a stopped run says of its study (:class:`crowdsim.jobs.Interrupted`'s
+    ``detail``)."""
+    kept = len(complete_trials(study))
+    return f"the study keeps its {kept} finished trial(s); the same command resumes"
 
 
 @contextmanager
@@ -1122,11 +1125,7 @@ def _tune_locked(
                     url, study_name, objective, sampler, seed, trials, workers, progress, out
                 )
             except Interrupted as exc:  # say what is kept, as a Ray run does
-                if not exc.detail:
-                    kept = len(complete_trials(st))
-                    exc.detail = (
-                        f"the study keeps its {kept} finished trial(s); the same command resumes"
-                    )
+                exc.detail = exc.detail or _kept(st)
                 raise
             st = open_study(url, study_name, objective, sampler, seed, trials)
         ts = complete_trials(st)
