@@ -58,7 +58,7 @@ from crowdsim.jobs import (
     read_manifest,
 )
 from crowdsim.jobs import run_jobs as _run_jobs
-from synth_data.mot import SUITE_MANIFEST, not_ours, verify_sequence
+from synth_data.mot import SUITE_MANIFEST, not_ours, require_outside_sequences, verify_sequence
 from synth_data.scene import Scene
 from synth_data.spec import SequenceSpec
 from synth_data.writer import clean_stale_tmp, require_ours, write_sequence
@@ -190,12 +190,7 @@ def generate(
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out must be a folder, got the file {str(out)!r}")
-    for folder in (out, *out.absolute().parents):  # a manifest, its lock and sequences put
-        if (folder / "seqinfo.ini").is_file():  # into a sequence made it no longer ours
-            raise ValueError(
-                f"--out {str(out)!r} lies in a sequence folder, {str(folder)!r} (it holds "
-                "seqinfo.ini); give a folder of its own, beside the sequences"
-            )
+    require_outside_sequences("--out", out, out, itself=True)
     read_manifest_of(out)  # a manifest.json that is not crowdsim's: refused before any work
     fresh = (
         not out.exists(),

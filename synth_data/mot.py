@@ -384,6 +384,19 @@ def read_tmp_marker(folder: str | os.PathLike[str]) -> dict[str, Any] | None:
     return data
 
 
+def require_outside_sequences(flag: str, out: Path, shown: object, itself: bool) -> None:
+    """Refuse (``ValueError`` naming ``flag``) an output folder inside a MOT sequence folder
+    (one that holds ``seqinfo.ini``), or that is one when ``itself``: a sequence, a manifest or
+    a lock written into a sequence makes it no longer plain MOT, nor provably crowdsim's (a
+    later ``generate`` refused to replace it). ``shown`` is the path as the user gave it."""
+    for folder in (out, *out.absolute().parents)[0 if itself else 1 :]:
+        if (folder / "seqinfo.ini").is_file():
+            raise ValueError(
+                f"{flag} {str(shown)!r} lies in a sequence folder, {str(folder)!r} (it holds "
+                "seqinfo.ini); give a folder of its own, beside the sequences"
+            )
+
+
 def not_ours(folder: str | os.PathLike[str]) -> str | None:
     """Why crowdsim cannot prove it wrote everything in ``folder``; ``None`` when it can.
 

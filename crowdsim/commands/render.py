@@ -202,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
     from crowdsim.checks import require_memory, require_output_dir
     from crowdsim.progress import progress_bar
     from crowdsim.render import default_px_per_m
-    from synth_data.mot import mot_ids
+    from synth_data.mot import mot_ids, require_outside_sequences
     from synth_data.writer import clean_stale_tmp, write_sequence
 
     _check_flags(args)
@@ -211,12 +211,8 @@ def run(args: argparse.Namespace) -> int:
     if not out.name or out.name in (".", ".."):
         raise ValueError(f"--out must name a folder, got {args.out!r}")
     require_output_dir("--out", out)
-    for folder in out.absolute().parents:  # a sequence in a sequence: the outer one is no
-        if (folder / "seqinfo.ini").is_file():  # longer provably ours, nor plain MOT
-            raise ValueError(
-                f"--out {args.out!r} lies in a sequence folder, {str(folder)!r} (it holds "
-                "seqinfo.ini); give a folder of its own, beside that sequence"
-            )
+    # a sequence in a sequence (rendering onto one itself, with --overwrite, is allowed)
+    require_outside_sequences("--out", out, args.out, itself=False)
     # first the leftovers of killed renders: a sequence a killed --overwrite had moved aside
     # takes its name back before the name is checked
     for p in clean_stale_tmp(out.parent):
