@@ -31,13 +31,6 @@ _MAX_DRAWS_PER_SEED = 40
 """A scenario family that has not come up after ``40 * families * seeds`` draws is missing."""
 
 
-def _is_folder(objective: Any) -> bool:
-    """Whether ``objective`` tunes on a folder of sequences (which cannot be re-seeded)."""
-    from synth_data.suites import is_spec_suite
-
-    return objective.suite is not None and not is_spec_suite(objective.suite)
-
-
 def heldout_episodes(
     objective: Any, seeds: int, skipped: list[str] | None = None
 ) -> Iterator[tuple[str, Any, Any]]:
@@ -52,7 +45,7 @@ def heldout_episodes(
     re-seeded).
     """
     require_number("heldout", "seeds", seeds, lo=1, integer=True)
-    if _is_folder(objective):
+    if objective.folder:
         src = objective.episodes(heldout=True)
         for i, name in enumerate(src.names()):
             yield name, src.episode(i), src.spec(i)
@@ -94,11 +87,9 @@ def heldout_episodes(
 
 def heldout_count(objective: Any, seeds: int) -> int:
     """How many sequences :func:`heldout_episodes` yields (without building any)."""
-    from synth_data.suites import is_spec_suite
-
     if objective.suite is None:
         return len(objective.episodes(heldout=True).dist.families) * seeds
-    if not is_spec_suite(objective.suite):
+    if objective.folder:
         return len(objective.episodes(heldout=True))
     return len(make_episodes(suite=objective.suite, only=objective.only or None)) * seeds
 
@@ -217,7 +208,7 @@ def evaluate_heldout(
         "labels": labels,
         "reference": ref,
         "paired": paired,
-        "seeds_per_family": 1 if _is_folder(objective) else int(seeds),  # folders: once each
+        "seeds_per_family": 1 if objective.folder else int(seeds),  # folders: once each
         "threshold_px": objective.threshold_px,
         "sequences": rows,
         "skipped_empty": skipped,

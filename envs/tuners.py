@@ -129,12 +129,17 @@ class Objective:
         if isinstance(self.scenarios, str):
             object.__setattr__(self, "scenarios", _resolved_scenarios(self.scenarios))
 
-    def episodes(self, heldout: bool = False, cache: int = 0) -> EpisodeSource:
-        """Training (stream 0) or held-out episodes."""
+    @property
+    def folder(self) -> bool:
+        """Whether the suite is a folder of MOT sequences: read as they are, never re-seeded
+        (held-out scoring takes its ``heldout_only`` sequences once each)."""
         from synth_data.suites import is_spec_suite
 
-        folder = self.suite is not None and not is_spec_suite(self.suite)
-        if heldout and folder:
+        return self.suite is not None and not is_spec_suite(self.suite)
+
+    def episodes(self, heldout: bool = False, cache: int = 0) -> EpisodeSource:
+        """Training (stream 0) or held-out episodes."""
+        if heldout and self.folder:
             if not self.heldout_only:
                 raise ValueError(
                     f"{self.suite}: a folder of sequences cannot be re-seeded; "
@@ -1037,10 +1042,10 @@ def tune(
     url = storage_url(study, out)
     space = objective.space()
     source = objective.episodes()  # validate suite / scenarios / --only before any work
-    if objective.suite is not None and objective.n_train(source) < len(source):
+    n = objective.n_train(source)
+    if objective.suite is not None and n < len(source):
         # said, never in silence: --only seq1 .. seq9 had tuned on the first three alone
         names = [str(getattr(source.spec(i), "name", i)) for i in range(len(source))]
-        n = objective.n_train(source)
         log(
             f"--train-episodes {n}: each trial scores the first {n} of the suite's "
             f"{len(source)} sequences ({', '.join(names[:n])}; not {', '.join(names[n:])}); "

@@ -94,11 +94,18 @@ def run(args: argparse.Namespace) -> int:
     from envs.heldout import check_heldout_out, evaluate_heldout, heldout_table, write_heldout
     from envs.param_space import load_params
     from envs.training import load_policy, policy_meta
-    from synth_data.suites import is_spec_suite
 
-    if args.suite and not is_spec_suite(args.suite) and args.heldout_only:
+    seeds_given = args.seeds is not None
+    if not seeds_given:
+        args.seeds = SEEDS
+    if args.seeds < 1:
+        raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
+    out = Path(args.out)
+    check_heldout_out(out)  # a user's own heldout.* is never replaced: refused before any work
+    objective = episode_objective(args, tracker=args.tracker)
+    if objective.folder and objective.heldout_only:
         # a folder's sequences are scored once each, as they are: these had been ignored
-        if args.seeds is not None:
+        if seeds_given:
             raise ValueError(
                 f"--seeds: a folder of MOT sequences cannot be re-seeded; {args.suite} is "
                 "scored once on its --heldout-only sequences (drop --seeds)"
@@ -108,13 +115,6 @@ def run(args: argparse.Namespace) -> int:
                 f"--only: {args.suite}'s held-out sequences are the --heldout-only ones "
                 "(drop --only)"
             )
-    if args.seeds is None:
-        args.seeds = SEEDS
-    if args.seeds < 1:
-        raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
-    out = Path(args.out)
-    check_heldout_out(out)  # a user's own heldout.* is never replaced: refused before any work
-    objective = episode_objective(args, tracker=args.tracker)
     param_sets = {}
     if not args.no_defaults:
         param_sets["defaults"] = objective.space().base
