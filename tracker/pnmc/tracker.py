@@ -252,18 +252,16 @@ def _propagate(
         if m > 1:
             if weight_scale > 0.0:  # Eq. 3 on the neighbours' positions now (``new``: the
                 # updated ones' at t, the others' still at t - 1), normalised over them all
-                near = np.inf
+                dist = np.empty(z - a)
                 for q in range(a, z):
                     j = nbr[q]
                     dx = new[j, 0] - prev[i, 0]
                     dy = new[j, 1] - prev[i, 1]
-                    near = min(near, np.sqrt(dx * dx + dy * dy))
+                    dist[q - a] = np.sqrt(dx * dx + dy * dy)
+                near = dist.min()
                 total = 0.0
-                for q in range(a, z):
-                    j = nbr[q]
-                    dx = new[j, 0] - prev[i, 0]
-                    dy = new[j, 1] - prev[i, 1]
-                    total += np.exp(-(np.sqrt(dx * dx + dy * dy) - near) / weight_scale)
+                for q in range(z - a):
+                    total += np.exp(-(dist[q] - near) / weight_scale)
             r = 1
             for q in range(a, z):
                 j = nbr[q]
@@ -271,10 +269,7 @@ def _propagate(
                     mus[r, 0] = prev[i, 0] + (new[j, 0] - prev[j, 0])
                     mus[r, 1] = prev[i, 1] + (new[j, 1] - prev[j, 1])
                     if weight_scale > 0.0:
-                        dx = new[j, 0] - prev[i, 0]
-                        dy = new[j, 1] - prev[i, 1]
-                        d = np.sqrt(dx * dx + dy * dy)
-                        ws[r] = np.exp(-(d - near) / weight_scale) / total
+                        ws[r] = np.exp(-(dist[q - a] - near) / weight_scale) / total
                     else:
                         ws[r] = wts[q]
                     r += 1
