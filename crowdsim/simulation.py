@@ -221,6 +221,8 @@ class Simulation:
         # Desired velocities held by set_desired: ids (m,) sorted and velocities (m, 2).
         self._held_ids = np.zeros(0, np.int64)
         self._held_vel = np.zeros((0, 2))
+        if self.world.period > 0:  # a scenario may place people past the seam: the state
+            setup.agents.pos[:, 0] %= self.world.period  # lives on [0, period) from frame 0
         self._add_agents(setup.agents)
         self._refresh_desired()
         if self.workers > 1:

@@ -321,3 +321,15 @@ def test_a_long_step_takes_more_contact_substeps_and_keeps_bodies_inside():
         sim.step()
         worst = max(worst, max_overlap(sim.state.pos, sim.state.radius, sim.world.period))
     assert sim.state.n == n0 and worst < 0.5, (n0 - sim.state.n, worst)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 4])
+def test_a_periodic_world_records_every_frame_on_its_period(seed):
+    """The counterflow scenario places some people past the seam; frame 0 had recorded them
+    there (x up to 33.55 m on a 33.33 m period) and only the first step wrapped them."""
+    sim = Simulation(make_scenario("counterflow", n_agents=200, periodic=True), seed=seed)
+    period = sim.world.period
+    assert ((sim.state.pos[:, 0] >= 0) & (sim.state.pos[:, 0] < period)).all()
+    x = sim.run(3).positions[..., 0]
+    x = x[np.isfinite(x)]
+    assert x.min() >= 0 and x.max() < period, (x.min(), x.max(), period)
