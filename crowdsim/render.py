@@ -199,7 +199,9 @@ def prepare_agents(
     app, prominent = assign_appearance(
         traj.attributes.get("prominent"), n, params, np.random.default_rng(s_app)
     )
-    pos = traj.positions
+    # headings and the distance walked go the short way round a periodic axis's seam (they
+    # had turned a person crossing it round for a few frames and jumped its gait by a period)
+    pos = traj.unwrapped()
     k = HEADING_WINDOW
     t_len = traj.n_steps
     lo = np.clip(np.arange(t_len) - k, 0, t_len - 1)
@@ -212,7 +214,7 @@ def prepare_agents(
     # turn them (and the drone profile turns the drawn canvas as a whole). Headings from the
     # shaken pixels turned ucf9 seq6's slow runners frame by frame: BQP at 15 px on its uncoded
     # frames, 88.1 % static, 64.4 % shaken, 82.5 % shaken with headings from the ground.
-    walk_px = pixels if not camera.moves else camera.project(traj.positions)
+    walk_px = pixels if not (camera.moves or traj.period > 0) else camera.project(pos)
     heading = _headings(walk_px, speed_ok, np.random.default_rng(s_head))
     gait = np.zeros((t_len, n))
     if (params.sway_deg > 0 or params.gait_phases > 1) and t_len > 1:

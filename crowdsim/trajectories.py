@@ -134,15 +134,33 @@ class Trajectories:
             raise ValueError(f"trajectories meta.period must be a length >= 0 m, got {value!r}")
         return period
 
-    def velocities(self) -> np.ndarray:
-        """``(T, N, 2)`` m/s by backward differences; NaN at entry rows and where absent.
-        On a periodic x axis a step across the seam counts as the short way round."""
-        vel = np.full_like(self.positions, np.nan)
+    def steps(self) -> np.ndarray:
+        """``(T - 1, N, 2)`` metres moved from each row to the next (NaN where absent in
+        either). On a periodic x axis a step across the seam counts as the short way round."""
         d = self.positions[1:] - self.positions[:-1]
         if self.period > 0:
             d[..., 0] -= self.period * np.round(d[..., 0] / self.period)
-        vel[1:] = d / self.dt
+        return d
+
+    def velocities(self) -> np.ndarray:
+        """``(T, N, 2)`` m/s by backward differences (:meth:`steps`); NaN at entry rows and
+        where absent."""
+        vel = np.full_like(self.positions, np.nan)
+        vel[1:] = self.steps() / self.dt
         return vel
+
+    def unwrapped(self) -> np.ndarray:
+        """``(T, N, 2)`` positions with a periodic x axis made continuous along each path:
+        a step across the seam goes on past it (:meth:`steps`) instead of jumping back by a
+        period, so differences over several rows (a heading, the distance walked) stay
+        true. The positions themselves without a period."""
+        if self.period <= 0 or self.n_steps < 2:
+            return self.positions
+        with np.errstate(invalid="ignore"):
+            jump = np.nan_to_num(self.steps()[..., 0] - np.diff(self.positions[..., 0], axis=0))
+        out = self.positions.copy()
+        out[1:, :, 0] += np.cumsum(jump, axis=0)
+        return out
 
     def extent(self) -> tuple[float, float, float, float]:
         """``(xmin, ymin, xmax, ymax)`` in metres over all present positions."""
@@ -244,7 +262,11 @@ class Trajectories:
 
     @classmethod
     def from_csv(
-        cls, path: str | os.PathLike[str], fps: float, frame_step: int | None = None
+        cls,
+        path: str | os.PathLike[str],
+        fps: float,
+        frame_step: int | None = None,
+        period: float = 0.0,
     ) -> Trajectories:
         """Read ``frame,id,x,y`` rows (metres; a header line is optional).
 
@@ -262,10 +284,18 @@ class Trajectories:
         refused, naming the step: rendered as they are, every person would show in one frame
         of ``k`` and vanish in the others. ``meta`` records ``first_frame`` and
         ``frame_step``, so each row maps back to the file's frame number.
+
+        ``period``: the length (m) of a periodic x axis, as :meth:`to_csv` of a periodic
+        world's run leaves it out (a CSV has no place for it); 0 for none. Speeds, headings
+        and gaits then take a step across the seam the short way round (:meth:`steps`).
         """
         path = Path(path)
         if not (np.isfinite(fps) and fps > 0):
             raise ValueError(f"fps must be positive, got {fps!r}")
+        if isinstance(period, bool) or not (
+            isinstance(period, (int, float, np.number)) and 0 <= period <= MAX_COORD_M
+        ):
+            raise ValueError(f"period must be a length in [0, {MAX_COORD_M:g}] m, got {period!r}")
         if not path.exists():
             raise ValueError(f"{path}: no such trajectory file")
         if path.is_dir():
@@ -345,9 +375,20 @@ class Trajectories:
                 f"{path}:{lines_l[b]}: frame {frames_l[b]}, id {ids_l[b]} appears "
                 f"twice (also on line {lines_l[a]})"
             )
+        xy = np.array(xy_l, dtype=np.float64)
+        if period > 0:  # a periodic world's x lies on [0, period): another axis was given
+            off = np.flatnonzero((xy[:, 0] < 0) | (xy[:, 0] >= period))
+            if len(off):
+                i = int(off[0])
+                raise ValueError(
+                    f"{path}:{lines_l[i]}: x = {xy[i, 0]:g} m lies outside the periodic axis "
+                    f"[0, {period:g}) m"
+                )
         positions = np.full((n_rows, len(ids), 2), np.nan)
-        positions[frames, col] = np.array(xy_l, dtype=np.float64)
+        positions[frames, col] = xy
         meta = {"source": str(path), "first_frame": t0, "frame_step": int(frame_step or 1)}
+        if period > 0:
+            meta["period"] = float(period)
         return cls(positions=positions, ids=ids, dt=1.0 / fps, meta=meta)
 
 

@@ -1,7 +1,7 @@
 """``crowdsim render``: render trajectories (simulator .npz or a frame,id,x,y CSV) to a sequence.
 
-``crowdsim render --trajectories FILE.csv|FILE.npz --fps F [--px-per-m S] [--size WxH]
-[--seed K] --out SEQ_DIR [--overwrite]``
+``crowdsim render --trajectories FILE.csv|FILE.npz --fps F [--frame-step K] [--period M]
+[--px-per-m S] [--size WxH] [--seed K] --out SEQ_DIR [--overwrite]``
 
 Frame size and scale default to fitting the trajectories' extent (scale: the template spans
 0.5 m). The output is one MOTChallenge sequence folder, written atomically by
@@ -82,6 +82,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the gaps)",
     )
     p.add_argument(
+        "--period",
+        type=float,
+        default=None,
+        metavar="M",
+        help="CSV trajectories of a periodic world: the length (m) of its periodic x axis "
+        "(from crowdsim simulate's meta.json or the .npz), so that a person crossing the seam "
+        "keeps heading and gait; a .npz carries its own",
+    )
+    p.add_argument(
         "--px-per-m", type=float, default=None, metavar="S", help="scale, px/m, in [0.001, 10000]"
     )
     p.add_argument(
@@ -122,6 +131,8 @@ def _check_flags(args: argparse.Namespace) -> None:
         math.isfinite(args.px_per_m) and lo <= args.px_per_m <= hi
     ):
         raise ValueError(f"--px-per-m must be in [{lo:g}, {hi:g}], got {args.px_per_m:g}")
+    if args.period is not None and not (math.isfinite(args.period) and args.period > 0):
+        raise ValueError(f"--period must be a length > 0 m, got {args.period:g}")
     if not 0 <= args.seed < 2**63:
         raise ValueError(f"--seed must be in [0, 2**63), got {args.seed}")
     if args.size is not None:
@@ -170,9 +181,16 @@ def estimate_bytes(width: int, height: int, n_frames: int, n_agents: int) -> int
 
 
 # ---------------------------------------------------------------------------- command
-def load_trajectories(path: Path, fps: float | None, frame_step: int | None = None):
+def load_trajectories(
+    path: Path, fps: float | None, frame_step: int | None = None, period: float | None = None
+):
     from crowdsim.trajectories import Trajectories
 
+    if path.suffix == ".npz" and period is not None:
+        raise ValueError(
+            "--period is for CSV trajectories; a .npz from crowdsim simulate carries its own "
+            "(meta.period)"
+        )
     if path.suffix == ".npz":
         traj = Trajectories.load(path)
         if fps is not None and abs(fps - traj.fps) > 1e-9:
@@ -186,7 +204,7 @@ def load_trajectories(path: Path, fps: float | None, frame_step: int | None = No
     elif path.suffix == ".csv":
         if fps is None:
             raise ValueError("--fps is required for CSV trajectories")
-        traj = Trajectories.from_csv(path, fps=fps, frame_step=frame_step)
+        traj = Trajectories.from_csv(path, fps=fps, frame_step=frame_step, period=period or 0.0)
     else:
         raise ValueError(f"--trajectories must be a .csv or .npz file, got {str(path)!r}")
     if traj.n_steps == 0 or not traj.present.any():
@@ -222,7 +240,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(
             f"--frame-step must be >= 1 and goes with a CSV, got {args.frame_step} for {path.name}"
         )
-    traj = load_trajectories(path, args.fps, args.frame_step)
+    traj = load_trajectories(path, args.fps, args.frame_step, args.period)
     appearance = AppearanceParams(template_px=args.template_px)
     scale = args.px_per_m
     if scale is None and args.size is None:

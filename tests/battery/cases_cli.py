@@ -198,6 +198,23 @@ case(
     "--px-per-m 5000: no trajectory point falls inside",
     files=(("t.csv", HDR + "0,1,0,0\n0,2,10,10\n1,1,0.1,0\n1,2,10.1,10\n"),),
 )
+case("render-period-0", "render --trajectories {csv} --fps 10 --period 0 --out {w}/seq", "got 0")
+case(
+    "render-period-nan",
+    "render --trajectories {csv} --fps 10 --period nan --out {w}/seq",
+    "--period must be a length > 0 m, got nan",
+)
+case(
+    "render-period-short",
+    "render --trajectories {w}/t.csv --fps 10 --period 5 --out {w}/seq",
+    "t.csv:3: x = 6 m lies outside the periodic axis [0, 5) m",
+    files=(("t.csv", HDR + "0,1,1,1\n0,2,6,1\n"),),
+)
+case(
+    "render-period-npz",
+    "render --trajectories {npz} --period 10 --out {w}/seq",
+    "--period is for CSV trajectories; a .npz from crowdsim simulate carries its own",
+)
 case(
     "render-size-text",
     "render --trajectories {csv} --fps 10 --size big --out {w}/seq",

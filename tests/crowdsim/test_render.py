@@ -112,6 +112,33 @@ def test_headings_follow_motion_and_hold_when_stopped():
     assert 1.0 < dev.max() <= 8.0 + 1e-9
 
 
+def test_a_person_crossing_a_periodic_seam_keeps_heading_and_gait(tmp_path):
+    """Walking +x across x = period = 10 m: the heading stays 0 and the gait phase grows by
+    the 0.05 m a row walked. Before, the heading turned round near the seam and the gait
+    jumped by a period's distance; a CSV gets the period from ``from_csv(period=)``."""
+    pos = np.zeros((30, 1, 2))
+    pos[:, 0, 0] = (9.5 + np.arange(30) * 0.05) % 10.0
+    pos[:, 0, 1] = 3.0
+    still = Trajectories(positions=pos.copy(), ids=np.arange(1), dt=0.04)
+    periodic = Trajectories(positions=pos.copy(), ids=np.arange(1), dt=0.04, meta={"period": 10})
+    plain = AppearanceParams(sway_deg=0.0)
+    assert np.ptp(prepare_agents(still, CAMERA, plain, seed=0).heading) > 3  # the old fault
+    np.testing.assert_allclose(prepare_agents(periodic, CAMERA, plain, 0).heading, 0, atol=1e-9)
+    # with sway the heading is 8 deg * sin(gait): a gait grown by 0.05 m a row turns it by
+    # at most 8 deg * 2 pi 0.05 / 1.4 m a row (1.8 deg; it had turned by 181 at the seam)
+    swayed = prepare_agents(periodic, CAMERA, AppearanceParams(sway_deg=8.0), seed=0).heading
+    assert np.abs(np.diff(swayed[:, 0])).max() <= math.radians(8) * 2 * math.pi * 0.05 / 1.4
+    np.testing.assert_allclose(periodic.unwrapped()[:, 0, 0], 9.5 + np.arange(30) * 0.05)
+    np.testing.assert_array_equal(periodic.unwrapped()[..., 1], pos[..., 1])
+    np.testing.assert_allclose(np.linalg.norm(periodic.velocities()[1:], axis=-1), 1.25)
+    still.to_csv(tmp_path / "t.csv")
+    back = Trajectories.from_csv(tmp_path / "t.csv", fps=25, period=10.0)
+    assert back.period == 10.0
+    np.testing.assert_allclose(back.unwrapped()[:, 0, 0], 9.5 + np.arange(30) * 0.05, atol=2e-6)
+    with pytest.raises(ValueError, match=r"period must be a length in \[0, .*got -1"):
+        Trajectories.from_csv(tmp_path / "t.csv", fps=25, period=-1)
+
+
 def test_prominent_attribute_gets_distinct_colours():
     traj = walkers(2)
     tracks = prepare_agents(traj, CAMERA, PARAMS, seed=0)
