@@ -324,7 +324,7 @@ def test_flow_select_last_takes_every_patch_within_the_radius_at_t_minus_1():
 
 
 def _one_visit(wts: np.ndarray, weight_scale: float) -> np.ndarray:
-    """Target 0's new position after one visit of Algorithm 1 (:func:`_propagate`) on a flat
+    """Target 0's new position after one visit of Algorithm 2 (:func:`_propagate`) on a flat
     likelihood, its neighbours 1 and 2 already updated: 1 was 10 px away and moved 3 px
     away from it, 2 was 10.5 px away and moved 3 px towards it."""
     from tracker.pnmc.tracker import _propagate
@@ -362,6 +362,85 @@ def test_neighbour_weights_updated_measures_the_neighbours_at_t():
     assert np.array_equal(_one_visit(e / e.sum(), 1.0), [50.0, 53.0])
     # the weights of the paper's form do not come from the graph's
     assert np.array_equal(_one_visit(np.array([1.0, 0.0]), 1.0), [50.0, 53.0])
+
+
+def _visit_between(obs0: float, queen0: bool = False, tau0: float = 0.5) -> tuple[list, int]:
+    """Target 0 (at (50, 50), own velocity +3 px in x, previous confidence ``obs0``) visited
+    by :func:`_propagate` on a flat likelihood between neighbour 1 (10 px right, updated,
+    moved +3 px in y) and neighbour 2 (10 px left, not updated): Eq. 3 at ``t - 1`` gives
+    each 0.5. Returns target 0's new position and its number of visits."""
+    from tracker.pnmc.tracker import _propagate
+
+    prev = np.array([[50.0, 50.0], [60.0, 50.0], [40.0, 50.0]])
+    pred = prev.copy()
+    pred[0] += [3.0, 0.0]
+    new = prev.copy()
+    new[1] += [0.0, 3.0]
+    k = 21
+    d = np.arange(k, dtype=np.float64) - k // 2
+    lik = np.ones((3, k, k))
+    gx = prev[:, :1] + d[None]
+    gy = prev[:, 1:] + d[None]
+    updated = np.array([False, True, False])
+    visits = np.zeros(3, np.int64)
+    _propagate(
+        lik, gx, gy, pred, prev, np.array([obs0, 1.0, 1.0]), np.array([0, 2, 3, 4]),
+        np.array([1, 2, 0, 0]), np.array([0.5, 0.5, 1.0, 1.0]), 0.0,
+        np.array([queen0, False, False]), np.arange(3), 2.0, False, np.zeros(3, np.bool_),
+        np.full(3, -1), np.full(3, -1.0), new, np.zeros(3), np.array([tau0, 0.5, 0.5]),
+        updated, np.array([True, True, False]), visits, np.zeros(3, np.bool_),
+        np.zeros(3, np.int64), np.zeros(3, np.int64), np.array([0, 1, 0, 1], np.int64),
+    )  # fmt: skip
+    assert updated.all()
+    return new[0].tolist(), int(visits[0])
+
+
+def test_nmc_prior_weighs_self_by_last_confidence_and_neighbours_by_eq3():
+    """Eq. 5's ``p_S + p_N``: ``p_S`` (at ``A x_i^{t-1}``) carries the previous update
+    confidence (Eq. 1), ``p_N``'s Gaussian at ``x_i^{t-1} + v_j^t`` (Eq. 2) the updated
+    neighbour's Eq. 3 weight normalised over all neighbours (0.5 here, not 1): the heavier
+    mode wins."""
+    assert _visit_between(0.6) == ([53.0, 50.0], 1)
+    assert _visit_between(0.4) == ([50.0, 53.0], 1)
+
+
+def test_queen_ignores_its_neighbours_on_its_first_visit_only():
+    """A queen is predicted by ``p_S`` alone (Sec. 3.4); once it failed ``tau`` and came
+    back, it is treated as a non-queen with the NMC prior (Appendix A)."""
+    assert _visit_between(0.4, queen0=True) == ([53.0, 50.0], 1)
+    assert _visit_between(0.4, queen0=True, tau0=1.5) == ([50.0, 53.0], 2)
+
+
+def test_flow_track_starts_flow_frames_minus_2_before_the_frame_before_the_newest():
+    """With ``flow_frames = 5`` a patch track starts in the oldest buffered frame, four
+    frames before the newest and three before the frame of ``x_i^{t-1}``, where ``near``
+    gives its position: a texture moving +1 px a frame puts the patch that started at
+    (30, 30) at (33, 30)."""
+    base = np.random.default_rng(0).integers(0, 256, (60, 80, 3), dtype=np.uint8)
+    flow = InstantaneousFlow(patch=4, spacing=4, frames=5, search=2, min_ncc=0.5)
+    for t in range(7):
+        flow.push(np.ascontiguousarray(np.roll(base, t, axis=1)))
+    pos, vel = flow.near(np.array([30.0, 30.0]), 0.1, "start")
+    np.testing.assert_array_equal(pos, [[33.0, 30.0]])
+    np.testing.assert_array_equal(vel, [[1.0, 0.0]])
+
+
+def test_likelihood_takes_each_channels_mean_off_where_eq7_takes_one():
+    """PNMC's ``gamma`` (``cv2.TM_CCOEFF_NORMED``, module docstring) is blind to a constant
+    added to one colour channel; Eq. 7's one mean over x, y and colour (the flow's
+    :func:`batched_ncc`) is not."""
+    from tracker.appearance import NCCAppearance
+
+    rng = np.random.default_rng(0)
+    frame = rng.integers(60, 120, (20, 20, 3)).astype(np.uint8)
+    model = NCCAppearance(6, 1, 0.8)
+    model.add(frame, np.array([[10, 10]]))
+    shifted = frame.copy()
+    shifted[..., 2] += 100
+    assert model.scores(shifted, np.array([[10, 10]]))[0, 1, 1] == pytest.approx(1.0, abs=1e-5)
+    tpl = model.templates[0].transpose(2, 0, 1)[None].astype(np.float32)
+    win = shifted[7:13, 7:13].transpose(2, 0, 1)[None].astype(np.float32)
+    assert batched_ncc(tpl, win)[0, 0, 0] < 0.5
 
 
 def test_flow_recovers_a_translation():

@@ -14,10 +14,12 @@ from tracker.pnmc.flow import SELECT_BY
 from tracker.pnmc.queens import QUEEN_ORDERS
 
 QUEEN_MODES: tuple[str, ...] = ("prominence", "random")
+"""How queens are chosen: Algorithm 1, or at random, ``ceil(queen_fraction n)`` of them
+(Algorithm 1's stopping count; Algorithm 1 itself may select more, since a cluster's features
+are given back at once), the paper's Fig. 13 ablation "NMC with randomly initialised
+queens"."""
 NEIGHBOUR_WEIGHTS: tuple[str, ...] = ("previous", "updated")
 """The positions Eq. 3's weights measure (``PNMCParams.neighbour_weights``)."""
-"""How queens are chosen: Algorithm 1, or at random in the same number (the paper's Fig. 13
-ablation "NMC with randomly initialised queens")."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -68,7 +70,8 @@ class PNMCParams:
         Cluster sort criterion, ascending (Sec. 3.1: density ``m / v``); one of
         :data:`tracker.pnmc.queens.QUEEN_ORDERS`.
     queen_mode : str
-        ``"prominence"`` (Algorithm 1) or ``"random"`` (same number, drawn at random).
+        ``"prominence"`` (Algorithm 1) or ``"random"`` (``ceil(queen_fraction n)``, at least
+        one, drawn at random: Algorithm 1's stopping count, not the number it selected).
     queen_every : int
         Queens are selected at the first frame and re-selected after targets were added, at
         most once every ``queen_every`` frames (Sec. 4: queens are selected "only when new
@@ -97,14 +100,15 @@ class PNMCParams:
         Which position of a patch's five-frame track picks the target's flow neighbours
         (:data:`tracker.pnmc.flow.SELECT_BY`); Eq. 3's weights use the patch's position in
         the frame before the newest either way. ``"start"`` (default, kept so no figure
-        moves): where the track began, ``flow_frames - 1`` frames before ``x_i^{t-1}``'s
-        frame. ``"last"``: the paper's form, the patch's position in the frame of
-        ``x_i^{t-1}`` (Sec. 3.3: "we approximate the motion using nearby patches in an
-        instantaneous flow field ... The selection of neighbors in Eq. (3) is now based on
-        nearby patches instead of individuals"; Eq. 3 measures ``||x_j - x_i||`` between
-        positions, not a position and a place the neighbour left frames ago). ``"start"``
-        picks, for a fast target, the patches that were where it is now four frames
-        earlier (background, other people) and misses its own, which began
+        moves): where the track began, ``flow_frames - 2`` frames before ``x_i^{t-1}``'s
+        frame (``flow_frames - 1`` before the newest). ``"last"``: the paper's form, the
+        patch's position in the frame of ``x_i^{t-1}`` (Sec. 3.3: "we approximate the
+        motion using nearby patches in an instantaneous flow field ... The selection of
+        neighbors in Eq. (3) is now based on nearby patches instead of individuals"; Eq. 3
+        measures ``||x_j - x_i||`` between positions, not a position and a place the
+        neighbour left frames ago). ``"start"`` picks, for a fast target, the patches that
+        were where it is now ``flow_frames - 2`` frames earlier (background, other people)
+        and misses its own, which began
         ``(flow_frames - 2) |v|`` px back. Toy scene (a 12 px random-texture square moving
         -4 px/frame over static texture, ``tests/tracker/test_pnmc.py::
         test_flow_select_last_follows_a_fast_target``), the flow prior's patch-weighted

@@ -5,7 +5,11 @@ Per frame ``t`` (Sec. 3.4, Algorithm 2):
 1. **Likelihood** (Eq. 6-7): every target's colour template is correlated (NCC, ``gamma``)
    over a search region of ``search_factor`` template sizes centred on its constant-velocity
    prediction ``A x_i^{t-1}``; ``p(z | x) = (gamma + 1) / 2``. One ``cv2.matchTemplate`` per
-   target, as the NCC baseline (:class:`tracker.appearance.NCCAppearance`).
+   target, as the NCC baseline (:class:`tracker.appearance.NCCAppearance`). Its
+   ``TM_CCOEFF_NORMED`` takes each colour channel's own mean off, where Eq. 7 correlates
+   over x, y and colour as one signal with "its mean subtracted", read as one mean (as
+   :func:`tracker.pnmc.flow.batched_ncc` does): a window that differs from the template by
+   a constant in one channel scores 1 here.
 2. **Hierarchical update**: queens (:mod:`tracker.pnmc.queens`) are updated first with the
    self prior ``p_S`` alone (Eq. 1); then breadth-first over the neighbour graph (targets
    within ``neighbour_radius``), each target with the NMC prior ``zeta (p_S + p_N)`` (Eq. 5)
@@ -51,8 +55,9 @@ with each formula; the paper is the source where they differ):
   every target whose likelihood peak is already below ``tau`` (all of them will need it) in
   one batch up front (:data:`FLOW_PRIORS_AHEAD`).
 * **Flow neighbours** (``flow_select``): by default a target's flow patches are those whose
-  track *started* (``flow_frames - 1`` frames before ``x_i^{t-1}``'s frame) within
-  ``flow_radius`` of ``x_i^{t-1}``, Eq. 3's weights then use their positions in
+  track *started* (in the oldest buffered frame, ``flow_frames - 1`` frames before the
+  newest and ``flow_frames - 2`` before ``x_i^{t-1}``'s) within ``flow_radius`` of
+  ``x_i^{t-1}``, Eq. 3's weights then use their positions in
   ``x_i^{t-1}``'s frame; ``flow_select="last"`` selects by that position too, the paper's
   "nearby patches" (Sec. 3.3). The default is kept so that no figure moves; the bias it
   gives a fast target is measured in :class:`tracker.pnmc.params.PNMCParams`.
@@ -67,7 +72,7 @@ with each formula; the paper is the source where they differ):
 ``confidence`` (base class) is ``p(z | x_hat) = (gamma + 1) / 2`` of the chosen location.
 
 Speed: the breadth-first pass is one compiled loop (:func:`_propagate`, the targets in
-Algorithm 1's order, separable Gaussians); likelihoods, the neighbour graph (``cKDTree``),
+Algorithm 2's order, separable Gaussians); likelihoods, the neighbour graph (``cKDTree``),
 the flow priors (:func:`_flow_map_cells`), flow matching (numba, read in place from the
 buffered frames) and queens (numpy EM) are batched, with no Python loop over targets. The
 1,000 packed targets of ``crowdsim bench track`` (``benchmarks/track_stages.py --tracker
@@ -96,7 +101,7 @@ from tracker.pnmc.queens import select_queens
 _PS_FLOOR = 1e-3
 """Smallest weight of ``p_S`` (a previous confidence of 0 would switch the self prior off)."""
 FLOW_PRIORS_AHEAD: bool = True
-"""Compute the flow priors (Eq. 9) of the targets whose best likelihood is below ``tau`` in
+"""Compute the flow priors (Sec. 3.3) of the targets whose best likelihood is below ``tau`` in
 one batch before the propagation (they will all ask for it), instead of one at a time as the
 propagation asks. The same cells either way (a test compares); on a packed 1,000-target
 frame the per-target Python calls took about 40 % of PNMC's update stage."""
@@ -111,7 +116,7 @@ def _map_cell(
     I)`` is separable in x and y (``sig2 = 2 sigma^2``). Where the prior underflows
     everywhere, the appearance alone decides (``argmax lik``).
 
-    One target at a time, in the order of Algorithm 1: each target's prior depends on the
+    One target at a time, in the order of Algorithm 2: each target's prior depends on the
     neighbours updated before it, so the per-target step is a compiled call (numpy's small
     arrays took 13 us a target, about a third of a 1,000-target frame).
     """
@@ -148,7 +153,7 @@ def _map_cell(
 def _flow_map_cells(
     targets, ptr, e, fvel, camera_v, pred, prev, ws_self, lik, gx, gy, sig2, cell, conf
 ):
-    """Eq. 9's flow prior of each target ``targets[t]``, its MAP cell and that cell's
+    """The flow prior (Sec. 3.3) of each target ``targets[t]``, its MAP cell and that cell's
     likelihood into ``cell`` / ``conf`` (left as they are for a target with no patch near).
 
     The prior mixes the target's own prediction (weight ``ws_self``) with ``prev + v`` for
@@ -207,12 +212,12 @@ def _propagate(
     queue,
     cursor,
 ):
-    """Algorithm 1 with the delayed updates of Algorithm 2 (Appendix A), in place.
+    """Algorithm 2's hierarchical update with its delayed updates (Appendix A), in place.
 
     Targets leave the queue (queens first, then the unvisited target of highest appearance
     peak) in turn; each takes its MAP cell under the prior of its own prediction and of the
     neighbours already updated (Eq. 2, 4, 8), or under the flow prior where that is more
-    confident and the first falls short of ``tau`` (Eq. 9), and is updated once its
+    confident and the first falls short of ``tau`` (Sec. 3.3), and is updated once its
     confidence reaches its ``tau`` or it has waited ``len(neighbours) + 2`` visits; else its
     ``tau`` drops to its confidence and it queues again. Updated targets queue their
     unqueued neighbours. The neighbours' weights are ``wts`` (Eq. 3 at ``t - 1``) when
@@ -538,7 +543,7 @@ class PNMCTracker(Tracker):
         flow_conf = np.full(n, -1.0)
 
         def flow_priors(targets: np.ndarray) -> None:
-            """The flow prior's MAP cell of ``targets`` (Eq. 9), all at once."""
+            """The flow prior's MAP cell of ``targets`` (Sec. 3.3), all at once."""
             at = flow_at[targets]
             ptr, fpos, fvel = self.flow.near_many(at, p.flow_radius * s, p.flow_select)
             seg = np.repeat(np.arange(len(targets)), np.diff(ptr))
@@ -556,7 +561,7 @@ class PNMCTracker(Tracker):
             # a target whose best likelihood is below tau needs its flow prior whatever its
             # neighbours say (865 of 869 that did on a packed 1,000-target frame): all at once
             flow_priors(np.flatnonzero(peak < p.tau))
-        # Algorithm 1 / 2 run compiled (:func:`_propagate`); it hands back a target whose
+        # Algorithm 2 runs compiled (:func:`_propagate`); it hands back a target whose
         # appearance and neighbour prior fall short of tau before that target's flow prior
         # is known, the prior is computed here, and the run resumes
         new = prev.copy()
