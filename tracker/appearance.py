@@ -596,6 +596,12 @@ class KCFAppearance(AppearanceModel):
         _blend_rows(self.alphaf.reshape(n, -1), sel, alphaf.reshape(m, -1), lr)
 
 
+NCC_MEANS: tuple[str, ...] = ("channel", "joint")
+"""What :class:`NCCAppearance` takes off before it correlates: each colour channel's own mean
+(OpenCV's ``TM_CCOEFF_NORMED``), or one mean over the patch's pixels and colours together (a
+colour patch as one signal, paper 2's Eq. 7)."""
+
+
 class NCCAppearance(AppearanceModel):
     """Colour template per target, scored by ``cv2.matchTemplate`` (``TM_CCOEFF_NORMED``).
 
@@ -603,15 +609,28 @@ class NCCAppearance(AppearanceModel):
     confidence (the NCC score of the selected candidate) reaches the threshold (paper 1,
     Sec. 7.1). OpenCV scores one template at a time, so :meth:`scores` loops over targets; each
     call is a few microseconds on these small windows.
+
+    ``mean`` (:data:`NCC_MEANS`): ``"channel"`` (default) takes each channel's mean off the
+    template and the window, so a window that differs from the template by a constant in one
+    channel scores 1; ``"joint"`` takes one mean over pixels and colours (``sum (T - mean T)
+    I / sqrt(sum (T - mean T)^2 (sum I^2 - (sum I)^2 / 3 s^2))``), so it does not.
     """
 
     def __init__(
-        self, template_size: int, radius: int, update_threshold: float = 0.6, update_every: int = 10
+        self,
+        template_size: int,
+        radius: int,
+        update_threshold: float = 0.6,
+        update_every: int = 10,
+        mean: str = "channel",
     ):
         super().__init__(template_size, radius, update_threshold)
         if update_every < 1:
             raise ValueError(f"update_every must be >= 1, got {update_every!r}")
+        if mean not in NCC_MEANS:
+            raise ValueError(f"mean must be one of {', '.join(NCC_MEANS)}, got {mean!r}")
         self.update_every = int(update_every)
+        self.mean = mean
         s = self.template_size
         self.templates = np.zeros((0, s, s, 3), np.uint8)
         self.age = np.zeros(0, np.int64)
@@ -650,6 +669,10 @@ class NCCAppearance(AppearanceModel):
         s, r = self.template_size, self.radius
         windows = extract_patches(frame, centers - r - s // 2, self.window).transpose(0, 2, 3, 1)
 
+        if self.mean == "joint":
+            _joint_ncc(windows, self.templates, out)
+            return out
+
         def match(lo: int, hi: int) -> None:  # OpenCV releases the GIL: chunks on threads
             for i in range(lo, hi):
                 out[i] = cv2.matchTemplate(
@@ -675,6 +698,38 @@ class NCCAppearance(AppearanceModel):
             return
         self.templates[sel] = self._templates(frame, np.asarray(centers).reshape(-1, 2)[sel])
         self.age[sel] = 0
+
+
+def _joint_ncc(windows: np.ndarray, templates: np.ndarray, out: np.ndarray) -> None:
+    """NCC with one mean over a patch's pixels and colours (``NCCAppearance(mean="joint")``)
+    of templates ``(n, s, s, 3)`` over windows ``(n, W, W, 3)`` into ``out (n, k, k)``, ``k =
+    W - s + 1``; 0 where the window or the template is flat, as OpenCV's NaN is read."""
+    n, s = templates.shape[:2]
+    k = out.shape[1]
+    tpl = templates.astype(np.float32)
+    tpl -= tpl.reshape(n, -1).mean(axis=1)[:, None, None, None]
+    t_ss = np.einsum("ijkl,ijkl->i", tpl, tpl, dtype=np.float64)
+    win = windows.astype(np.float32)
+
+    def match(lo: int, hi: int) -> None:  # the sum of T - mean T times the window
+        for i in range(lo, hi):
+            out[i] = cv2.matchTemplate(np.ascontiguousarray(win[i]), tpl[i], cv2.TM_CCORR)
+
+    in_chunks(n, match)
+    # the window's sum and sum of squares over each s x s x 3 patch, from integral images
+    grey = windows.sum(axis=3, dtype=np.float64)
+    sq = np.einsum("ijkl,ijkl->ijk", win, win, dtype=np.float64)
+    box = []
+    for plane in (grey, sq):
+        c = np.zeros((n, plane.shape[1] + 1, plane.shape[2] + 1))
+        c[:, 1:, 1:] = plane.cumsum(1).cumsum(2)
+        box.append(
+            c[:, s : s + k, s : s + k] - c[:, :k, s : s + k] - c[:, s : s + k, :k] + c[:, :k, :k]
+        )
+    w_ss = box[1] - box[0] ** 2 / (3 * s * s)
+    den = np.sqrt(np.maximum(w_ss, 0.0) * t_ss[:, None, None])
+    ok = den > 1e-6 * (3 * s * s)
+    out[...] = np.where(ok, out / np.where(ok, den, 1.0), 0.0)
 
 
 def make_appearance(

@@ -440,7 +440,36 @@ def test_likelihood_takes_each_channels_mean_off_where_eq7_takes_one():
     assert model.scores(shifted, np.array([[10, 10]]))[0, 1, 1] == pytest.approx(1.0, abs=1e-5)
     tpl = model.templates[0].transpose(2, 0, 1)[None].astype(np.float32)
     win = shifted[7:13, 7:13].transpose(2, 0, 1)[None].astype(np.float32)
-    assert batched_ncc(tpl, win)[0, 0, 0] < 0.5
+    eq7 = batched_ncc(tpl, win)[0, 0, 0]
+    assert eq7 < 0.5
+    # ncc_mean="joint" (NCCAppearance(mean="joint")) takes Eq. 7's one mean: the flow's value
+    joint = NCCAppearance(6, 1, 0.8, mean="joint")
+    joint.add(frame, np.array([[10, 10]]))
+    assert joint.scores(shifted, np.array([[10, 10]]))[0, 1, 1] == pytest.approx(eq7, abs=1e-5)
+    assert joint.scores(frame, np.array([[10, 10]]))[0, 1, 1] == pytest.approx(1.0, abs=1e-5)
+    flat = np.full_like(frame, 90)  # a flat window has no information: 0, as OpenCV's NaN
+    assert joint.scores(flat, np.array([[10, 10]]))[0, 1, 1] == 0.0
+
+
+def test_ncc_mean_joint_is_a_pnmc_option_that_tracks():
+    """``--set ncc_mean=joint`` goes through the parameters, reaches the model mid-run, and
+    follows the walkers of the plant-and-recover scene as the default does."""
+    from tracker.pnmc.params import PNMCParams
+
+    with pytest.raises(ValueError, match="ncc_mean must be one of"):
+        PNMCParams(ncc_mean="grey")
+    sc = make_scene(
+        [[20, 20], [90, 20], [100, 75], [25, 75]], [[2, 1], [-2, 1], [-2, 0], [1, -1]], n_frames=12
+    )
+    t = PNMCTracker(PNMCParams(ncc_mean="joint"))
+    res = t.track(sc.frames, sc.ids, sc.points[0], sc.template_size)
+    # the flat blobs' joint-mean peak is flatter: the still prior of the first frames holds
+    # one target a pixel back on frames 1 and 2
+    assert np.abs(res.positions - sc.points).max() <= 1
+    np.testing.assert_array_equal(res.positions[3:], sc.points[3:])
+    assert t.model.mean == "joint"
+    t.set_params(PNMCParams())
+    assert t.model.mean == "channel"
 
 
 def test_flow_recovers_a_translation():
@@ -591,6 +620,7 @@ CHANGES = {
     "weight_scale": 20.0,
     "neighbour_radius": 1.0,
     "neighbour_weights": "updated",
+    "ncc_mean": "joint",
     "use_neighbours": False,
     "use_flow": False,
     "n_clusters": 3,

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from crowdsim.checks import require_choice, require_number
+from tracker.appearance import NCC_MEANS
 from tracker.cmc import check_fields as check_cmc_fields
 from tracker.pnmc.flow import SELECT_BY
 from tracker.pnmc.queens import QUEEN_ORDERS
@@ -53,6 +54,14 @@ class PNMCParams:
         already updated, normalised over all its neighbours, those not yet updated at
         ``t - 1``. At ``weight_scale = 1`` px the weight goes mostly to the nearest
         neighbour, so the two can pick different neighbours to follow.
+    ncc_mean : str
+        What the likelihood's ``gamma`` (Eq. 7) takes off the template and the window before
+        it correlates (:data:`tracker.appearance.NCC_MEANS`). ``"channel"`` (default, kept so
+        no figure moves): each colour channel's own mean (OpenCV's ``TM_CCOEFF_NORMED``, as
+        the NCC baseline), so a window that differs from the template by a constant in one
+        channel scores 1. ``"joint"``: the paper's form, Eq. 7 correlating over x, y and
+        colour with the template's mean subtracted, read as one mean over the patch's
+        pixels and colours, so such a colour change lowers ``gamma``.
     use_neighbours : bool
         Use ``p_N`` (Eq. 2, 5). ``False``: every target is predicted by ``p_S`` alone (the
         paper's Fig. 13 "self component only").
@@ -153,6 +162,7 @@ class PNMCParams:
     weight_scale: float = 1.0
     neighbour_radius: float = 2.5
     neighbour_weights: str = "previous"
+    ncc_mean: str = "channel"
     use_neighbours: bool = True
     use_flow: bool = True
     n_clusters: int = 100
@@ -188,6 +198,7 @@ class PNMCParams:
         require_number(o, "weight_scale", self.weight_scale, lo=0, lo_open=True)
         require_number(o, "neighbour_radius", self.neighbour_radius, lo=0, hi=20)
         require_choice(o, "neighbour_weights", self.neighbour_weights, NEIGHBOUR_WEIGHTS)
+        require_choice(o, "ncc_mean", self.ncc_mean, NCC_MEANS)
         require_choice(o, "use_neighbours", self.use_neighbours, (True, False))
         require_choice(o, "use_flow", self.use_flow, (True, False))
         require_number(o, "n_clusters", self.n_clusters, lo=1, hi=1_000, integer=True)

@@ -9,7 +9,7 @@ Per frame ``t`` (Sec. 3.4, Algorithm 2):
    ``TM_CCOEFF_NORMED`` takes each colour channel's own mean off, where Eq. 7 correlates
    over x, y and colour as one signal with "its mean subtracted", read as one mean (as
    :func:`tracker.pnmc.flow.batched_ncc` does): a window that differs from the template by
-   a constant in one channel scores 1 here.
+   a constant in one channel scores 1 here; ``ncc_mean="joint"`` takes the one mean.
 2. **Hierarchical update**: queens (:mod:`tracker.pnmc.queens`) are updated first with the
    self prior ``p_S`` alone (Eq. 1); then breadth-first over the neighbour graph (targets
    within ``neighbour_radius``), each target with the NMC prior ``zeta (p_S + p_N)`` (Eq. 5)
@@ -364,7 +364,7 @@ class PNMCTracker(Tracker):
     def _init(self, frame: np.ndarray) -> None:
         p = self.params
         self.model = NCCAppearance(
-            self.template_size, 1, p.update_threshold, update_every=p.update_every
+            self.template_size, 1, p.update_threshold, update_every=p.update_every, mean=p.ncc_mean
         )
         self._set_radius()
         self.flow = InstantaneousFlow(
@@ -397,6 +397,7 @@ class PNMCTracker(Tracker):
         p = self.params
         self.model.update_threshold = float(p.update_threshold)
         self.model.update_every = int(p.update_every)
+        self.model.mean = p.ncc_mean
         self._set_radius()
         if changed & _FLOW_FIELDS:
             self.flow.reconfigure(
