@@ -781,3 +781,24 @@ def test_bench_track_times_the_block_variant_beside_swap(capsys):
         bench_main("track", ["--quick", "--fw-variant", "newton"])
     assert exit_.value.code == 2
     assert "--fw-variant: invalid choice: 'newton'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "x0, c, kind, x1",
+    [
+        # FW: lambda 5/6, f -25/24; SWAP: lambda capped at alpha_y = 0.5, f -1
+        ([0.5, 0.5, 0.0], [0.0, 1.0, -1.0], "fw", [1 / 12, 1 / 12, 5 / 6]),
+        # FW: lambda 0.94, f -1.486; SWAP: capped at alpha_y = 0.8 (a drop), f -1.6
+        ([0.2, 0.8, 0.0], [0.0, 1.0, -1.0], "swap", [0.2, 0.0, 0.8]),
+    ],
+)
+def test_swap_variant_takes_the_step_with_the_larger_decrease(x0, c, kind, x1):
+    """Alg. 2 compares ``delta_fw`` and ``delta_swap`` (changes of ``f``, ``<= 0``) and takes
+    the best improvement (it prints ``max``, which would take the other). One block of three,
+    ``Q = I``, one step from ``x0``: ``g = c + 2 x0``, toward vertex 2, away vertex 1; both
+    line searches by hand (``lambda = -g.d / 2 d'd``, clipped)."""
+    qp = BlockQP(np.array(c), sp.identity(3, format="csc"), np.array([0, 3]))
+    res = solve(qp, x0=np.array(x0), params=FWParams(variant="swap", eps=0.0, max_iter=1))
+    assert res.iterations == 1 and res.steps[kind] == 1
+    assert res.steps["drop"] == (1 if kind == "swap" else 0)
+    np.testing.assert_allclose(res.x, x1, atol=1e-12)

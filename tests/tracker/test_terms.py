@@ -782,3 +782,31 @@ def test_eq7_neighbours_are_the_nearest_of_the_own_group():
     np.testing.assert_allclose(w.sum(1), 1.0)
     nbr, _ = neighbours_in_groups(pos, labels, k=2, radius=5.0, scale=1.0, same_group=True)
     assert (nbr == -1).all()  # the own group's nearest is 6 px away: beyond the radius
+
+
+def test_a_repeated_candidate_counts_in_the_degrees_as_often_as_it_repeats():
+    """Speed-up sampling can repeat a cell (:func:`speedup_candidates`); the repeat is a
+    candidate of its own in Eq. 9's degrees. Target A's candidate a0 sits on B's b0 (S = 1),
+    everything else is far apart. A on a0 with B on the far b1 pays a0's diagonal alone,
+    ``D / (D + tau)`` (tau 1): 1/2 with b0 once, 2/3 with b0 repeated (D = 2), although
+    neither choice selects b0; B on b0 (or its repeat) pays ``D_a0 / (D_a0 + 1) + 1/2 +
+    2 / sqrt((D_a0 + 1) 2)``."""
+    far = [[100.0, 0.0], [200.0, 0.0]]
+    for b2, d_a0 in (([300.0, 0.0], 1.0), ([0.0, 0.0], 2.0)):  # b2 far, then b2 = b0
+        cand = np.array([[[0.0, 0.0], *far], [[0.0, 0.0], [0.0, 500.0], b2]])
+        q = proximity_matrix(cand, 3.0, 1.5, tau=1.0).toarray()
+
+        def pay(i, j, q=q):
+            x = np.zeros(6)
+            x[[i, 3 + j]] = 1.0
+            return x @ q @ x
+
+        assert pay(0, 1) == pytest.approx(d_a0 / (d_a0 + 1.0), abs=1e-12)
+        both = d_a0 / (d_a0 + 1.0) + 0.5 + 2.0 / np.sqrt((d_a0 + 1.0) * 2.0)
+        assert pay(0, 0) == pytest.approx(both, abs=1e-12)
+        assert pay(1, 1) == 0.0
+    rng = np.random.default_rng(0)
+    cost = np.zeros((1, 9, 9))
+    cost[0, 0, 0] = -1.0  # an extremum in the grid's corner: its samples clip onto the edge
+    s = speedup_candidates(np.array([[20, 20]]), 4, cost, -cost, rng, 1, 10, 10)
+    assert s.k == 11 and len(np.unique(s.cell[0])) < s.k

@@ -11,7 +11,9 @@ One implementation serves four variants, selected by :attr:`FWParams.variant`:
 ``"swap"``
     FW with SWAP steps (Alg. 2, the paper's method): line-search both the FW step and the
     SWAP (pairwise) step ``s - y`` and take the one with the larger decrease of ``f``
-    (``delta_fw`` vs ``delta_swap``); the SWAP step is clipped at ``alpha_y`` (SWAP-drop).
+    (``delta_fw`` vs ``delta_swap``: Alg. 2 prints ``max`` of these changes, which are ``<= 0``,
+    where its text asks for the best improvement); the SWAP step is clipped at ``alpha_y``
+    (SWAP-drop).
 ``"block"``
     SWAP steps on the chosen block until its gap closes, taken at once (our addition, for
     thousands of targets; the objective, the choice of block and the stopping test are
