@@ -700,6 +700,30 @@ class NCCAppearance(AppearanceModel):
         self.age[sel] = 0
 
 
+@njit(cache=True, nogil=True, parallel=True)
+def _window_moments(windows, s, k, s1, s2):
+    """Per window ``(n, W, W, 3)`` uint8, the sum (``s1``) and the sum of squares (``s2``) of
+    every ``s x s x 3`` patch ``(n, k, k)``, from integral images in whole numbers (exact)."""
+    n, wy, wx = windows.shape[:3]
+    for t in prange(n):
+        c1 = np.zeros((wy + 1, wx + 1), np.int64)
+        c2 = np.zeros((wy + 1, wx + 1), np.int64)
+        for y in range(wy):
+            r1 = 0
+            r2 = 0
+            for x in range(wx):
+                for z in range(3):
+                    v = np.int64(windows[t, y, x, z])
+                    r1 += v
+                    r2 += v * v
+                c1[y + 1, x + 1] = c1[y, x + 1] + r1
+                c2[y + 1, x + 1] = c2[y, x + 1] + r2
+        for i in range(k):
+            for j in range(k):
+                s1[t, i, j] = c1[i + s, j + s] - c1[i, j + s] - c1[i + s, j] + c1[i, j]
+                s2[t, i, j] = c2[i + s, j + s] - c2[i, j + s] - c2[i + s, j] + c2[i, j]
+
+
 def _joint_ncc(windows: np.ndarray, templates: np.ndarray, out: np.ndarray) -> None:
     """NCC with one mean over a patch's pixels and colours (``NCCAppearance(mean="joint")``)
     of templates ``(n, s, s, 3)`` over windows ``(n, W, W, 3)`` into ``out (n, k, k)``, ``k =
@@ -713,20 +737,13 @@ def _joint_ncc(windows: np.ndarray, templates: np.ndarray, out: np.ndarray) -> N
 
     def match(lo: int, hi: int) -> None:  # the sum of T - mean T times the window
         for i in range(lo, hi):
-            out[i] = cv2.matchTemplate(np.ascontiguousarray(win[i]), tpl[i], cv2.TM_CCORR)
+            out[i] = cv2.matchTemplate(win[i], tpl[i], cv2.TM_CCORR)
 
     in_chunks(n, match)
-    # the window's sum and sum of squares over each s x s x 3 patch, from integral images
-    grey = windows.sum(axis=3, dtype=np.float64)
-    sq = np.einsum("ijkl,ijkl->ijk", win, win, dtype=np.float64)
-    box = []
-    for plane in (grey, sq):
-        c = np.zeros((n, plane.shape[1] + 1, plane.shape[2] + 1))
-        c[:, 1:, 1:] = plane.cumsum(1).cumsum(2)
-        box.append(
-            c[:, s : s + k, s : s + k] - c[:, :k, s : s + k] - c[:, s : s + k, :k] + c[:, :k, :k]
-        )
-    w_ss = box[1] - box[0] ** 2 / (3 * s * s)
+    s1 = np.empty((n, k, k), np.int64)
+    s2 = np.empty((n, k, k), np.int64)
+    _window_moments(np.ascontiguousarray(windows), s, k, s1, s2)
+    w_ss = s2 - s1.astype(np.float64) ** 2 / (3 * s * s)
     den = np.sqrt(np.maximum(w_ss, 0.0) * t_ss[:, None, None])
     ok = den > 1e-6 * (3 * s * s)
     out[...] = np.where(ok, out / np.where(ok, den, 1.0), 0.0)
