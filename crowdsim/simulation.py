@@ -768,12 +768,16 @@ class Simulation:
 
     def _free(self, pos: np.ndarray, radius: np.ndarray, pending: list[AgentBatch]) -> np.ndarray:
         """True where a candidate overlaps nobody (present, pending, or an earlier candidate)."""
-        others_p = [self.state.pos] + [b.pos for b in pending]
-        others_r = [self.state.radius] + [b.radius for b in pending]
-        op, orad = np.concatenate(others_p), np.concatenate(others_r)
         lo, hi = pos.min(axis=0) - 1.0, pos.max(axis=0) + 1.0
-        near = np.all((op >= lo) & (op <= hi), axis=1)
-        op, orad = op[near], orad[near]
+        # each group cut to the candidates' box before joining, in x and then the survivors
+        # in y: the same rows in the same order as cutting the joined groups, without
+        # copying every present agent for each source every step
+        others = [(self.state.pos, self.state.radius)] + [(b.pos, b.radius) for b in pending]
+        in_x = [(q[:, 0] >= lo[0]) & (q[:, 0] <= hi[0]) for q, _ in others]
+        op = np.concatenate([q[m] for (q, _), m in zip(others, in_x, strict=True)])
+        orad = np.concatenate([r[m] for (_, r), m in zip(others, in_x, strict=True)])
+        in_y = (op[:, 1] >= lo[1]) & (op[:, 1] <= hi[1])
+        op, orad = op[in_y], orad[in_y]
         ok = np.ones(len(pos), dtype=bool)
         if len(op):
             d = np.hypot(pos[:, None, 0] - op[None, :, 0], pos[:, None, 1] - op[None, :, 1])

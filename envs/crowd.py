@@ -470,17 +470,19 @@ class CrowdParallelEnv(ParallelEnv):
         if rows:
             arr[rows] = block
             act[rows] = True
+        ids_before = self._ids
         obs, rew, term, trunc = self.step_arrays(arr, act)
         out_obs = dict(zip(names, obs, strict=True))
         rewards = dict(zip(names, rew.tolist(), strict=True))
         terminations = dict(zip(names, term.tolist(), strict=True))
         truncations = dict(zip(names, trunc.tolist(), strict=True))
-        old = set(names)
-        for name, o in zip(self.agents, self._obs, strict=True):  # newcomers
-            if name not in old:
-                out_obs[name] = o.copy()
-                rewards[name] = 0.0
-                terminations[name] = truncations[name] = False
+        live = self.agents
+        # newcomers, in live order: found by id at once (a loop over every live agent's name
+        # was a tenth of this dict layer at 5,000 agents)
+        for k in np.flatnonzero(~np.isin(self._ids, ids_before)).tolist():
+            out_obs[live[k]] = self._obs[k].copy()
+            rewards[live[k]] = 0.0
+            terminations[live[k]] = truncations[live[k]] = False
         return out_obs, rewards, terminations, truncations, {a: {} for a in out_obs}
 
     def render(self) -> np.ndarray | None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -333,3 +334,51 @@ def test_a_periodic_world_records_every_frame_on_its_period(seed):
     x = sim.run(3).positions[..., 0]
     x = x[np.isfinite(x)]
     assert x.min() >= 0 and x.max() < period, (x.min(), x.max(), period)
+
+
+def _free_before(sim: Simulation, pos, radius, pending) -> np.ndarray:
+    """``Simulation._free`` as it was before it cut each group to the box (the reference)."""
+    op = np.concatenate([sim.state.pos] + [b.pos for b in pending])
+    orad = np.concatenate([sim.state.radius] + [b.radius for b in pending])
+    lo, hi = pos.min(axis=0) - 1.0, pos.max(axis=0) + 1.0
+    near = np.all((op >= lo) & (op <= hi), axis=1)
+    op, orad = op[near], orad[near]
+    ok = np.ones(len(pos), dtype=bool)
+    if len(op):
+        d = np.hypot(pos[:, None, 0] - op[None, :, 0], pos[:, None, 1] - op[None, :, 1])
+        ok &= np.all(d > radius[:, None] + orad[None, :] + 0.05, axis=1)
+    for i in range(1, len(pos)):
+        d = np.hypot(*(pos[:i] - pos[i]).T)
+        ok[i] &= bool(np.all((d > radius[:i] + radius[i] + 0.05) | ~ok[:i]))
+    return ok
+
+
+def test_spawn_free_test_equals_the_joined_groups_expression():
+    """The spawn's overlap test cuts the present agents and each pending batch to the
+    candidates' box separately; it must flag the same candidates as cutting them joined,
+    with candidates on the box's edges, inside pending batches and in empty space."""
+    sim = Simulation(make_scenario("station", n_agents=400), seed=2)
+    for _ in range(5):
+        sim.step()
+    rng = np.random.default_rng(7)
+    st = sim.state
+    x0, y0 = st.pos.min(axis=0)
+    x1, y1 = st.pos.max(axis=0)
+    seen = set()
+    for _ in range(60):
+        k = int(rng.integers(1, 8))
+        cx, cy = rng.uniform(x0, x1), rng.uniform(y0, y1)
+        pos = np.column_stack(
+            [rng.uniform(cx - 1.5, cx + 1.5, k), rng.uniform(cy - 1.5, cy + 1.5, k)]
+        )
+        radius = rng.uniform(0.2, 0.3, k)
+        pending = []
+        for _ in range(int(rng.integers(0, 3))):
+            m = int(rng.integers(0, 4))
+            xy = np.column_stack([rng.uniform(cx - 2, cx + 2, m), rng.uniform(cy - 2, cy + 2, m)])
+            pending.append(SimpleNamespace(pos=xy, radius=rng.uniform(0.2, 0.3, m)))
+        got = sim._free(pos, radius, pending)
+        want = _free_before(sim, pos, radius, pending)
+        np.testing.assert_array_equal(got, want)
+        seen.add((bool(got.all()), bool(got.any())))
+    assert seen >= {(True, True), (False, True), (False, False)}  # all, some and none free

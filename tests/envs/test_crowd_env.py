@@ -367,3 +367,25 @@ def test_shared_policy_vec_env_checks_its_actions_and_renders_one_frame():
     assert len(venv.get_images()) == 4
     with pytest.raises(ValueError, match="has no possible agents"):
         shared_policy_vec_env(CrowdParallelEnv(n_agents=4, controlled_fraction=0.0))
+
+
+def test_dict_step_adds_each_newcomer_once_after_the_stepped_agents():
+    """Agents that enter during a step get a key in every dict, after the stepped agents and
+    in live order, with reward 0 and both flags False; nobody else is added."""
+    env = crowd_v0.parallel_env(
+        n_agents=15, max_cycles=60, scenario_params={"inflow": True}, max_agents=40
+    )
+    env.reset(seed=9)
+    rng = np.random.default_rng(1)
+    entered = 0
+    while env.agents:
+        names = list(env.agents)
+        obs, rew, term, trunc, infos = env.step({a: rng.uniform(-1, 1, 2) for a in names})
+        fresh = [a for a in env.agents if a not in set(names)]
+        entered += len(fresh)
+        for d in (obs, rew, term, trunc, infos):
+            assert list(d) == names + fresh
+        for a in fresh:
+            assert rew[a] == 0.0 and term[a] is False and trunc[a] is False
+            np.testing.assert_array_equal(obs[a], env.observe_arrays()[env.agents.index(a)])
+    assert entered > 0
