@@ -270,13 +270,15 @@ def require_replaceable(flag: str, path: str | os.PathLike[str], overwrite: bool
     if not os.path.lexists(p):
         _CHECKED[p.absolute()] = None
         return p
+    ledger = _ledger(p.parent)
     if p.is_file():
-        listed = (_ledger(p.parent) or {}).get(p.name)
+        listed = (ledger or {}).get(p.name)
         if listed is not None and listed == sha256_file(p):
             _CHECKED[p.absolute()] = _stamp(p)
             return p
+    why = "" if ledger is not None else f" ({p.parent / LEDGER} is damaged or not crowdsim's)"
     raise ValueError(
-        f"{flag} {p}: the file exists and crowdsim cannot prove it wrote it; refusing to "
+        f"{flag} {p}: the file exists and crowdsim cannot prove it wrote it{why}; refusing to "
         f"replace it (pass --overwrite to replace it, or choose another path)"
     )
 
@@ -285,26 +287,35 @@ def record_written(*paths: str | os.PathLike[str]) -> None:
     """Note, in each folder's :data:`LEDGER`, the digests of ``paths`` that crowdsim has just
     written, so a later run may replace them (:func:`require_replaceable`). Entries of files
     no longer there are dropped. A ledger that cannot be written costs only that proof: one
-    line on stderr, and the next run asks for ``--overwrite``."""
+    line on stderr, and the next run asks for ``--overwrite``.
+
+    The ledger is read, merged and written holding a lock on its folder: runs writing into one
+    folder at once (two ``track --out`` into a shared results folder) keep each other's notes."""
     by_folder: dict[Path, list[Path]] = {}
     for path in paths:
         p = Path(path).absolute()
         by_folder.setdefault(p.parent, []).append(p)
     for folder, files in by_folder.items():
-        listed = _ledger(folder)
-        if listed is None:  # a foreign file has the ledger's name: leave it alone
-            continue
-        listed = {name: d for name, d in listed.items() if (folder / name).is_file()}
-        listed.update({p.name: sha256_file(p) for p in files if p.is_file()})
-        doc = {"written_by": "crowdsim", "files": dict(sorted(listed.items()))}
-        try:
-            write_text_atomic(folder / LEDGER, json.dumps(doc, indent=1) + "\n")
-        except OSError as exc:
-            print(
-                f"crowdsim: could not note the written files in {folder / LEDGER} ({exc}); "
-                "a rerun will ask for --overwrite",
-                file=sys.stderr,
-            )
+        with folder_locked(folder / LEDGER):
+            listed = _ledger(folder)
+            if listed is None:  # a foreign file has the ledger's name: leave it alone
+                print(
+                    f"crowdsim: {folder / LEDGER} is damaged or not crowdsim's, so the written "
+                    "files are not noted there; a rerun will ask for --overwrite",
+                    file=sys.stderr,
+                )
+                continue
+            listed = {name: d for name, d in listed.items() if (folder / name).is_file()}
+            listed.update({p.name: sha256_file(p) for p in files if p.is_file()})
+            doc = {"written_by": "crowdsim", "files": dict(sorted(listed.items()))}
+            try:
+                write_text_atomic(folder / LEDGER, json.dumps(doc, indent=1) + "\n")
+            except OSError as exc:
+                print(
+                    f"crowdsim: could not note the written files in {folder / LEDGER} "
+                    f"({exc}); a rerun will ask for --overwrite",
+                    file=sys.stderr,
+                )
 
 
 @contextmanager
@@ -331,21 +342,56 @@ def new_study_files(url: str | None) -> Iterator[None]:
     """Open or create an Optuna study in the block: when it fails (a full disk while the
     tables are made), the SQLite files of ``url`` (``sqlite:///path``: the database and its
     journals) that were not there before are removed, so a half-made database of this run
-    is never left to be refused as foreign by the next. Other storages are left alone."""
+    is never left to be refused as foreign by the next. Other storages are left alone.
+
+    Two runs opening one new SQLite study at once (two ``tune --study`` sharing a file) take
+    turns, holding a lock on the database's folder: else both made its tables (one failed on
+    the other's, "UNIQUE constraint failed"), and the one that failed removed the database
+    the other was using."""
     files: list[Path] = []
     if url is not None and url.startswith("sqlite:///"):
         db = url[len("sqlite:///") :]
         files = [Path(db + end) for end in ("", "-journal", "-wal", "-shm")]
-    new = [p for p in files if not os.path.lexists(p)]
+    with folder_locked(files[0] if files else None):
+        new = [p for p in files if not os.path.lexists(p)]
+        try:
+            yield
+        except BaseException:
+            for p in new:
+                try:
+                    p.unlink()
+                except OSError:
+                    pass
+            raise
+
+
+@contextmanager
+def folder_locked(path: str | os.PathLike[str] | None) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on the folder of ``path`` (its nearest existing one) in the
+    block; no file is made for it. Nothing is held for ``None``, where fcntl is missing or
+    where the folder cannot be opened. Not reentrant: a second hold of one folder in one
+    process waits for ever."""
     try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        path = None
+    if path is None:
         yield
-    except BaseException:
-        for p in new:
-            try:
-                p.unlink()
-            except OSError:
-                pass
-        raise
+        return
+    folder = next(p for p in Path(path).absolute().parents if p.is_dir())
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # a folder that cannot be read (mode -wx): as before the lock
+        yield
+        return
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError:  # a file system without locks (some NFS): as before the lock
+            pass
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
 
 
 def _study_failure(exc: BaseException) -> str | None:

@@ -435,12 +435,18 @@ def mot_folders(path: str | os.PathLike[str], only: Sequence[str] | None = None)
     ``seqinfo.ini``), else its sub-folders that have one, sorted by name; with ``only``, those
     named in it (``--only``). Raises ``ValueError`` naming ``path`` when there is none, and
     naming an ``only`` name it does not hold (what ``tune``, ``heldout`` and
-    ``compare --sequences`` read)."""
+    ``compare --sequences`` read). Hidden sub-folders are not sequences: ``generate``'s
+    half-written ones (``.crowdsim-tmp-*``), and the old ones an ``--overwrite`` renamed
+    aside, were tracked as sequences of their own while a ``generate`` ran (or after a kill)."""
     path = Path(path)
     if (path / "seqinfo.ini").is_file():
         folders = [path]
     else:
-        folders = sorted(p for p in path.iterdir() if (p / "seqinfo.ini").is_file())
+        folders = sorted(
+            p
+            for p in path.iterdir()
+            if not p.name.startswith(".") and (p / "seqinfo.ini").is_file()
+        )
         if not folders:
             raise ValueError(f"{path}: no MOT sequence folders (sub-folders with seqinfo.ini)")
     if only:

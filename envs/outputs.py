@@ -40,6 +40,7 @@ from typing import Any
 
 from crowdsim.atomic import (
     atomic_path,
+    folder_locked,
     note_checked,
     require_unchanged,
     sha256_file,
@@ -99,8 +100,11 @@ def check_outputs(
         raise _refuse(rec_path, what, flag)
     listed: dict[str, set[str]] = {}
     for key in ("files", "previous_files"):
-        for name, digest in ((doc or {}).get(key) or {}).items():
-            listed.setdefault(name, set()).add(digest)
+        entries = (doc or {}).get(key) or {}
+        if not isinstance(entries, dict):  # damaged: it proves nothing
+            raise _refuse(rec_path, what, flag)
+        for name, digest in entries.items():
+            listed.setdefault(name, set()).add(str(digest))
     legacy = (doc is not None and "files" not in doc) or (
         doc is None and earlier is not None and earlier(out)
     )
@@ -114,6 +118,28 @@ def check_outputs(
             raise _refuse(p, what, flag)
     # what was vouched for holds until the write: a file put there meanwhile is kept
     note_checked(rec_path, *(out / name for name in owned))
+    _VOUCHED[rec_path.absolute()] = is_ours
+
+
+_VOUCHED: dict[Path, Callable[[Any], bool]] = {}
+"""The records :func:`check_outputs` checked, with the test that they are ours."""
+
+
+def _take_back_ours(out: Path, record: str, names: Sequence[str]) -> None:
+    """Before :func:`write_outputs` commits: outputs that another run of this command wrote
+    since :func:`check_outputs` (two ``compare`` runs sharing ``--out``) are ours, when the
+    record, ours still, lists their digests now; they may be replaced as the check let this
+    run replace its own. Any other file that appeared or changed stays refused (a user's)."""
+    path = out / record
+    is_ours = _VOUCHED.get(path.absolute())
+    doc = read_record(path, is_ours) if is_ours is not None else None
+    if not doc or not isinstance(doc.get("files"), dict):
+        return
+    note_checked(path)
+    for name in names:
+        p = out / name
+        if p.is_file() and doc["files"].get(name) == sha256_file(p):
+            note_checked(p)
 
 
 def claim_folder(
@@ -164,6 +190,15 @@ def write_outputs(
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    # runs sharing ``out`` write their outputs and record one after the other, each whole
+    with folder_locked(out / record):
+        return _write_outputs(out, record, doc, outputs)
+
+
+def _write_outputs(
+    out: Path, record: str, doc: Mapping[str, Any], outputs: Mapping[str, Callable[[Path], object]]
+) -> dict[str, Path]:
+    _take_back_ours(out, record, list(outputs))
     previous = {name: sha256_file(out / name) for name in outputs if (out / name).is_file()}
     files = _still_listed(out / record, outputs)
     with ExitStack() as held, ExitStack() as stack:

@@ -98,20 +98,29 @@ def build_sequence(
         "seed": spec.seed,
         "spec_file": spec.source,
     }
-    entry = write_sequence(
-        Path(out) / spec.name,
-        scene.traj,
-        camera=scene.camera,
-        appearance=scene.appearance,
-        seed=scene.seed,
-        events=scene.events,
-        name=spec.name,
-        meta=meta,
-        images=spec.output["images"],
-        video=spec.output["video"],
-        overwrite=overwrite,
-        progress=progress,
-    )
+    try:
+        entry = write_sequence(
+            Path(out) / spec.name,
+            scene.traj,
+            camera=scene.camera,
+            appearance=scene.appearance,
+            seed=scene.seed,
+            events=scene.events,
+            name=spec.name,
+            meta=meta,
+            images=spec.output["images"],
+            video=spec.output["video"],
+            overwrite=overwrite,
+            progress=progress,
+        )
+    except FileExistsError:
+        # another run into the same folder (a second generate, a table run) finished this
+        # sequence meanwhile: the same spec gives the same sequence to the byte, so it is
+        # this job's too; a folder from another spec is still refused
+        entry, _ = _existing_entry(Path(out) / spec.name, spec)
+        if overwrite or entry is None:
+            raise
+        return entry
     entry["spec_sha256"] = spec.digest()
     return entry
 

@@ -289,12 +289,26 @@ def read_cells(path: str | os.PathLike[str]) -> dict[str, dict[str, Any]]:
         ) from None
     if not isinstance(data, dict) or not isinstance(data.get("cells"), dict):
         raise ValueError(f"{path}: not a crowdsim cells file (no 'cells' object); {hint}")
+    from crowdsim.jobs import MANIFEST_FORMAT
+
+    if data.get("format") != MANIFEST_FORMAT:  # else refused only after the sequences
+        raise ValueError(
+            f"{path}: a cells file of format {data.get('format')!r}, not crowdsim's "
+            f"{MANIFEST_FORMAT} (another version's?); {hint}"
+        )
     for key, cell in data["cells"].items():
         if not isinstance(cell, dict) or cell.get(CHECKSUM) != cell_checksum(key, cell):
             raise ValueError(
                 f"{path}: cell {key!r} does not match its checksum (edited by hand or "
                 "damaged); delete that entry, or the whole file, to compute it again"
             )
+        for name, _, _ in METRICS:  # sealed, but not figures (another version's cell)
+            v = cell.get(name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
+                raise ValueError(
+                    f"{path}: cell {key!r} holds {name} = {v!r}, not a number; delete that "
+                    "entry, or the whole file, to compute it again"
+                )
     return data["cells"]
 
 

@@ -25,17 +25,22 @@ def test_a_file_is_replaceable_only_while_its_digest_is_the_one_written(tmp_path
     assert set(json.loads((tmp_path / LEDGER).read_text())["files"]) == {"b.txt"}
 
 
-def test_a_foreign_file_with_the_ledgers_name_is_neither_trusted_nor_replaced(tmp_path):
+def test_a_foreign_file_with_the_ledgers_name_is_neither_trusted_nor_replaced(tmp_path, capsys):
     a = tmp_path / "a.txt"
     write_text_atomic(a, "one")
     from crowdsim.atomic import sha256_file
 
     foreign = json.dumps({"files": {"a.txt": sha256_file(a)}})  # no "written_by": not ours
-    (tmp_path / LEDGER).write_text(foreign)
-    with pytest.raises(ValueError, match="cannot prove it wrote it"):
-        require_replaceable("--plot", a)
-    record_written(a)
-    assert (tmp_path / LEDGER).read_text() == foreign
+    for text in (foreign, foreign[:20]):  # another program's, or damaged (truncated)
+        (tmp_path / LEDGER).write_text(text)
+        # the refusal and the note that cannot be taken name the ledger as the cause (an
+        # --overwrite run had been silent, and every rerun asked for --overwrite again)
+        with pytest.raises(ValueError, match=f"cannot prove it wrote it \\(.*{LEDGER} is dam"):
+            require_replaceable("--plot", a)
+        record_written(a)
+        assert (tmp_path / LEDGER).read_text() == text
+        err = capsys.readouterr().err
+        assert f"{LEDGER} is damaged or not crowdsim's" in err and len(err.splitlines()) == 1
 
 
 def test_a_ledger_that_cannot_be_written_costs_only_the_proof(tmp_path, capsys, monkeypatch):
@@ -133,6 +138,58 @@ def test_a_study_database_this_run_half_made_is_removed_an_earlier_one_kept(tmp_
     assert db.read_bytes() == b"an earlier study"
     with new_study_files("postgresql://host/db"):  # no files of its own to look after
         pass
+
+
+def test_runs_noting_files_in_one_folder_at_once_keep_each_others_notes(tmp_path, monkeypatch):
+    # two track --out runs finishing at once in a shared folder: the second's note is taken
+    # while the first has read the ledger and not yet written it back
+    import threading
+
+    from crowdsim import atomic
+
+    a, b = write_text_atomic(tmp_path / "a.txt", "a"), write_text_atomic(tmp_path / "b.txt", "b")
+    real = atomic._ledger
+    other = threading.Thread(target=record_written, args=(b,))
+
+    def read_then_let_the_other_run_note(folder):
+        listed = real(folder)
+        if not other.is_alive() and other.ident is None:
+            other.start()
+            other.join(0.5)  # it waits for this run's note (before: it wrote meanwhile)
+        return listed
+
+    monkeypatch.setattr(atomic, "_ledger", read_then_let_the_other_run_note)
+    record_written(a)
+    other.join(10)
+    monkeypatch.setattr(atomic, "_ledger", real)
+    assert require_replaceable("--out", a) == a and require_replaceable("--out", b) == b
+
+
+def test_two_runs_opening_one_new_study_take_turns_and_keep_each_others_database(tmp_path):
+    # two tune runs sharing a new --study: the second waits until the first has made the
+    # database, so a failure of the second never removes the database the first is using
+    import threading
+    import time
+
+    from crowdsim.atomic import new_study_files
+
+    db = tmp_path / "study.db"
+    url = f"sqlite:///{db}"
+    inside = threading.Event()
+
+    def first() -> None:
+        with new_study_files(url):
+            inside.set()
+            time.sleep(0.3)
+            db.write_bytes(b"the first run's study")
+
+    run = threading.Thread(target=first)
+    run.start()
+    assert inside.wait(10)
+    with pytest.raises(ValueError), new_study_files(url):
+        run.join(10)
+        raise ValueError("the second run fails")
+    assert db.read_bytes() == b"the first run's study"
 
 
 def test_a_study_storage_that_fails_mid_run_ends_as_one_os_error(tmp_path, study_disk_full):

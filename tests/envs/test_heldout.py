@@ -245,6 +245,25 @@ def test_outputs_stay_provable_when_a_run_dies_between_record_and_renames(tmp_pa
         check_outputs(tmp_path, "r.json", ("a.md",), ours, "t")
 
 
+@pytest.mark.parametrize(
+    "damage", [{"previous_files": "x"}, {"files": 3}, {"files": {"a.md": [1]}}]
+)
+def test_a_damaged_record_is_refused_by_name_not_a_traceback(tmp_path, damage):
+    """A record whose digests are not a table of names (damaged, or edited by hand) proves
+    nothing: one ValueError naming it (it had been an AttributeError or TypeError)."""
+    from envs.outputs import check_outputs, write_outputs
+
+    def ours(doc):
+        return doc.get("kind") == "t"
+
+    write_outputs(tmp_path, "r.json", {"kind": "t"}, {"a.md": lambda p: p.write_text("one\n")})
+    doc = json.loads((tmp_path / "r.json").read_text())
+    (tmp_path / "r.json").write_text(json.dumps({**doc, **damage}))
+    with pytest.raises(ValueError, match=r"(r\.json|a\.md) exists and was not written by t"):
+        check_outputs(tmp_path, "r.json", ("a.md",), ours, "t")
+    assert (tmp_path / "a.md").read_text() == "one\n"
+
+
 def test_heldout_plot_shows_both_thresholds_and_its_title_fits(tmp_path, monkeypatch):
     """One panel per threshold the record holds (acc@5 alone was drawn before, whatever the
     table said), and with one family (and "all") the title fits the figure (a one-line

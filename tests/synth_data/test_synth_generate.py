@@ -337,6 +337,21 @@ def test_two_concurrent_runs_into_one_folder_keep_every_manifest_entry(tmp_path)
     assert_manifest_verified(out, [f"{p}{k}" for p in "ab" for k in range(4)])
 
 
+def test_a_sequence_another_run_finished_meanwhile_is_taken_not_refused(tmp_path):
+    # two runs into one folder (two generates, or a table run beside a generate) that both
+    # found seq missing: the one finishing second meets the other's folder at its rename
+    from synth_data.generate import build_sequence
+
+    out = tmp_path / "out"
+    manifest = generate([tiny()], out, progress=False, log=lambda m: None)
+    before = sorted(p.stat().st_mtime_ns for p in (out / "tiny").rglob("*"))
+    assert build_sequence(tiny(), out) == manifest["sequences"]["tiny"]
+    assert sorted(p.stat().st_mtime_ns for p in (out / "tiny").rglob("*")) == before
+    assert not list(out.glob(f"{TMP_PREFIX}*"))
+    with pytest.raises(FileExistsError, match="already exists"):  # another spec's: refused
+        build_sequence(tiny(seed=5), out)
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_sigkill_of_the_parent_leaves_no_worker_and_a_rerun_completes(tmp_path, slow_jpeg_env):
     out = tmp_path / "out"

@@ -378,11 +378,21 @@ def test_a_hand_edited_cell_is_refused_naming_it(tmp_path, monkeypatch):
     path.write_text(json.dumps(data))
     with pytest.raises(ValueError, match="does not match its checksum"):
         experiments.read_cells(path)
-    for bad, needle in ((b"\x00\xff binary", "damaged"), (b"[1, 2]", "no 'cells' object")):
+    data = json.loads(original)  # sealed as the checksum wants, but no figure in it
+    data["cells"][key] = experiments.seal_cell(key, {**data["cells"][key], "acc@15": "n/a"})
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=r"cells.json: cell 'a@.*' holds acc@15 = 'n/a', not a"):
+        run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
+    for bad, needle in (
+        (b"\x00\xff binary", "damaged"),
+        (b"[1, 2]", "no 'cells' object"),
+        (b'{"format": 2, "cells": {}}', "a cells file of format 2, not crowdsim's 1"),
+    ):
         path.write_bytes(bad)
-        with pytest.raises(ValueError, match=needle):
+        (out / experiments.OUTPUTS_FILE).unlink(missing_ok=True)
+        with pytest.raises(ValueError, match=needle):  # before any work: nothing is written
             run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
-        assert path.read_bytes() == bad
+        assert path.read_bytes() == bad and not (out / experiments.OUTPUTS_FILE).exists()
 
 
 def test_a_rerun_replaces_its_own_tables_and_never_a_users_file(tmp_path, monkeypatch):
@@ -672,6 +682,20 @@ def _snapshot(folder):
     }  # fmt: skip
 
 
+def test_generates_hidden_folders_are_not_sequences_of_a_folder(generated, tmp_path):
+    """A ``generate`` writing into (or killed in) a folder leaves its sequence half-made in a
+    hidden ``.crowdsim-tmp-*`` folder, and an ``--overwrite`` the old one renamed aside in a
+    ``.crowdsim-old-*``: neither is a sequence of the folder (they had been tracked as
+    sequences of their own, beside the one they are a copy of)."""
+    from synth_data.writer import OLD_PREFIX, TMP_PREFIX
+
+    mine = _user_folder(generated, tmp_path)
+    shutil.copytree(generated / "a", mine / f"{TMP_PREFIX}c-123-0123abcd")
+    shutil.copytree(generated / "a", mine / f"{OLD_PREFIX}a-123-0123abcd")
+    got = experiments.user_sequences(mine, None, 8, tmp_path / "cmp", log=lambda m: None)
+    assert [s.name for s in got] == ["a", "b"]
+
+
 def test_compare_runs_every_row_on_a_folder_of_mot_sequences(generated, tmp_path, monkeypatch):
     """``compare --sequences``: a row per tracker with figures on each sequence, the papers'
     absence said, the user's folder untouched; a rerun resumes; an edited gt.txt is a new
@@ -919,3 +943,39 @@ def test_a_table_put_at_out_while_cells_run_is_kept(tmp_path, monkeypatch):
     monkeypatch.undo()
     with pytest.raises(ValueError, match="table.md exists and was not written by"):
         run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
+
+
+def test_two_runs_sharing_out_both_finish_and_a_users_table_is_still_kept(tmp_path, monkeypatch):
+    """Two ``compare`` runs on one ``--out`` at once: the one finishing second replaces the
+    tables the first wrote meanwhile (its record lists them), rather than refusing them as a
+    user's (it had ended "a file appeared there", exit 2); a user's file is still kept."""
+    import crowdsim.atomic
+
+    out = tmp_path / "t"
+    monkeypatch.setattr(experiments, "run_cell", _fake_cell)
+    other_ran = []
+
+    def cell_while_another_run_finishes(*a, **k):
+        if not other_ran:  # the other process: its checks and writes are not this one's
+            other_ran.append(True)
+            mine = dict(crowdsim.atomic._CHECKED)
+            run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
+            crowdsim.atomic._CHECKED.clear()
+            crowdsim.atomic._CHECKED.update(mine)
+        return _fake_cell(*a, **k)
+
+    monkeypatch.setattr(experiments, "run_cell", cell_while_another_run_finishes)
+    first = run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
+    assert other_ran and (out / "table.md").read_text() == first
+    monkeypatch.setattr(experiments, "run_cell", _fake_cell)
+    assert run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None) == first
+    (out / "cells.json").unlink()
+
+    def cell_while_the_user_writes(*a, **k):
+        (out / "table.md").write_text("my notes\n")
+        return _fake_cell(*a, **k)
+
+    monkeypatch.setattr(experiments, "run_cell", cell_while_the_user_writes)
+    with pytest.raises(FileExistsError, match="table.md: a file appeared there"):
+        run_table(ROWS, [tiny("a")], out, progress=False, log=lambda m: None)
+    assert (out / "table.md").read_text() == "my notes\n"
