@@ -376,13 +376,14 @@ class Trajectories:
                 f"twice (also on line {lines_l[a]})"
             )
         xy = np.array(xy_l, dtype=np.float64)
-        if period > 0:  # a periodic world's x lies on [0, period): another axis was given
-            off = np.flatnonzero((xy[:, 0] < 0) | (xy[:, 0] >= period))
+        if period > 0:  # a periodic world's x lies on [0, period) (a CSV's 6 decimals may
+            # round it up to the period): past it, another axis was given
+            off = np.flatnonzero((xy[:, 0] < 0) | (xy[:, 0] > period))
             if len(off):
                 i = int(off[0])
                 raise ValueError(
                     f"{path}:{lines_l[i]}: x = {xy[i, 0]:g} m lies outside the periodic axis "
-                    f"[0, {period:g}) m"
+                    f"[0, {period:g}] m"
                 )
         positions = np.full((n_rows, len(ids), 2), np.nan)
         positions[frames, col] = xy

@@ -207,7 +207,7 @@ case(
 case(
     "render-period-short",
     "render --trajectories {w}/t.csv --fps 10 --period 5 --out {w}/seq",
-    "t.csv:3: x = 6 m lies outside the periodic axis [0, 5) m",
+    "t.csv:3: x = 6 m lies outside the periodic axis [0, 5] m",
     files=(("t.csv", HDR + "0,1,1,1\n0,2,6,1\n"),),
 )
 case(

@@ -137,6 +137,11 @@ def test_a_person_crossing_a_periodic_seam_keeps_heading_and_gait(tmp_path):
     np.testing.assert_allclose(back.unwrapped()[:, 0, 0], 9.5 + np.arange(30) * 0.05, atol=2e-6)
     with pytest.raises(ValueError, match=r"period must be a length in \[0, .*got -1"):
         Trajectories.from_csv(tmp_path / "t.csv", fps=25, period=-1)
+    # 9.9999999 m is written as 10.000000: the seam itself is on the axis, past it is not
+    (tmp_path / "e.csv").write_text("frame,id,x,y\n0,1,10.000000,3\n1,1,0.05,3\n")
+    assert Trajectories.from_csv(tmp_path / "e.csv", fps=25, period=10.0).n_steps == 2
+    with pytest.raises(ValueError, match=r"e.csv:2: x = 10 m lies outside .*\[0, 9\.5\] m"):
+        Trajectories.from_csv(tmp_path / "e.csv", fps=25, period=9.5)
 
 
 def test_prominent_attribute_gets_distinct_colours():
