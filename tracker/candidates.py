@@ -148,6 +148,7 @@ def speedup_candidates(
     n_extrema: int = 3,
     n_samples: int = 10,
     window: int = 6,
+    distinct: bool = False,
 ) -> Candidates:
     """Speed-up sampling of Sec. 6: ``m`` extrema plus ``n_samples`` neighbours of each.
 
@@ -161,6 +162,10 @@ def speedup_candidates(
     candidate of its own, so it is not harmless to the QP: it counts in the degrees ``D`` of
     Eq. 9-10's normalised Laplacians (:func:`tracker.bqp.quadratic.quadratic_matrix`) as often
     as it repeats, which raises the proximity cost of other targets' candidates near it.
+    ``distinct=True`` draws no cell twice (where the grid has ``k`` cells or more): each
+    window's random order goes on past the offsets off the grid or on a cell taken already,
+    and where a window runs out the unused cells of lowest cost (the extrema's order) fill
+    in. The draws are the same either way, so the generator is left in the same state.
     """
     n = cost_map.shape[0]
     side = 2 * radius + 1
@@ -179,7 +184,7 @@ def speedup_candidates(
     offs = np.stack([ox.ravel()[keep], oy.ravel()[keep]], 1).astype(np.int64)  # (n_off, 2)
     draws = uniform_draws(rng, (n, m, n_off))  # one draw per target, extremum and offset
     cell = np.empty((n, k), np.int64)
-    _speedup_cells(flat, big, m, ns, offs, draws, cell)
+    _speedup_cells(flat, big, m, ns, offs, draws, cell, bool(distinct))
     pos = np.empty((n, k, 2))
     cost = np.empty((n, k))
     app = np.empty((n, k), np.float32)
@@ -272,14 +277,16 @@ def _keep_smallest(v, q, low, pick, filled):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _speedup_cells(cost, big, m, ns, offs, draws, cell):
+def _speedup_cells(cost, big, m, ns, offs, draws, cell, distinct):
     """The cells of :func:`speedup_candidates`, one target per loop iteration (the same for
     any number of threads).
 
     A cell is a local minimum when no cell of its 3x3 neighbourhood (clipped to the grid, as
     ``mode="nearest"``) is lower. Extrema: the ``m`` lowest local minima, then the lowest other
     cells (``big`` added to their cost), ties to the lower index. Around extremum ``e`` the
-    ``ns`` offsets with the smallest ``draws[t, e]`` (a random permutation's first ``ns``).
+    ``ns`` offsets with the smallest ``draws[t, e]`` (a random permutation's first ``ns``),
+    clipped to the grid; with ``distinct`` (:func:`_distinct_samples`) the permutation goes on
+    past the offsets off the grid or on a cell the target has already.
     """
     n, side = cost.shape[0], cost.shape[1]
     cells = side * side
@@ -311,6 +318,9 @@ def _speedup_cells(cost, big, m, ns, offs, draws, cell):
         filled = 0
         for q in range(cells):
             filled = _keep_smallest(key[q], q, top, cell[t, :m], filled)
+        if distinct and m * (1 + ns) <= cells:
+            _distinct_samples(t, side, m, ns, offs, draws, key, cell)
+            continue
         # the ns smallest draws in ascending order (ties: lower offset)
         low = np.empty(ns)
         pick = np.empty(ns, np.int64)
@@ -324,6 +334,45 @@ def _speedup_cells(cost, big, m, ns, offs, draws, cell):
                 sx = min(max(ex + offs[pick[s], 0], 0), side - 1)
                 sy = min(max(ey + offs[pick[s], 1], 0), side - 1)
                 cell[t, m + e * ns + s] = sy * side + sx
+
+
+@njit(cache=True, nogil=True)
+def _distinct_samples(t, side, m, ns, offs, draws, key, cell):
+    """Target ``t``'s samples with no cell twice (``speedup_candidates(distinct=True)``):
+    around each extremum in turn, the offsets in ascending ``draws[t, e]`` order that land on
+    the grid and on a cell not taken yet; where a window runs out (a corner, other extrema's
+    samples), the unused cells of lowest ``key`` (the extrema's order) fill in."""
+    n_off = offs.shape[0]
+    used = np.zeros(side * side, np.bool_)
+    for e in range(m):
+        used[cell[t, e]] = True
+    low = np.empty(n_off)
+    order = np.empty(n_off, np.int64)
+    for e in range(m):
+        ey = cell[t, e] // side
+        ex = cell[t, e] % side
+        filled = 0
+        for q in range(n_off):
+            filled = _keep_smallest(draws[t, e, q], q, low, order, filled)
+        got = 0
+        for q in range(n_off):
+            if got == ns:
+                break
+            sx = ex + offs[order[q], 0]
+            sy = ey + offs[order[q], 1]
+            if sx < 0 or sx >= side or sy < 0 or sy >= side or used[sy * side + sx]:
+                continue
+            used[sy * side + sx] = True
+            cell[t, m + e * ns + got] = sy * side + sx
+            got += 1
+        while got < ns:
+            best = -1
+            for c in range(side * side):
+                if not used[c] and (best < 0 or key[c] < key[best]):
+                    best = c
+            used[best] = True
+            cell[t, m + e * ns + got] = best
+            got += 1
 
 
 @njit(cache=True, nogil=True, parallel=True)

@@ -186,7 +186,7 @@ def test_speedup_samples_are_the_smallest_draws_in_order():
     draws = rng.random((4, m, len(offs)))
     draws[0, 0, 3] = draws[0, 0, 9] = -1.0  # a tie: offset 3 comes before offset 9
     cell = np.empty((4, m * (1 + ns)), np.int64)
-    _speedup_cells(cost, 1e9, m, ns, offs, draws, cell)
+    _speedup_cells(cost, 1e9, m, ns, offs, draws, cell, False)
     from scipy.ndimage import minimum_filter
 
     for t in range(4):
@@ -810,3 +810,37 @@ def test_a_repeated_candidate_counts_in_the_degrees_as_often_as_it_repeats():
     cost[0, 0, 0] = -1.0  # an extremum in the grid's corner: its samples clip onto the edge
     s = speedup_candidates(np.array([[20, 20]]), 4, cost, -cost, rng, 1, 10, 10)
     assert s.k == 11 and len(np.unique(s.cell[0])) < s.k
+
+
+def test_distinct_samples_take_no_cell_twice_and_leave_the_draws_as_they_were():
+    """``distinct=True`` (BQP's ``distinct_samples``): the same extrema, no repeated cell, the
+    corner extremum's samples on the grid around it, the generator in the same state; a grid
+    smaller than ``k`` keeps the clipped samples."""
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(3)
+    cost = gaussian_filter(rng.random((60, 13, 13)), (0, 1.5, 1.5))
+    cost[0] = 1.0
+    cost[0, 0, 0] = 0.0  # one extremum in a corner, the others the lowest other cells
+    centers = np.full((60, 2), 40)
+    keep_rng, own_rng = np.random.default_rng(1), np.random.default_rng(1)
+    keep = speedup_candidates(centers, 6, cost, -cost, keep_rng, 3, 10, 10)
+    own = speedup_candidates(centers, 6, cost, -cost, own_rng, 3, 10, 10, distinct=True)
+    assert keep_rng.random() == own_rng.random()
+    np.testing.assert_array_equal(own.cell[:, :3], keep.cell[:, :3])
+    repeats = [own.k - len(np.unique(c)) for c in keep.cell]
+    assert sum(repeats) > 60 and all(len(np.unique(c)) == own.k for c in own.cell)
+    # the corner extremum's ten samples lie in its window (offsets -5..4) on the grid
+    corner = own.cell[0, 3:13]
+    assert ((corner // 13 <= 4) & (corner % 13 <= 4)).all()
+    # candidates' positions, costs and appearance follow their cells
+    np.testing.assert_array_equal(own.positions[:, :, 0], 40 + own.cell % 13 - 6)
+    np.testing.assert_array_equal(own.cost, np.take_along_axis(cost.reshape(60, -1), own.cell, 1))
+    small = np.random.default_rng(0).random((4, 5, 5))  # 25 cells for k = 33: repeats stay
+    a = speedup_candidates(centers[:4], 2, small, -small, np.random.default_rng(2), 3, 10, 10)
+    b = speedup_candidates(
+        centers[:4], 2, small, -small, np.random.default_rng(2), 3, 10, 10, distinct=True
+    )
+    np.testing.assert_array_equal(a.cell, b.cell)
+    with pytest.raises(ValueError, match="distinct_samples must be one of"):
+        BQPParams(distinct_samples="yes")

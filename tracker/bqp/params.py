@@ -174,6 +174,12 @@ class BQPParams:
         Side of the square neighbourhood the extra samples are drawn from, px. The paper
         uses 6; with our 12 px templates in crowds of 2.5 people/m^2, 6 lost 1.2 points at
         5 px against dense candidates and 10 lost 0.2 (``crowdsim bench track``), so 10.
+    distinct_samples : bool
+        ``False`` (default, kept so no figure moves): a sample clipped onto the grid's edge,
+        or drawn on another extremum or another's sample, repeats a candidate of its target
+        (4-7 of 33 on 9 x 9 to 13 x 13 grids), and a repeat counts again in the degrees of
+        Eq. 9-10's Laplacians. ``True``: no location is a target's candidate twice, as the
+        paper's candidates are locations (:func:`tracker.candidates.speedup_candidates`).
     fw_variant : str
         Frank-Wolfe variant: ``"plain"``, ``"away"`` or ``"swap"`` (Sec. 5), or ``"block"``:
         SWAP steps on the chosen target until its gap closes, in closed form
@@ -245,6 +251,7 @@ class BQPParams:
     n_extrema: int = 3
     n_samples: int = 10
     sample_window: int = 10
+    distinct_samples: bool = False
     fw_variant: str = "swap"
     fw_eps: float = 0.01
     fw_max_iter: int = 50
@@ -312,6 +319,7 @@ class BQPParams:
         require_choice(own, "fw_variant", self.fw_variant, FW_VARIANTS)
         require_choice(own, "neighbour_set", self.neighbour_set, NEIGHBOUR_SETS)
         require_choice(own, "laplacian_identity", self.laplacian_identity, IDENTITIES)
+        require_choice(own, "distinct_samples", self.distinct_samples, (True, False))
         check_cmc_fields(own, self)
 
     @classmethod

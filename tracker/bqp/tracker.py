@@ -253,7 +253,15 @@ class BQPTracker(Tracker):
         )
         if p.speedup:
             cands = speedup_candidates(
-                centers, self.radius, cost, app, self.rng, p.n_extrema, p.n_samples, p.sample_window
+                centers,
+                self.radius,
+                cost,
+                app,
+                self.rng,
+                p.n_extrema,
+                p.n_samples,
+                p.sample_window,
+                p.distinct_samples,
             )
         else:
             cands = dense_candidates(centers, self.radius, cost, app, p.candidate_stride)
