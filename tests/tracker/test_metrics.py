@@ -564,3 +564,90 @@ def test_accuracy_plot_shows_a_curve_at_100_percent_inside_its_frame(tmp_path, m
     assert ax.get_ylabel() == "tracking accuracy (%)"
     assert [t.get_text() for t in ax.get_legend().get_texts()] == ["perfect", "ncc"]
     assert [t for t in ax.get_yticks() if y0 <= t <= y1] == [0, 20, 40, 60, 80, 100]
+
+
+def _trackeval_on_files(root, name, similarity=None):
+    """TrackEval's own MOTChallenge pipeline (its file reader and preprocessing) on the
+    sequence ``root/gt/name`` and the results ``root/tr/mine/data/name.txt``; with
+    ``similarity`` (a function of the gt and result boxes) in place of its IoU."""
+    import trackeval
+    from trackeval.datasets import MotChallenge2DBox
+
+    class Dataset(MotChallenge2DBox):
+        def _calculate_similarities(self, gt_dets_t, tracker_dets_t):
+            if similarity is None:
+                return super()._calculate_similarities(gt_dets_t, tracker_dets_t)
+            return similarity(gt_dets_t, tracker_dets_t)
+
+    quiet = {"PRINT_CONFIG": False}
+    evaluator = trackeval.Evaluator(
+        {
+            **quiet,
+            "USE_PARALLEL": False,
+            "PRINT_RESULTS": False,
+            "TIME_PROGRESS": False,
+            "OUTPUT_SUMMARY": False,
+            "OUTPUT_DETAILED": False,
+            "PLOT_CURVES": False,
+            "BREAK_ON_ERROR": True,
+            "RETURN_ON_ERROR": False,
+            "LOG_ON_ERROR": None,
+        }
+    )
+    dataset = Dataset(
+        {
+            **quiet,
+            "GT_FOLDER": str(root / "gt"),
+            "TRACKERS_FOLDER": str(root / "tr"),
+            "SKIP_SPLIT_FOL": True,
+            "SEQ_INFO": {name: None},  # its length read from seqinfo.ini
+            "TRACKERS_TO_EVAL": ["mine"],
+        }
+    )
+    metrics = [trackeval.metrics.HOTA(), trackeval.metrics.CLEAR(quiet)]
+    metrics.append(trackeval.metrics.Identity(quiet))
+    out, _ = evaluator.evaluate([dataset], metrics)
+    return out["Dataset"]["mine"][name]["pedestrian"]
+
+
+def test_trackevals_own_mot_reader_scores_our_files_as_evaluate_does(tmp_path):
+    """The files a crowdsim sequence and ``track --out`` hold, read by TrackEval's own
+    MOTChallenge reader: with the point similarity they score exactly what ``evaluate``
+    says; with TrackEval's default IoU the same ground truth counts, and lower scores (the
+    README's "Scoring with outside tools")."""
+    from synth_data.mot import read_mot_file, read_sequence, write_mot, write_seqinfo
+
+    ids, gt = _gt(t=8, n=5, seed=3)
+    s = 10
+    seq = tmp_path / "gt" / "seq"
+    (seq / "gt").mkdir(parents=True)
+    write_seqinfo(seq, name="seq", frame_rate=25, length=8, width=240, height=240, template_size=s)
+    rows = tracks_to_mot_rows(ids, gt, s)[:, :9]
+    rows[:, 7:9] = 1.0  # class pedestrian, fully visible
+    write_mot(seq / "gt" / "gt.txt", rows)
+    tr = gt + np.random.default_rng(4).normal(0, 2.5, gt.shape)  # some pass 7.5 px
+    tr[4:, [0, 1]] = tr[4:, [1, 0]]  # an identity switch
+    tr[6, 2] = np.nan  # a miss
+    (tmp_path / "tr" / "mine" / "data").mkdir(parents=True)
+    results = tmp_path / "tr" / "mine" / "data" / "seq.txt"
+    write_mot(results, tracks_to_mot_rows(np.r_[ids[:4], 99], tr, s))  # a stray id 99
+
+    sequence = read_sequence(seq)
+    gt_ids, gt_pts = sequence.gt_points()
+    tr_ids, tr_pts = mot_rows_to_tracks(read_mot_file(results), sequence.length)
+    ours = evaluate(gt_ids, gt_pts, tr_ids, tr_pts)
+
+    def point_similarity(g, t):  # max(0, 1 - d / T_sim) between the boxes' centres
+        centre_g, centre_t = g[:, :2] + g[:, 2:] / 2, t[:, :2] + t[:, 2:] / 2
+        d = np.linalg.norm(centre_g[:, None] - centre_t[None], axis=-1)
+        return np.maximum(0.0, 1.0 - d / SIMILARITY_SCALE)
+
+    theirs = _trackeval_on_files(tmp_path, "seq", point_similarity)
+    assert 100 * theirs["CLEAR"]["MOTA"] == pytest.approx(ours["mota"], abs=1e-9)
+    assert 100 * theirs["Identity"]["IDF1"] == pytest.approx(ours["idf1"], abs=1e-9)
+    assert 100 * np.mean(theirs["HOTA"]["HOTA"]) == pytest.approx(ours["hota"], abs=1e-9)
+    assert theirs["CLEAR"]["IDSW"] == ours["idsw"] > 0
+    assert ours["mota"] < 100
+    iou = _trackeval_on_files(tmp_path, "seq")
+    assert iou["CLEAR"]["CLR_TP"] + iou["CLEAR"]["CLR_FN"] == ours["gt_points"]
+    assert 100 * iou["CLEAR"]["MOTA"] < ours["mota"]
