@@ -388,11 +388,14 @@ def _stamp(
 
 @njit(cache=True, nogil=True, parallel=True)
 def _head_visibility(
-    head, solid, idx, x0, y0, owner, owner_base, r0, r1, c0, c1, vis
+    head, solid, idx, x0, y0, owner, owner_base, r0, r1, c0, c1, view, vw, vh, vis
 ):  # pragma: no cover - numba
     # Visible fraction of each person's head: over the head-disc pixels the person owns when
     # drawn alone (solid), the coverage-weighted share that is inside the frame and still
-    # owned by the person after everyone is drawn (frame clipping counts as hidden).
+    # owned by the person after everyone is drawn (frame clipping counts as hidden). The
+    # frame is the drawing's, or the view ``(vw, vh)`` that the affine ``view`` (2, 3) maps
+    # the drawing into (the drone profile's canvas); the identity and the drawing's size
+    # test exactly the drawing's bounds.
     h, w = owner.shape
     for k in prange(idx.shape[0]):
         s = idx[k]
@@ -406,7 +409,10 @@ def _head_visibility(
                     tot += c
                     x = x0[k] + j
                     if 0 <= y < h and 0 <= x < w and owner[y, x] == owner_base + k:
-                        own += c
+                        u = view[0, 0] * x + view[0, 1] * y + view[0, 2]
+                        v = view[1, 0] * x + view[1, 1] * y + view[1, 2]
+                        if -0.5 <= u < vw - 0.5 and -0.5 <= v < vh - 0.5:
+                            own += c
         vis[k] = own / tot if tot > 0 else 0.0
 
 
@@ -550,6 +556,9 @@ class SceneRenderer:
         # lighting and noise events (shake bursts live in the camera, which the truth shares)
         self.events = of_kind(parse_events(events), ("lighting", "noise"))
         self._canvas: SceneRenderer | None = None
+        # where a drawn head counts as in the frame: the drawing itself, or (the drone
+        # profile's canvas) the view it is warped into, as (affine (2, 3), width, height)
+        self._view = (np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), camera.width, camera.height)
         if camera.drone_on:
             # The drone profile: draw a larger, drone-free canvas, then warp it into the view.
             canvas, self._canvas_offset = camera.canvas()
@@ -856,6 +865,7 @@ class SceneRenderer:
                     owner,
                     base_id,
                     *self._head_box,
+                    *self._view,
                     vis,
                 )
                 visibility[sel[order]] = vis
@@ -921,16 +931,20 @@ class SceneRenderer:
     ) -> np.ndarray:
         """The drone profile's frame ``t``: the canvas drawn at the heads' canvas positions
         (the view's map inverted), then warped into the view (bilinear). Headings are the
-        canvas's (the ground's); occlusion is measured on the canvas."""
+        canvas's (the ground's); occlusion is measured on the canvas, and a head's share
+        that the warp leaves outside the view counts as hidden."""
         if t >= len(self._views):
             self._views = self.camera.drone(max(t + 1, 2 * len(self._views)))
         view = self._views[t]
         lin, shift = view[:, :2], view[:, 2]
         offset = np.asarray(self._canvas_offset, np.float64)
         src = (np.asarray(pixels, np.float64) - shift) @ np.linalg.inv(lin).T + offset
-        canvas = self._canvas.render(t, src, heading, appearance, pose=pose, visibility=visibility)
         warp = np.concatenate([lin, (shift - lin @ offset)[:, None]], axis=1)
         h, w = self.camera.height, self.camera.width
+        # a head's share outside the view is hidden, as the frame's edge hides it without
+        # the drone (it had counted as seen up to the larger canvas's edge)
+        self._canvas._view = (warp, w, h)
+        canvas = self._canvas.render(t, src, heading, appearance, pose=pose, visibility=visibility)
         if out is None:
             out = np.empty((h, w, 3), np.uint8)
         cv2.warpAffine(

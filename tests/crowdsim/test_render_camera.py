@@ -220,3 +220,24 @@ def test_visible_includes_the_last_pixel_row_and_column():
         cam.visible(np.array([[97.0, 47.0], [97.5, 20.0], [2.0, 2.0], [1.5, 2.0]]), margin=2.0),
         [True, False, True, False],
     )
+
+
+def test_a_drone_views_edge_hides_a_head_as_the_frames_edge_does():
+    """A head centred on the left edge of the view, under a drone profile that barely moves
+    the view, is about half visible, as on a still camera (it had counted as seen in full:
+    its visibility was measured up to the larger canvas's edge)."""
+    from crowdsim.appearance_model import AppearanceParams
+    from crowdsim.render import SceneRenderer
+
+    params = AppearanceParams(template_px=12, noise_sigma=0.0, shadow=0.0)
+    seen = {}
+    for name, drift in (("still", 0.0), ("drone", 1e-3)):
+        cam = Camera(px_per_m=24.0, width=96, height=64, drift_px=drift)
+        renderer = SceneRenderer(cam, params, seed=0, fps=25.0)
+        vis = np.empty(2)
+        pixels = np.array([[0.0, 32.0], [48.0, 32.0]])  # on the edge, and inside
+        renderer.render(0, pixels, np.zeros(2), np.zeros(2, np.int64), visibility=vis)
+        seen[name] = vis
+    assert seen["still"][1] == seen["drone"][1] == 1.0
+    assert 0.3 < seen["still"][0] < 0.7
+    assert abs(seen["drone"][0] - seen["still"][0]) < 0.1, seen
