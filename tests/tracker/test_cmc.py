@@ -540,3 +540,19 @@ def test_corners_kept_from_the_last_frame_are_dropped_on_people_and_off_the_fram
     assert len(want) == 11
     # fewer than redetect * max_corners = 10 left: detect afresh (None)
     assert cmc._still_usable(kept[:12], mask, mask.shape) is None
+
+
+@pytest.mark.parametrize("name", COMPENSATED)
+def test_a_target_the_camera_carries_out_of_view_is_never_reported_outside_the_image(name):
+    """The camera pans 6 px a frame, carrying a person at the right edge out of view: the
+    compensated point lies past the edge, and the track either ends or stays inside the image
+    (NCC had searched a window wholly outside and reported (80, 52) in an 80x60 frame)."""
+    rng = np.random.default_rng(2)
+    h, w = 60, 80
+    ground = cv2.GaussianBlur(rng.integers(0, 256, (h, w + 60, 3)).astype(np.uint8), (5, 5), 1.5)
+    frames = [np.ascontiguousarray(ground[:, 50 - 6 * t : 50 - 6 * t + w]) for t in range(6)]
+    points = np.array([[9.0, 30.0], [76.0, 55.0], [40.0, 58.0], [79.0, 0.0]])
+    tracker = registry.make_tracker(name, cmc=True)
+    res = tracker.track(frames, np.arange(1, 5), points, 8)
+    p = res.positions[np.isfinite(res.positions).all(-1)]
+    assert ((p >= 0) & (p <= [w - 1, h - 1])).all(), p[((p < 0) | (p > [w - 1, h - 1])).any(1)]

@@ -246,6 +246,23 @@ def test_ncc_match_centre_stays_inside_the_image():
     assert 0 <= pts[0, 0] <= 63
 
 
+@pytest.mark.parametrize("blank", ["template", "frames"])
+def test_ncc_stays_where_every_window_scores_alike(blank):
+    """A template cut from a flat frame (OpenCV scores it 1 everywhere) or frames gone blank
+    (every window 0): the tied target stays where it is. It had taken the first window, the
+    search's top-left corner, and walked up-left by the radius every frame (4 px at 8 px)."""
+    from tracker.testing import make_scene
+
+    sc = make_scene([[40, 40], [60, 50]], [[0, 0], [0, 0]], n_frames=4)
+    flat = np.full_like(sc.frames[0], 128)
+    first, rest = (flat, sc.frames[1:]) if blank == "template" else (sc.frames[0], [flat] * 3)
+    tr = NCCTracker()
+    tr.init(first, sc.ids, sc.points[0], 8)
+    for f in rest:
+        ids, pts = tr.step(f)
+        np.testing.assert_array_equal(pts, sc.points[0, : len(ids)])
+
+
 @pytest.mark.parametrize(
     ("births", "message"),
     [

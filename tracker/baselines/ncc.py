@@ -105,6 +105,10 @@ class NCCTracker(Tracker):
         h, w = self.frame_shape[:2]
         t0 = time.perf_counter()
         centers = np.rint(self.points).astype(np.int64)
+        # inside the image, as BQP's and PNMC's: a point the camera's motion (cmc) carried
+        # out of view would search a window wholly outside and take its first offset there
+        centers[:, 0] = np.clip(centers[:, 0], 0, w - 1)
+        centers[:, 1] = np.clip(centers[:, 1], 0, h - 1)
         scores = self.model.scores(frame, centers)
         n = len(centers)
         flat = scores.reshape(n, -1)
@@ -113,7 +117,10 @@ class NCCTracker(Tracker):
         outside = (
             (pos[..., 0] < 0) | (pos[..., 0] > w - 1) | (pos[..., 1] < 0) | (pos[..., 1] > h - 1)
         )
-        best = np.where(outside, -np.inf, flat).argmax(1)
+        # nearest the centre first: among equal scores (a flat template or a blank frame
+        # scores every window alike) the target stays, never steps to the window's corner
+        order = np.argsort((self._offsets**2).sum(1), kind="stable")
+        best = order[np.where(outside, -np.inf, flat)[:, order].argmax(1)]
         new = pos[np.arange(n), best].astype(np.float64)
         conf = flat[np.arange(n), best]
         self.confidence = conf.astype(np.float64)
