@@ -680,7 +680,9 @@ class NCCAppearance(AppearanceModel):
                 )
 
         in_chunks(self.n, match)
-        # flat windows/templates give NaN or inf in OpenCV: no information, score 0
+        # a flat window scores 0 (NaN or inf where OpenCV divides by its zero spread: no
+        # information); a flat template scores 1 everywhere (OpenCV's convention, kept: a
+        # change would move bqp-ncc's and pnmc's template refreshes and lost-track ends)
         np.nan_to_num(out, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
         np.clip(out, -1.0, 1.0, out=out)
         return out
