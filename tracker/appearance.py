@@ -729,7 +729,8 @@ def _window_moments(windows, s, k, s1, s2):
 def _joint_ncc(windows: np.ndarray, templates: np.ndarray, out: np.ndarray) -> None:
     """NCC with one mean over a patch's pixels and colours (``NCCAppearance(mean="joint")``)
     of templates ``(n, s, s, 3)`` over windows ``(n, W, W, 3)`` into ``out (n, k, k)``, ``k =
-    W - s + 1``; 0 where the window or the template is flat, as OpenCV's NaN is read."""
+    W - s + 1``; 0 where the window or the template is flat (no information; OpenCV's
+    per-channel path scores a flat template 1)."""
     n, s = templates.shape[:2]
     k = out.shape[1]
     tpl = templates.astype(np.float32)
