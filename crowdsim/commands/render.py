@@ -87,7 +87,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="M",
         help="CSV trajectories of a periodic world: the length (m) of its periodic x axis "
-        "(from crowdsim simulate's meta.json or the .npz), so that a person crossing the seam "
+        "(as the meta of a crowdsim simulate .npz records it), so that a person crossing the seam "
         "keeps heading and gait; a .npz carries its own",
     )
     p.add_argument(
