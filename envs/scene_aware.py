@@ -365,7 +365,13 @@ def fit_scene_aware(
     src = objective.episodes()
     n = min(int(episodes), len(src)) if hasattr(src, "__len__") else int(episodes)
     if n < 2:
-        raise ValueError(f"scene-aware tuning needs at least 2 training episodes, got {n}")
+        why = (
+            f" (--episodes {episodes}, but the suite or folder holds {len(src)} training "
+            "sequence(s))"
+            if hasattr(src, "__len__") and len(src) < int(episodes)
+            else ""
+        )
+        raise ValueError(f"scene-aware tuning needs at least 2 training episodes, got {n}{why}")
     t0 = time.perf_counter()
 
     def scores_with(opening: int, tag: str) -> list[dict[str, Any]]:

@@ -899,3 +899,9 @@ case(  # --algo ppo / sac's flag: never ignored in silence by --algo scene
     "--steps is for --algo ppo / sac",
     files=D,
 )
+
+case(  # a one-sequence folder gives one episode, whatever --episodes asks: the cause is named
+    "envs-train-scene-one-sequence",
+    ["train", "--algo", "scene", "--suite", "{seq}", "--episodes", "2", "--out", "{w}/o"],
+    "got 1 (--episodes 2, but the suite or folder holds 1 training sequence(s))",
+)
