@@ -153,11 +153,17 @@ class Trajectories:
         """``(T, N, 2)`` positions with a periodic x axis made continuous along each path:
         a step across the seam goes on past it (:meth:`steps`) instead of jumping back by a
         period, so differences over several rows (a heading, the distance walked) stay
-        true. The positions themselves without a period."""
+        true. Across rows where a path is absent, its next present row goes on from its last
+        present one. The positions themselves without a period."""
         if self.period <= 0 or self.n_steps < 2:
             return self.positions
-        with np.errstate(invalid="ignore"):
-            jump = np.nan_to_num(self.steps()[..., 0] - np.diff(self.positions[..., 0], axis=0))
+        x = self.positions[..., 0]
+        # each row's x, or the path's last present x before it: a gap's two ends are one step
+        rows = np.where(np.isfinite(x), np.arange(self.n_steps)[:, None], 0)
+        x = x[np.maximum.accumulate(rows, axis=0), np.arange(self.n_agents)]
+        d = np.diff(x, axis=0)
+        with np.errstate(invalid="ignore"):  # as steps() shortens d (the same bits)
+            jump = np.nan_to_num((d - self.period * np.round(d / self.period)) - d)
         out = self.positions.copy()
         out[1:, :, 0] += np.cumsum(jump, axis=0)
         return out

@@ -750,6 +750,9 @@ def _joint_ncc(windows: np.ndarray, templates: np.ndarray, out: np.ndarray) -> N
     den = np.sqrt(np.maximum(w_ss, 0.0) * t_ss[:, None, None])
     ok = den > 1e-6 * (3 * s * s)
     out[...] = np.where(ok, out / np.where(ok, den, 1.0), 0.0)
+    # the float32 correlation's rounding takes a near-flat template's match past 1 (1.0006
+    # at 12 px): a correlation coefficient, as the per-channel path clips it
+    np.clip(out, -1.0, 1.0, out=out)
 
 
 def make_appearance(

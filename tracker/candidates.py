@@ -158,7 +158,7 @@ def speedup_candidates(
     offsets run from ``-(window // 2)`` to ``window - window // 2 - 1`` (the extremum
     excluded), clipped to the grid. Every target gets ``k = m (1 + n_samples)`` candidates.
     A cell may repeat (a sample clipped onto the grid's edge, or one on another extremum or
-    another's sample: 4-5 of the 33 per target on 9 x 9 and 13 x 13 grids). A repeat is a
+    another's sample: 4-7 of the 33 per target on 9 x 9 to 13 x 13 grids). A repeat is a
     candidate of its own, so it is not harmless to the QP: it counts in the degrees ``D`` of
     Eq. 9-10's normalised Laplacians (:func:`tracker.bqp.quadratic.quadratic_matrix`) as often
     as it repeats, which raises the proximity cost of other targets' candidates near it.

@@ -144,6 +144,23 @@ def test_a_person_crossing_a_periodic_seam_keeps_heading_and_gait(tmp_path):
         Trajectories.from_csv(tmp_path / "e.csv", fps=25, period=9.5)
 
 
+def test_a_person_absent_for_a_row_while_crossing_the_seam_keeps_heading():
+    """A gap (a row missing from a CSV) across the seam: the next present row goes on past
+    the seam from the last present one, so the heading stays 0 (it had jumped back by a
+    period there, and the heading turned round for the frames whose window spans the gap)."""
+    pos = np.zeros((30, 1, 2))
+    pos[:, 0, 0] = (9.5 + np.arange(30) * 0.05) % 10.0
+    pos[:, 0, 1] = 3.0
+    pos[10, 0] = np.nan  # absent at x = 10.0, on the seam
+    pos[12:14, 0] = np.nan  # and again just past it
+    traj = Trajectories(positions=pos, ids=np.arange(1), dt=0.04, meta={"period": 10})
+    want = 9.5 + np.arange(30) * 0.05
+    want[10] = want[12] = want[13] = np.nan
+    np.testing.assert_allclose(traj.unwrapped()[:, 0, 0], want)
+    heading = prepare_agents(traj, CAMERA, AppearanceParams(sway_deg=0.0), 0).heading
+    np.testing.assert_allclose(heading, 0, atol=1e-9)
+
+
 def test_prominent_attribute_gets_distinct_colours():
     traj = walkers(2)
     tracks = prepare_agents(traj, CAMERA, PARAMS, seed=0)

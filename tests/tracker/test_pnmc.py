@@ -451,6 +451,24 @@ def test_likelihood_takes_each_channels_mean_off_where_eq7_takes_one():
     assert joint.scores(flat, np.array([[10, 10]]))[0, 1, 1] == 0.0
 
 
+def test_ncc_mean_joint_scores_stay_within_minus_one_and_one():
+    """A near-flat template (values 100-102) matched where it was cut: the float32
+    correlation's rounding had put the joint mean's score at 1.0006 (a likelihood past 1);
+    the per-channel path clips to [-1, 1], and so does the joint one."""
+    from tracker.appearance import NCCAppearance
+
+    rng = np.random.default_rng(0)
+    frame = rng.integers(0, 256, (80, 80, 3), dtype=np.uint8)
+    frame[20:60, 20:60] = rng.integers(100, 103, (40, 40, 3), dtype=np.uint8)
+    centers = rng.integers(30, 50, (30, 2))
+    for mean in ("channel", "joint"):
+        model = NCCAppearance(12, 4, mean=mean)
+        model.add(frame, centers)
+        got = model.scores(frame, centers)
+        assert got.max() <= 1.0 and got.min() >= -1.0, (mean, got.max(), got.min())
+        assert got[:, 4, 4].min() > 0.99  # each template's own window: a match
+
+
 def test_ncc_mean_joint_is_a_pnmc_option_that_tracks():
     """``--set ncc_mean=joint`` goes through the parameters, reaches the model mid-run, and
     follows the walkers of the plant-and-recover scene as the default does."""

@@ -179,7 +179,8 @@ class BQPParams:
         or drawn on another extremum or another's sample, repeats a candidate of its target
         (4-7 of 33 on 9 x 9 to 13 x 13 grids), and a repeat counts again in the degrees of
         Eq. 9-10's Laplacians. ``True``: no location is a target's candidate twice, as the
-        paper's candidates are locations (:func:`tracker.candidates.speedup_candidates`).
+        paper's candidates are locations, where the search grid has at least ``k`` cells
+        (:func:`tracker.candidates.speedup_candidates`; a smaller grid keeps the repeats).
     fw_variant : str
         Frank-Wolfe variant: ``"plain"``, ``"away"`` or ``"swap"`` (Sec. 5), or ``"block"``:
         SWAP steps on the chosen target until its gap closes, in closed form
