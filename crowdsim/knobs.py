@@ -19,7 +19,8 @@ adding a row here, its field to ``AppearanceParams`` and drawing it in the rende
 
 The difficulty scale moves a knob linearly from the spec's own value (0) to ``hard`` (1). The
 video bit rate moves on a log scale instead, from ``easy`` just after the codec switches on at
-``on`` to ``hard`` at 1: a codec's quality is roughly linear in the log of its bit rate.
+``on`` to ``hard`` at 1: a codec's quality is roughly linear in the log of its bit rate; a
+spec whose own codec is on moves from its own bit rate to ``hard`` on that scale.
 
 >>> knob("noise_sigma").hard, knob("noise_sigma").axis, knob("noise_sigma").group
 (24.0, 'camera', 'noise+codec')
@@ -186,6 +187,10 @@ class Knob:
         """The knob's value at position ``s`` in [0, 1] of the difficulty scale from ``base``,
         towards its end under ``profile`` (:meth:`end`)."""
         end = self.end(profile)
+        if self.on is not None and base > 0:
+            # on in the spec itself: from its own rate (0) to the end on the log scale; the
+            # switch-on below would turn its codec off and jump to ``easy`` (easier, not harder)
+            return round(base * (end / base) ** s, self.digits)
         if self.on is not None:
             if s < self.on:
                 return float(self.default)

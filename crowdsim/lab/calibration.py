@@ -631,7 +631,8 @@ def calibrate_suite(
         :func:`check_study_file`.
     update_suite : bool
         Also write each new calibration into the suite's own spec file, unless the spec
-        records a calibration closer to the paper's figure; ``force`` writes it anyway.
+        records a calibration closer to the paper's figure (``force`` writes it anyway) or
+        the file changed since this run read it (kept as it is, said in the log).
 
     Returns ``{sequence: {"paper_15px", "anchor", "difficulty", "score_15px", "error",
     "trials", "suite_spec"}}``; ``suite_spec`` is ``"updated"``, ``"kept"`` or ``None`` (no
@@ -650,6 +651,12 @@ def calibrate_suite(
     files = suite_files(suite)
     listed = suite_specs(suite, list(only) if only else None)
     specs = [s for s in listed if a.paper_key in s.calibration]
+    if only and specs and len(specs) < len(listed):  # named, so never skipped in silence
+        lacking = [s.name for s in listed if a.paper_key not in s.calibration]
+        raise ValueError(
+            f"--only {', '.join(lacking)}: no [calibration] {a.paper_key}, the target of "
+            f"--anchor {anchor}, in suite {str(suite)!r}"
+        )
     if not specs:
         others = [
             b.name for b in ANCHORS.values() if any(b.paper_key in s.calibration for s in listed)
@@ -663,6 +670,7 @@ def calibrate_suite(
         for key in (a.paper_key, a.achieved_key):
             if key in s.calibration:
                 require_number(f"{s.source}: calibration", key, s.calibration[key], lo=0, hi=100)
+        _uncalibrated(s)  # its recorded base_* values, checked before the first write
     out = Path(out)
     if out.resolve() == source_dir.resolve():
         raise ValueError(
@@ -692,6 +700,9 @@ def calibrate_suite(
             if not os.access(s.source, os.W_OK) or not os.access(source_dir, os.W_OK):
                 raise ValueError(f"--update-suite: cannot write {s.source} (read-only)")
 
+    # the texts calibrated: a spec edited while the run goes on is not mixed with its results
+    texts = {s.name: Path(s.source).read_text() for s in specs}
+
     # every check passed: write
     for f in files:  # a complete suite folder: the specs not calibrated now, as they are
         if not (out / f.name).exists():
@@ -715,11 +726,11 @@ def calibrate_suite(
                 log=log,
             )
             name = Path(spec.source).name
-            text = calibrated_text(Path(spec.source).read_text(), res, str(out / name))
+            text = calibrated_text(texts[spec.name], res, str(out / name))
             folder.write(name, text.encode())
             verdict = None
             if update_suite:
-                verdict = _update_suite_spec(spec, target, res, force, log)
+                verdict = _update_suite_spec(spec, texts[spec.name], target, res, force, log)
                 updated = updated or verdict == "updated"
             log(
                 f"{spec.name}: {anchor} {res['score_15px']:.1f}% (paper {target:g}%), difficulty "
@@ -746,11 +757,24 @@ def calibrate_suite(
 
 
 def _update_suite_spec(
-    spec: Any, target: float, res: dict[str, Any], force: bool, log: Callable[[str], None]
+    spec: Any,
+    text: str,
+    target: float,
+    res: dict[str, Any],
+    force: bool,
+    log: Callable[[str], None],
 ) -> str:
     """Write ``res`` into the suite's own spec unless it records a closer calibration against
-    the same anchor (a calibration against another anchor is not comparable: replaced)."""
+    the same anchor (a calibration against another anchor is not comparable: replaced), or
+    its file is no longer ``text``, the spec calibrated (edited meanwhile: kept as it is)."""
     a = anchor_of(res["anchor"])
+    path = Path(spec.source)
+    if path.read_text() != text:
+        log(
+            f"{spec.name}: kept {spec.source} as it is: it changed since this run read it, so "
+            "this calibration is not of it (rerun to calibrate it)"
+        )
+        return "kept"
     old = spec.calibration.get(a.achieved_key)
     new_err = abs(res["score_15px"] - target)
     if old is not None and not force and new_err > abs(float(old) - target):
@@ -760,7 +784,7 @@ def _update_suite_spec(
             f"this run's {res['score_15px']:g}% is {new_err:.2f} from it (--force replaces it)"
         )
         return "kept"
-    write_calibration(spec.source, res)
+    write_text_atomic(path, calibrated_text(text, res, str(path)))
     log(f"{spec.name}: updated {spec.source} ({a.name} {res['score_15px']:g}%, paper {target:g}%)")
     return "updated"
 
@@ -784,13 +808,24 @@ def uncalibrated_values(spec: Any) -> dict[tuple[str, str], Any]:
 
     The first calibration records them in ``[calibration]`` as ``base_<section>_<name>``, so
     a later run searches the same space from the same start (re-running is reproducible, and
-    it can make a sequence easier again). Empty for a spec never calibrated.
+    it can make a sequence easier again). Empty for a spec never calibrated. A recorded value
+    outside its knob's range (NaN, a string, 400 for noise) is refused naming the spec file
+    and the field.
     """
+    from crowdsim.checks import require_number
+
     values = {}
     for k in scaled():
         key = _base_key(k.section, k.name)
         if key in spec.calibration:
             v = spec.calibration[key]
+            hi = k.hi if math.isfinite(k.hi) else None
+            where = f"{spec.source}: calibration" if spec.source else "calibration"
+            require_number(where, key, v, lo=k.lo, hi=hi, lo_open=k.lo_open, integer=k.integer)
+            if 0 < v < k.off_below:
+                raise ValueError(
+                    f"{where}.{key} must be 0 (off) or at least {k.off_below:g}, got {v!r}"
+                )
             values[(k.section, k.name)] = int(v) if k.integer else float(v)
     return values
 

@@ -131,11 +131,20 @@ def attribute(
     Writes the full table of :func:`crowdsim.lab.experiments.run_table` (``OUT/table.md``,
     ``table.csv``, ``cells.json``, curves) and ``OUT/attribution.md`` / ``.json``: per
     sequence and tracker, acc@15 calibrated, the points regained by removing each group, and
-    acc@15 uncalibrated. Returns the attribution document.
+    acc@15 uncalibrated; ``frames`` is recorded and a cut run's title says so. Returns the
+    attribution document. A tracker fed detections simulated from the ground truth (ByteTrack,
+    OC-SORT) is refused: no knob reaches its input.
     """
     import json
 
-    from crowdsim.lab.experiments import Row, cell_key, cut_spec, key_frames, run_table
+    from crowdsim.lab.experiments import (
+        Row,
+        cell_key,
+        cut_spec,
+        key_frames,
+        run_table,
+        takes_detections,
+    )
     from synth_data.suites import suite_specs
     from tracker.registry import get
 
@@ -147,6 +156,14 @@ def attribute(
         entry = get(name)  # an unknown name fails before any work
         if cmc and "cmc" not in entry.field_names():
             raise ValueError(f"--cmc: tracker {name!r} has no camera-motion compensation")
+        if takes_detections(name):
+            # its detections are simulated from the ground truth: no knob reaches them, so
+            # every group would read as costing it nothing
+            raise ValueError(
+                f"--trackers: {name!r} tracks detections simulated from the ground truth, "
+                "which no appearance or camera knob changes; difficulty attributes to trackers "
+                "that read the frames"
+            )
         rows.append(Row(name, name))
         if cmc:
             rows.append(Row(f"{name}+cmc", name, {"cmc": True}))
@@ -173,6 +190,7 @@ def attribute(
     all_specs = [v for vs in variants.values() for _, v in vs]
     doc: dict[str, Any] = {
         "suite": str(suite),
+        "frames": frames,
         "groups": {g: DIFFICULTY_GROUPS[g] for g in chosen},
         "sequences": {},
     }
@@ -233,8 +251,10 @@ def attribution_table(doc: dict[str, Any]) -> str:
     extra = ["+cmc", "cmc / shake"] if with_cmc else []
     head = ["sequence", "tracker", "calibrated", *[f"-{g}" for g in groups], "uncalibrated"]
     head += extra
+    # a cut run says so, as its table.md does (the figures are not the whole sequences')
+    cut = f", first {doc['frames']} frames of each sequence" if doc.get("frames") else ""
     lines = [
-        f"# Difficulty attribution on {doc['suite']} (acc@15 %, and points regained)",
+        f"# Difficulty attribution on {doc['suite']}{cut} (acc@15 %, and points regained)",
         "",
         "| " + " | ".join(head) + " |",
         "|" + "---|" * len(head),

@@ -189,3 +189,17 @@ def test_a_log_scale_knob_switches_on_exactly_at_its_on_value():
     assert k.at(0.1, 0.0) == 4000.0
     assert k.at(0.0999, 0.0) == 0.0
     assert k.at(1.0, 0.0) == 150.0
+
+
+def test_a_spec_with_its_own_codec_starts_the_scale_at_its_own_bit_rate():
+    """Difficulty 0 is the spec as written: a spec's own 1000 kbit/s had become no codec at
+    all (0) and 3097 kbit/s at 0.2, easier than the spec; now 1000 -> 400 (static end) on the
+    log scale, and a spec without a codec still switches it on at ``on``."""
+    k = knob("video_kbps")
+    assert k.at(0.0, 1000.0, "static") == 1000.0
+    assert k.at(0.5, 1000.0, "static") == round(1000.0 * 0.4**0.5, 1) == 632.5
+    assert k.at(1.0, 1000.0, "static") == 400.0
+    assert k.at(1.0, 1000.0) == 150.0
+    spec = _spec(video_kbps=1000.0)
+    assert knobs.knob_values(spec, 0.0, 0.0, "static")[("appearance", "video_kbps")] == 1000.0
+    assert [k.at(s, 0.0, "static") for s in (0.0, 0.1, 1.0)] == [0.0, 4000.0, 400.0]

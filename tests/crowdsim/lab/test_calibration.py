@@ -427,3 +427,67 @@ def test_help_reads_without_sphinx_roles(capsys):
         main(["calibrate", "--help"])
     out = capsys.readouterr().out
     assert exc.value.code == 0 and ":mod:" not in out and "crowdsim.lab.calibration)" in out
+
+
+@pytest.mark.parametrize(
+    "value, needle",
+    [
+        ("nan", "calibration.base_appearance_noise_sigma must be a finite number in [0, 50], "
+         "got nan"),
+        ('"abc"', "calibration.base_appearance_noise_sigma must be a finite number in [0, 50], "
+         "got 'abc'"),
+        ("400", "calibration.base_appearance_noise_sigma must be a finite number in [0, 50], "
+         "got 400"),
+    ],
+)  # fmt: skip
+def test_a_bad_recorded_base_value_is_refused_by_name_before_any_write(
+    tmp_path, scored, capsys, value, needle
+):
+    """A spec's base_* value (its knobs before the first calibration) out of its knob's range
+    is named with its file and field; it had failed after --out was written ('could not
+    convert string to float: 'abc'', or 'appearance.noise_sigma ... got nan' naming no file)."""
+    suite = _suite(tmp_path / "s", a=(60.0, f"base_appearance_noise_sigma = {value}\n"))
+    out = tmp_path / "cal"
+    assert main(["calibrate", "--suite", str(suite), "--out", str(out), "--trials", "1"]) == 2
+    err = capsys.readouterr().err
+    assert f"{suite / 'a.toml'}: {needle}" in err
+    assert not out.exists() and scored == []
+
+
+def test_only_naming_a_sequence_without_the_anchors_figure_refuses_it(tmp_path, scored):
+    """``--only a b`` where b records no paper_b_ncc_15px had calibrated a alone, in silence."""
+    suite = _suite(tmp_path / "s", a=60.0, b=70.0)
+    text = (suite / "b.toml").read_text().replace("paper_b_ncc_15px = 70.0\n", "")
+    (suite / "b.toml").write_text(text + "paper_ncc_15px = 50.0\n")
+    with pytest.raises(ValueError, match=r"--only b: no \[calibration\] paper_b_ncc_15px"):
+        calibration.calibrate_suite(suite, out=tmp_path / "cal", only=["a", "b"], trials=1)
+    assert not (tmp_path / "cal").exists() and scored == []
+    res = calibration.calibrate_suite(suite, out=tmp_path / "cal", trials=1, log=lambda m: None)
+    assert set(res) == {"a"}  # the whole suite: the sequences with a figure, as documented
+
+
+def test_a_spec_edited_during_the_run_is_kept_and_not_mixed_with_the_results(
+    suite, tmp_path, monkeypatch
+):
+    """--update-suite read the suite's spec again at the write: an edit made while the trials
+    ran (here 10 -> 12 people) got the calibration of the spec before it, and so did --out's."""
+    path = suite / "a.toml"
+
+    def fake(spec, workdir, anchor="b-ncc"):
+        text = path.read_text()
+        if "n_agents = 10" in text:
+            path.write_text(text.replace("n_agents = 10", "n_agents = 12"))
+        return _curve(_difficulty(spec))
+
+    monkeypatch.setattr(calibration, "score", fake)
+    logs: list[str] = []
+    res = calibration.calibrate_suite(
+        suite, out=tmp_path / "cal", only=["a"], trials=2, update_suite=True, log=logs.append
+    )
+    assert res["a"]["suite_spec"] == "kept"
+    assert any(m.startswith("a: kept") and "changed since this run read it" in m for m in logs)
+    edited = load_spec(path)
+    assert edited.scenario["n_agents"] == 12 and "achieved_b_ncc_15px" not in edited.calibration
+    written = load_spec(tmp_path / "cal" / "a.toml")  # the spec calibrated, with its results
+    assert written.scenario["n_agents"] == 10
+    assert written.calibration["achieved_b_ncc_15px"] == res["a"]["score_15px"]

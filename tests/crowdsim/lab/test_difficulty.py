@@ -197,3 +197,34 @@ def test_only_naming_a_spec_without_a_calibration_section_refuses_it(tmp_path, m
         attribute(
             suite, tmp_path / "o", only=["seq9", "seq2"], trackers=["ncc"], log=lambda m: None
         )
+
+
+@pytest.mark.parametrize("tracker", ["bytetrack", "ocsort"])
+def test_a_tracker_of_simulated_detections_is_refused_before_any_work(tmp_path, capsys, tracker):
+    """Its detections come from the ground truth, which no knob changes: every group had read
+    +0.0 (ByteTrack 88.3 on every variant of seq8), as if the difficulty cost it nothing."""
+    code = main(["difficulty", "--only", "seq9", "--trackers", "ncc", tracker,
+                 "--out", str(tmp_path)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and f"{tracker!r} tracks detections simulated from the ground truth" in err
+    assert not any(tmp_path.iterdir())  # nothing generated
+
+
+def test_a_cut_run_says_so_in_the_attribution(tmp_path, monkeypatch):
+    """attribution.md and .json of a --frames run say they cover the first frames (table.md
+    did; the attribution read as the whole sequences')."""
+    import crowdsim.lab.experiments as experiments
+
+    monkeypatch.setattr(experiments, "run_table", lambda *a, **k: None)
+    doc = attribute("ucf9", tmp_path, only=["seq9"], trackers=["ncc"], groups=["shake"],
+                    frames=15, log=lambda m: None)  # fmt: skip
+    assert doc["frames"] == 15
+    from crowdsim.lab.difficulty import attribution_table
+
+    doc["sequences"] = {"seq9": {"ncc": {"calibrated": 90.0, "uncalibrated": 95.0,
+                                         "regained": {"shake": 1.5}}}}  # fmt: skip
+    head = attribution_table(doc).splitlines()[0]
+    assert head == ("# Difficulty attribution on ucf9, first 15 frames of each sequence "
+                    "(acc@15 %, and points regained)")  # fmt: skip
+    whole = attribution_table({**doc, "frames": None}).splitlines()[0]
+    assert whole == "# Difficulty attribution on ucf9 (acc@15 %, and points regained)"
