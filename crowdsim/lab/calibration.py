@@ -810,17 +810,25 @@ def uncalibrated_values(spec: Any) -> dict[tuple[str, str], Any]:
     a later run searches the same space from the same start (re-running is reproducible, and
     it can make a sequence easier again). Empty for a spec never calibrated. A recorded value
     outside its knob's range (NaN, a string, 400 for noise) is refused naming the spec file
-    and the field.
+    and the field, and so is a ``base_`` key of no knob (a misspelt one would have left its
+    knob's search to start from the spec's calibrated value, in silence).
     """
     from crowdsim.checks import require_number
 
+    where = f"{spec.source}: calibration" if spec.source else "calibration"
+    known = {_base_key(k.section, k.name) for k in scaled()}
+    for key in spec.calibration:
+        if key.startswith("base_") and key not in known:
+            raise ValueError(
+                f"{where}.{key} records no difficulty knob's value (base_<section>_<knob>, "
+                f"one of: {', '.join(sorted(known))})"
+            )
     values = {}
     for k in scaled():
         key = _base_key(k.section, k.name)
         if key in spec.calibration:
             v = spec.calibration[key]
             hi = k.hi if math.isfinite(k.hi) else None
-            where = f"{spec.source}: calibration" if spec.source else "calibration"
             require_number(where, key, v, lo=k.lo, hi=hi, lo_open=k.lo_open, integer=k.integer)
             if 0 < v < k.off_below:
                 raise ValueError(

@@ -454,6 +454,17 @@ def test_a_bad_recorded_base_value_is_refused_by_name_before_any_write(
     assert not out.exists() and scored == []
 
 
+def test_a_misspelt_base_key_is_refused_by_name_before_any_write(tmp_path, scored, capsys):
+    """``base_appearance_noise_sigm`` records no knob: it had been ignored, and noise's search
+    started from the calibrated value in silence."""
+    suite = _suite(tmp_path / "s", a=(60.0, "base_appearance_noise_sigm = 4.0\n"))
+    out = tmp_path / "cal"
+    assert main(["calibrate", "--suite", str(suite), "--out", str(out), "--trials", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "calibration.base_appearance_noise_sigm records no difficulty knob's value" in err
+    assert "base_appearance_noise_sigma" in err and not out.exists() and scored == []
+
+
 def test_only_naming_a_sequence_without_the_anchors_figure_refuses_it(tmp_path, scored):
     """``--only a b`` where b records no paper_b_ncc_15px had calibrated a alone, in silence."""
     suite = _suite(tmp_path / "s", a=60.0, b=70.0)
