@@ -342,9 +342,11 @@ class Anomalies(Scenario):
     """A street flow towards +x in which a fraction of people behaves abnormally.
 
     Kinds (``ANOMALY_KINDS``): ``against`` walks against the flow, ``stop`` stands still for
-    3-8 s (its desired speed is 0, nothing holds it in place: passers-by push it along, and
-    it drifts with them), ``cross`` crosses to the other side of the street, ``leave``
-    leaves the flow through a side exit in the middle of the street.
+    3-8 s from 0.5-4 s after the start (a spec's first frame: a sequence's warm-up is not
+    counted; its desired speed is 0, nothing holds it in place: passers-by push it along, and
+    it drifts with them), ``cross`` crosses to the other side of the street, ``leave`` leaves
+    the flow through a side exit in the middle of the street. Only the starting crowd has
+    anomalies: the inflow brings ordinary walkers.
 
     Extra attributes: ``width`` (m), ``anomaly_fraction``, ``kinds`` (names to use).
     """

@@ -43,6 +43,11 @@ def simulate(spec: SequenceSpec) -> Any:
     if abs(sf.dt - 1.0 / spec.fps) > 1e-12:
         sf = replace(sf, dt=1.0 / spec.fps)
     sim = Simulation(scenario, seed=spec.seed, params=sf)
+    # A scenario times its stoppers (anomalies' ``stop``) from the simulation's start; the
+    # spec's clock starts at frame 0, after the warm-up (a 10 s warm-up had ended every stop
+    # before the first frame, and people labelled stop never stood still in the video).
+    sim.state.stop_start += spec.warmup_steps * sf.dt
+    sim.state.stop_end += spec.warmup_steps * sf.dt
     check_memory(spec, sim)
     crowd = of_kind(spec.events, CROWD_EVENTS)
     if crowd:

@@ -205,3 +205,32 @@ def test_inflow_scenarios_are_the_ones_with_inflow():
     for name in SCENARIOS:
         has = bool(make_scenario(name).build(np.random.default_rng(0)).sources)
         assert has == (name in INFLOW_SCENARIOS), name
+
+
+def test_anomalies_stoppers_stop_in_the_video_after_a_long_warm_up():
+    """A scenario's stoppers (``anomalies``, kind ``stop``) stand 3-8 s from 0.5-4 s after
+    frame 0: their times counted from the warm-up's start had ended every stop before the
+    first frame of a 10 s warm-up, and people labelled stop walked through the video."""
+    spec = spec_from_dict(
+        {
+            **BASE,
+            "fps": 10.0,
+            "warmup_steps": 100,  # 10 s
+            "frames": 120,
+            "scenario": {
+                "name": "anomalies",
+                "n_agents": 120,
+                "density": 0.5,
+                "anomaly_fraction": 0.3,
+                "kinds": ["stop"],
+            },
+        }
+    )
+    traj = Scene.from_spec(spec).traj
+    speed = np.linalg.norm(np.diff(traj.positions, axis=0), axis=2) * spec.fps
+    second = np.lib.stride_tricks.sliding_window_view(speed, 10, axis=0).mean(axis=2)
+    slowest = np.nanmin(np.where(np.isnan(second), np.inf, second), axis=0)  # a 1 s window
+    stoppers = traj.attributes["anomaly"] == 2
+    assert stoppers.sum() >= 10
+    assert np.median(slowest[stoppers]) < 0.3  # was 1.15: they never stood
+    assert np.median(slowest[~stoppers]) > 0.6
