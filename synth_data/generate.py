@@ -112,6 +112,7 @@ def build_sequence(
             video=spec.output["video"],
             overwrite=overwrite,
             progress=progress,
+            tracks=scene.tracks,  # built for the check above; not a second time
         )
     except FileExistsError:
         # another run into the same folder (a second generate, a table run) finished this

@@ -257,6 +257,7 @@ def write_sequence(
     video: bool = False,
     overwrite: bool = False,
     progress: Callable[[int], None] | None = None,
+    tracks: Any = None,
 ) -> dict[str, Any]:
     """Render ``traj`` through ``camera`` into the sequence folder ``out_dir``.
 
@@ -285,6 +286,10 @@ def write_sequence(
         folder raises ``FileExistsError``.
     progress : callable, optional
         Called with ``1`` after each rendered frame.
+    tracks : crowdsim.render.AgentTracks, optional
+        ``prepare_agents(traj, camera, appearance, seed)`` when the caller holds it already
+        (:attr:`synth_data.scene.Scene.tracks`): a second copy of its ``(T, N)`` arrays is not
+        built beside it.
 
     Returns
     -------
@@ -308,7 +313,8 @@ def write_sequence(
     checksums: dict[str, str] = {}
     total = 0
     try:
-        tracks = prepare_agents(traj, camera, appearance, seed)
+        if tracks is None:
+            tracks = prepare_agents(traj, camera, appearance, seed)
         renderer = SceneRenderer(camera, appearance, seed=seed, fps=traj.fps, events=events)
         n_frames = tracks.n_frames
         visibility = np.full(tracks.pixels.shape[:2], np.nan)

@@ -311,6 +311,33 @@ def test_gt_visibility_is_the_boxs_fraction_inside_the_frame():
     assert rows.tolist() == [[1, 1, 92.0, 45.0, 10, 10, 1, 1, 0.8]]
 
 
+@pytest.mark.parametrize("drawn", [False, True])
+def test_gt_rows_by_blocks_of_frames_are_the_rows_of_one_block(monkeypatch, drawn):
+    """gt_rows turns a block of frames into rows at a time (memory): blocks of 1 and 2
+    frames (3 people a frame) give the rows of one block, sorted by frame then MOT id
+    (the ids descend across the columns here, so a block sorted on its own columns only,
+    or written at the wrong offset, differs)."""
+    import synth_data.mot as mot
+
+    class Camera:
+        width, height = 100, 100
+
+        def visible(self, pix):
+            x, y = pix[..., 0], pix[..., 1]
+            return np.isfinite(pix).all(-1) & (x >= 0) & (x < 100) & (y >= 0) & (y < 100)
+
+    rng = np.random.default_rng(7)
+    pix = rng.uniform(-20, 120, (7, 3, 2))
+    pix[2, 1] = np.nan
+    ids = np.array([9, 4, 2])
+    vis = rng.uniform(0, 1, (7, 3)) if drawn else None
+    whole = mot.gt_rows(pix, Camera(), 10, ids, vis)
+    assert len(whole) and (np.diff(whole[:, 0]) >= 0).all()
+    for block in (3, 6):  # 1 and 2 frames of 3 people
+        monkeypatch.setattr(mot, "GT_ROWS_BLOCK", block)
+        np.testing.assert_array_equal(mot.gt_rows(pix, Camera(), 10, ids, vis), whole)
+
+
 @pytest.mark.parametrize(("col", "what"), [(0, "frame"), (1, "id"), (7, "class")])
 def test_write_mot_refuses_fractional_integer_columns(tmp_path, col, what):
     """``int()`` had written id 2.5 as 2, merging two people, where the reader refuses it."""
