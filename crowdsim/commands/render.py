@@ -39,9 +39,11 @@ MAX_FPS = 1000.0
 BYTES_PER_PIXEL = 64
 """Render working set per frame pixel (float32 ground, noise pool, frame, JPEG); measured
 45-61 B at 2048..8192 px sides."""
-BYTES_PER_AGENT_ROW = 128
-"""Working set per (frame, agent) cell (positions, pixels, headings, sway, gt); measured
-107 B for 2000 frames x 1000 people."""
+BYTES_PER_AGENT_ROW = 192
+"""Working set per (frame, agent) cell (positions, pixels, headings, sway, poses, gt rows);
+measured 182 B: peak RSS 392 MB at 801 frames and 829 MB at 3,201 frames of 1,000 people at
+640x360 (2026-11-28, `/usr/bin/time -v`); the 128 B before came from 107 B measured on an
+earlier renderer."""
 
 
 def _size(text: str) -> tuple[int, int]:
