@@ -47,6 +47,7 @@ visible to the driver; the manifest is only written by the driver.
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 import signal
@@ -67,6 +68,9 @@ STOP_GRACE_S: float = 3.0
 """Seconds a terminated worker gets to clean up before it is killed."""
 WATCHDOG_PERIOD_S: float = 0.5
 """How often a worker checks that its parent is still alive (fallback to PDEATHSIG)."""
+RAY_CONNECT_TIMEOUT_S: float = 5.0
+"""Seconds :func:`ray_init` waits for a Ray cluster's address to answer (Ray itself retries
+an address where nothing listens for many minutes)."""
 
 
 def one_numba_thread() -> None:
@@ -228,6 +232,9 @@ def locked_manifest(
 # ---------------------------------------------------------------------------- workers
 _QUEUE: Any = None
 _IN_JOB = False
+_LAST_SIGNAL: list[str] = []
+"""The name of the last signal :func:`interruptible` turned into :class:`Interrupted` (for an
+interrupt that C code raised as a bare ``KeyboardInterrupt``)."""
 
 
 class _Terminated(BaseException):
@@ -371,23 +378,74 @@ def interrupt_in(exc: BaseException) -> KeyboardInterrupt | None:
     return None
 
 
+def check_ray_address(address: str | None, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> None:
+    """A ``ValueError`` in one line when nothing answers at the ``HOST:PORT`` (or
+    ``ray://HOST:PORT``) of ``address`` within ``timeout_s``: ``ray.init`` waited many minutes
+    there, printing retries. ``None``, ``"auto"``, ``"local"`` and what is not ``HOST:PORT``
+    are left to Ray, which finds the cluster or names the bad format itself.
+
+    >>> check_ray_address("127.0.0.1:1")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: --address 127.0.0.1:1: no Ray cluster answers there (Connection refused); ...
+    """
+    import socket
+
+    if address is None:
+        return
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not host or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        why = "no answer" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
+        raise ValueError(
+            f"--address {address}: no Ray cluster answers there ({why}); start one with "
+            "`ray start --head` or give the address it printed"
+        ) from None
+
+
 def ray_init(ray: Any, address: str | None) -> None:
     """Start (or join) Ray unless it runs, keeping this process's SIGINT and SIGTERM handlers:
     ``ray.init`` installs its own, and a SIGTERM then ended a run with exit 15 and Ray's stack
     dump instead of the one line and 143 (:func:`interruptible`). A SIGTERM while Ray starts
-    (its handler exits with 15) raises :class:`Interrupted` too."""
+    (its handler exits with 15) raises :class:`Interrupted` too. An ``address`` where nothing
+    answers is refused at once (:func:`check_ray_address`)."""
     import signal
 
     if ray.is_initialized():
         return
+    check_ray_address(address)
     main = threading.current_thread() is threading.main_thread()
     saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    # registered before ray.init, so it runs after a Ctrl-C that lands while Ray starts (a
+    # node half started) and, once the command has returned, before Ray's own exit hook
+    atexit.unregister(ray_shutdown)  # once, however often Ray is started
+    atexit.register(ray_shutdown, ray)
     try:
         ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
     except SystemExit as exc:  # a SIGTERM while it starts: Ray's handler calls sys.exit(15)
         if exc.code != signal.SIGTERM:
             raise
         raise Interrupted("SIGTERM") from None
+    finally:
+        for sig, handler in saved.items():
+            if handler is not None:
+                signal.signal(sig, handler)
+
+
+def ray_shutdown(ray: Any) -> None:
+    """``ray.shutdown()`` with SIGINT and SIGTERM ignored while it runs (in the main thread):
+    a Ctrl-C that landed in it (as a run ended, or a second one) cut it short, and the
+    local Ray instance's dashboard and runtime-env agents were left running, orphaned."""
+    import signal
+
+    main = threading.current_thread() is threading.main_thread()
+    sigs = (signal.SIGINT, signal.SIGTERM)
+    saved = {s: signal.signal(s, signal.SIG_IGN) for s in sigs} if main else {}
+    try:
+        ray.shutdown()
     finally:
         for sig, handler in saved.items():
             if handler is not None:
@@ -439,6 +497,7 @@ def interruptible() -> Iterator[None]:
             resend.append(name)
             wake.set()
             return
+        _LAST_SIGNAL[:] = [name]
         raise Interrupted(name)
 
     def unraisable(info: Any) -> None:
@@ -505,7 +564,8 @@ def run_jobs(
         JSON manifest; results are recorded under ``manifest[section][key]`` as each job
         finishes (under the lock, merged with what other runs wrote).
     workers : int
-        Local processes (``backend="local"``); 1 runs in this process.
+        Local processes (``backend="local"``; 1 runs in this process), or Ray tasks running
+        at a time (``backend="ray"``).
     backend : {"local", "ray"}
         ``"ray"``: one Ray task (1 CPU) per job on the cluster at ``address`` (a local Ray
         instance when None).
@@ -562,7 +622,7 @@ def run_jobs(
         try:
             with interruptible():
                 if backend == "ray":
-                    _run_ray(todo, address, record, passthrough)
+                    _run_ray(todo, int(workers), address, record, passthrough)
                 elif workers == 1 or len(todo) == 1:
                     _run_inline(todo, record, bar, passthrough)
                 else:
@@ -696,30 +756,65 @@ def _run_pool(
 
 def _run_ray(
     todo: list[Job],
+    workers: int,
     address: str | None,
     record: Callable[[Job, Any], None],
     passthrough: tuple[type[BaseException], ...],
 ) -> None:
+    """At most ``workers`` Ray tasks at a time (``--workers`` caps them as it caps local
+    processes: all at once had taken every CPU of the cluster whatever it said); on a failure
+    the queued jobs are never started and the running ones finish and are recorded, as in a
+    pool."""
     from crowdsim.optional import require
 
     ray = require("ray", "distributed", "--backend ray")
     ray_init(ray, address)
     task = ray.remote(num_cpus=1)(_call_on_ray)
-    refs = {task.remote(job): job for job in todo}
+    queued = list(todo)
+    refs: dict[Any, Job] = {}
+    failure: BaseException | None = None
     try:
-        while refs:
+        while refs or (queued and failure is None):
+            while queued and failure is None and len(refs) < workers:
+                job = queued.pop(0)
+                refs[task.remote(job)] = job
             ready, _ = ray.wait(list(refs), num_returns=1, timeout=1.0)
             for ref in ready:
                 job = refs.pop(ref)
                 try:
                     result = ray.get(ref)
                 except Exception as exc:  # noqa: BLE001 - Ray wraps worker errors
-                    cause = getattr(exc, "cause", None)
-                    if isinstance(cause, passthrough):
-                        raise cause from None
-                    raise JobError(job.key, f"{job.key}: Ray task failed: {exc}") from None
+                    failure = failure or _ray_failure(job, exc, passthrough)
+                    continue
                 record(job, result)
-    except BaseException:
+        if failure is not None:
+            raise failure
+    except BaseException as exc:
         for ref in refs:
             ray.cancel(ref, force=True)
+        if refs:  # cancelling is asynchronous: let the workers die before the caller cleans
+            # up after them (a task still writing had finished a sequence after it)
+            ray.wait(list(refs), num_returns=len(refs), timeout=STOP_GRACE_S)
+        if isinstance(exc, KeyboardInterrupt) and not isinstance(exc, Interrupted):
+            # ray.wait ran interruptible's handler in its C++ loop and raised a bare
+            # KeyboardInterrupt in place of its Interrupted: the caller's clean-up (which
+            # catches Interrupted) was skipped, and a SIGTERM ended with SIGINT's 130
+            raise Interrupted(_LAST_SIGNAL[0] if _LAST_SIGNAL else "SIGINT") from None
         raise
+
+
+def _ray_failure(
+    job: Job, exc: BaseException, passthrough: tuple[type[BaseException], ...]
+) -> BaseException:
+    """What a failed Ray task raises: the job's own exception as a pool's would be
+    (:func:`_failure`: one line naming the key), not Ray's wrapper, whose text is the
+    worker's whole traceback in terminal colours; a worker that died is named in one line."""
+    cause = getattr(exc, "cause", None)
+    if isinstance(cause, BaseException):
+        return _failure(job, cause, passthrough)
+    first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return JobError(
+        job.key,
+        f"{job.key}: the Ray task failed ({type(exc).__name__}: {first}); finished jobs are "
+        "kept, rerun the same command to resume",
+    )

@@ -37,7 +37,7 @@ from crowdsim.atomic import (
     study_storage,
 )
 from crowdsim.checks import require_choice, require_number, require_sequences, require_workers
-from crowdsim.jobs import Interrupted, ray_init, read_manifest
+from crowdsim.jobs import Interrupted, check_ray_address, ray_init, read_manifest
 from crowdsim.optional import DependencyNotInstalled, require
 from envs.episodes import (
     EpisodeSource,
@@ -1033,6 +1033,7 @@ def tune(
     if backend == "ray":  # before anything is created (no lock file, no empty study)
         require("ray", "distributed", "--backend ray")
         require("ray.tune", "distributed", "--backend ray")
+        check_ray_address(address)
     elif address is not None:
         raise ValueError(f"--address needs --backend ray, got --address {address!r}")
     log = log or (lambda msg: print(msg, file=sys.stderr))

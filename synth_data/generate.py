@@ -26,9 +26,9 @@ module only writes to disk and runs the jobs through :func:`crowdsim.jobs.run_jo
   is not its own, before anything runs.
 * **Parallel**: ``backend="local"`` runs a spawn-context process pool of ``workers``
   processes (in-process when ``workers == 1``) whose workers die with this process;
-  ``backend="ray"`` runs one Ray task per sequence on the cluster at ``address`` (a local Ray
-  instance when None). The output folder must be visible to every Ray node (shared file
-  system).
+  ``backend="ray"`` runs one Ray task per sequence, at most ``workers`` at a time, on the
+  cluster at ``address`` (a local Ray instance when None). The output folder must be visible
+  to every Ray node (shared file system).
 * **Interruption**: SIGINT/SIGTERM stop the run promptly, remove this run's temporary folders
   and raise :class:`crowdsim.jobs.Interrupted` (``removed`` lists what was deleted); finished
   sequences stay in the manifest.

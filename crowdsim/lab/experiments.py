@@ -576,7 +576,7 @@ def run_table(
         table's.
     """
     from crowdsim.checks import require_number, require_workers
-    from crowdsim.jobs import Job, run_jobs
+    from crowdsim.jobs import Job, check_ray_address, run_jobs
     from synth_data.generate import generate
     from synth_data.suites import suite_specs
     from tracker.registry import get
@@ -586,6 +586,7 @@ def run_table(
     require_workers("--workers", workers, backend)
     if address is not None and backend != "ray":
         raise ValueError(f"--address needs --backend ray, got --address {address!r}")
+    check_ray_address(address)  # before --out is made: a refused address leaves nothing
     for row in rows:
         get(row.tracker).make_params(**row.overrides)  # unknown names fail before any work
         if row.detections is not None and not takes_detections(row.tracker):

@@ -370,3 +370,159 @@ def test_bench_envs_workers_are_at_most_the_cores(capsys):
     n = (os.cpu_count() or 1) + 1
     assert main(["bench", "envs", "--only", "crowd", "--workers", str(n)]) == 2
     assert f"--workers must be in [1, {n - 1}]" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------- Ray backend
+class _TaskError(Exception):
+    """Ray's wrapper of a task's exception: the job's own one as ``cause``, and the worker's
+    whole traceback as its text."""
+
+    def __init__(self, cause: BaseException) -> None:
+        super().__init__(f"ray::_call_on_ray() (pid=1)\n  Traceback ...\n{cause!r}")
+        self.cause = cause
+
+
+class FakeRay:
+    """The part of Ray that ``_run_ray`` calls: a task runs when it is first waited on, in
+    the order submitted; ``most`` is the largest number of tasks submitted and not yet taken
+    back with ``get`` (running, to the cluster)."""
+
+    def __init__(self, interrupt_after: int | None = None) -> None:
+        self.live: dict[int, Job] = {}
+        self.most = 0
+        self.cancelled: list[int] = []
+        self.next = 0
+        self.waits = 0
+        self.interrupt_after = interrupt_after
+
+    def is_initialized(self) -> bool:
+        return True
+
+    def remote(self, **resources):
+        def wrap(fn):
+            fake = self
+
+            class Task:
+                @staticmethod
+                def remote(job: Job) -> int:
+                    fake.next += 1
+                    fake.live[fake.next] = job
+                    fake.most = max(fake.most, len(fake.live))
+                    return fake.next
+
+            return Task
+
+        return wrap
+
+    def wait(self, refs, num_returns=1, timeout=None):
+        self.waits += 1
+        if self.waits - 1 == self.interrupt_after:
+            raise KeyboardInterrupt  # Ray's C++ wait after it ran the signal's handler
+        return sorted(refs)[:num_returns], sorted(refs)[num_returns:]
+
+    def get(self, ref: int):
+        job = self.live.pop(ref)
+        try:
+            return job.fn(*job.args, **job.kwargs)
+        except Exception as exc:
+            raise _TaskError(exc) from None
+
+    def cancel(self, ref: int, force: bool = False) -> None:
+        self.cancelled.append(ref)
+
+
+@pytest.fixture()
+def fake_ray(monkeypatch):
+    def install(**kw) -> FakeRay:
+        fake = FakeRay(**kw)
+        monkeypatch.setitem(sys.modules, "ray", fake)
+        return fake
+
+    return install
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_ray_runs_at_most_workers_tasks_at_a_time(tmp_path, helpers, fake_ray, workers):
+    ray = fake_ray()
+    jobs = [Job(f"j{k}", helpers.square, (k,)) for k in range(5)]
+    got = run_jobs(jobs, tmp_path / "m.json", workers=workers, backend="ray", progress=False)
+    assert got == {f"j{k}": k * k for k in range(5)}
+    assert ray.most == workers  # all five at once had taken every CPU of the cluster
+
+
+def test_a_failed_ray_task_is_one_line_naming_the_job(tmp_path, helpers, fake_ray):
+    ray = fake_ray()
+    jobs = [
+        Job("bad", helpers.fail, (3,)),
+        Job("ok", helpers.square, (2,)),
+        Job("never", helpers.square, (4,)),
+    ]
+    with pytest.raises(JobError) as info:
+        run_jobs(jobs, tmp_path / "m.json", workers=2, backend="ray", progress=False)
+    assert str(info.value) == "bad: RuntimeError: boom 3"  # not Ray's traceback
+    assert info.value.key == "bad"
+    # the running one finished and is recorded; the queued one never started
+    assert read_manifest(tmp_path / "m.json")["jobs"] == {"ok": 4}
+    assert ray.next == 2
+    with pytest.raises(ValueError, match="^bad value 5$"):  # user errors as they are
+        run_jobs(
+            [Job("u", helpers.user_error, (5,))], tmp_path / "m.json", backend="ray", progress=False
+        )
+
+
+def test_an_interrupt_ray_raised_bare_is_the_signal_that_came(
+    tmp_path, helpers, fake_ray, monkeypatch
+):
+    ray = fake_ray(interrupt_after=1)
+    monkeypatch.setattr(jobs_mod, "_LAST_SIGNAL", ["SIGTERM"])
+    jobs = [Job(f"j{k}", helpers.square, (k,)) for k in range(3)]
+    with pytest.raises(Interrupted) as info:
+        run_jobs(jobs, tmp_path / "m.json", workers=2, backend="ray", progress=False)
+    assert info.value.signal_name == "SIGTERM"  # a bare KeyboardInterrupt had read as SIGINT
+    assert ray.cancelled == [2, 3]  # the ones still running
+    assert read_manifest(tmp_path / "m.json")["jobs"] == {"j0": 0}
+
+
+def test_interruptible_notes_the_signal_it_raises():
+    with pytest.raises(Interrupted), jobs_mod.interruptible():
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)
+    assert jobs_mod._LAST_SIGNAL == ["SIGTERM"]
+
+
+def test_an_address_where_nothing_answers_is_refused_at_once():
+    import socket
+
+    with socket.socket() as s:  # a port that was free a moment ago: nothing listens there
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    t0 = time.monotonic()
+    for address in (f"127.0.0.1:{port}", f"ray://127.0.0.1:{port}"):
+        with pytest.raises(ValueError) as info:
+            jobs_mod.check_ray_address(address)
+        assert str(info.value).startswith(f"--address {address}: no Ray cluster answers there (")
+        assert "\n" not in str(info.value)
+    assert time.monotonic() - t0 < 5  # ray.init retried for many minutes
+    for address in (None, "auto", "local", "not-an-address"):  # Ray's own to find or refuse
+        jobs_mod.check_ray_address(address)
+
+
+def test_ray_shutdown_is_not_cut_short_by_a_signal():
+    calls = []
+
+    class Ray:
+        def shutdown(self) -> None:
+            os.kill(os.getpid(), signal.SIGINT)  # a Ctrl-C as the run ends
+            time.sleep(0.1)
+            calls.append("done")
+
+    def cut_short(signum, frame):
+        raise RuntimeError("the signal was raised inside ray.shutdown")
+
+    before = signal.signal(signal.SIGINT, cut_short)
+    try:
+        jobs_mod.ray_shutdown(Ray())
+        assert calls == ["done"]  # it had stopped half-way, the agents left running
+        assert signal.getsignal(signal.SIGINT) is cut_short
+    finally:
+        signal.signal(signal.SIGINT, before)
