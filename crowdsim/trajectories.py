@@ -139,8 +139,13 @@ class Trajectories:
         either). On a periodic x axis a step across the seam counts as the short way round."""
         d = self.positions[1:] - self.positions[:-1]
         if self.period > 0:
-            d[..., 0] -= self.period * np.round(d[..., 0] / self.period)
+            d[..., 0] -= self._seam_shift(d[..., 0])
         return d
+
+    def _seam_shift(self, dx: np.ndarray) -> np.ndarray:
+        """The whole periods a step ``dx`` along the periodic x axis drops to go the short
+        way round (:meth:`steps`, :meth:`unwrapped`)."""
+        return self.period * np.round(dx / self.period)
 
     def velocities(self) -> np.ndarray:
         """``(T, N, 2)`` m/s by backward differences (:meth:`steps`); NaN at entry rows and
@@ -162,8 +167,8 @@ class Trajectories:
         rows = np.where(np.isfinite(x), np.arange(self.n_steps)[:, None], 0)
         x = x[np.maximum.accumulate(rows, axis=0), np.arange(self.n_agents)]
         d = np.diff(x, axis=0)
-        with np.errstate(invalid="ignore"):  # as steps() shortens d (the same bits)
-            jump = np.nan_to_num((d - self.period * np.round(d / self.period)) - d)
+        with np.errstate(invalid="ignore"):  # the short step less the step, as steps()
+            jump = np.nan_to_num((d - self._seam_shift(d)) - d)
         out = self.positions.copy()
         out[1:, :, 0] += np.cumsum(jump, axis=0)
         return out

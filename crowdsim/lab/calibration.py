@@ -495,11 +495,15 @@ def _overrides_text(a: Anchor) -> str:
     return ", ".join(f"{k}={v}" for k, v in a.overrides.items()) or "as registered"
 
 
-def write_calibration(path: str | os.PathLike[str], result: dict[str, Any]) -> None:
+def write_calibration(
+    path: str | os.PathLike[str], result: dict[str, Any], text: str | None = None
+) -> None:
     """Write the calibrated knobs and the achieved score into the spec file at ``path``
-    (atomically; see :func:`calibrated_text`)."""
+    (atomically; see :func:`calibrated_text`), into ``text`` when given (the spec as it was
+    calibrated), else into the file as it is now."""
     path = Path(path)
-    write_text_atomic(path, calibrated_text(path.read_text(), result, str(path)))
+    text = path.read_text() if text is None else text
+    write_text_atomic(path, calibrated_text(text, result, str(path)))
 
 
 # ------------------------------------------------------------------------- suites
@@ -784,7 +788,7 @@ def _update_suite_spec(
             f"this run's {res['score_15px']:g}% is {new_err:.2f} from it (--force replaces it)"
         )
         return "kept"
-    write_text_atomic(path, calibrated_text(text, res, str(path)))
+    write_calibration(path, res, text)
     log(f"{spec.name}: updated {spec.source} ({a.name} {res['score_15px']:g}%, paper {target:g}%)")
     return "updated"
 
