@@ -232,6 +232,10 @@ def locked_manifest(
 # ---------------------------------------------------------------------------- workers
 _QUEUE: Any = None
 _IN_JOB = False
+_UNWINDING = False
+"""Set once a worker's running job has been sent :class:`_Terminated`: a later SIGTERM (the
+executor's manager thread sends one to every worker once another worker has exited) must not
+cut the job's clean-ups short."""
 _LAST_SIGNAL: list[str] = []
 """The name of the last signal :func:`interruptible` turned into :class:`Interrupted` (for an
 interrupt that C code raised as a bare ``KeyboardInterrupt``)."""
@@ -264,7 +268,11 @@ def die_with_parent(parent_pid: int) -> None:
 
 
 def _on_sigterm(signum: int, frame: Any) -> None:
+    global _UNWINDING
+    if _UNWINDING:  # the job is already unwinding; SIGKILL after the grace time bounds it
+        return
     if _IN_JOB:
+        _UNWINDING = True
         raise _Terminated()
     os._exit(128 + signum)
 

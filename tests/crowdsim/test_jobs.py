@@ -35,16 +35,27 @@ HELPERS = textwrap.dedent("""
 
     def sleeper(folder, name):
         # record the worker pid (whole: written aside, then renamed), then work for a long time
+        # (inside the try: a job that has shown its pid has its clean-up to run)
         path = os.path.join(folder, f"{name}.pid")
-        with open(path + ".tmp", "w") as fh:
-            fh.write(str(os.getpid()))
-        os.replace(path + ".tmp", path)
         try:
+            with open(path + ".tmp", "w") as fh:
+                fh.write(str(os.getpid()))
+            os.replace(path + ".tmp", path)
             time.sleep(60)
         finally:
             with open(os.path.join(folder, f"{name}.cleaned"), "w") as fh:
                 fh.write("1")
         return name
+
+    def slow_cleaner(folder):
+        # a clean-up that takes a while: a second SIGTERM arrives during it
+        try:
+            open(os.path.join(folder, "started"), "w").close()
+            time.sleep(60)
+        finally:
+            open(os.path.join(folder, "cleaning"), "w").close()
+            time.sleep(0.5)
+            open(os.path.join(folder, "cleaned"), "w").close()
 """)
 
 
@@ -181,6 +192,30 @@ def test_signal_stops_promptly_and_workers_clean_up(tmp_path, helpers, sig):
     # running jobs unwound (their finally ran), queued ones never started
     assert len(list(tmp_path.glob("*.cleaned"))) == 2 and len(list(tmp_path.glob("*.pid"))) == 2
     assert read_manifest(tmp_path / "m.json")["jobs"] == {}
+
+
+def _wait_for(path: Path, proc: subprocess.Popen, timeout: float = 30) -> None:
+    deadline = time.monotonic() + timeout
+    while not path.exists():
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.02)
+
+
+def test_a_second_sigterm_does_not_cut_a_clean_up_short(tmp_path, helpers):
+    # once one worker has exited, the executor's manager thread SIGTERMs every other worker,
+    # which may be in its job's clean-up by then: that second signal must not cut it short
+    script = (
+        "import signal, sys; from crowdsim import jobs; import jobhelpers as h\n"
+        "signal.signal(signal.SIGTERM, jobs._on_sigterm)\n"
+        f"jobs._call_in_worker(jobs.Job('c', h.slow_cleaner, ({str(tmp_path)!r},)))\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=tmp_path, text=True)
+    _wait_for(tmp_path / "started", proc)
+    proc.send_signal(signal.SIGTERM)
+    _wait_for(tmp_path / "cleaning", proc)
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=20) == 128 + signal.SIGTERM
+    assert (tmp_path / "cleaned").exists()
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
