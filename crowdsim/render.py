@@ -85,6 +85,20 @@ MOVING_SHADOW_SPEED: tuple[float, float] = (0.5, 1.5)
 """Range of the moving shadows' speeds, m/s."""
 DISTRACTOR_KINDS: tuple[str, ...] = ("bollard", "litter", "marking")
 """Static clutter baked into the ground, drawn in equal proportions."""
+BYTES_PER_PIXEL = 64
+"""Render working set per frame pixel (float32 ground, noise pool, frame, JPEG); measured
+45-61 B at 2048..8192 px sides."""
+BYTES_PER_AGENT_ROW = 192
+"""Working set per (frame, agent) cell (positions, pixels, headings, sway, poses, gt rows);
+measured 182 B: peak RSS 392 MB at 801 frames and 829 MB at 3,201 frames of 1,000 people at
+640x360 (2026-11-28, `/usr/bin/time -v`); the 128 B before came from 107 B measured on an
+earlier renderer."""
+
+
+def render_bytes(width: int, height: int, n_frames: int, n_agents: int) -> int:
+    """Estimated peak working set (bytes) of rendering ``n_frames`` frames of ``n_agents``
+    people at ``width`` x ``height`` px, their trajectories included."""
+    return BYTES_PER_PIXEL * width * height + BYTES_PER_AGENT_ROW * n_frames * n_agents
 
 
 @dataclass

@@ -9,6 +9,7 @@ JPEG (a test checks it on a tiny spec).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from functools import cached_property
@@ -71,8 +72,11 @@ def check_memory(spec: SequenceSpec, sim: Any) -> None:
     """Refuse, before the first step, a spec whose trajectories cannot fit in memory: they
     are dense, one column per person ever present (a spec of 1,000,000 frames and 2,000
     people was simulated for hours, its memory growing, before any check). People the
-    scenario's inflow brings count, at the strongest surge's rate."""
+    scenario's inflow brings count, at the strongest surge's rate. So does the rendering that
+    follows (:func:`crowdsim.render.render_bytes`), at the spec's frame size or the largest
+    it allows."""
     from crowdsim.checks import require_memory
+    from crowdsim.render import render_bytes
 
     steps = spec.warmup_steps + spec.frames
     seconds = steps * sim.params.dt
@@ -87,11 +91,19 @@ def check_memory(spec: SequenceSpec, sim: Any) -> None:
     )
     people = len(sim.state.ids) + arrivals
     inflow = f", about {arrivals:,.0f} more from the inflow" if arrivals > 0 else ""
+    # the rendering that follows holds the kept frames and their per-person arrays; the
+    # frame is fitted to the crowd later, so its largest allowed size counts here
+    cam = spec.camera
+    width = int(cam.get("width", cam.get("max_width", 1920)))
+    height = int(cam.get("height", cam.get("max_height", 1080)))
     require_memory(
         f"{spec.source or spec.name}: frames = {spec.frames} (+ warmup_steps = "
         f"{spec.warmup_steps}) with scenario.n_agents = {spec.scenario.get('n_agents')}"
-        f"{inflow} ({people:,.0f} people)",
-        float(BYTES_PER_AGENT_STEP) * steps * people,
+        f"{inflow} ({people:,.0f} people), simulated and rendered at up to {width}x{height} px",
+        max(
+            float(BYTES_PER_AGENT_STEP) * steps * people,
+            float(render_bytes(width, height, spec.frames, math.ceil(people))),
+        ),
     )
 
 

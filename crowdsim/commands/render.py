@@ -36,14 +36,6 @@ MIN_SIDE_PX = 8
 PX_PER_M_RANGE = (1e-3, 1e4)
 """Allowed ``--px-per-m``: beyond 1e4 px/m a 12 px person is 1 mm wide."""
 MAX_FPS = 1000.0
-BYTES_PER_PIXEL = 64
-"""Render working set per frame pixel (float32 ground, noise pool, frame, JPEG); measured
-45-61 B at 2048..8192 px sides."""
-BYTES_PER_AGENT_ROW = 192
-"""Working set per (frame, agent) cell (positions, pixels, headings, sway, poses, gt rows);
-measured 182 B: peak RSS 392 MB at 801 frames and 829 MB at 3,201 frames of 1,000 people at
-640x360 (2026-11-28, `/usr/bin/time -v`); the 128 B before came from 107 B measured on an
-earlier renderer."""
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -177,11 +169,6 @@ def check_output(out: Path, source: Path, overwrite: bool) -> None:
         )
 
 
-def estimate_bytes(width: int, height: int, n_frames: int, n_agents: int) -> int:
-    """Estimated peak working set (bytes) of rendering ``n_frames`` frames of ``n_agents``."""
-    return BYTES_PER_PIXEL * width * height + BYTES_PER_AGENT_ROW * n_frames * n_agents
-
-
 # ---------------------------------------------------------------------------- command
 def load_trajectories(
     path: Path, fps: float | None, frame_step: int | None = None, period: float | None = None
@@ -221,7 +208,7 @@ def run(args: argparse.Namespace) -> int:
     from crowdsim.camera import Camera
     from crowdsim.checks import require_memory, require_output_dir
     from crowdsim.progress import progress_bar
-    from crowdsim.render import default_px_per_m
+    from crowdsim.render import default_px_per_m, render_bytes
     from synth_data.mot import mot_ids, require_outside_sequences
     from synth_data.writer import clean_stale_tmp, write_sequence
 
@@ -255,7 +242,7 @@ def run(args: argparse.Namespace) -> int:
     require_memory(
         f"rendering {traj.n_steps} frames of {camera.width}x{camera.height} px with "
         f"{traj.n_agents} people",
-        estimate_bytes(camera.width, camera.height, traj.n_steps, traj.n_agents),
+        render_bytes(camera.width, camera.height, traj.n_steps, traj.n_agents),
     )
     pix = camera.project(traj.positions[traj.present])
     if not camera.visible(pix).any():

@@ -886,6 +886,11 @@ spec_case(  # dense trajectories of 1e6 frames x 2000 people: refused, not simul
     lambda t: _sub("n_agents = 6", "n_agents = 2000")(_sub("frames = 4", "frames = 1000000")(t)),
     "s.toml: frames = 1000000 (+ warmup_steps = 0) with scenario.n_agents = 2000",
 )
+spec_case(  # its trajectories fit (5.7 GiB), its rendering would not: refused before any step
+    "gen-frames-agents-render-memory",
+    lambda t: _sub("n_agents = 6", "n_agents = 2000")(_sub("frames = 4", "frames = 9000")(t)),
+    "(8,525 people), simulated and rendered at up to 96x64 px needs about 13.7 GiB",
+)
 spec_case(
     "gen-ppm-1e9",
     _sub("[camera]", "[camera]\npx_per_m = 1e9"),
