@@ -232,7 +232,10 @@ def write_seqinfo(
     if im_dir is not None:
         lines.append(f"imDir={im_dir}")
     lines += [
-        f"frameRate={frame_rate:g}",
+        # whole rates as MOTChallenge writes them (25), others to the last digit (29.97002997...)
+        f"frameRate={frame_rate:g}"
+        if float(f"{frame_rate:g}") == frame_rate
+        else f"frameRate={float(frame_rate)!r}",
         f"seqLength={int(length)}",
         f"imWidth={int(width)}",
         f"imHeight={int(height)}",

@@ -148,6 +148,17 @@ def test_no_gt_gives_an_empty_array_and_the_default_template(tmp_path):
     assert ids.shape == (0,) and pts.shape == (2, 0, 2)
 
 
+@pytest.mark.parametrize("rate, text", [(25.0, "25"), (30000 / 1001, repr(30000 / 1001))])
+def test_seqinfo_frame_rate_reads_back_exactly(tmp_path, rate, text):
+    from synth_data.mot import write_seqinfo
+
+    seq_dir = tmp_path / "s"
+    seq_dir.mkdir()
+    write_seqinfo(seq_dir, name="s", frame_rate=rate, length=2, width=32, height=32)
+    assert f"\nframeRate={text}\n" in (seq_dir / "seqinfo.ini").read_text()
+    assert read_sequence(seq_dir).frame_rate == rate  # 6 digits had read 29.97
+
+
 @pytest.mark.parametrize(
     "ini, message",
     [
