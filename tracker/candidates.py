@@ -276,6 +276,15 @@ def _keep_smallest(v, q, low, pick, filled):
     return filled + 1 if filled < cap else filled
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _draw_order(row, low, pick):
+    """The ``len(pick)`` offsets of smallest draw in ``row`` (one extremum's), ascending
+    (ties: lower offset), into ``pick``; their draws into ``low``."""
+    filled = 0
+    for q in range(row.shape[0]):
+        filled = _keep_smallest(row[q], q, low, pick, filled)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _speedup_cells(cost, big, m, ns, offs, draws, cell, distinct):
     """The cells of :func:`speedup_candidates`, one target per loop iteration (the same for
@@ -290,7 +299,6 @@ def _speedup_cells(cost, big, m, ns, offs, draws, cell, distinct):
     """
     n, side = cost.shape[0], cost.shape[1]
     cells = side * side
-    n_off = offs.shape[0]
     for t in prange(n):
         key = np.empty(cells)
         # the 3x3 minimum as a row pass then a column pass (min is exact: same cells as a
@@ -327,9 +335,7 @@ def _speedup_cells(cost, big, m, ns, offs, draws, cell, distinct):
         for e in range(m):
             ey = cell[t, e] // side
             ex = cell[t, e] % side
-            filled = 0
-            for q in range(n_off):
-                filled = _keep_smallest(draws[t, e, q], q, low, pick, filled)
+            _draw_order(draws[t, e], low, pick)
             for s in range(ns):
                 sx = min(max(ex + offs[pick[s], 0], 0), side - 1)
                 sy = min(max(ey + offs[pick[s], 1], 0), side - 1)
@@ -351,9 +357,7 @@ def _distinct_samples(t, side, m, ns, offs, draws, key, cell):
     for e in range(m):
         ey = cell[t, e] // side
         ex = cell[t, e] % side
-        filled = 0
-        for q in range(n_off):
-            filled = _keep_smallest(draws[t, e, q], q, low, order, filled)
+        _draw_order(draws[t, e], low, order)
         got = 0
         for q in range(n_off):
             if got == ns:
