@@ -602,6 +602,67 @@ NCC_MEANS: tuple[str, ...] = ("channel", "joint")
 colour patch as one signal, paper 2's Eq. 7)."""
 
 
+FLAT_TOLERANCE: float = 1e-5
+"""When a patch counts as *flat* for normalised cross-correlation, which is ``0 / 0`` where
+the template or the window does not vary: the root-mean-square deviation of its values from
+their mean (each channel's own mean, or one mean over all, as the NCC takes it off) is at most
+this fraction of the data's full scale (255 for 8-bit frames), 0.00255 grey levels. That is
+below the least spread an 8-bit patch of up to 100 px can have (one value one level off:
+``1 / sqrt(3 s^2)``, 0.0058 at 100 px), so on 8-bit frames exactly the constant patches are
+flat. A flat side is no evidence: every NCC score here is 0 there (as
+:func:`tracker.pnmc.flow.batched_ncc`'s), where OpenCV's ``TM_CCOEFF_NORMED`` scores a flat
+template 1 at every offset and a flat window 0, NaN or inf depending on its version."""
+
+
+def _flat(spread: np.ndarray, values: int) -> np.ndarray:
+    """Whether sums of squared deviations ``spread`` of 8-bit patches of ``values`` values
+    each are flat (:data:`FLAT_TOLERANCE`).
+
+    >>> _flat(np.array([0.0, 0.99]), 12 * 12 * 3).tolist()
+    [True, False]
+    """
+    return spread <= (FLAT_TOLERANCE * 255.0) ** 2 * values
+
+
+def template_spread(templates: np.ndarray, per_channel: bool) -> np.ndarray:
+    """``(n,)`` float64 sum of squared deviations of each template ``(n, s, s, C)`` uint8 from
+    its mean: each channel's own (``per_channel``) or one over pixels and colours. Exact
+    (from whole-number sums) up to the final division.
+
+    A constant colour is flat for the per-channel means, not for the joint one:
+
+    >>> t = np.zeros((2, 2, 2, 3), np.uint8); t[1] = (0, 0, 6)
+    >>> template_spread(t, True).tolist(), template_spread(t, False).tolist()
+    ([0.0, 0.0], [0.0, 96.0])
+    """
+    out = np.empty(len(templates), np.float64)
+    _template_spread(np.ascontiguousarray(templates), per_channel, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _template_spread(templates, per_channel, out):
+    """:func:`template_spread`'s loop: one pass, whole-number sums (a few microseconds for
+    hundreds of 12 px templates; serial, as numpy's temporaries cost more than the sums)."""
+    n, h, w, nc = templates.shape
+    g = nc if per_channel else 1
+    m = h * w * (1 if per_channel else nc)
+    s1 = np.zeros(g, np.int64)
+    for t in range(n):
+        s1[:] = 0
+        s2 = 0
+        for y in range(h):
+            for x in range(w):
+                for z in range(nc):
+                    v = np.int64(templates[t, y, x, z])
+                    s1[z if per_channel else 0] += v
+                    s2 += v * v
+        sq = 0.0
+        for q in range(g):
+            sq += np.float64(s1[q]) * np.float64(s1[q])
+        out[t] = np.float64(s2) - sq / m
+
+
 class NCCAppearance(AppearanceModel):
     """Colour template per target, scored by ``cv2.matchTemplate`` (``TM_CCOEFF_NORMED``).
 
@@ -614,6 +675,10 @@ class NCCAppearance(AppearanceModel):
     template and the window, so a window that differs from the template by a constant in one
     channel scores 1; ``"joint"`` takes one mean over pixels and colours (``sum (T - mean T)
     I / sqrt(sum (T - mean T)^2 (sum I^2 - (sum I)^2 / 3 s^2))``), so it does not.
+
+    Either way a candidate scores 0 (no evidence) where the template or its window is flat
+    (:data:`FLAT_TOLERANCE`): a constant template, a blank frame; scores are finite, in
+    ``[-1, 1]``.
     """
 
     def __init__(
@@ -680,9 +745,12 @@ class NCCAppearance(AppearanceModel):
                 )
 
         in_chunks(self.n, match)
-        # a flat window scores 0 (NaN or inf where OpenCV divides by its zero spread: no
-        # information); a flat template scores 1 everywhere (OpenCV's convention, kept: a
-        # change would move bqp-ncc's and pnmc's template refreshes and lost-track ends)
+        # both 0 / 0, no evidence, 0 as in the joint path: OpenCV scores a flat template 1 at
+        # every offset, and a flat window 0 (5.0, as measured: its spread is exact, from integral
+        # images of whole numbers, and 0 takes its "no match" branch) or NaN or inf (by
+        # version and backend)
+        flat = _flat(template_spread(self.templates, True), 3 * s * s)
+        out[flat] = 0.0
         np.nan_to_num(out, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
         np.clip(out, -1.0, 1.0, out=out)
         return out
@@ -703,34 +771,45 @@ class NCCAppearance(AppearanceModel):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _window_moments(windows, s, k, s1, s2):
-    """Per window ``(n, W, W, 3)`` uint8, the sum (``s1``) and the sum of squares (``s2``) of
-    every ``s x s x 3`` patch ``(n, k, k)``, from integral images in whole numbers (exact)."""
-    n, wy, wx = windows.shape[:3]
+def _window_spread(windows, s, k, per_channel, out):
+    """Per window ``(n, W, W, C)`` uint8, the sum of squared deviations from the mean of every
+    ``s x s x C`` patch into ``out (n, k, k)`` float64: from each channel's own mean
+    (``per_channel``) or one mean over pixels and colours. The sums come from integral images
+    in whole numbers (exact); ``sum I^2 - (sum I)^2 / m`` is the one rounded step."""
+    n, wy, wx, nc = windows.shape
+    g = nc if per_channel else 1
+    m = s * s * (1 if per_channel else nc)
     for t in prange(n):
-        c1 = np.zeros((wy + 1, wx + 1), np.int64)
+        c1 = np.zeros((g, wy + 1, wx + 1), np.int64)
         c2 = np.zeros((wy + 1, wx + 1), np.int64)
+        r1 = np.zeros(g, np.int64)
         for y in range(wy):
-            r1 = 0
+            r1[:] = 0
             r2 = 0
             for x in range(wx):
-                for z in range(3):
+                for z in range(nc):
                     v = np.int64(windows[t, y, x, z])
-                    r1 += v
+                    r1[z if per_channel else 0] += v
                     r2 += v * v
-                c1[y + 1, x + 1] = c1[y, x + 1] + r1
+                for q in range(g):
+                    c1[q, y + 1, x + 1] = c1[q, y, x + 1] + r1[q]
                 c2[y + 1, x + 1] = c2[y, x + 1] + r2
         for i in range(k):
             for j in range(k):
-                s1[t, i, j] = c1[i + s, j + s] - c1[i, j + s] - c1[i + s, j] + c1[i, j]
-                s2[t, i, j] = c2[i + s, j + s] - c2[i, j + s] - c2[i + s, j] + c2[i, j]
+                s2 = c2[i + s, j + s] - c2[i, j + s] - c2[i + s, j] + c2[i, j]
+                sq = 0.0
+                for q in range(g):
+                    s1 = np.float64(c1[q, i + s, j + s] - c1[q, i, j + s] - c1[q, i + s, j])
+                    s1 += np.float64(c1[q, i, j])
+                    sq += s1 * s1
+                out[t, i, j] = np.float64(s2) - sq / m
 
 
 def _joint_ncc(windows: np.ndarray, templates: np.ndarray, out: np.ndarray) -> None:
     """NCC with one mean over a patch's pixels and colours (``NCCAppearance(mean="joint")``)
     of templates ``(n, s, s, 3)`` over windows ``(n, W, W, 3)`` into ``out (n, k, k)``, ``k =
-    W - s + 1``; 0 where the window or the template is flat (no information; OpenCV's
-    per-channel path scores a flat template 1)."""
+    W - s + 1``; 0 where the window or the template is flat (:data:`FLAT_TOLERANCE`; no
+    information)."""
     n, s = templates.shape[:2]
     k = out.shape[1]
     tpl = templates.astype(np.float32)
@@ -743,12 +822,11 @@ def _joint_ncc(windows: np.ndarray, templates: np.ndarray, out: np.ndarray) -> N
             out[i] = cv2.matchTemplate(win[i], tpl[i], cv2.TM_CCORR)
 
     in_chunks(n, match)
-    s1 = np.empty((n, k, k), np.int64)
-    s2 = np.empty((n, k, k), np.int64)
-    _window_moments(np.ascontiguousarray(windows), s, k, s1, s2)
-    w_ss = s2 - s1.astype(np.float64) ** 2 / (3 * s * s)
+    w_ss = np.empty((n, k, k), np.float64)
+    _window_spread(np.ascontiguousarray(windows), s, k, False, w_ss)
+    npx = 3 * s * s
+    ok = ~(_flat(w_ss, npx) | _flat(template_spread(templates, False), npx)[:, None, None])
     den = np.sqrt(np.maximum(w_ss, 0.0) * t_ss[:, None, None])
-    ok = den > 1e-6 * (3 * s * s)
     out[...] = np.where(ok, out / np.where(ok, den, 1.0), 0.0)
     # the float32 correlation's rounding takes a near-flat template's match past 1 (1.0006
     # at 12 px): a correlation coefficient, as the per-channel path clips it

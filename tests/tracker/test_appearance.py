@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -343,3 +344,101 @@ def test_kcf_updates_at_exactly_the_threshold():
     assert not np.array_equal(m.xf[0], xf0[0]) and not np.array_equal(m.alphaf[0], alphaf0[0])
     np.testing.assert_array_equal(m.xf[1], xf0[1])
     np.testing.assert_array_equal(m.alphaf[1], alphaf0[1])
+
+
+# ---------------------------------------------------------------- flat patches (0 / 0)
+
+
+def _flat_on_textured(value=(90, 90, 90)):
+    """A textured frame with a flat square; the first centre's template and window lie in it,
+    the second's on texture."""
+    rng = np.random.default_rng(5)
+    frame = rng.integers(0, 256, (60, 80, 3), dtype=np.uint8)
+    frame[5:35, 5:35] = value
+    return frame, np.array([[20, 20], [60, 40]])
+
+
+@pytest.mark.parametrize("value", [(90, 90, 90), (10, 20, 30)])
+def test_ncc_flat_template_scores_zero_not_one_everywhere(value):
+    """A template with no texture (each channel constant) is no evidence: every offset of the
+    textured frame scores exactly 0 (OpenCV's TM_CCOEFF_NORMED gave 1 at every offset), and
+    the textured target beside it keeps OpenCV's scores bit for bit."""
+    frame, centers = _flat_on_textured(value)
+    m = NCCAppearance(8, 4)
+    m.add(frame, centers)
+    textured = np.random.default_rng(6).integers(0, 256, frame.shape, dtype=np.uint8)
+    textured[30:, 40:] = frame[30:, 40:]
+    s = m.scores(textured, centers)
+    np.testing.assert_array_equal(s[0], np.zeros((9, 9), np.float32))
+    win = np.ascontiguousarray(textured[32:48, 52:68])
+    np.testing.assert_array_equal(
+        s[1], cv2.matchTemplate(win, m.templates[1], cv2.TM_CCOEFF_NORMED)
+    )
+    assert s[1, 4, 4] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_ncc_joint_mean_flat_only_where_every_value_is_equal():
+    """One mean over colours: a constant colour (10, 20, 30) still varies, a grey one does
+    not. The grey template scores 0 everywhere, the coloured one a correlation coefficient of
+    its colour pattern; the per-channel mean scores both 0."""
+    rng = np.random.default_rng(7)
+    textured = rng.integers(0, 256, (60, 80, 3), dtype=np.uint8)
+    grey, c = _flat_on_textured((90, 90, 90))
+    colour, _ = _flat_on_textured((10, 20, 30))
+    for frame, joint_flat in ((grey, True), (colour, False)):
+        for mean in ("channel", "joint"):
+            m = NCCAppearance(8, 4, mean=mean)
+            m.add(frame, c[:1])
+            s = m.scores(textured, c[:1])
+            assert np.isfinite(s).all() and (np.abs(s) <= 1).all()
+            assert (s == 0).all() == (mean == "channel" or joint_flat)
+
+
+def test_ncc_blank_frame_scores_zero_and_finite():
+    """Template and window both black (0 / 0): exactly 0 at every offset for either mean, and
+    a textured template over the black frame 0 too; never 1, NaN or inf."""
+    black = np.zeros((40, 50, 3), np.uint8)
+    tex = np.random.default_rng(8).integers(0, 256, black.shape, dtype=np.uint8)
+    centers = np.array([[25, 20], [0, 0]])  # the second partly outside: replicated border
+    for mean in ("channel", "joint"):
+        for first in (black, tex):
+            m = NCCAppearance(8, 4, mean=mean)
+            m.add(first, centers)
+            got = m.scores(black, centers)
+            np.testing.assert_array_equal(got, np.zeros((2, 9, 9), np.float32))
+
+
+def test_window_spread_and_template_spread_exact_on_a_hand_built_patch():
+    """A 3 x 3 window, black but (0, 0, 6) at its top-left pixel, and 2 x 2 patches: only the
+    top-left patch varies, by 36 - 6^2 / 4 = 27 about each channel's mean and by 36 - 6^2 / 12
+    = 33 about the one mean."""
+    from tracker.appearance import _window_spread, template_spread
+
+    w = np.zeros((1, 3, 3, 3), np.uint8)
+    w[0, 0, 0] = (0, 0, 6)
+    for per_channel, v in ((True, 27.0), (False, 33.0)):
+        out = np.full((1, 2, 2), np.nan)
+        _window_spread(w, 2, 2, per_channel, out)
+        np.testing.assert_array_equal(out, [[[v, 0.0], [0.0, 0.0]]])
+        np.testing.assert_array_equal(template_spread(w[:, :2, :2], per_channel), [v])
+        np.testing.assert_array_equal(template_spread(w[:, 1:, 1:], per_channel), [0.0])
+
+
+@pytest.mark.parametrize(("name", "no_evidence"), [("ncc", 0.0), ("pnmc", 0.5), ("bqp-ncc", 0.0)])
+def test_tracker_with_a_flat_template_reports_no_evidence_and_stays(name, no_evidence):
+    """A target whose template is flat, on a textured frame: every candidate scores alike, so
+    it stays where it was, and its confidence is that of no evidence (NCC 0; PNMC's
+    likelihood (0 + 1) / 2), not that of a perfect match (1)."""
+    from tracker.registry import make_tracker
+
+    frame, centers = _flat_on_textured()
+    tex = np.random.default_rng(9).integers(0, 256, frame.shape, dtype=np.uint8)
+    if name == "bqp-ncc":
+        t = make_tracker("bqp", appearance="ncc")
+    else:
+        t = make_tracker(name)
+    t.init(frame, [1], centers[:1].astype(float), 8)
+    ids, pts = t.step(tex)
+    assert ids.tolist() == [1]
+    np.testing.assert_array_equal(pts, centers[:1])
+    assert t.confidence.tolist() == [no_evidence]
