@@ -17,7 +17,7 @@ A tracker of your own, outside this package, is registered in one of two ways:
       mine = "my_package.crowd:ENTRY"
 
   where ``ENTRY = tracker.registry.entry("mine", "my_package.crowd:MyTracker",
-  "my_package.crowd:MyParams", "one line for --help")``. Once the package is installed,
+  "my_package.crowd:MyParams", "a one-line summary")``. Once the package is installed,
   ``crowdsim track --tracker mine``, ``crowdsim compare --trackers mine`` and
   :func:`make_tracker` find it in every process of an environment it is installed in
   (local pool workers; Ray tasks where the cluster's environment has it). Its module is
