@@ -528,16 +528,19 @@ def test_interruptible_notes_the_signal_it_raises():
 def test_an_address_where_nothing_answers_is_refused_at_once():
     import socket
 
-    with socket.socket() as s:  # a port that was free a moment ago: nothing listens there
+    # a port held, bound and not listening, for the whole test: nothing can listen there (a
+    # port merely free a moment ago could be taken meanwhile, by Ray in another test worker)
+    with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    t0 = time.monotonic()
-    for address in (f"127.0.0.1:{port}", f"ray://127.0.0.1:{port}"):
-        with pytest.raises(ValueError) as info:
-            jobs_mod.check_ray_address(address)
-        assert str(info.value).startswith(f"--address {address}: no Ray cluster answers there (")
-        assert "\n" not in str(info.value)
-    assert time.monotonic() - t0 < 5  # ray.init retried for many minutes
+        t0 = time.monotonic()
+        for address in (f"127.0.0.1:{port}", f"ray://127.0.0.1:{port}"):
+            with pytest.raises(ValueError) as info:
+                jobs_mod.check_ray_address(address)
+            prefix = f"--address {address}: no Ray cluster answers there (Connection refused)"
+            assert str(info.value).startswith(prefix)
+            assert "\n" not in str(info.value)
+        assert time.monotonic() - t0 < 5  # ray.init retried for many minutes
     for address in (None, "auto", "local", "not-an-address"):  # Ray's own to find or refuse
         jobs_mod.check_ray_address(address)
 
