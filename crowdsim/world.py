@@ -7,6 +7,7 @@ Everything here is plain data (struct of arrays, metres and seconds); the physic
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numba as nb
@@ -318,6 +319,20 @@ class Source:
     heading: tuple[float, float] = (1.0, 0.0)
     start: float = 0.0
     stop: float = np.inf
+
+
+def expected_arrivals(sources: Sequence[Source], seconds: float) -> float:
+    """People the ``sources`` bring on average over the first ``seconds`` of a run, each at
+    its ``rate`` while it is open (``start`` .. ``stop``): what a memory estimate counts
+    before stepping.
+
+    >>> expected_arrivals([Source((0, 0, 1, 1), 2.0, 0, start=1.0, stop=4.0)], 10.0)
+    6.0
+    """
+    return sum(
+        float(src.rate) * max(0.0, min(float(src.stop), seconds) - max(float(src.start), 0.0))
+        for src in sources
+    )
 
 
 def hex_positions(

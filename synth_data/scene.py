@@ -77,6 +77,7 @@ def check_memory(spec: SequenceSpec, sim: Any) -> None:
     it allows."""
     from crowdsim.checks import require_memory
     from crowdsim.render import render_bytes
+    from crowdsim.world import expected_arrivals
 
     steps = spec.warmup_steps + spec.frames
     seconds = steps * sim.params.dt
@@ -85,10 +86,7 @@ def check_memory(spec: SequenceSpec, sim: Any) -> None:
         if e.kind == "surge":
             factor[e.mask(spec.frames)] *= e.magnitude
     surge = float(factor.max())
-    arrivals = surge * sum(
-        float(src.rate) * max(0.0, min(float(src.stop), seconds) - max(float(src.start), 0.0))
-        for src in sim.sources
-    )
+    arrivals = surge * expected_arrivals(sim.sources, seconds)
     people = len(sim.state.ids) + arrivals
     inflow = f", about {arrivals:,.0f} more from the inflow" if arrivals > 0 else ""
     # the rendering that follows holds the kept frames and their per-person arrays; the

@@ -165,13 +165,10 @@ def check_inflow_memory(sim, steps: int) -> None:
     20000`` ended with about 3,400 people and 3.4 GB under the station's route layout 1;
     :func:`check_args` counts ``--agents``)."""
     from crowdsim.checks import require_memory
+    from crowdsim.world import expected_arrivals
 
     seconds = steps * sim.params.dt
-    # people from each source while it is open (Source.start .. stop, seconds)
-    arrivals = sum(
-        float(src.rate) * max(0.0, min(float(src.stop), seconds) - max(float(src.start), 0.0))
-        for src in sim.sources
-    )
+    arrivals = expected_arrivals(sim.sources, seconds)
     if arrivals <= 0:
         return
     rate = arrivals / max(seconds, 1e-12)
