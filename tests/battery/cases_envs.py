@@ -822,11 +822,6 @@ def _tuning_made(**kw):
 api_case("envs-api-crowd-seed-neg", _reset(_crowd_made, seed=-1), "reset.seed&&got -1")
 api_case("envs-api-crowd-seed-bool", _reset(_crowd_made, seed=True), "reset.seed&&got True")
 api_case("envs-api-crowd-options", _reset(_crowd_made, options="x"), "options must be a dict")
-api_case(
-    "envs-api-crowd-options-unknown",
-    _reset(_crowd_made, options={"episode": 1}),
-    "the crowd env takes no options, got 'episode'",
-)
 api_case("envs-api-tuning-seed-frac", _reset(_tuning_made(), seed=1.5), "reset.seed&&got 1.5")
 api_case("envs-api-tuning-options", _reset(_tuning_made(), options=[1]), "options must be a")
 api_case(
