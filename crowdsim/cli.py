@@ -193,20 +193,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = " ".join(filter(None, (args.command, sub)))
     prefix = f"crowdsim {command}: error:"
     try:
-        refuse_empty_paths(args)
-        with interruptible(), _notes_as_lines(command):
-            return int(args.func(args) or 0)
-    except (KeyboardInterrupt, SystemError) as exc:  # Interrupted too: SIGINT or SIGTERM
-        stopped = interrupt_in(exc)  # a SystemError: one that a C extension wrapped
-        if stopped is None:
-            raise
-        name = getattr(stopped, "signal_name", "SIGINT")
-        detail = getattr(stopped, "detail", "")
-        print(
-            f"crowdsim {command}: interrupted by {name}" + (f"; {detail}" if detail else ""),
-            file=sys.stderr,
-        )
-        return EXIT_CODES.get(name, 130)
+        try:
+            refuse_empty_paths(args)
+            with interruptible(), _notes_as_lines(command):
+                return int(args.func(args) or 0)
+        except BaseException as exc:  # Interrupted too: SIGINT or SIGTERM
+            # or an error an interrupt caused while it unwound (interrupt_in)
+            stopped = interrupt_in(exc)
+            if stopped is None:
+                raise
+            name = getattr(stopped, "signal_name", "SIGINT")
+            detail = getattr(stopped, "detail", "")
+            print(
+                f"crowdsim {command}: interrupted by {name}" + (f"; {detail}" if detail else ""),
+                file=sys.stderr,
+            )
+            return EXIT_CODES.get(name, 130)
     except ValueError as exc:
         print(f"{prefix} {exc}", file=sys.stderr)
         return 2

@@ -357,10 +357,13 @@ def _in_compiled_callback(frame: Any) -> bool:
 
 
 def interrupt_in(exc: BaseException) -> KeyboardInterrupt | None:
-    """The interrupt that ``exc`` stands for: ``exc`` itself, or for a ``SystemError`` the
-    interrupt in its chain of causes (a C extension that called back into Python when the
-    signal's handler raised reports ``returned a result with an exception set``, the
-    interrupt as its cause); else ``None``.
+    """The interrupt that ``exc`` stands for: ``exc`` itself, or the interrupt in its chain
+    of causes and contexts; else ``None``. An error raised while an interrupt unwinds stands
+    for the interrupt: a C extension that called back into Python when the signal's handler
+    raised reports a ``SystemError`` (``returned a result with an exception set``, the
+    interrupt as its cause), and a library's clean-up may fail on the state the interrupt
+    left (Optuna's ``_run_trial``, interrupted while it tells a trial's result, raises
+    ``UnboundLocalError`` from its ``finally``).
 
     >>> interrupt_in(Interrupted("SIGTERM")).signal_name
     'SIGTERM'
@@ -369,13 +372,17 @@ def interrupt_in(exc: BaseException) -> KeyboardInterrupt | None:
     ... except SystemError as exc:
     ...     interrupt_in(exc).signal_name
     'SIGINT'
+    >>> try:
+    ...     try:
+    ...         raise Interrupted("SIGTERM")
+    ...     finally:
+    ...         raise UnboundLocalError("cannot access local variable 'updated_state'")
+    ... except UnboundLocalError as exc:
+    ...     interrupt_in(exc).signal_name
+    'SIGTERM'
     >>> interrupt_in(SystemError("other")) is None
     True
     """
-    if isinstance(exc, KeyboardInterrupt):
-        return exc
-    if not isinstance(exc, SystemError):
-        return None
     seen: set[int] = set()
     link: BaseException | None = exc
     while link is not None and id(link) not in seen:
@@ -648,7 +655,7 @@ def _failure(
 ) -> BaseException:
     if isinstance(exc, passthrough):
         return exc
-    stopped = interrupt_in(exc)  # a signal that came out of a compiled kernel wrapped
+    stopped = interrupt_in(exc)  # a signal that came out of a compiled kernel or a clean-up
     if stopped is not None:
         return stopped
     return JobError(job.key, f"{job.key}: {type(exc).__name__}: {exc}")

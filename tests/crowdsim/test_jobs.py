@@ -234,6 +234,41 @@ def test_interrupted_is_a_keyboard_interrupt():
     assert isinstance(exc, KeyboardInterrupt) and exc.signal_name == "SIGTERM"
 
 
+def _clean_up_fails_under_an_interrupt():
+    # as Optuna's _run_trial does when the signal lands while it tells a trial's result:
+    # its finally reads a name the interrupted try never set
+    try:
+        raise Interrupted("SIGTERM")
+    finally:
+        raise UnboundLocalError("cannot access local variable 'updated_state'")
+
+
+def test_an_error_raised_while_an_interrupt_unwinds_is_the_interrupt(tmp_path):
+    """A job whose clean-up fails on what the interrupt left stops the run as interrupted
+    (CI saw ``tune`` end with a traceback and "JobError: ... UnboundLocalError", exit 1)."""
+    with pytest.raises(Interrupted) as info:
+        run_jobs([Job("a", _clean_up_fails_under_an_interrupt)], tmp_path / "m.json")
+    assert info.value.signal_name == "SIGTERM"
+    assert read_manifest(tmp_path / "m.json")["jobs"] == {}
+
+
+def test_a_command_whose_clean_up_fails_under_an_interrupt_says_interrupted(monkeypatch, capsys):
+    """The same for a command's own code, outside a job runner: one line, the signal's exit
+    code, no traceback."""
+    from crowdsim import cli
+    from crowdsim.commands import evaluate
+
+    def command(args) -> int:  # noqa: ANN001
+        _clean_up_fails_under_an_interrupt()
+        return 0
+
+    monkeypatch.setattr(evaluate, "run", command)  # the parser is built in main, from this
+    assert cli.main(["evaluate", "a", "b"]) == 143
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "crowdsim evaluate: interrupted by SIGTERM"
+    ]
+
+
 @pytest.mark.skipif(not hasattr(signal, "SIGTERM") or os.name != "posix", reason="POSIX signals")
 def test_a_signal_swallowed_by_a_c_callback_is_raised_after_it():
     """A signal that lands while Python runs inside a ctypes callback (numba's compiler calls
