@@ -65,17 +65,17 @@ def atomic_path(path: str | os.PathLike[str], suffix: str | None = None) -> Iter
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, "is a folder, not a file", str(path))
     path.parent.mkdir(parents=True, exist_ok=True)
+    tmp: Path | None = None
     try:
-        fd, name = tempfile.mkstemp(
-            dir=path.parent,
-            prefix=f".{path.stem}.",
-            suffix=path.suffix if suffix is None else suffix,
-        )
-    except OSError as exc:
-        raise _retarget(exc, None, path) from None
-    os.close(fd)
-    tmp = Path(name)
-    try:
+        # held: a signal between the file's creation and ``tmp`` would leave the file behind
+        with signals_held():
+            fd, name = tempfile.mkstemp(
+                dir=path.parent,
+                prefix=f".{path.stem}.",
+                suffix=path.suffix if suffix is None else suffix,
+            )
+            os.close(fd)
+            tmp = Path(name)
         yield tmp
         os.chmod(tmp, _MODE)
         _require_unchanged_since_checked(path)
@@ -83,7 +83,8 @@ def atomic_path(path: str | os.PathLike[str], suffix: str | None = None) -> Iter
     except OSError as exc:
         raise _retarget(exc, tmp, path) from None
     finally:
-        tmp.unlink(missing_ok=True)
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
 
 
 _CHECKED: dict[Path, tuple[int, int, int] | None] = {}
@@ -456,14 +457,23 @@ def recorded(*paths: str | os.PathLike[str]) -> Iterator[None]:
     try:
         yield
     finally:
-        changed = [
-            p
-            for p, b in zip(files, before, strict=True)
-            if _stamp(p) not in (None, b) and _as_checked(p)
-        ]
-        if changed:
-            with signals_held():
+
+        def note() -> None:
+            changed = [
+                p
+                for p, b in zip(files, before, strict=True)
+                if _stamp(p) not in (None, b) and _as_checked(p)
+            ]
+            if changed:
                 record_written(*changed)
+
+        try:
+            with signals_held():
+                note()
+        except KeyboardInterrupt:  # landed before the signals were held: note them all the same
+            with signals_held():
+                note()
+            raise
 
 
 @contextmanager
@@ -483,9 +493,16 @@ def signals_held() -> Iterator[None]:
         return
     caught: list[int] = []
     before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    for s, handler in before.items():
-        if handler is not None:  # None: not installed from Python, left alone
-            signal.signal(s, lambda signum, frame: caught.append(signum))
+    try:
+        for s, handler in before.items():
+            if handler is not None:  # None: not installed from Python, left alone
+                signal.signal(s, lambda signum, frame: caught.append(signum))
+    except KeyboardInterrupt as exc:  # one landed while they were swapped: held as well
+        name = getattr(exc, "signal_name", "SIGINT")
+        caught.append(getattr(signal.Signals, name, signal.SIGINT))
+        for s, handler in before.items():
+            if handler is not None:
+                signal.signal(s, lambda signum, frame: caught.append(signum))
     try:
         yield
     finally:

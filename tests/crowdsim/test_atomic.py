@@ -309,3 +309,54 @@ def test_an_output_deleted_since_the_check_is_written(tmp_path):
     out.unlink()
     write_text_atomic(out, "2")
     assert out.read_text() == "2"
+
+
+def test_a_sigterm_right_after_the_temporary_file_is_made_leaves_no_file(tmp_path, monkeypatch):
+    """Seen by injection: SIGTERM landing between mkstemp and the clean-up's try left
+    ``.<stem>.XXXXXXXX<suffix>`` behind."""
+    import os
+    import signal
+    import tempfile
+
+    from crowdsim.atomic import write_text_atomic
+    from crowdsim.jobs import Interrupted, interruptible
+
+    made = tempfile.mkstemp
+
+    def mkstemp(*args, **kwargs):
+        fd, name = made(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGTERM)  # delivered here unless held
+        return fd, name
+
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+    with pytest.raises(Interrupted), interruptible():
+        write_text_atomic(tmp_path / "out.txt", "x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_sigterm_landing_as_recorded_starts_noting_still_notes_the_files(tmp_path, monkeypatch):
+    """Seen by injection on ``track``: SIGTERM landing while ``signals_held`` swapped the
+    handlers skipped the ledger, and the rerun refused the run's own output."""
+    import os
+    import signal
+
+    from crowdsim.atomic import recorded, require_replaceable, write_text_atomic
+    from crowdsim.jobs import Interrupted, interruptible
+
+    out = tmp_path / "res.txt"
+    require_replaceable("--out", out)
+    getsignal = signal.getsignal
+    sent = []
+
+    def landing(s):
+        if not sent:
+            sent.append(s)
+            os.kill(os.getpid(), signal.SIGTERM)
+        return getsignal(s)
+
+    with pytest.raises(Interrupted), interruptible():
+        with recorded(out):
+            write_text_atomic(out, "1,1,10,10\n")
+            monkeypatch.setattr(signal, "getsignal", landing)
+    monkeypatch.undo()
+    assert sent and require_replaceable("--out", out) == out
