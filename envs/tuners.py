@@ -617,10 +617,11 @@ def _objective_fn(objective: Objective, space: ParamSpace) -> Callable[[Any], fl
         try:
             values = space.optuna_suggest(trial)
             value, per = _scorer(objective)(values)
+            # inside too: a signal during this storage write had Optuna log a traceback
+            trial.set_user_attr("per_episode", [round(v, 4) for v in per])
         except KeyboardInterrupt:  # jobs.Interrupted (SIGINT, SIGTERM) included
             _QUIET.trials.add(trial.number)
             raise
-        trial.set_user_attr("per_episode", [round(v, 4) for v in per])
         return value
 
     return fn

@@ -485,6 +485,42 @@ def test_sigterm_under_ray_ends_with_one_line_and_143(tmp_path, when):
     assert "Traceback" not in err and "SIGTERM received" not in err
 
 
+def test_an_interrupt_while_a_trial_notes_its_scores_prints_no_optuna_traceback(
+    tmp_path, capsys, monkeypatch
+):
+    """The signal may land in the trial's last storage write (its per-episode scores): that
+    trial too is failed in silence (Optuna had logged "Trial 1 failed ... Interrupted" with
+    a 40-line traceback), and the interrupt reaches the caller."""
+    import logging
+
+    import optuna
+
+    from crowdsim.jobs import Interrupted
+
+    noted = optuna.trial.Trial.set_user_attr
+    calls = []
+
+    def set_user_attr(self, key, value):
+        calls.append(key)
+        if key == "per_episode" and calls.count(key) == 2:
+            raise Interrupted("SIGTERM")
+        return noted(self, key, value)
+
+    monkeypatch.setattr(optuna.trial.Trial, "set_user_attr", set_user_attr)
+    records = []
+    handler = logging.Handler()
+    handler.emit = records.append
+    logging.getLogger("optuna").addHandler(handler)
+    try:
+        with pytest.raises(Interrupted):
+            tune(objective(), trials=5, out=tmp_path / "i", heldout=0, progress=False)
+    finally:
+        logging.getLogger("optuna").removeHandler(handler)
+    assert not [r.getMessage() for r in records if "failed" in r.getMessage()]
+    assert "Traceback" not in capsys.readouterr().err
+    assert [state for _, state, _ in trials_of(tmp_path / "i")] == ["COMPLETE", "FAIL"]
+
+
 def test_interrupted_trial_prints_no_optuna_traceback(tmp_path, capsys, monkeypatch):
     """Ctrl-C (or SIGTERM, raised as jobs.Interrupted) in a trial: the trial is marked failed,
     Optuna logs nothing about it, and the interrupt reaches the caller unchanged."""
