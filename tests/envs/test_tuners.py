@@ -521,6 +521,33 @@ def test_an_interrupt_while_a_trial_notes_its_scores_prints_no_optuna_traceback(
     assert [state for _, state, _ in trials_of(tmp_path / "i")] == ["COMPLETE", "FAIL"]
 
 
+def test_an_interrupt_as_a_trial_ends_leaves_no_heartbeat_thread_beating(tmp_path, monkeypatch):
+    """Optuna stops a trial's heartbeat thread as the trial ends; an interrupt that lands
+    just before it does left a non-daemon thread beating for ever, and the stopped command
+    never exited. The tuner stops such threads on its way out."""
+    import threading
+
+    from optuna.storages._heartbeat import HeartbeatThread
+
+    from crowdsim.jobs import Interrupted
+
+    joins = []
+
+    def join(self):  # the interrupt lands before the stop event is set
+        joins.append(self)
+        if len(joins) == 2:
+            raise Interrupted("SIGTERM")
+        self._stop_event.set()
+        self._thread.join()
+
+    monkeypatch.setattr(HeartbeatThread, "join", join)
+    with pytest.raises(Interrupted):
+        tune(objective(), trials=5, out=tmp_path / "h", heldout=0, progress=False)
+    beating = joins[1]._thread
+    assert beating is not None and not beating.is_alive()
+    assert not [t for t in threading.enumerate() if t is beating]
+
+
 def test_interrupted_trial_prints_no_optuna_traceback(tmp_path, capsys, monkeypatch):
     """Ctrl-C (or SIGTERM, raised as jobs.Interrupted) in a trial: the trial is marked failed,
     Optuna logs nothing about it, and the interrupt reaches the caller unchanged."""
