@@ -35,6 +35,7 @@ from crowdsim.atomic import (
     new_study_files,
     output_folder,
     sha256_file,
+    signals_held,
     study_storage,
 )
 from crowdsim.checks import require_choice, require_number, require_sequences, require_workers
@@ -334,9 +335,43 @@ def _check_journal(path: Path) -> None:
         raise ValueError(f"{path}: not an Optuna journal file (corrupt or foreign)")
 
 
+_HELD: dict[type, type] = {}
+
+
+def _signals_held_in_calls(base: type) -> type:
+    """``base`` (an Optuna storage class) whose methods hold SIGINT and SIGTERM back until
+    they return (:func:`crowdsim.atomic.signals_held`; in the main thread, where Python runs
+    the handlers), so that an interrupt lands between storage calls, never inside one.
+
+    One that landed inside a read left its SQLite statement unfinished: the statement, kept
+    alive by the interrupt's traceback, which Optuna holds while it writes the trial's
+    failure, kept the database's shared lock, and that write (or the trial's heartbeat)
+    waited for it through the 120 s busy timeout: a stopped ``tune`` hung for two minutes
+    (1 run in 30 under load, from random-time SIGTERMs). A call that waits for another
+    process's lock delays the interrupt, by that timeout at most."""
+    if base not in _HELD:
+
+        class Held(base):  # type: ignore[misc, valid-type]
+            def __getattribute__(self, name: str) -> Any:
+                attr = super().__getattribute__(name)
+                if name.startswith("__") or not callable(attr):
+                    return attr
+
+                def held(*args: Any, **kwargs: Any) -> Any:
+                    with signals_held():
+                        return attr(*args, **kwargs)
+
+                return held
+
+        Held.__name__ = Held.__qualname__ = f"SignalsHeld{base.__name__}"
+        _HELD[base] = Held
+    return _HELD[base]
+
+
 def open_storage(url: str) -> Any:
     """An Optuna storage for ``url`` (see :func:`storage_url`); heartbeats on databases so
-    trials of a killed worker are failed and retried."""
+    trials of a killed worker are failed and retried. Its calls hold signals back until they
+    return (:func:`_signals_held_in_calls`)."""
     optuna = require("optuna", "rl", "crowdsim tune")
     if url.startswith("journal:"):
         from optuna.storages.journal import JournalFileBackend
@@ -362,6 +397,7 @@ def open_storage(url: str) -> Any:
 
     from optuna.storages import RDBStorage
 
+    RDBStorage = _signals_held_in_calls(RDBStorage)  # noqa: N806 - the class, signal-safe
     retry = getattr(optuna.storages, "RetryHeartbeatStaleTrialCallback", None)
     # several workers share one SQLite file: wait for its lock instead of failing at once
     engine = {"connect_args": {"timeout": 120}} if url.startswith("sqlite:") else None

@@ -548,6 +548,36 @@ def test_an_interrupt_as_a_trial_ends_leaves_no_heartbeat_thread_beating(tmp_pat
     assert not [t for t in threading.enumerate() if t is beating]
 
 
+@pytest.mark.skipif(os.name != "posix", reason="POSIX signals")
+def test_a_signal_lands_between_storage_calls_never_inside_one(tmp_path, monkeypatch):
+    """A SIGTERM raised inside a storage read left its SQLite statement unfinished, kept
+    alive by the interrupt's traceback, holding the lock that Optuna's next write waited on
+    for the 120 s busy timeout. The storage's calls (private ones too: Optuna's cache calls
+    those) hold signals back until they return: the read finishes, then the interrupt."""
+    from optuna.storages import RDBStorage
+
+    from crowdsim.jobs import Interrupted, interruptible
+    from envs.tuners import open_storage
+
+    storage = open_storage(f"sqlite:///{tmp_path / 's.db'}")
+    assert isinstance(storage, RDBStorage)
+    read = RDBStorage.get_all_studies
+    finished = []
+
+    def get_all_studies(self):
+        os.kill(os.getpid(), signal.SIGTERM)  # lands here: held until the call returns
+        time.sleep(0.05)
+        studies = read(self)
+        finished.append(True)
+        return studies
+
+    monkeypatch.setattr(RDBStorage, "get_all_studies", get_all_studies)
+    with pytest.raises(Interrupted) as info, interruptible():
+        storage.get_all_studies()
+        time.sleep(1.0)  # the interrupt comes here, once the call has returned
+    assert finished == [True] and info.value.signal_name == "SIGTERM"
+
+
 def test_interrupted_trial_prints_no_optuna_traceback(tmp_path, capsys, monkeypatch):
     """Ctrl-C (or SIGTERM, raised as jobs.Interrupted) in a trial: the trial is marked failed,
     Optuna logs nothing about it, and the interrupt reaches the caller unchanged."""
