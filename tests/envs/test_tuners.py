@@ -485,13 +485,28 @@ def test_sigterm_under_ray_ends_with_one_line_and_143(tmp_path, when):
     assert "Traceback" not in err and "SIGTERM received" not in err
 
 
+def _tune_logged(out: Path, raises: type[BaseException], match: str | None = None) -> list:
+    """Optuna's log records of a 5-trial ``tune`` into ``out`` that ends in ``raises``."""
+    import logging
+
+    records = []
+    handler = logging.Handler()
+    handler.emit = records.append
+    logging.getLogger("optuna").addHandler(handler)
+    try:
+        with pytest.raises(raises, match=match):
+            tune(objective(), trials=5, out=out, heldout=0, progress=False)
+    finally:
+        logging.getLogger("optuna").removeHandler(handler)
+    return records
+
+
 def test_an_interrupt_while_a_trial_notes_its_scores_prints_no_optuna_traceback(
     tmp_path, capsys, monkeypatch
 ):
     """The signal may land in the trial's last storage write (its per-episode scores): that
     trial too is failed in silence (Optuna had logged "Trial 1 failed ... Interrupted" with
     a 40-line traceback), and the interrupt reaches the caller."""
-    import logging
 
     import optuna
 
@@ -507,15 +522,7 @@ def test_an_interrupt_while_a_trial_notes_its_scores_prints_no_optuna_traceback(
         return noted(self, key, value)
 
     monkeypatch.setattr(optuna.trial.Trial, "set_user_attr", set_user_attr)
-    records = []
-    handler = logging.Handler()
-    handler.emit = records.append
-    logging.getLogger("optuna").addHandler(handler)
-    try:
-        with pytest.raises(Interrupted):
-            tune(objective(), trials=5, out=tmp_path / "i", heldout=0, progress=False)
-    finally:
-        logging.getLogger("optuna").removeHandler(handler)
+    records = _tune_logged(tmp_path / "i", Interrupted)
     assert not [r.getMessage() for r in records if "failed" in r.getMessage()]
     assert "Traceback" not in capsys.readouterr().err
     assert [state for _, state, _ in trials_of(tmp_path / "i")] == ["COMPLETE", "FAIL"]
@@ -581,7 +588,6 @@ def test_a_signal_lands_between_storage_calls_never_inside_one(tmp_path, monkeyp
 def test_interrupted_trial_prints_no_optuna_traceback(tmp_path, capsys, monkeypatch):
     """Ctrl-C (or SIGTERM, raised as jobs.Interrupted) in a trial: the trial is marked failed,
     Optuna logs nothing about it, and the interrupt reaches the caller unchanged."""
-    import logging
 
     import envs.tuners
     from crowdsim.jobs import Interrupted
@@ -599,15 +605,7 @@ def test_interrupted_trial_prints_no_optuna_traceback(tmp_path, capsys, monkeypa
             return 50.0, [50.0]
 
     monkeypatch.setattr(envs.tuners, "_scorer", Stop)
-    records = []
-    handler = logging.Handler()
-    handler.emit = records.append
-    logging.getLogger("optuna").addHandler(handler)
-    try:
-        with pytest.raises(Interrupted):
-            tune(objective(), trials=5, out=tmp_path / "i", heldout=0, progress=False)
-    finally:
-        logging.getLogger("optuna").removeHandler(handler)
+    records = _tune_logged(tmp_path / "i", Interrupted)
     assert len(calls) == 2
     assert not [r.getMessage() for r in records if "failed" in r.getMessage()]
     assert "Traceback" not in capsys.readouterr().err
@@ -620,12 +618,7 @@ def test_interrupted_trial_prints_no_optuna_traceback(tmp_path, capsys, monkeypa
             raise RuntimeError("a real bug")
 
     monkeypatch.setattr(envs.tuners, "_scorer", Broken)
-    logging.getLogger("optuna").addHandler(handler)
-    try:
-        with pytest.raises(Exception, match="a real bug"):
-            tune(objective(), trials=5, out=tmp_path / "i", heldout=0, progress=False)
-    finally:
-        logging.getLogger("optuna").removeHandler(handler)
+    records = _tune_logged(tmp_path / "i", Exception, match="a real bug")
     assert [r for r in records if "a real bug" in r.getMessage()]
 
 
