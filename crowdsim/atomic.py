@@ -493,22 +493,24 @@ def signals_held() -> Iterator[None]:
         return
     caught: list[int] = []
     before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    held = [s for s, handler in before.items() if handler is not None]  # None: not from Python
+
+    def note(signum: int, frame: object) -> None:
+        caught.append(signum)
+
     try:
-        for s, handler in before.items():
-            if handler is not None:  # None: not installed from Python, left alone
-                signal.signal(s, lambda signum, frame: caught.append(signum))
+        for s in held:
+            signal.signal(s, note)
     except KeyboardInterrupt as exc:  # one landed while they were swapped: held as well
         name = getattr(exc, "signal_name", "SIGINT")
         caught.append(getattr(signal.Signals, name, signal.SIGINT))
-        for s, handler in before.items():
-            if handler is not None:
-                signal.signal(s, lambda signum, frame: caught.append(signum))
+        for s in held:
+            signal.signal(s, note)
     try:
         yield
     finally:
-        for s, handler in before.items():
-            if handler is not None:
-                signal.signal(s, handler)
+        for s in held:
+            signal.signal(s, before[s])
         if caught:
             os.kill(os.getpid(), caught[0])
 
