@@ -57,6 +57,8 @@ DRONE_FRAMES: float = knob("drone_frames").default
 """Default time scale (frames) of the drone profile's drift, rotation and zoom."""
 MAX_SIDE: int = 16384
 """Largest width or height of a camera's frame, px (the drone profile's canvas included)."""
+FIT_MAX_SIZE: tuple[int, int] = (1920, 1080)
+"""Largest frame :meth:`Camera.fit` makes of an extent unless told otherwise, px."""
 DRONE_FIELDS: tuple[str, ...] = ("drift_px", "rotate_deg", "zoom", "drone_frames")
 """The drone profile's fields (:meth:`Camera.drone`)."""
 MOTION_FIELDS: tuple[str, ...] = tuple(k.name for k in knobs("camera"))
@@ -172,7 +174,7 @@ class Camera:
         px_per_m: float | None = None,
         size: tuple[int, int] | None = None,
         margin_m: float = 1.0,
-        max_size: tuple[int, int] = (1920, 1080),
+        max_size: tuple[int, int] = FIT_MAX_SIZE,
         **kwargs: float,
     ) -> Camera:
         """A camera looking at the centre of ``extent`` = ``(xmin, ymin, xmax, ymax)`` metres.

@@ -92,8 +92,7 @@ def check_memory(spec: SequenceSpec, sim: Any) -> None:
     # the rendering that follows holds the kept frames and their per-person arrays; the
     # frame is fitted to the crowd later, so its largest allowed size counts here
     cam = spec.camera
-    width = int(cam.get("width", cam.get("max_width", 1920)))
-    height = int(cam.get("height", cam.get("max_height", 1080)))
+    width, height = (cam["width"], cam["height"]) if "width" in cam else _max_size(cam)
     require_memory(
         f"{spec.source or spec.name}: frames = {spec.frames} (+ warmup_steps = "
         f"{spec.warmup_steps}) with scenario.n_agents = {spec.scenario.get('n_agents')}"
@@ -190,6 +189,13 @@ def crowd_extent(
     return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
 
 
+def _max_size(cam: dict[str, Any]) -> tuple[int, int]:
+    """The largest frame a spec's ``[camera]`` table lets the camera fit to the crowd, px."""
+    from crowdsim.camera import FIT_MAX_SIZE
+
+    return int(cam.get("max_width", FIT_MAX_SIZE[0])), int(cam.get("max_height", FIT_MAX_SIZE[1]))
+
+
 def camera_for(
     spec_camera: dict[str, Any],
     template_px: int,
@@ -217,7 +223,7 @@ def camera_for(
         px_per_m=float(cam.get("px_per_m", default_px_per_m(template_px))),
         size=size,
         margin_m=float(cam.get("margin_m", 1.0)),
-        max_size=(cam.get("max_width", 1920), cam.get("max_height", 1080)),
+        max_size=_max_size(cam),
         tilt_deg=float(cam.get("tilt_deg", 0.0)),
         distance_m=float(cam.get("distance_m", 60.0)),
         **motion_values(cam),
