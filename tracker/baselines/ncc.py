@@ -9,6 +9,7 @@ Sec. 7.1). No motion model, no interaction between targets.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 
@@ -19,6 +20,16 @@ from tracker.appearance import NCCAppearance
 from tracker.base import Tracker
 from tracker.candidates import grid_offsets, search_radius
 from tracker.cmc import check_fields as check_cmc_fields
+
+
+@functools.lru_cache(maxsize=8)
+def _nearest_first(radius: int) -> np.ndarray:
+    """The indices of :func:`tracker.candidates.grid_offsets`' offsets of ``radius``,
+    nearest the centre first (ties in grid order): sorted once per radius, not each frame."""
+    offsets = grid_offsets(radius)
+    order = np.argsort((offsets**2).sum(1), kind="stable")
+    order.flags.writeable = False  # shared by every call
+    return order
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -119,7 +130,7 @@ class NCCTracker(Tracker):
         )
         # nearest the centre first: among equal scores (a flat template or a blank frame
         # scores every window alike) the target stays, never steps to the window's corner
-        order = np.argsort((self._offsets**2).sum(1), kind="stable")
+        order = _nearest_first(self.radius)
         best = order[np.where(outside, -np.inf, flat)[:, order].argmax(1)]
         new = pos[np.arange(n), best].astype(np.float64)
         conf = flat[np.arange(n), best]
