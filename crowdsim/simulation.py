@@ -359,7 +359,7 @@ class Simulation:
         vel : (m, 2) float, m/s, default zero
         prominent : (m,) or scalar bool, drawn in a distinct colour by the renderer
         """
-        pos = np.array(pos, dtype=np.float64)
+        pos = np.array(_floats(pos, "add_agents.pos"))
         if pos.ndim != 2 or pos.shape[1] != 2 or not np.isfinite(pos).all():
             raise ValueError(
                 f"add_agents.pos must be finite with shape (m, 2), got shape {pos.shape}"
@@ -444,7 +444,7 @@ class Simulation:
         One vectorised pass over the agents, O(n): cheaper than building a k-d tree for
         a single query.
         """
-        point = np.asarray(point, dtype=np.float64)
+        point = _floats(point, "agents_in_range.point")
         if point.shape != (2,) or not np.isfinite(point).all():
             raise ValueError(f"agents_in_range.point must be two finite numbers, got {point}")
         require_number("agents_in_range", "radius", radius, lo=0)
@@ -461,7 +461,7 @@ class Simulation:
         for name, value in (("pos", pos), ("vel", vel)):
             if value is None:
                 continue
-            value = np.array(value, dtype=np.float64)
+            value = np.array(_floats(value, f"set_state.{name}"))
             if value.shape != (n, 2):
                 raise ValueError(f"{name} must have shape ({n}, 2), got {value.shape}")
             if not np.isfinite(value).all():
@@ -890,9 +890,27 @@ def _ids_array(ids: Any, where: str) -> np.ndarray:
     return ids.astype(np.int64)
 
 
+def _floats(value: Any, where: str) -> np.ndarray:
+    """``value`` as a float64 array, or a ``ValueError`` naming ``where`` for text, complex
+    numbers or a ragged list (numpy's own error does not name the argument, and it casts a
+    complex number to its real part with only a warning)."""
+    try:
+        raw = np.asarray(value)
+        if raw.dtype.kind not in "biufO":
+            raise TypeError
+        return np.asarray(raw, dtype=np.float64)
+    except (TypeError, ValueError):
+        what = (
+            f"{value.dtype} of shape {value.shape}"
+            if isinstance(value, np.ndarray)
+            else f"{value!r:.80}"
+        )
+        raise ValueError(f"{where} must be numbers, got {what}") from None
+
+
 def _velocities(value: Any, m: int, where: str) -> np.ndarray:
     """``(m, 2)`` float64 finite velocities from ``(m, 2)`` or one ``(2,)`` row."""
-    v = np.asarray(value, dtype=np.float64)
+    v = _floats(value, where)
     if v.shape == (2,):
         v = np.broadcast_to(v, (m, 2))
     if v.shape != (m, 2):

@@ -336,6 +336,7 @@ class CrowdParallelEnv(ParallelEnv):
         self.n_clipped = 0
         self._refresh_live()
         if len(self._ids) == 0:
+            self.sim = None  # no episode began: step() asks for reset() (it stepped an empty one)
             raise ValueError(
                 "reset: no agent is in the scene at the start (the controlled ids "
                 f"{self.possible_agents[:5]} have not arrived), so the episode would be over "

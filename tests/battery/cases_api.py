@@ -57,6 +57,23 @@ api_case(
     _sim(lambda s: s.step(desired_velocity=np.full((s.state.n, 2), 1e6))),
     "step.desired_velocity must be at most 10.0 m/s",
 )
+# numpy's "could not convert string to float" named no argument, and a complex array was
+# cast to its real part with only a warning
+api_case(
+    "api-sim-desired-velocity-text",
+    _sim(lambda s: s.step(desired_velocity="ab")),
+    "step.desired_velocity must be numbers, got 'ab'",
+)
+api_case(
+    "api-sim-add-pos-complex",
+    _sim(lambda s: s.add_agents([[1j, 1]])),
+    "add_agents.pos must be numbers, got [[1j, 1]]",
+)
+api_case(
+    "api-sim-set-state-vel-complex",
+    _sim(lambda s: s.set_state(vel=np.zeros((s.state.n, 2), complex))),
+    "set_state.vel must be numbers, got complex128 of shape (10, 2)",
+)
 
 
 def _sim_params(w: Path, env: Env) -> object:

@@ -355,6 +355,18 @@ def test_a_crowd_whose_agents_are_not_there_yet_is_refused_and_its_faces_agree()
         aec.observe("ped_15")
 
 
+def test_a_refused_reset_leaves_no_episode_to_step():
+    """After a reset refused for want of agents, step() and step_arrays() ask for reset()
+    (they had stepped the episode that never began and returned empty results)."""
+    env = crowd_v0.parallel_env(n_agents=5, max_agents=30, controlled_ids=[20], max_cycles=50)
+    with pytest.raises(ValueError, match="no agent is in the scene at the start"):
+        env.reset(seed=0)
+    with pytest.raises(RuntimeError, match=r"call reset\(\)"):
+        env.step({})
+    with pytest.raises(RuntimeError, match=r"call reset\(\)"):
+        env.step_arrays(np.zeros((0, 2)))
+
+
 def test_shared_policy_vec_env_checks_its_actions_and_renders_one_frame():
     from envs.crowd import shared_policy_vec_env
 
