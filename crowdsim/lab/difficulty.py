@@ -143,6 +143,7 @@ def attribute(
         cut_spec,
         key_frames,
         run_table,
+        stale_note,
         takes_detections,
     )
     from synth_data.suites import suite_specs
@@ -198,6 +199,7 @@ def attribute(
     def attribution(cells: dict[str, dict[str, Any]]) -> dict[str, Any]:
         """The attribution files' writers, from the finished cells (checked: figures as the
         trackers measured them)."""
+        used: list[dict[str, Any]] = []
         for seq, vs in variants.items():
             per = {}
             for row in rows:
@@ -206,6 +208,7 @@ def attribute(
                     for label, sp in vs
                 }
                 acc = {label: float(cells[key]["acc@15"]) for label, key in keys.items()}
+                used += [cells[key] for key in keys.values()]
                 per[row.label] = {
                     "calibrated": acc["calibrated"],
                     "uncalibrated": acc["uncalibrated"],
@@ -219,6 +222,9 @@ def attribute(
                     if shake is not None and shake > 0:
                         r["cmc_share_of_shake"] = r["cmc"] / shake
             doc["sequences"][seq] = per
+        note = stale_note(used)
+        if note is not None:  # some cells resumed from a run of other code
+            doc["note"] = note
         return {
             "attribution.json": lambda p: p.write_text(json.dumps(doc, indent=2) + "\n"),
             "attribution.md": lambda p: p.write_text(attribution_table(doc)),
@@ -273,4 +279,6 @@ def attribution_table(doc: dict[str, Any]) -> str:
                     f"{share:.0%}" if share is not None else "",
                 ]
             lines.append(f"| {seq} | {trk} | " + " | ".join(cells) + " |")
+    if doc.get("note"):
+        lines += ["", doc["note"]]
     return "\n".join(lines) + "\n"

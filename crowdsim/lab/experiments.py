@@ -13,7 +13,9 @@ OC-SORT at two detector miss rates), ``crowdsim ablation`` paper 1's Table 3 row
    Ray), recording each finished cell in ``OUT/cells.json`` -- a killed run loses no finished
    cell and a rerun resumes. Each cell is stored with a SHA-256 of its key and figures
    (:func:`seal_cell`): a cell edited by hand or damaged is refused, naming it, before any work
-   (:func:`read_cells`), so a table never prints a figure no tracker measured;
+   (:func:`read_cells`), so a table never prints a figure no tracker measured. A cell also
+   holds the digest of the code that measured it (:func:`code_digest`); the table says how
+   many of its cells an earlier run measured with other code (a resume across releases);
 3. write ``table.md`` and ``table.csv`` (our figures beside the papers' where they report
    one), one accuracy-versus-threshold PNG per sequence, and return the table text. The
    files' digests go to ``OUT/outputs.json`` (:data:`OUTPUTS_FILE`), and a run refuses,
@@ -26,6 +28,7 @@ A cell tracks with :func:`tracker.runner.run_tracker` and scores with every metr
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import json
 import os
@@ -245,6 +248,48 @@ def _has_cells(folder: Path) -> bool:
 CHECKSUM = "sha256"
 """The field of a stored cell holding :func:`cell_checksum`."""
 
+CODE = "code"
+"""The field of a stored cell holding the :func:`code_digest` of the run that measured it."""
+
+CODE_PACKAGES = ("tracker", "crowdsim.lab")
+"""The packages a cell's figures come from: the trackers and their metrics, and how a cell
+runs and scores them (the frames are the sequence's, keyed by its spec)."""
+
+
+@functools.lru_cache(maxsize=1)
+def code_digest() -> str:
+    """SHA-256 (12 hex digits) of every Python file of :data:`CODE_PACKAGES`, path and
+    content: another release's trackers, or an edited one, give another digest.
+
+    A cell's key holds the tracker's parameters, not its code, so that a rerun resumes the
+    cells of an earlier one; this digest, stored in each cell, lets the table say when some of
+    them were measured by other code (:func:`stale_note`).
+    """
+    import hashlib
+    import importlib
+
+    h = hashlib.sha256()
+    for name in CODE_PACKAGES:
+        root = Path(importlib.import_module(name).__file__).parent
+        for path in sorted(root.rglob("*.py")):
+            h.update(f"{name}:{path.relative_to(root).as_posix()}\0".encode())
+            h.update(path.read_bytes() + b"\0")
+    return h.hexdigest()[:12]
+
+
+def stale_note(cells: Sequence[dict[str, Any]]) -> str | None:
+    """The table's note on ``cells`` measured by other code than this run's (resumed from an
+    earlier run, :func:`code_digest`); ``None`` when every one is this code's."""
+    now = code_digest()
+    stale = sum(1 for c in cells if c.get(CODE) != now)
+    if not stale:
+        return None
+    return (
+        f"Note: {stale} of {len(cells)} cells were measured by an earlier run with other "
+        f"tracker code than this run's ({now}), and resumed from cells.json: delete their "
+        "entries there (or the file) to measure them again with this code."
+    )
+
 
 def cell_checksum(key: str, cell: dict[str, Any]) -> str:
     """SHA-256 of a cell's key and figures (its own checksum field left out).
@@ -320,8 +365,10 @@ def run_sealed_cell(
     frames: int | None,
     detections: DetectionParams | DetectorParams | None = None,
 ) -> dict[str, Any]:
-    """One job of :func:`run_table`: :func:`run_cell`, sealed under ``key``."""
-    return seal_cell(key, run_cell(seq_dir, tracker, overrides, frames, detections))
+    """One job of :func:`run_table`: :func:`run_cell` with this code's :func:`code_digest`,
+    sealed under ``key``."""
+    cell = run_cell(seq_dir, tracker, overrides, frames, detections)
+    return seal_cell(key, {**cell, CODE: code_digest()})
 
 
 def takes_detections(tracker: str) -> bool:
@@ -689,6 +736,9 @@ def run_table(
     cells = {cell: done[key] for cell, key in keys.items()}
     names = [s.name for s in specs]
     text = format_table(rows, names, cells, paper, paper_table, title, mean=mean)
+    note = stale_note(list(cells.values()))
+    if note is not None:
+        text += f"\n{note}\n"
     csv_text = table_csv(rows, names, cells, paper, paper_table)
     outputs: dict[str, Callable[[Path], object]] = {
         "table.md": lambda p: p.write_text(text),

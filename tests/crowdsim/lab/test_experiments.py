@@ -58,6 +58,54 @@ def test_table_cells_files_and_resume(tmp_path, monkeypatch):
     assert again == text
 
 
+def test_cells_resumed_from_other_code_are_named_in_the_table(tmp_path, monkeypatch):
+    """A cell holds the digest of the code that measured it; a rerun with other code (another
+    release) still resumes it, but the table says how many of its cells came from that code."""
+    out = tmp_path / "t"
+    quiet = {"progress": False, "log": lambda m: None}
+    text = run_table(ROWS, [tiny("a")], out, **quiet)
+    cells = json.loads((out / "cells.json").read_text())["cells"]
+    assert {c[experiments.CODE] for c in cells.values()} == {experiments.code_digest()}
+    assert "Note:" not in text
+    monkeypatch.setattr(experiments, "code_digest", lambda: "0123456789ab")
+    monkeypatch.setattr(experiments, "run_cell", lambda *a: pytest.fail("cell rerun"))
+    again = run_table(ROWS, [tiny("a")], out, **quiet)
+    note = (
+        "Note: 2 of 2 cells were measured by an earlier run with other tracker code than "
+        "this run's (0123456789ab), and resumed from cells.json"
+    )
+    assert again.startswith(text) and note in again
+    assert note in (out / "table.md").read_text()
+
+
+def test_the_code_digest_changes_with_any_python_file_of_the_packages(tmp_path, monkeypatch):
+    """Every Python file, by path and content, and nothing else (compiled files)."""
+    pkg = tmp_path / "codepkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "mod.py").write_text("X = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(experiments, "CODE_PACKAGES", ("codepkg",))
+
+    def digest():
+        experiments.code_digest.cache_clear()
+        return experiments.code_digest()
+
+    try:
+        first = digest()
+        assert len(first) == 12 and digest() == first
+        (pkg / "sub" / "__pycache__").mkdir()
+        (pkg / "sub" / "__pycache__" / "mod.cpython-311.pyc").write_bytes(b"\0")
+        assert digest() == first
+        (pkg / "sub" / "mod.py").write_text("X = 2\n")
+        edited = digest()
+        assert edited != first
+        (pkg / "sub" / "mod.py").rename(pkg / "sub" / "other.py")
+        assert digest() not in (first, edited)
+    finally:
+        experiments.code_digest.cache_clear()
+
+
 def test_frames_at_or_past_a_sequences_length_resume_the_whole_sequences_cells(
     tmp_path, monkeypatch
 ):
