@@ -52,7 +52,7 @@ from crowdsim.forces import BodyRows, WallGrid, contact_space, social_force
 from crowdsim.params import SocialForceParams
 from crowdsim.scenarios import MAX_SPEED, Scenario
 from crowdsim.trajectories import Trajectories, TrajectoryRecorder
-from crowdsim.world import WALKERS, AgentBatch, RouteTable
+from crowdsim.world import WALKERS, AgentBatch, RouteTable, first_wall_overlap
 
 MAX_RADIUS = 1.0
 """Largest body radius :meth:`Simulation.add_agents` takes, m (a wheelchair or a pram with
@@ -346,8 +346,13 @@ class Simulation:
     ) -> np.ndarray:
         """Add agents at once (between steps); return their new ids ``(m,)`` int64.
 
-        Ids continue from :attr:`n_total` and are never reused. Nothing checks that the
-        new bodies are clear of others (pymunk pushes overlapping bodies apart).
+        Ids continue from :attr:`n_total` and are never reused. A body that crosses a wall
+        (its centre nearer a wall segment's centre line than its radius) raises
+        ``ValueError`` naming the row and the wall: pymunk had pushed it out on either side,
+        often outside the walls. A body wholly on the far side of a wall is taken (the world
+        has no notion of its walkable area: a station's arrivals walk outside its walls).
+        Nothing checks that the new bodies are clear of others (pymunk pushes overlapping
+        bodies apart).
 
         Parameters
         ----------
@@ -377,6 +382,7 @@ class Simulation:
                 f"add_agents.desired_speed must be in [0, {MAX_SPEED}] m/s, got {speed}"
             )
         self._require_inside(pos, "add_agents.pos")
+        self._require_clear_of_walls(pos, radius, "add_agents.pos")
         n_routes = len(self.routes.length)
         if m and not ((routes >= 0).all() and (routes < n_routes).all()):
             raise ValueError(f"add_agents.route must be in [0, {n_routes}), got {routes}")
@@ -414,6 +420,23 @@ class Simulation:
                 f"{name}[{i}] = ({pos[i, 0]:g}, {pos[i, 1]:g}) m lies outside the world "
                 f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g} m; a step removes agents more "
                 "than 1 m beyond it)"
+            )
+
+    def _require_clear_of_walls(self, pos: np.ndarray, radius: np.ndarray, name: str) -> None:
+        """Refuse a body that crosses a wall (its centre nearer a wall's centre line than its
+        radius): pymunk pushes it out on either side, outside the walkable area as often as
+        not. A periodic world checks x on ``[0, period)``, where the body will be."""
+        at = pos
+        if self.world.period > 0:
+            at = np.column_stack([pos[:, 0] % self.world.period, pos[:, 1]])
+        hit = first_wall_overlap(at, radius, self.world.walls)
+        if hit is not None:
+            i, j, d = hit
+            x0, y0, x1, y1 = self.world.walls[j, :4]
+            raise ValueError(
+                f"{name}[{i}] = ({pos[i, 0]:g}, {pos[i, 1]:g}) m overlaps the wall from "
+                f"({x0:g}, {y0:g}) to ({x1:g}, {y1:g}) m: its centre is {d:.3f} m from it, "
+                f"less than its radius {radius[i]:g} m"
             )
 
     def remove_agents(self, ids: np.ndarray) -> None:
@@ -455,7 +478,11 @@ class Simulation:
 
     def set_state(self, pos: np.ndarray | None = None, vel: np.ndarray | None = None) -> None:
         """Overwrite positions ``(n, 2)`` m and/or velocities ``(n, 2)`` m/s of the present
-        agents (in :attr:`state` order), e.g. to build a hand-made scene."""
+        agents (in :attr:`state` order), e.g. to build a hand-made scene.
+
+        Unlike :meth:`add_agents`, nothing checks the walls: a scene may press a body into
+        one on purpose.
+        """
         n = self.state.n
         given = {}
         for name, value in (("pos", pos), ("vel", vel)):

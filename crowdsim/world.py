@@ -42,6 +42,38 @@ def arc(cx: float, cy: float, r: float, a0: float, a1: float, n: int) -> np.ndar
     return np.column_stack([cx + r * np.cos(a), cy + r * np.sin(a)])
 
 
+def first_wall_overlap(
+    pos: np.ndarray, radius: np.ndarray, walls: np.ndarray, chunk: int = 1 << 20
+) -> tuple[int, int, float] | None:
+    """The first disc that crosses a wall: ``(agent row, wall row, distance m)`` or None.
+
+    A disc of ``radius (n,)`` at ``pos (n, 2)`` crosses a wall ``(m, 5)`` when its centre
+    lies less than its radius from the wall's centre line (the segment ``x0, y0, x1, y1``);
+    the wall row is the nearest one to that disc. Vectorised over agents x walls, ``chunk``
+    point-segment distances at a time.
+    """
+    n, m = len(pos), len(walls)
+    if n == 0 or m == 0:
+        return None
+    a = walls[:, 0:2]
+    u = walls[:, 2:4] - a
+    len2 = np.einsum("ij,ij->i", u, u)
+    inv = np.divide(1.0, len2, out=np.zeros(m), where=len2 > 0)  # a point wall: t = 0
+    step = max(1, chunk // m)
+    for lo in range(0, n, step):
+        p = pos[lo : lo + step]
+        dx = p[:, 0, None] - a[:, 0]
+        dy = p[:, 1, None] - a[:, 1]
+        t = np.clip((dx * u[:, 0] + dy * u[:, 1]) * inv, 0.0, 1.0)
+        d = np.hypot(dx - t * u[:, 0], dy - t * u[:, 1])
+        hit = (d < radius[lo : lo + step, None]).any(axis=1)
+        if hit.any():
+            i = int(np.flatnonzero(hit)[0])
+            j = int(np.argmin(d[i]))
+            return lo + i, j, float(d[i, j])
+    return None
+
+
 @dataclass(frozen=True)
 class World:
     """Static scene.

@@ -34,6 +34,20 @@ api_case(
     _sim(lambda s: s.set_state(pos=np.full((s.state.n, 2), 1e6))),
     "set_state.pos[0] = (1e+06, 1e+06) m lies outside the world",
 )
+# a body placed across a wall was pushed out on either side: people walked outside the
+# corridor (y = -1.2 and 7.2) with no error
+api_case(
+    "api-sim-add-on-wall",
+    _sim(lambda s: s.add_agents([[1, 1], [3, -0.1]])),
+    "add_agents.pos[1] = (3, -0.1) m overlaps the wall from (-4, 0) to (8, 0) m"
+    "&&less than its radius 0.225 m",
+)
+api_case(
+    "api-sim-add-wide-body-on-wall",
+    _sim(lambda s: s.add_agents([[2, 5.5]], radius=0.8)),
+    "add_agents.pos[0] = (2, 5.5) m overlaps the wall from (-4, 6) to (8, 6) m"
+    "&&less than its radius 0.8 m",
+)
 api_case(
     "api-sim-route-float", _sim(lambda s: s.add_agents([[1, 1]], route=1.5)), "route must be whole"
 )

@@ -148,6 +148,53 @@ def test_add_remove_query_round_trip_and_ids_never_reused():
     assert np.isnan(traj.positions[-1, traj.ids.tolist().index(10)]).all()
 
 
+def test_a_body_across_a_wall_is_refused_and_nothing_is_added():
+    """A body placed across a corridor wall had been pushed out of the corridor by pymunk
+    (to y = -1.2 and 7.2) in silence."""
+    sc = make_scenario("counterflow", n_agents=5, inflow=False)
+    sim = Simulation(sc, seed=0)
+    before, n_total = sim.state.pos.copy(), sim.n_total
+    for pos, radius in (([3.0, 0.0], 0.2), ([3.0, -0.1], 0.2), ([2.0, 5.5], 0.8)):
+        with pytest.raises(ValueError, match=r"add_agents.pos\[1\] = .* overlaps the wall"):
+            sim.add_agents([[1.0, 1.0], pos], radius=radius)
+    assert sim.n_total == n_total
+    np.testing.assert_array_equal(sim.state.pos, before)
+    # touching the wall's thickness, or wholly beyond it, is taken
+    ids = sim.add_agents([[3.0, 0.21], [4.0, -0.5]], radius=0.2)
+    np.testing.assert_array_equal(sim.state.pos[sim.index_of(ids)], [[3.0, 0.21], [4.0, -0.5]])
+    # a periodic world checks x where the body will be, on [0, period)
+    sim = Simulation(make_scenario("counterflow", n_agents=5, periodic=True), seed=0)
+    with pytest.raises(ValueError, match=r"pos\[0\] = .* overlaps the wall from \(-1, 6\)"):
+        sim.add_agents([[sim.world.period + 0.5, 5.9]])
+
+
+def test_first_wall_overlap_matches_brute_force_in_any_chunk():
+    from crowdsim.world import first_wall_overlap
+
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        m, n = int(rng.integers(1, 12)), int(rng.integers(1, 40))
+        walls = np.column_stack([rng.uniform(0, 10, (m, 4)), np.full(m, 0.05)])
+        walls[0, 2:4] = walls[0, :2]  # a wall of one point
+        pos, radius = rng.uniform(0, 10, (n, 2)), rng.uniform(0.1, 1.0, n)
+        a, u = walls[:, :2], walls[:, 2:4] - walls[:, :2]
+        want = None
+        for i in range(n):
+            d = []
+            for j in range(m):
+                len2 = u[j] @ u[j]
+                t = min(1.0, max(0.0, (pos[i] - a[j]) @ u[j] / len2)) if len2 else 0.0
+                d.append(float(np.hypot(*(pos[i] - a[j] - t * u[j]))))
+            if min(d) < radius[i]:
+                want = (i, int(np.argmin(d)), min(d))
+                break
+        for chunk in (1, 5, 1 << 20):
+            got = first_wall_overlap(pos, radius, walls, chunk=chunk)
+            assert (got is None) == (want is None)
+            if got is not None:
+                assert got[:2] == want[:2] and got[2] == pytest.approx(want[2], abs=1e-12)
+
+
 def test_bad_control_input_is_refused():
     sim = two_groups()
     with pytest.raises(ValueError, match="shape"):
