@@ -228,19 +228,23 @@ def publish_tmp_dir(tmp: Path, out_dir: Path, overwrite: bool = False) -> None:
         old = out_dir.parent / f"{OLD_PREFIX}{out_dir.name}-{os.getpid()}-{secrets.token_hex(4)}"
     # Ctrl-C or SIGTERM waits until the name holds a whole sequence (SIGKILL cannot be held:
     # clean_stale_tmp puts back what it leaves)
-    with signals_held():
-        if old is not None:
-            os.replace(out_dir, old)
-            try:
+    published = False
+    try:
+        with signals_held():
+            if old is not None:
+                os.replace(out_dir, old)
+                try:
+                    os.replace(tmp, out_dir)
+                except BaseException:
+                    os.replace(old, out_dir)  # the name keeps the sequence it had
+                    raise
+            else:
                 os.replace(tmp, out_dir)
-            except BaseException:
-                os.replace(old, out_dir)  # the name keeps the sequence it had
-                raise
-        else:
-            os.replace(tmp, out_dir)
-        (out_dir / TMP_MARKER).unlink(missing_ok=True)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)  # a kill here: clean_stale_tmp removes the rest
+            (out_dir / TMP_MARKER).unlink(missing_ok=True)
+            published = True
+    finally:  # the held signal is raised as the block ends: the old sequence goes all the same
+        if published and old is not None:
+            shutil.rmtree(old, ignore_errors=True)  # a kill here: clean_stale_tmp removes the rest
 
 
 def write_sequence(

@@ -8,7 +8,9 @@ Frame size and scale default to fitting the trajectories' extent (scale: the tem
 :func:`synth_data.writer.write_sequence`: into a temporary sibling folder whose marker file,
 written first, proves it is ours, then renamed into place. A temporary folder left by a killed
 render is removed by the next render into the same parent folder (only when its marker names a
-dead process of this host); SIGINT and SIGTERM remove it at once and say so in one line.
+dead process of this host); SIGINT and SIGTERM remove it at once and say so in one line (one
+that lands while the finished sequence is renamed into place waits for it, and the line says
+the sequence was written whole).
 
 Exit codes: 0 done; 2 a user or file-system error (one line naming the flag, file or value);
 130 SIGINT and 143 SIGTERM (see :func:`crowdsim.cli.main`).
@@ -262,6 +264,7 @@ def run(args: argparse.Namespace) -> int:
             str(int(m)): int(i) for m, i in zip(mot_ids(traj.ids), traj.ids, strict=True)
         }
     out.parent.mkdir(parents=True, exist_ok=True)
+    before = out.stat().st_ino if out.is_dir() else None  # an --overwrite's old sequence
     try:
         with progress_bar(total=traj.n_steps, unit="frame", desc="rendering") as bar:
             entry = write_sequence(
@@ -276,7 +279,13 @@ def run(args: argparse.Namespace) -> int:
                 progress=bar.update,
             )
     except KeyboardInterrupt as exc:  # crowdsim.jobs.Interrupted: SIGINT or SIGTERM
-        exc.detail = f"removed the unfinished temporary folder of {out}"
+        # a signal during the renames is held until the sequence has its name: then it is whole
+        published = out.is_dir() and out.stat().st_ino != before
+        exc.detail = (
+            f"the sequence was written whole first: {out}"
+            if published
+            else f"removed the unfinished temporary folder of {out}"
+        )
         raise
     except OSError as exc:  # name --out, not the hidden temporary folder (or nothing)
         name = "" if exc.filename is None else Path(os.fsdecode(exc.filename)).name

@@ -317,6 +317,38 @@ def test_ctrl_c_while_overwrite_swaps_the_folders_waits_for_a_whole_sequence(tmp
     assert not_ours(seq) is None
 
 
+def test_a_sigterm_held_while_the_sequence_is_renamed_in_says_it_is_whole(
+    tmp_path, capsys, monkeypatch
+):
+    """Seen by injection: a SIGTERM held while the finished sequence was renamed into place is
+    raised once it has its name. The line said the unfinished temporary folder was removed
+    (the sequence was whole, and the rerun then refused it as existing), and with
+    ``--overwrite`` the old sequence was left beside it, renamed aside and hidden."""
+    import os
+    import signal
+
+    from synth_data import writer
+    from synth_data.mot import not_ours
+
+    seq = tmp_path / "seq"
+    real = os.replace
+
+    def replace_then_sigterm(src, dst):
+        real(src, dst)
+        if os.path.basename(src).startswith(writer.TMP_PREFIX):
+            os.kill(os.getpid(), signal.SIGTERM)  # a real one, held until the block ends
+
+    monkeypatch.setattr(writer.os, "replace", replace_then_sigterm)
+    for extra in ((), ("--overwrite",)):
+        assert _main(_render_argv(tmp_path, *extra, "--out", str(seq))) == 143
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [
+            f"crowdsim render: interrupted by SIGTERM; the sequence was written whole first: {seq}"
+        ]
+        assert not_ours(seq) is None
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["seq", "walk.csv"]
+
+
 def test_a_sequence_a_killed_overwrite_moved_aside_gets_its_name_back(tmp_path, capsys):
     """SIGKILL (which cannot be held) between the two renames leaves the old sequence under a
     hidden name: the next render puts it back; one killed after the swap leaves it beside
