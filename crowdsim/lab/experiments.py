@@ -251,26 +251,29 @@ CHECKSUM = "sha256"
 CODE = "code"
 """The field of a stored cell holding the :func:`code_digest` of the run that measured it."""
 
-CODE_PACKAGES = ("tracker", "crowdsim.lab")
-"""The packages a cell's figures come from: the trackers and their metrics, and how a cell
-runs and scores them (the frames are the sequence's, keyed by its spec)."""
+
+def code_roots() -> dict[str, Path]:
+    """The packages a cell's figures come from, name -> folder: the trackers and their
+    metrics, and how a cell runs and scores them (the frames are the sequence's, keyed by its
+    spec)."""
+    import tracker
+
+    return {"tracker": Path(tracker.__file__).parent, "crowdsim.lab": Path(__file__).parent}
 
 
 @functools.lru_cache(maxsize=1)
 def code_digest() -> str:
-    """SHA-256 (12 hex digits) of every Python file of :data:`CODE_PACKAGES`, path and
-    content: another release's trackers, or an edited one, give another digest.
+    """SHA-256 (12 hex digits) of every Python file of :func:`code_roots`, path and content:
+    another release's trackers, or an edited one, give another digest.
 
     A cell's key holds the tracker's parameters, not its code, so that a rerun resumes the
     cells of an earlier one; this digest, stored in each cell, lets the table say when some of
     them were measured by other code (:func:`stale_note`).
     """
     import hashlib
-    import importlib
 
     h = hashlib.sha256()
-    for name in CODE_PACKAGES:
-        root = Path(importlib.import_module(name).__file__).parent
+    for name, root in code_roots().items():
         for path in sorted(root.rglob("*.py")):
             h.update(f"{name}:{path.relative_to(root).as_posix()}\0".encode())
             h.update(path.read_bytes() + b"\0")

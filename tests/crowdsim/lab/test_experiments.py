@@ -84,8 +84,7 @@ def test_the_code_digest_changes_with_any_python_file_of_the_packages(tmp_path, 
     (pkg / "sub").mkdir(parents=True)
     (pkg / "__init__.py").write_text("")
     (pkg / "sub" / "mod.py").write_text("X = 1\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setattr(experiments, "CODE_PACKAGES", ("codepkg",))
+    monkeypatch.setattr(experiments, "code_roots", lambda: {"codepkg": pkg})
 
     def digest():
         experiments.code_digest.cache_clear()
