@@ -33,9 +33,10 @@ import json
 import os
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 
 def _umask() -> int:
@@ -222,6 +223,16 @@ def sha256_file(path: str | os.PathLike[str]) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def hash_sources(h: Any, packages: Mapping[str, Path], recursive: bool = False) -> None:
+    """Feed the hashlib object ``h`` every Python file of ``packages`` (name -> folder), its
+    path and its content, in a fixed order; ``recursive`` takes the sub-packages' files too.
+    What keys work to the code that did it (the episode cache, a table's cells)."""
+    for name, root in packages.items():
+        for path in sorted(root.rglob("*.py") if recursive else root.glob("*.py")):
+            h.update(f"{name}/{path.relative_to(root).as_posix()}\0".encode())
+            h.update(path.read_bytes())
 
 
 OVERWRITE_HELP: str = (

@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from crowdsim.atomic import hash_sources
 from crowdsim.checks import require_number, require_sequences
 
 DEFAULT_SCENARIOS: tuple[str, ...] = (
@@ -550,11 +551,7 @@ def code_digest() -> str:
     import synth_data
 
     h = hashlib.sha256()
-    for pkg in (crowdsim, synth_data):
-        root = Path(pkg.__file__).parent
-        for p in sorted(root.glob("*.py")):
-            h.update(f"{pkg.__name__}/{p.name}\0".encode())
-            h.update(p.read_bytes())
+    hash_sources(h, {pkg.__name__: Path(pkg.__file__).parent for pkg in (crowdsim, synth_data)})
     h.update(f"numpy {np.__version__} cv2 {cv2.__version__} pymunk {pymunk.version}".encode())
     for dist in ("numba", "scipy", "av"):
         try:

@@ -272,11 +272,10 @@ def code_digest() -> str:
     """
     import hashlib
 
+    from crowdsim.atomic import hash_sources
+
     h = hashlib.sha256()
-    for name, root in code_roots().items():
-        for path in sorted(root.rglob("*.py")):
-            h.update(f"{name}:{path.relative_to(root).as_posix()}\0".encode())
-            h.update(path.read_bytes() + b"\0")
+    hash_sources(h, code_roots(), recursive=True)
     return h.hexdigest()[:12]
 
 
