@@ -551,6 +551,9 @@ class SceneRenderer:
         Seed of the ground, sprite colours, illumination, flicker, shadows and noise.
     fps : float
         Frames per second (sets the illumination drift and the moving shadows' speed).
+    events : sequence of Event, optional
+        Scheduled changes (:mod:`crowdsim.events`); the renderer applies the ``lighting``
+        and ``noise`` ones (a ``shake`` burst lives in the camera, which the truth shares).
     """
 
     def __init__(

@@ -2,7 +2,7 @@
 
 Each scenario is a frozen dataclass; ``build(rng)`` returns a :class:`Setup` (geometry,
 routes, initial agents, sources). Sizes follow the agent count and the density, so any
-scenario runs from 1 to 100,000 agents::
+scenario runs from 1 to :data:`MAX_AGENTS` (1,000,000) agents::
 
     >>> sc = make_scenario("counterflow", n_agents=40, density=1.0)
     >>> setup = sc.build(np.random.default_rng(0))

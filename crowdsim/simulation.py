@@ -6,8 +6,9 @@ One step:
 2. sources add agents (Poisson, only where they do not overlap anybody);
 3. agents under control (the hook below) get ``v0_i e_i`` replaced by a given velocity;
 4. :func:`crowdsim.forces.social_force` computes every agent's acceleration at once;
-5. the forces go to pymunk with ``pymunk.batch.set_space_bodies`` and pymunk integrates one
-   step, resolving body contacts (one circle per agent, walls as static segments);
+5. the forces go to pymunk with ``pymunk.batch.set_space_bodies`` and pymunk integrates the
+   step in :attr:`SocialForceParams.substeps` sub-steps with the forces held fixed, resolving
+   body contacts (one circle per agent, walls as static segments);
 6. positions and velocities come back with ``pymunk.batch.get_space_bodies``.
 
 Control and life cycle (what an environment that drives some agents needs, after JuPedSim):

@@ -538,10 +538,11 @@ DAMAGED_DIR = "damaged"
 
 @functools.cache
 def code_digest() -> str:
-    """SHA-256 of what makes an episode's frames: the source of ``crowdsim``'s modules and of
-    ``synth_data``, and the versions of numpy, OpenCV (its JPEG), pymunk, numba (the force
-    kernels), SciPy (the spawn's k-d trees) and PyAV (its libx264 makes the H.264 bytes). An
-    entry made by other code is another key, so an upgrade never reads a stale episode."""
+    """SHA-256 of what makes an episode's frames: the source of ``crowdsim``'s and
+    ``synth_data``'s top-level modules (not their sub-packages), and the versions of numpy,
+    OpenCV (its JPEG), pymunk, numba (the force kernels), SciPy (the spawn's k-d trees) and
+    PyAV (its libx264 makes the H.264 bytes). An entry made by other code is another key, so
+    an upgrade never reads a stale episode."""
     from importlib import metadata
 
     import cv2

@@ -171,7 +171,9 @@ def generate(
     Raises
     ------
     ValueError
-        Bad arguments (duplicate names, workers < 1, unknown backend, Ray missing).
+        Bad arguments (duplicate names, ``workers`` outside ``[1, os.cpu_count()]`` locally
+        or ``[1, 256]`` on Ray, unknown backend, Ray missing), or, with ``overwrite``, a
+        folder to replace that crowdsim cannot prove it wrote.
     FileExistsError
         A sequence folder exists but does not match, and ``overwrite`` is False.
     GenerationError

@@ -1,12 +1,12 @@
 """Flags shared by the commands that fan work out (one place, one wording).
 
 :func:`add_jobs_arguments`: ``--workers``, ``--backend``, ``--address`` of the jobs runner
-(:mod:`crowdsim.jobs`), for ``generate``, ``compare`` and ``ablation``;
-:func:`add_table_arguments`: everything ``compare`` and ``ablation`` take;
+(:mod:`crowdsim.jobs`), for ``generate`` and the table commands;
+:func:`add_table_arguments`: everything ``compare``, ``ablation`` and ``difficulty`` take;
 :func:`add_episode_arguments` / :func:`episode_objective`: the sequences ``tune``,
-``heldout`` and ``headroom`` score on; :func:`add_tracker_argument`: their ``--tracker``;
-:func:`add_episode_cache_arguments` / :func:`episode_cache_kwargs`: the episode cache of
-``train`` and ``bench envs``.
+``heldout`` and ``headroom`` score on; :func:`add_tracker_argument`: their ``--tracker``
+(and ``train``'s); :func:`add_episode_cache_arguments` / :func:`episode_cache_kwargs`: the
+episode cache of ``train``.
 """
 
 from __future__ import annotations

@@ -123,7 +123,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--template-size",
         type=int,
         default=None,
-        help=f"template (head) size in px, 2..{MAX_TEMPLATE_PX} (default: from seqinfo.ini, or 12)",
+        help=f"template (head) size in px, 2..{MAX_TEMPLATE_PX} (default: seqinfo.ini's "
+        "templateSize, else the median ground-truth box width, else 12)",
     )
     p.add_argument("--frames", type=int, default=None, help="track only the first N frames")
     p.add_argument(

@@ -2,7 +2,8 @@
 
 :func:`run_table` runs rows over every sequence of a suite: ``crowdsim compare`` the rows of
 :data:`COMPARE_ROWS` (NCC, mean-shift, PNMC, BQP with KCF and with NCC appearance, ByteTrack and
-OC-SORT at two detector miss rates), ``crowdsim ablation`` paper 1's Table 3 rows
+OC-SORT at two simulated detector miss rates and on the trained head detector), ``crowdsim
+ablation`` paper 1's Table 3 rows
 (:func:`ablation_rows`, from :mod:`tracker.bqp.ablation`). Both:
 
 1. generate the suite's sequences into ``OUT/sequences`` (:func:`synth_data.generate.generate`,
@@ -600,7 +601,7 @@ def run_table(
         with ``sequences``.
     out : path
         Output folder: ``sequences/`` (not with ``sequences``), ``cells.json``, ``table.md``,
-        ``table.csv``, ``curves/<sequence>.png``.
+        ``table.csv``, ``curves/<sequence>.png`` and :data:`OUTPUTS_FILE`.
     sequences : path, optional
         Instead of a suite: a folder of the user's MOT sequence folders, or one itself
         (:func:`user_sequences`), tracked where they are (nothing is generated or written
