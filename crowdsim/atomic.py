@@ -462,8 +462,15 @@ def recorded(*paths: str | os.PathLike[str]) -> Iterator[None]:
     were checked with :func:`require_replaceable` before the work, so whatever changed there
     is this run's, but for a file that appeared there (or changed) since the check and
     that this run did not write: a user's, never noted. The notes are taken with the
-    signals held (:func:`signals_held`)."""
+    signals held (:func:`signals_held`).
+
+    A checked output that appeared or changed since the check is refused on entry
+    (:func:`require_unchanged`), before any is written: else a second run with other
+    settings into the same files (checked while the first rewrote them) replaced the first
+    output and was refused at the second, leaving one run's trajectories beside the other's
+    plot."""
     files = [Path(p) for p in paths]
+    require_unchanged(*files)
     before = [_stamp(p) for p in files]
     try:
         yield

@@ -289,7 +289,8 @@ def run(args: argparse.Namespace) -> int:
         raise
     except OSError as exc:  # name --out, not the hidden temporary folder (or nothing)
         name = "" if exc.filename is None else Path(os.fsdecode(exc.filename)).name
-        if exc.filename is None or name.startswith(".crowdsim-tmp-"):
+        # an error of our own (no errno: its message names the folder already) is left alone
+        if exc.errno is not None and (exc.filename is None or name.startswith(".crowdsim-tmp-")):
             raise type(exc)(exc.errno, exc.strerror or str(exc), str(out)) from None
         raise
     print(

@@ -360,3 +360,30 @@ def test_a_sigterm_landing_as_recorded_starts_noting_still_notes_the_files(tmp_p
             monkeypatch.setattr(signal, "getsignal", landing)
     monkeypatch.undo()
     assert sent and require_replaceable("--out", out) == out
+
+
+def test_a_run_whose_second_output_changed_since_the_check_writes_neither(tmp_path):
+    """Seen racing two ``simulate --out o.npz --plot o.png`` with other seeds over a first
+    run's files: one checked them while the other rewrote them (its ``o.npz`` the same bytes,
+    so still vouched for by the ledger, its ``o.png`` not yet rewritten); it then replaced
+    ``o.npz`` with its own and was refused at ``o.png``: one run's trajectories beside the
+    other's plot. It is refused before it writes either."""
+    import os
+
+    from crowdsim.atomic import recorded
+
+    npz, png = tmp_path / "o.npz", tmp_path / "o.png"
+    require_replaceable("--out", npz)
+    require_replaceable("--plot", png)
+    with recorded(npz, png):  # the first run
+        write_text_atomic(npz, "seed 0")
+        write_text_atomic(png, "seed 0")
+    require_replaceable("--out", npz)  # the run with other settings checks ...
+    require_replaceable("--plot", png)
+    (tmp_path / "other").write_text("seed 0")  # ... while the other run rewrites the plot
+    os.replace(tmp_path / "other", png)
+    with pytest.raises(FileExistsError, match="o.png: a file appeared there"):
+        with recorded(npz, png):
+            write_text_atomic(npz, "seed 1")
+            write_text_atomic(png, "seed 1")
+    assert (npz.read_text(), png.read_text()) == ("seed 0", "seed 0")

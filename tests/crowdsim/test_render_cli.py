@@ -428,3 +428,33 @@ def test_render_video_with_odd_size_is_refused_before_any_work(tmp_path, capsys)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.csv"]
     assert _main([*base, "--size", "161x121"]) == 0  # images alone take any size
     assert read_sequence(out).width == 161
+
+
+def test_a_sequence_another_render_published_meanwhile_is_refused_in_one_line(
+    tmp_path, capsys, monkeypatch
+):
+    """Seen racing two ``render --out`` into one new folder: the one that finished second
+    found the other's sequence at the name and ended with a garbled line (its own message
+    wrapped as an ``OSError`` with ``[Errno None]`` and the path twice). It says in one line
+    that the folder exists, exit 2, and the other's sequence is kept."""
+    import shutil
+
+    from synth_data import writer
+    from synth_data.mot import not_ours
+
+    seq, other = tmp_path / "seq", tmp_path / "other"
+    assert _main(_render_argv(tmp_path, "--out", str(other))) == 0
+    real = writer.publish_tmp_dir
+
+    def other_run_publishes_first(tmp, out_dir, overwrite=False):
+        shutil.copytree(other, out_dir)  # the other run's sequence took the name meanwhile
+        return real(tmp, out_dir, overwrite)
+
+    monkeypatch.setattr(writer, "publish_tmp_dir", other_run_publishes_first)
+    capsys.readouterr()
+    assert _main(_render_argv(tmp_path, "--out", str(seq))) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"crowdsim render: error: {seq} already exists; pass --overwrite to replace it"
+    ]
+    assert not_ours(seq) is None
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["other", "seq", "walk.csv"]
