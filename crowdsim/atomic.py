@@ -228,7 +228,7 @@ def sha256_file(path: str | os.PathLike[str]) -> str:
 def hash_sources(h: Any, packages: Mapping[str, Path], recursive: bool = False) -> None:
     """Feed the hashlib object ``h`` every Python file of ``packages`` (name -> folder), its
     path and its content, in a fixed order; ``recursive`` takes the sub-packages' files too.
-    What keys work to the code that did it (the episode cache, a table's cells)."""
+    It ties work to the code that did it (the episode cache's keys, a table's cells)."""
     for name, root in packages.items():
         for path in sorted(root.rglob("*.py") if recursive else root.glob("*.py")):
             h.update(f"{name}/{path.relative_to(root).as_posix()}\0".encode())
