@@ -26,6 +26,7 @@ import scipy.fft
 from numba import njit, prange
 from numpy.lib.stride_tricks import sliding_window_view
 
+from crowdsim.checks import require_memory
 from tracker.threads import current_threads, in_chunks
 
 KCF_KERNELS: tuple[str, ...] = ("gaussian", "linear")
@@ -388,6 +389,12 @@ class AppearanceModel(ABC):
         """Refresh the models at the selected ``centers`` where ``confidence >= threshold``."""
 
 
+KCF_WORKING_SET = 3.5
+"""A KCF tracker's working set over its models' own bytes (``xf`` and ``alphaf``): the peak
+that ``tracemalloc`` saw during a BQP tracker's first step, models included, was 3.0-3.5
+times the models (50-400 targets, 64-256 px templates, 1920x1080 frames)."""
+
+
 class KCFAppearance(AppearanceModel):
     """Multi-channel linear correlation filter per target, batched in the Fourier domain.
 
@@ -524,6 +531,13 @@ class KCFAppearance(AppearanceModel):
         centers = np.asarray(centers).reshape(-1, 2)
         if len(centers) == 0:
             return
+        n, w = self.n + len(centers), self.window
+        # xf (3 channels) and alphaf, complex64 half spectra: refused before the first one
+        # (1,000 targets at 256 px take 3.9 GiB of models, and their steps about 12-14 GiB)
+        model = 4 * w * (w // 2 + 1) * np.dtype(np.complex64).itemsize
+        require_memory(
+            f"KCF appearance models of {n} targets ({w} px windows)", KCF_WORKING_SET * n * model
+        )
         xf = self._features(frame, centers, train=True)
         alphaf = self._train(xf)
         self.xf, self._xf_buf = _appended(self._xf_buf, self.xf, xf)

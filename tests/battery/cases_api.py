@@ -144,6 +144,27 @@ def _init_template(size: int):
 api_case("api-tracker-template-3000", _init_template(3000), "template_size must be an integer in")
 
 
+def _init_many(n: int, size: int):
+    def call(w: Path, env: Env) -> object:
+        from tracker.registry import make_tracker
+
+        frame = np.zeros((1080, 1920, 3), np.uint8)
+        points = np.column_stack([np.linspace(300, 1600, n), np.full(n, 540.0)])
+        return make_tracker("bqp").init(frame, np.arange(n), points, size)
+
+    return call
+
+
+# the KCF models of 2,000 heads at 256 px (8.4 GB, and a step three times that) were
+# allocated without a check: a MemoryError or the OOM killer would have said so mid-work
+api_case(
+    "api-tracker-kcf-memory",
+    _init_many(2000, 256),
+    "KCF appearance models of 2000 targets (512 px windows) needs about 27.5 GiB of memory, "
+    "more than the 12.0 GiB limit",
+)
+
+
 def _init_ids(ids):
     def call(w: Path, env: Env) -> object:
         from tracker.registry import make_tracker
